@@ -1,0 +1,80 @@
+"""Dietterich's taxi (Gymnasium's TaxiEnv) with a 1000-step limit and a one-hot observation.
+
+Observation (our choice, DESIGN.md): one-hot taxi row (5), taxi column (5), passenger location (4 stands
+or in the taxi: 5) and destination (4): 19 values. `info` carries the teacher rule's inputs: the Manhattan
+distance to the current target (the passenger before pick-up, the destination after) before and after the
+action, and `subgoal_reached` for a successful pick-up or drop-off.
+"""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.envs.toy_text.taxi import TaxiEnv as _GymTaxi
+
+MAX_STEPS = 1000
+OBS_DIM = 5 + 5 + 5 + 4
+
+
+class TaxiEnv(gym.Env):
+    metadata = {"render_modes": ["ansi"]}
+
+    def __init__(self, max_steps: int = MAX_STEPS):
+        self._env = _GymTaxi()
+        self.locs = self._env.locs
+        self.max_steps = max_steps
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(OBS_DIM,), dtype=np.float32)
+        self.action_space = gym.spaces.Discrete(6)
+        self.state = 0
+        self.steps = 0
+
+    def _decode(self, state: int) -> tuple[int, int, int, int]:
+        row, col, passenger, dest = self._env.decode(state)
+        return int(row), int(col), int(passenger), int(dest)
+
+    def _obs(self) -> np.ndarray:
+        row, col, passenger, dest = self._decode(self.state)
+        obs = np.zeros(OBS_DIM, dtype=np.float32)
+        obs[row] = 1.0
+        obs[5 + col] = 1.0
+        obs[10 + passenger] = 1.0
+        obs[15 + dest] = 1.0
+        return obs
+
+    def _target_distance(self, state: int, target_from: int | None = None) -> int:
+        """Distance from the taxi to the target that `target_from`'s passenger state implies."""
+        row, col, passenger, dest = self._decode(state)
+        ref_passenger = passenger if target_from is None else self._decode(target_from)[2]
+        ref_dest = dest
+        target = self.locs[ref_dest] if ref_passenger == 4 else self.locs[ref_passenger]
+        return abs(row - target[0]) + abs(col - target[1])
+
+    def reset(self, *, seed: int | None = None, options=None):
+        super().reset(seed=seed)
+        state, _ = self._env.reset(seed=seed)
+        self.state = int(state)
+        self.steps = 0
+        return self._obs(), {"target_distance": float(self._target_distance(self.state))}
+
+    def step(self, action: int):
+        if not 0 <= int(action) < 6:
+            raise ValueError(f"taxi action must be 0..5, got {action}")
+        before_state = self.state
+        before = self._target_distance(before_state)
+        state, reward, terminated, _, _ = self._env.step(int(action))
+        self.state = int(state)
+        self.steps += 1
+        truncated = not terminated and self.steps >= self.max_steps
+        # Distance after the move, to the target that was current before it (a pick-up changes the target).
+        after = self._target_distance(self.state, target_from=before_state)
+        picked_up = self._decode(before_state)[2] != 4 and self._decode(self.state)[2] == 4
+        info = {"target_distance_before": float(before), "target_distance_after": float(after),
+                "subgoal_reached": 1.0 if (picked_up or terminated) else 0.0}
+        return self._obs(), float(reward), bool(terminated), truncated, info
+
+    def render(self):
+        row, col, passenger, dest = self._decode(self.state)
+        grid = [["." for _ in range(5)] for _ in range(5)]
+        for i, (r, c) in enumerate(self.locs):
+            grid[r][c] = "RGYB"[i]
+        grid[row][col] = "T" if passenger != 4 else "P"
+        return "\n".join("".join(r) for r in grid) + f"\npassenger={'RGYB-'[passenger]} dest={'RGYB'[dest]}"
