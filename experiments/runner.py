@@ -50,9 +50,26 @@ class TrialResult:
         return np.array([e["return"] for e in self.episodes])
 
 
+def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 100) -> int | None:
+    """Steps the greedy policy of trial i needs to finish an episode on a fresh copy of its env
+    (None if it does not within `limit`). Learning and random streams are untouched."""
+    env, _ = make_env(spec.env, spec.layout)
+    obs = env.reset(seed=derive_seed(spec.seed, "greedy-eval") % (2**31))[0]
+    for k in range(1, limit + 1):
+        obs, _, term, trunc, _ = env.step(agent.greedy_action(i, obs))
+        if term:
+            return k
+        if trunc:
+            return None
+    return None
+
+
 def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] | None = None,
-               record_actions: bool = False) -> list[TrialResult]:
-    """Run every trial to its episode count; trials must share the environment kind."""
+               record_actions: bool = False, greedy_eval: bool = False) -> list[TrialResult]:
+    """Run every trial to its episode count; trials must share the environment kind.
+
+    `greedy_eval` adds `greedy_steps` to each episode record: the length of the greedy policy's path
+    after that episode (None if it does not reach the goal in 100 steps)."""
     if not specs:
         return []
     torch.set_num_threads(1)  # one thread: the same arithmetic whatever the batch, and room for workers
@@ -123,6 +140,8 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
                       "feedback_stale": int(ep_stale[i]),
                       "epsilon": agent.epsilon[i](int(agent.steps[i])),
                       "alpha_h": agent.alpha[i].alpha_h_at(int(agent.steps[i]))}
+            if greedy_eval:
+                record["greedy_steps"] = greedy_steps(agent, i, specs[i])
             results[i].episodes.append(record)
             if on_episode is not None:
                 on_episode(i, record)

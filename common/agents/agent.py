@@ -104,6 +104,16 @@ class TrialBatchAgent:
         aq, ah = self.mixture_weights()
         return (aq * self.q(x) + ah * self.h(x))[:, 0, :]
 
+    @torch.no_grad()
+    def greedy_action(self, i: int, obs: np.ndarray) -> int:
+        """Trial i's greedy action for one observation, touching no random stream (for evaluation)."""
+        x = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, 1, self.obs_dim)
+        qp = {k: v[i:i + 1] for k, v in self.q.params.items()}
+        hp = {k: v[i:i + 1] for k, v in self.h.params.items()}
+        a = self.alpha[i]
+        s = a.alpha_q * self.q(x, qp) + a.alpha_h_at(int(self.steps[i])) * self.h(x, hp)
+        return int(s[0, 0].argmax())
+
     def act(self, obs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Epsilon-greedy actions for the active trials (-1 for the others)."""
         active = np.ones(self.B, bool) if active is None else active
