@@ -1,0 +1,216 @@
+"""The JSON message types. Each is defined once here; its schema, validator and docs derive from it."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+from ._base import PROTOCOL_VERSION, Message, fld
+from ._spec import AnyJSON, Bool, Bytes64, Float, Int, List, Map, Nullable, Obj, ProtocolError, Str
+
+#: Names that become one chunk of a key expression (run, teacher_id, service, camera id): letters, digits,
+#: `_ . : -`, starting with a letter or digit, at most 64 characters. This excludes every character that
+#: Zenoh gives a meaning (`* $ / # ?`) and whitespace.
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.:-]{0,63}$"
+#: Free-form identifiers that never become part of a key (incarnation): printable ASCII, no spaces.
+TOKEN_PATTERN = r"^[!-~]{1,128}$"
+
+MAX_OBS = 1024  # observation length limit (the paper's largest is Taxi's one-hot of 19)
+
+
+def Name(description: str) -> Str:
+    return Str(64, pattern=NAME_PATTERN, min_len=1, description=description)
+
+
+def Token(description: str) -> Str:
+    return Str(128, pattern=TOKEN_PATTERN, min_len=1, description=description)
+
+
+def Seconds(description: str) -> Float:
+    return Float(0.0, description=description)
+
+
+def Count(description: str) -> Int:
+    return Int(0, description=description)
+
+
+RUN = "Run name; also the second chunk of every key expression."
+
+
+@dataclasses.dataclass(frozen=True)
+class Step(Message):
+    """One environment step taken by an actor: the transition and when its action was taken.
+
+    Published by the actor on `hitl/<run>/step` for each step, in order. `seq` is contiguous per
+    `incarnation`, so a subscriber detects loss (a gap) and a restarted actor (a new incarnation).
+    """
+
+    TYPE_NAME: ClassVar[str] = "hitl.Step"
+    MAX_BYTES: ClassVar[int] = 64 * 1024
+    CROSS_RULES: ClassVar[tuple[str, ...]] = ("`len(next_obs) == len(obs)`, else `bad_shape`",)
+
+    run: str = fld(Name(RUN))
+    incarnation: str = fld(Token("The actor process's own id, new at every start."))
+    seq: int = fld(Count("Message counter, 0, 1, 2, ... without gaps within one incarnation."))
+    t_action: float = fld(Seconds("Wall-clock time (s since the Unix epoch; virtual time in-process) when the action was taken."))
+    episode: int = fld(Count("Episode index within this incarnation."))
+    t_in_episode: int = fld(Count("Step index within the episode (0 for the first action)."))
+    obs: list = fld(List(Float(), min_items=1, max_items=MAX_OBS, description="Observation before the action."))
+    action: int = fld(Int(0, 1023, description="Action index."))
+    reward: float = fld(Float(description="Environment reward for this transition."))
+    next_obs: list = fld(List(Float(), min_items=1, max_items=MAX_OBS, description="Observation after the action."))
+    terminated: bool = fld(Bool(description="The episode ended in a terminal state."))
+    truncated: bool = fld(Bool(description="The episode was cut by the step limit."))
+    weights_version: int = fld(Count("Version of the weights the actor acted with (0 before any Weights arrived)."))
+    info: dict = fld(Map(Float(), max_items=16, description=(
+        "Small numeric extras, e.g. `target_distance_before` / `target_distance_after` for the simulated teacher's rule.")))
+
+    def _cross_check(self) -> None:
+        if len(self.next_obs) != len(self.obs):
+            raise ProtocolError("bad_shape", f"next_obs has {len(self.next_obs)} items, obs has {len(self.obs)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Feedback(Message):
+    """One binary feedback signal from a teacher (a simulated oracle or a perceived face).
+
+    Published on `hitl/<run>/feedback/<teacher_id>`. The learner credits it to recent steps by comparing
+    `t_reaction` with the steps' `t_action` (never by arrival time). `ref_seq` and `intended` are for
+    measurement only and must not be used for learning.
+    """
+
+    TYPE_NAME: ClassVar[str] = "hitl.Feedback"
+    MAX_BYTES: ClassVar[int] = 4096
+
+    run: str = fld(Name(RUN))
+    teacher_id: str = fld(Name("Teacher name; also the last chunk of the key."))
+    seq: int = fld(Count("Message counter per teacher, without gaps."))
+    t_reaction: float = fld(Seconds("Wall-clock time (s) at which the teacher reacted."))
+    value: int = fld(Int(enum=(-1, 1), description="The feedback: +1 good, -1 bad."))
+    source: str = fld(Name("Where it came from, e.g. `oracle`, `face`."))
+    ref_seq: int | None = fld(Nullable(Count("Diagnostics: the Step.seq the simulated observer meant; null if unknown.")),
+                              optional=True)
+    intended: int | None = fld(Nullable(Int(enum=(-1, 1), description=(
+        "Diagnostics: the value before a simulated misread; null if unknown."))), optional=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class EpisodeSummary(Message):
+    """End-of-episode numbers from the actor (published on `hitl/<run>/episode`)."""
+
+    TYPE_NAME: ClassVar[str] = "hitl.EpisodeSummary"
+    MAX_BYTES: ClassVar[int] = 4096
+
+    run: str = fld(Name(RUN))
+    incarnation: str = fld(Token("The actor's incarnation."))
+    episode: int = fld(Count("Episode index."))
+    return_: float = fld(Float(description="Sum of environment rewards in the episode."), wire="return")
+    steps: int = fld(Count("Number of steps in the episode."))
+    feedback_received: int = fld(Count("Feedback messages received during the episode."))
+    feedback_credited: int = fld(Count("Feedback messages credited to at least one step of the episode."))
+    weights_version: int = fld(Count("Weights version in use at the end of the episode."))
+    t_end: float = fld(Seconds("Wall-clock time (s) when the episode ended."))
+
+
+SERVICE_STATES = ("starting", "ready", "stopping", "stopped")
+
+
+@dataclasses.dataclass(frozen=True)
+class ServiceStatus(Message):
+    """Liveness and counters of one service (published on `hitl/<run>/status/<service>`), e.g. once a
+    second and at every state change. `counters` carries drop counts by ProtocolError reason."""
+
+    TYPE_NAME: ClassVar[str] = "hitl.ServiceStatus"
+    MAX_BYTES: ClassVar[int] = 16 * 1024
+
+    run: str = fld(Name(RUN))
+    service: str = fld(Name("Service name; also the last chunk of the key."))
+    pid: int = fld(Int(0, 2**32 - 1, description="Operating-system process id."))
+    state: str = fld(Str(enum=SERVICE_STATES, description="Life-cycle state."))
+    t: float = fld(Seconds("Wall-clock time (s) of this status."))
+    counters: dict = fld(Map(Count(""), max_items=256, description="Named counters, e.g. `steps_published`, `dropped_malformed`."))
+
+
+@dataclasses.dataclass(frozen=True)
+class Time:
+    """foxglove.Time: seconds and nanoseconds since the Unix epoch."""
+
+    sec: int
+    nsec: int
+
+    @classmethod
+    def from_seconds(cls, t: float) -> "Time":
+        ns = int(round(t * 1e9))
+        return cls(ns // 1_000_000_000, ns % 1_000_000_000)
+
+    def to_seconds(self) -> float:
+        return self.sec + self.nsec * 1e-9
+
+
+TIME_SPEC = Obj({"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)}, cls=Time,
+                description="Capture time (foxglove.Time).")
+
+
+@dataclasses.dataclass(frozen=True)
+class CompressedImage(Message):
+    """A camera frame, exactly Foxglove's `foxglove.CompressedImage` in its JSON form (published on
+    `hitl/<run>/camera/<id>`), so Foxglove shows the recorded stream as an image."""
+
+    TYPE_NAME: ClassVar[str] = "foxglove.CompressedImage"
+    MAX_BYTES: ClassVar[int] = 8 * 1024 * 1024
+
+    timestamp: Time = fld(TIME_SPEC)
+    frame_id: str = fld(Str(256, description="Frame of reference (the camera id)."))
+    data: bytes = fld(Bytes64(6 * 1024 * 1024, description="Compressed image bytes (base64 in JSON)."))
+    format: str = fld(Str(enum=("jpeg", "png", "webp"), description="Image format."))
+
+
+@dataclasses.dataclass(frozen=True)
+class Box:
+    """A face box in pixels."""
+
+    x: int
+    y: int
+    w: int
+    h: int
+
+
+BOX_SPEC = Obj({"x": Int(0, 65535), "y": Int(0, 65535), "w": Int(0, 65535), "h": Int(0, 65535)}, cls=Box,
+               description="Face box in pixels (x, y of the top-left corner, width, height).")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExpressionPrediction(Message):
+    """What the perception service read from one camera frame (published on `hitl/<run>/perception/<id>`)."""
+
+    TYPE_NAME: ClassVar[str] = "hitl.ExpressionPrediction"
+    MAX_BYTES: ClassVar[int] = 8192
+
+    t_capture: float = fld(Seconds("Wall-clock time (s) when the frame was captured."))
+    frame: int = fld(Count("Frame index in the camera stream."))
+    box: Box | None = fld(Nullable(BOX_SPEC, description="Face box, or null when no face was found."))
+    label: str = fld(Str(32, description="Most probable expression label (empty when no face)."))
+    confidence: float = fld(Float(0.0, 1.0, description="Probability of `label`."))
+    probabilities: dict = fld(Map(Float(0.0, 1.0), max_items=16, key_max_len=32,
+                                  description="Probability of each label."))
+
+
+@dataclasses.dataclass(frozen=True)
+class RunConfig(Message):
+    """The run's configuration: the first message of every log (on `hitl/<run>/config`) and the
+    log's MCAP metadata. `config` is the core's config dataclass as a JSON object."""
+
+    TYPE_NAME: ClassVar[str] = "hitl.RunConfig"
+    MAX_BYTES: ClassVar[int] = 1024 * 1024
+
+    run: str = fld(Name(RUN))
+    t_created: float = fld(Seconds("Wall-clock time (s) when the run was configured."))
+    protocol: int = fld(Int(enum=(PROTOCOL_VERSION,), description="Protocol version of every message in the run."))
+    config: dict = fld(AnyJSON(object_only=True, description="The run's configuration (free-form JSON object)."))
+
+    @classmethod
+    def create(cls, run: str, config: dict[str, Any], t_created: float | None = None) -> "RunConfig":
+        import time
+
+        return cls(run=run, t_created=time.time() if t_created is None else t_created,
+                   protocol=PROTOCOL_VERSION, config=config)

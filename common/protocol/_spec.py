@@ -1,0 +1,440 @@
+"""Field specifications: one definition gives the JSON Schema, the validator and the docs.
+
+Each message field carries a ``Spec`` in its dataclass metadata. A spec can
+``check(value, path)`` a value parsed from JSON (raising ``ProtocolError`` with a
+machine-readable reason), ``schema()`` a JSON Schema (draft 2020-12) fragment,
+``to_json``/``from_json`` convert between the Python value and its JSON form, and
+``describe()`` a short human description for docs/protocol.md.
+
+Nothing here imports zenoh or mcap: the protocol is usable by the pure core and by tests.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import math
+import numbers
+import re
+from typing import Any
+
+import numpy as np
+
+#: Integers on the wire stay inside the range that a double represents exactly, so that a
+#: JSON reader in any language (Foxglove is JavaScript) reads them back unchanged.
+SAFE_INT = 2**53 - 1
+
+#: Every reason a decoder may give. Subscribers count drops per reason.
+REASONS: dict[str, str] = {
+    "malformed": "bytes are not UTF-8 JSON (or not a safetensors file), or a JSON object repeats a key",
+    "oversized": "payload larger than the type's size limit (checked before parsing)",
+    "wrong_type": "a value has the wrong JSON type (e.g. string for integer, bool for integer, non-object top level)",
+    "missing_field": "a required field is absent",
+    "extra_field": "a field that the type does not define is present",
+    "non_finite": "a number is NaN or +-Infinity (including overflowing literals such as 1e999)",
+    "bad_value": "right type, but out of range, not an allowed value, bad pattern, too long, bad base64",
+    "bad_shape": "a list has the wrong length relative to another field, or a tensor has the wrong name/dtype/shape",
+    "unknown_key": "a key expression that the protocol does not define",
+}
+
+
+class ProtocolError(ValueError):
+    """A message could not be encoded or decoded.
+
+    ``reason`` is one of :data:`REASONS` (short, machine-readable, for drop counters);
+    ``detail`` says which field and why, for humans.
+    """
+
+    def __init__(self, reason: str, detail: str = ""):
+        if reason not in REASONS:  # a programming error in this package, not bad input
+            raise AssertionError(f"unknown ProtocolError reason {reason!r}")
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+        self.detail = detail
+
+
+def _type_name(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "boolean"
+    if isinstance(value, int):
+        return "integer"
+    if isinstance(value, float):
+        return "number"
+    if isinstance(value, str):
+        return "string"
+    if isinstance(value, list):
+        return "array"
+    if isinstance(value, dict):
+        return "object"
+    return type(value).__name__
+
+
+def _check_text(value: str, path: str) -> None:
+    # Lone surrogates can come out of JSON "\ud800" escapes; they cannot be encoded as UTF-8.
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        raise ProtocolError("bad_value", f"{path}: string is not valid Unicode") from None
+
+
+class Spec:
+    """Base class of field specifications."""
+
+    description: str = ""
+
+    def schema(self) -> dict:
+        raise NotImplementedError
+
+    def check(self, value: Any, path: str) -> Any:
+        """Validate a JSON value; return the Python value."""
+        raise NotImplementedError
+
+    def to_json(self, value: Any) -> Any:
+        return value
+
+    def describe(self) -> str:
+        raise NotImplementedError
+
+
+class Str(Spec):
+    def __init__(self, max_len: int = 256, *, pattern: str | None = None, enum: tuple[str, ...] | None = None,
+                 min_len: int = 0, description: str = ""):
+        self.max_len, self.min_len, self.pattern, self.enum = max_len, min_len, pattern, enum
+        # Patterns are written anchored with ^...$ (ECMA-262 style, as JSON Schema reads them). Python's `$`
+        # also matches before a final newline, so the validator uses \Z in its place.
+        self._re = re.compile(pattern[:-1] + r"\Z" if pattern.endswith("$") else pattern) if pattern else None
+        self.description = description
+
+    def schema(self) -> dict:
+        s: dict[str, Any] = {"type": "string"}
+        if self.enum is not None:
+            s["enum"] = list(self.enum)
+            return s
+        if self.min_len:
+            s["minLength"] = self.min_len
+        s["maxLength"] = self.max_len
+        if self.pattern:
+            s["pattern"] = self.pattern
+        return s
+
+    def check(self, value: Any, path: str) -> str:
+        if not isinstance(value, str):
+            raise ProtocolError("wrong_type", f"{path}: expected string, got {_type_name(value)}")
+        _check_text(value, path)
+        if self.enum is not None:
+            if value not in self.enum:
+                raise ProtocolError("bad_value", f"{path}: {value[:40]!r} not one of {list(self.enum)}")
+            return value
+        if not self.min_len <= len(value) <= self.max_len:
+            raise ProtocolError("bad_value", f"{path}: length {len(value)} not in [{self.min_len}, {self.max_len}]")
+        if self._re is not None and not self._re.search(value):
+            raise ProtocolError("bad_value", f"{path}: {value[:40]!r} does not match {self.pattern}")
+        return value
+
+    def describe(self) -> str:
+        if self.enum is not None:
+            return "string, one of " + ", ".join(f"`{e}`" for e in self.enum)
+        d = f"string, length {self.min_len}..{self.max_len}"
+        if self.pattern:
+            d += f", pattern `{self.pattern}`"
+        return d
+
+
+class Int(Spec):
+    def __init__(self, minimum: int = -SAFE_INT, maximum: int = SAFE_INT, *, enum: tuple[int, ...] | None = None,
+                 description: str = ""):
+        self.minimum, self.maximum, self.enum = minimum, maximum, enum
+        self.description = description
+
+    def schema(self) -> dict:
+        if self.enum is not None:
+            return {"type": "integer", "enum": list(self.enum)}
+        return {"type": "integer", "minimum": self.minimum, "maximum": self.maximum}
+
+    def check(self, value: Any, path: str) -> int:
+        # JSON Schema's "integer" admits 1.0; so do we (normalised to int). bool is never an integer.
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ProtocolError("wrong_type", f"{path}: expected integer, got {_type_name(value)}")
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                raise ProtocolError("non_finite", f"{path}: {value}")
+            if not value.is_integer():
+                raise ProtocolError("wrong_type", f"{path}: expected integer, got {value!r}")
+            if abs(value) > SAFE_INT:
+                raise ProtocolError("bad_value", f"{path}: {value!r} out of range")
+            value = int(value)
+        if self.enum is not None:
+            if value not in self.enum:
+                raise ProtocolError("bad_value", f"{path}: {value} not one of {list(self.enum)}")
+        elif not self.minimum <= value <= self.maximum:
+            raise ProtocolError("bad_value", f"{path}: {value} not in [{self.minimum}, {self.maximum}]")
+        return value
+
+    def to_json(self, value: Any) -> Any:
+        if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+            return int(value)  # numpy integers
+        return value
+
+    def describe(self) -> str:
+        if self.enum is not None:
+            return "integer, one of " + ", ".join(str(e) for e in self.enum)
+        lo = "" if self.minimum == -SAFE_INT else str(self.minimum)
+        hi = "" if self.maximum == SAFE_INT else str(self.maximum)
+        if not lo and not hi:
+            return "integer (|x| < 2^53)"
+        return f"integer in [{lo or '-2^53+1'}, {hi or '2^53-1'}]"
+
+
+class Float(Spec):
+    def __init__(self, minimum: float | None = None, maximum: float | None = None, *, description: str = ""):
+        self.minimum, self.maximum = minimum, maximum
+        self.description = description
+
+    def schema(self) -> dict:
+        s: dict[str, Any] = {"type": "number"}
+        if self.minimum is not None:
+            s["minimum"] = self.minimum
+        if self.maximum is not None:
+            s["maximum"] = self.maximum
+        return s
+
+    def check(self, value: Any, path: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ProtocolError("wrong_type", f"{path}: expected number, got {_type_name(value)}")
+        try:
+            value = float(value)
+        except OverflowError:  # an integer literal too large for a double
+            raise ProtocolError("non_finite", f"{path}: integer too large for a double") from None
+        if not math.isfinite(value):
+            raise ProtocolError("non_finite", f"{path}: {value}")
+        if (self.minimum is not None and value < self.minimum) or (self.maximum is not None and value > self.maximum):
+            raise ProtocolError("bad_value", f"{path}: {value!r} not in [{self.minimum}, {self.maximum}]")
+        return value
+
+    def to_json(self, value: Any) -> Any:
+        if isinstance(value, numbers.Real) and not isinstance(value, (bool, numbers.Integral)):
+            return float(value)  # numpy floats
+        if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+            return int(value)
+        return value
+
+    def describe(self) -> str:
+        if self.minimum is None and self.maximum is None:
+            return "number, finite"
+        lo = "-inf" if self.minimum is None else repr(self.minimum)
+        hi = "+inf" if self.maximum is None else repr(self.maximum)
+        return f"number, finite, in [{lo}, {hi}]"
+
+
+class Bool(Spec):
+    def __init__(self, *, description: str = ""):
+        self.description = description
+
+    def schema(self) -> dict:
+        return {"type": "boolean"}
+
+    def check(self, value: Any, path: str) -> bool:
+        if not isinstance(value, bool):
+            raise ProtocolError("wrong_type", f"{path}: expected boolean, got {_type_name(value)}")
+        return value
+
+    def to_json(self, value: Any) -> Any:
+        if isinstance(value, np.bool_):
+            return bool(value)
+        return value
+
+    def describe(self) -> str:
+        return "boolean"
+
+
+class Bytes64(Spec):
+    """Binary data carried as a standard base64 string (as foxglove.CompressedImage does in JSON)."""
+
+    def __init__(self, max_bytes: int, *, description: str = ""):
+        self.max_bytes = max_bytes
+        self.description = description
+
+    def schema(self) -> dict:
+        return {"type": "string", "contentEncoding": "base64",
+                "maxLength": 4 * ((self.max_bytes + 2) // 3)}
+
+    def check(self, value: Any, path: str) -> bytes:
+        if not isinstance(value, str):
+            raise ProtocolError("wrong_type", f"{path}: expected base64 string, got {_type_name(value)}")
+        if len(value) > 4 * ((self.max_bytes + 2) // 3):
+            raise ProtocolError("bad_value", f"{path}: longer than {self.max_bytes} bytes")
+        try:
+            return base64.b64decode(value.encode("ascii"), validate=True)
+        except (binascii.Error, UnicodeEncodeError, ValueError):
+            raise ProtocolError("bad_value", f"{path}: not standard base64") from None
+
+    def to_json(self, value: Any) -> str:
+        return base64.b64encode(bytes(value)).decode("ascii")
+
+    def describe(self) -> str:
+        return f"bytes as a standard base64 string (at most {self.max_bytes} bytes)"
+
+
+class List(Spec):
+    def __init__(self, item: Spec, *, max_items: int, min_items: int = 0, description: str = ""):
+        self.item, self.max_items, self.min_items = item, max_items, min_items
+        self.description = description
+
+    def schema(self) -> dict:
+        s: dict[str, Any] = {"type": "array", "items": self.item.schema(), "maxItems": self.max_items}
+        if self.min_items:
+            s["minItems"] = self.min_items
+        return s
+
+    def check(self, value: Any, path: str) -> list:
+        if not isinstance(value, list):
+            raise ProtocolError("wrong_type", f"{path}: expected array, got {_type_name(value)}")
+        if not self.min_items <= len(value) <= self.max_items:
+            raise ProtocolError("bad_value", f"{path}: {len(value)} items, not in [{self.min_items}, {self.max_items}]")
+        return [self.item.check(v, f"{path}[{i}]") for i, v in enumerate(value)]
+
+    def to_json(self, value: Any) -> Any:
+        if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
+            return value  # let check() report the wrong type
+        return [self.item.to_json(v) for v in value]
+
+    def describe(self) -> str:
+        return f"array of ({self.item.describe()}), {self.min_items}..{self.max_items} items"
+
+
+class Map(Spec):
+    """A JSON object used as a dictionary: string keys (bounded) to values of one spec."""
+
+    def __init__(self, value: Spec, *, max_items: int, key_max_len: int = 64, description: str = ""):
+        self.value, self.max_items, self.key_max_len = value, max_items, key_max_len
+        self.description = description
+
+    def schema(self) -> dict:
+        return {"type": "object", "additionalProperties": self.value.schema(),
+                "propertyNames": {"minLength": 1, "maxLength": self.key_max_len}, "maxProperties": self.max_items}
+
+    def check(self, value: Any, path: str) -> dict:
+        if not isinstance(value, dict):
+            raise ProtocolError("wrong_type", f"{path}: expected object, got {_type_name(value)}")
+        if len(value) > self.max_items:
+            raise ProtocolError("bad_value", f"{path}: {len(value)} entries, more than {self.max_items}")
+        out = {}
+        for k, v in value.items():
+            _check_text(k, path)
+            if not 1 <= len(k) <= self.key_max_len:
+                raise ProtocolError("bad_value", f"{path}: key length {len(k)} not in [1, {self.key_max_len}]")
+            out[k] = self.value.check(v, f"{path}.{k}")
+        return out
+
+    def to_json(self, value: Any) -> Any:
+        if not isinstance(value, dict):
+            return value
+        return {k: self.value.to_json(v) for k, v in value.items()}
+
+    def describe(self) -> str:
+        return f"object of string (1..{self.key_max_len} chars) to ({self.value.describe()}), at most {self.max_items} entries"
+
+
+class Nullable(Spec):
+    def __init__(self, inner: Spec, *, description: str = ""):
+        self.inner = inner
+        self.description = description or inner.description
+
+    def schema(self) -> dict:
+        return {"anyOf": [self.inner.schema(), {"type": "null"}]}
+
+    def check(self, value: Any, path: str) -> Any:
+        return None if value is None else self.inner.check(value, path)
+
+    def to_json(self, value: Any) -> Any:
+        return None if value is None else self.inner.to_json(value)
+
+    def describe(self) -> str:
+        return f"null or {self.inner.describe()}"
+
+
+class Obj(Spec):
+    """A nested JSON object with fixed fields (all required, no extras).
+
+    With ``cls`` (a dataclass whose fields have the same names) the Python value is an instance of it,
+    otherwise a dict.
+    """
+
+    def __init__(self, fields: dict[str, Spec], *, cls: type | None = None, description: str = ""):
+        self.fields = fields
+        self.cls = cls
+        self.description = description
+
+    def schema(self) -> dict:
+        return {"type": "object", "properties": {k: v.schema() for k, v in self.fields.items()},
+                "required": list(self.fields), "additionalProperties": False}
+
+    def check(self, value: Any, path: str) -> dict:
+        if not isinstance(value, dict):
+            raise ProtocolError("wrong_type", f"{path}: expected object, got {_type_name(value)}")
+        out = check_object(value, self.fields, required=set(self.fields), path=path)
+        return self.cls(**out) if self.cls is not None else out
+
+    def to_json(self, value: Any) -> Any:
+        if self.cls is not None and isinstance(value, self.cls):
+            return {k: spec.to_json(getattr(value, k)) for k, spec in self.fields.items()}
+        if isinstance(value, dict):
+            return {k: (self.fields[k].to_json(v) if k in self.fields else v) for k, v in value.items()}
+        return value
+
+    def describe(self) -> str:
+        return "object {" + ", ".join(f"{k}: {v.describe()}" for k, v in self.fields.items()) + "}"
+
+
+class AnyJSON(Spec):
+    """Any JSON value with finite numbers, bounded nesting depth. Used for the run config."""
+
+    def __init__(self, *, max_depth: int = 32, object_only: bool = False, description: str = ""):
+        self.max_depth, self.object_only = max_depth, object_only
+        self.description = description
+
+    def schema(self) -> dict:
+        return {"type": "object"} if self.object_only else {}
+
+    def check(self, value: Any, path: str) -> Any:
+        if self.object_only and not isinstance(value, dict):
+            raise ProtocolError("wrong_type", f"{path}: expected object, got {_type_name(value)}")
+        self._walk(value, path, 0)
+        return value
+
+    def _walk(self, value: Any, path: str, depth: int) -> None:
+        if depth > self.max_depth:
+            raise ProtocolError("bad_value", f"{path}: nested deeper than {self.max_depth}")
+        if isinstance(value, float):
+            if not math.isfinite(value):
+                raise ProtocolError("non_finite", path)
+        elif isinstance(value, str):
+            _check_text(value, path)
+        elif isinstance(value, dict):
+            for k, v in value.items():
+                if not isinstance(k, str):
+                    raise ProtocolError("wrong_type", f"{path}: object key {k!r} is not a string")
+                _check_text(k, path)
+                self._walk(v, f"{path}.{k}", depth + 1)
+        elif isinstance(value, list):
+            for i, v in enumerate(value):
+                self._walk(v, f"{path}[{i}]", depth + 1)
+        elif value is not None and not isinstance(value, (bool, int)):
+            raise ProtocolError("wrong_type", f"{path}: {type(value).__name__} is not JSON")
+
+    def describe(self) -> str:
+        return ("object" if self.object_only else "any JSON value") + f", finite numbers, depth <= {self.max_depth}"
+
+
+def check_object(value: dict, fields: dict[str, Spec], *, required: set[str], path: str) -> dict:
+    """Validate a JSON object against named field specs; return {name: python value}."""
+    extra = [k for k in value if k not in fields]
+    if extra:
+        raise ProtocolError("extra_field", f"{path}: unexpected field {str(extra[0])[:40]!r}")
+    for name in fields:
+        if name in required and name not in value:
+            raise ProtocolError("missing_field", f"{path}.{name}" if path else name)
+    prefix = f"{path}." if path else ""
+    return {name: spec.check(value[name], prefix + name) for name, spec in fields.items() if name in value}

@@ -1,0 +1,106 @@
+"""Hypothesis strategies derived from the protocol's own field specs (valid messages of every type)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from hypothesis import strategies as st
+
+from common.protocol import (NAME_PATTERN, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary, ExpressionPrediction,
+                             Feedback, RunConfig, ServiceStatus, Step, Time, Weights)
+from common.protocol._spec import AnyJSON, Bool, Bytes64, Float, Int, List, Map, Nullable, Obj, Spec, Str
+
+TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)
+JSON_SCALARS = st.none() | st.booleans() | st.integers(-(2**60), 2**60) | st.floats(allow_nan=False, allow_infinity=False) | TEXT
+ANY_JSON = st.recursive(JSON_SCALARS, lambda children: st.lists(children, max_size=4)
+                        | st.dictionaries(TEXT, children, max_size=4), max_leaves=20)
+
+
+def for_spec(spec: Spec) -> st.SearchStrategy:
+    if isinstance(spec, Str):
+        if spec.enum is not None:
+            return st.sampled_from(spec.enum)
+        if spec.pattern in (NAME_PATTERN, TOKEN_PATTERN):
+            return st.from_regex(spec.pattern[:-1] + r"\Z", fullmatch=True)
+        assert spec.pattern is None, spec.pattern
+        return st.text(st.characters(exclude_categories=("Cs",)), min_size=spec.min_len, max_size=min(spec.max_len, 20))
+    if isinstance(spec, Int):
+        if spec.enum is not None:
+            return st.sampled_from(spec.enum)
+        return st.integers(spec.minimum, spec.maximum)
+    if isinstance(spec, Float):
+        return st.floats(spec.minimum, spec.maximum, allow_nan=False, allow_infinity=False)
+    if isinstance(spec, Bool):
+        return st.booleans()
+    if isinstance(spec, Bytes64):
+        return st.binary(max_size=64)
+    if isinstance(spec, List):
+        return st.lists(for_spec(spec.item), min_size=spec.min_items, max_size=min(spec.max_items, 8))
+    if isinstance(spec, Map):
+        keys = st.text(st.characters(exclude_categories=("Cs",)), min_size=1, max_size=min(spec.key_max_len, 12))
+        return st.dictionaries(keys, for_spec(spec.value), max_size=min(spec.max_items, 5))
+    if isinstance(spec, Nullable):
+        return st.none() | for_spec(spec.inner)
+    if isinstance(spec, Obj):
+        fields = {k: for_spec(v) for k, v in spec.fields.items()}
+        return st.builds(spec.cls, **fields) if spec.cls is not None else st.fixed_dictionaries(fields)
+    if isinstance(spec, AnyJSON):
+        return st.dictionaries(TEXT, ANY_JSON, max_size=5)
+    raise TypeError(spec)
+
+
+def _fix_step(step: Step) -> Step:
+    n = len(step.obs)
+    return dataclasses.replace(step, next_obs=(step.next_obs * n)[:n])
+
+
+def messages(cls: type) -> st.SearchStrategy:
+    if cls is Weights:
+        return weights()
+    s = st.builds(cls, **{wf.attr: for_spec(wf.spec) for wf in cls.wire_fields()})
+    return s.map(_fix_step) if cls is Step else s
+
+
+def weights() -> st.SearchStrategy:
+    name = st.from_regex(r"[A-Za-z0-9_.]{1,20}\Z", fullmatch=True)
+    shape = st.lists(st.integers(0, 5), max_size=3).map(tuple)
+    arr = shape.flatmap(lambda s: st.builds(
+        lambda seed: np.random.default_rng(seed).standard_normal(s).astype(np.float32), st.integers(0, 2**32 - 1)))
+    return st.builds(
+        Weights,
+        run=st.from_regex(NAME_PATTERN[:-1] + r"\Z", fullmatch=True),
+        incarnation=st.from_regex(TOKEN_PATTERN[:-1] + r"\Z", fullmatch=True),
+        version=st.integers(0, 2**53 - 1),
+        t_published=st.floats(0, 1e12, allow_nan=False),
+        tensors=st.dictionaries(name, arr, max_size=4),
+    )
+
+
+JSON_TYPES = (Step, Feedback, EpisodeSummary, ServiceStatus, CompressedImage, ExpressionPrediction, RunConfig)
+ALL_TYPES = JSON_TYPES + (Weights,)
+
+
+def example(cls: type, **changes):
+    """A fixed valid instance of each type, for targeted tests."""
+    base = {
+        Step: dict(run="r1", incarnation="actor-1", seq=3, t_action=1700000000.25, episode=1, t_in_episode=2,
+                   obs=[0.0, 1.0], action=2, reward=-0.01, next_obs=[1.0, 1.0], terminated=False, truncated=False,
+                   weights_version=4, info={"target_distance_before": 3.0, "target_distance_after": 2.0}),
+        Feedback: dict(run="r1", teacher_id="oracle", seq=7, t_reaction=1700000000.5, value=1, source="oracle",
+                       ref_seq=3, intended=1),
+        EpisodeSummary: dict(run="r1", incarnation="actor-1", episode=1, return_=0.9, steps=11,
+                             feedback_received=5, feedback_credited=4, weights_version=4, t_end=1700000001.0),
+        ServiceStatus: dict(run="r1", service="learner", pid=1234, state="ready", t=1700000000.0,
+                            counters={"dropped_malformed": 2}),
+        CompressedImage: dict(timestamp=Time(1700000000, 5),
+                              frame_id="cam0", data=b"\xff\xd8\xff\xe0jpeg", format="jpeg"),
+        ExpressionPrediction: dict(t_capture=1700000000.1, frame=12,
+                                   box=Box(10, 20, 64, 64),
+                                   label="happy", confidence=0.9, probabilities={"happy": 0.9, "neutral": 0.1}),
+        RunConfig: dict(run="r1", t_created=1700000000.0, protocol=1, config={"env": "maze", "lr": 0.001}),
+        Weights: dict(run="r1", incarnation="learner-1", version=5, t_published=1700000002.0,
+                      tensors={"q.0.weight": np.ones((4, 2), np.float32), "q.0.bias": np.zeros(4, np.float32)}),
+    }[cls]
+    base.update(changes)
+    return cls(**base)
