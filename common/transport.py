@@ -1,0 +1,385 @@
+"""Zenoh session helpers for the live services: loopback configs, sessions that always close, publishers
+with the right congestion control, and bounded receive queues fed by callback subscribers.
+
+Facts this module relies on (zenoh-python 1.10, measured here; see docs/protocol.md for the keys):
+
+- A client whose router is not up fails in ``zenoh.open`` at once unless ``connect/timeout_ms`` is set;
+  with it, ``open`` retries (period from ``connect/retry``) and returns as soon as it connects.
+- ``connect/retry`` must be inserted as a whole object; inserting ``connect/retry/period_init_ms`` alone
+  fails with "unknown key" because the default is null.
+- ``sample.timestamp`` is None unless ``timestamping/enabled`` is on; all configs here turn it on.
+- ``Publisher.matching_status`` is an object with ``.matching`` (not a bool, whatever the stub says).
+- A subscriber declared before a router link is up misses what is published before its declaration reaches
+  the publisher's side: wait with :func:`wait_for_matching` before the first message that matters.
+- A process whose callback subscriber is still declared at exit hangs unless the session is closed:
+  :func:`open_session` closes in ``finally``.
+
+Run a router on its own: ``python -m common.transport router --port 7447`` (prints ``ready <endpoint>``,
+stops on SIGTERM/SIGINT).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import contextlib
+import dataclasses
+import json
+import signal
+import socket
+import sys
+import threading
+import time
+from typing import Any, Callable, Iterator
+
+import zenoh
+
+from common.protocol import KEYS, ProtocolError, decode, parse_key
+
+LOOPBACK = "127.0.0.1"
+DEFAULT_CONNECT_TIMEOUT = 10.0  # seconds a client keeps trying to reach its router in open()
+QUEUE_POLICIES = ("block", "drop_oldest")
+
+
+# -- configs ---------------------------------------------------------------------------------------------------
+
+def free_port(host: str = LOOPBACK) -> int:
+    """A TCP port that was free a moment ago (bind to port 0, read it, close). Racy but fine on loopback."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def tcp_endpoint(port: int, host: str = LOOPBACK) -> str:
+    return f"tcp/{host}:{int(port)}"
+
+
+def _as_endpoint(port_or_endpoint: int | str) -> str:
+    return tcp_endpoint(port_or_endpoint) if isinstance(port_or_endpoint, int) else port_or_endpoint
+
+
+def make_config(mode: str, *, listen: list[str] | tuple[str, ...] = (), connect: list[str] | tuple[str, ...] = (),
+                connect_timeout: float | None = None, timestamping: bool = True) -> zenoh.Config:
+    """A closed-world config: no multicast scouting, no gossip, only the given endpoints.
+
+    ``connect_timeout`` (s): how long ``open`` keeps retrying the connect endpoints (None: zenoh's default,
+    which for a client is to fail at once)."""
+    if mode not in ("router", "peer", "client"):
+        raise ValueError(f"mode {mode!r}")
+    c = zenoh.Config()
+    c.insert_json5("mode", json.dumps(mode))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    c.insert_json5("scouting/gossip/enabled", "false")
+    c.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    c.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if connect_timeout is not None:
+        c.insert_json5("connect/timeout_ms", str(int(connect_timeout * 1000)))
+        c.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2}")
+    c.insert_json5("timestamping/enabled", "true" if timestamping else "false")
+    return c
+
+
+def router_config(port_or_endpoint: int | str, *, timestamping: bool = True) -> zenoh.Config:
+    """A Python session acting as the router (no zenohd needed), listening on tcp/127.0.0.1:PORT."""
+    return make_config("router", listen=[_as_endpoint(port_or_endpoint)], timestamping=timestamping)
+
+
+def client_config(*endpoints: int | str, connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
+                  timestamping: bool = True) -> zenoh.Config:
+    """A client of the router(s) at ``endpoints`` (ports or ``tcp/host:port``); waits up to
+    ``connect_timeout`` s in open() for one to be up."""
+    if not endpoints:
+        raise ValueError("client_config needs at least one router endpoint")
+    return make_config("client", connect=[_as_endpoint(e) for e in endpoints], connect_timeout=connect_timeout,
+                       timestamping=timestamping)
+
+
+def peer_config(*, listen: list[int | str] | tuple = (), connect: list[int | str] | tuple = (),
+                connect_timeout: float | None = DEFAULT_CONNECT_TIMEOUT, timestamping: bool = True) -> zenoh.Config:
+    """A peer that listens and/or connects to explicit endpoints (no router needed for two processes)."""
+    return make_config("peer", listen=[_as_endpoint(e) for e in listen], connect=[_as_endpoint(e) for e in connect],
+                       connect_timeout=connect_timeout if connect else None, timestamping=timestamping)
+
+
+# -- sessions ------------------------------------------------------------------------------------------------------
+
+@contextlib.contextmanager
+def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
+    """Open a session and always close it, even on exceptions (an unclosed session with a callback
+    subscriber keeps the process from exiting)."""
+    session = zenoh.open(config)
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def wait_for_router(session: zenoh.Session, timeout: float = 5.0) -> bool:
+    """True once the session sees a router (for clients and peers connected to one)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if list(session.info.routers_zid()):
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def _congestion(name: str) -> zenoh.CongestionControl:
+    return zenoh.CongestionControl.BLOCK if name == "block" else zenoh.CongestionControl.DROP
+
+
+def declare_publisher(session: zenoh.Session, key: str, *, congestion: str | None = None,
+                      express: bool = False) -> zenoh.Publisher:
+    """A publisher on a concrete protocol key, with congestion control from the key table (BLOCK for config,
+    step, feedback, weights, episode; DROP for status, camera, perception) unless ``congestion`` says."""
+    spec = parse_key(key).spec
+    cls = spec.message
+    encoding = zenoh.Encoding.APPLICATION_JSON if cls.MESSAGE_ENCODING == "json" else zenoh.Encoding.APPLICATION_OCTET_STREAM
+    return session.declare_publisher(key, congestion_control=_congestion(congestion or spec.congestion),
+                                     encoding=encoding.with_schema(cls.TYPE_NAME), express=express)
+
+
+def wait_for_matching(publisher: zenoh.Publisher, timeout: float = 5.0) -> bool:
+    """True once at least one subscriber matches the publisher's key."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if publisher.matching_status.matching:
+            return True
+        time.sleep(0.01)
+    return False
+
+
+class MessagePublisher:
+    """Publishes protocol messages on one key: encodes (which validates), counts, and closes cleanly.
+
+    ``put`` accepts a message object or already-encoded bytes."""
+
+    def __init__(self, session: zenoh.Session, key: str, *, congestion: str | None = None, express: bool = False):
+        self.key = key
+        self.message_type = parse_key(key).spec.message
+        self.publisher = declare_publisher(session, key, congestion=congestion, express=express)
+        self.sent = 0
+
+    def put(self, message: Any) -> None:
+        if isinstance(message, (bytes, bytearray, memoryview)):
+            data = bytes(message)
+        else:
+            if not isinstance(message, self.message_type):
+                raise TypeError(f"{self.key} carries {self.message_type.__name__}, not {type(message).__name__}")
+            data = message.encode()
+        self.publisher.put(data)
+        self.sent += 1
+
+    def wait_for_subscribers(self, timeout: float = 5.0) -> bool:
+        return wait_for_matching(self.publisher, timeout)
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.publisher.undeclare()
+
+    def __enter__(self) -> "MessagePublisher":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+# -- receiving -------------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Received:
+    """A sample as it arrived: raw bytes, key, local arrival time, and zenoh's timestamp (s) if any."""
+
+    key: str
+    data: bytes
+    t_recv: float  # time.time() at arrival, in the zenoh callback
+    t_zenoh: float | None  # the sample's zenoh timestamp in seconds since the epoch (None if not stamped)
+
+    def decode(self) -> Any:
+        return decode(self.key, self.data)
+
+
+def _zenoh_seconds(ts: Any) -> float | None:
+    if ts is None:
+        return None
+    try:
+        return ts.get_time().timestamp()
+    except Exception:
+        return None
+
+
+class Inbox:
+    """A bounded queue between a zenoh callback subscriber (producer) and the service's own thread.
+
+    The zenoh callback only copies the payload and appends; decoding happens in the consumer
+    (:meth:`get_message`), which counts drops by ProtocolError reason.
+
+    Policies when full:
+
+    - ``"block"``: the callback waits for room, up to ``block_timeout`` s, then drops the new sample and
+      counts ``dropped_full``. Waiting in the callback stalls that session's delivery, which with
+      publishers on CongestionControl.BLOCK pushes back on them: nothing is lost while the consumer keeps up
+      within ``block_timeout``. Use for step, feedback, weights into a learner or recorder.
+    - ``"drop_oldest"``: never waits; evicts the oldest sample and counts ``dropped_oldest``. Use for
+      status, camera, perception, and (maxsize 1) for an actor that only wants the newest weights.
+
+    Counters (``counters`` dict): ``received``, ``dropped_oldest``, ``dropped_full``, ``dropped_closed``,
+    ``decoded``, and ``dropped_<reason>`` for each ProtocolError reason seen by :meth:`get_message`.
+    """
+
+    def __init__(self, maxsize: int = 1024, policy: str = "block", *, block_timeout: float = 5.0):
+        if policy not in QUEUE_POLICIES:
+            raise ValueError(f"policy must be one of {QUEUE_POLICIES}")
+        if maxsize < 1:
+            raise ValueError("maxsize must be >= 1")
+        self.maxsize, self.policy, self.block_timeout = maxsize, policy, block_timeout
+        self._items: collections.deque[Received] = collections.deque()
+        self._cond = threading.Condition()
+        self._closed = False
+        self.counters: collections.Counter[str] = collections.Counter()
+
+    # producer side (zenoh's callback thread)
+    def callback(self, sample: zenoh.Sample) -> None:
+        item = Received(str(sample.key_expr), sample.payload.to_bytes(), time.time(), _zenoh_seconds(sample.timestamp))
+        self.put(item)
+
+    def put(self, item: Received) -> bool:
+        """Enqueue according to the policy. Returns False if the item was dropped."""
+        with self._cond:
+            self.counters["received"] += 1
+            if self._closed:
+                self.counters["dropped_closed"] += 1
+                return False
+            if len(self._items) >= self.maxsize:
+                if self.policy == "drop_oldest":
+                    self._items.popleft()
+                    self.counters["dropped_oldest"] += 1
+                else:
+                    deadline = time.monotonic() + self.block_timeout
+                    while len(self._items) >= self.maxsize and not self._closed:
+                        left = deadline - time.monotonic()
+                        if left <= 0:
+                            break
+                        self._cond.wait(left)
+                    if self._closed:
+                        self.counters["dropped_closed"] += 1
+                        return False
+                    if len(self._items) >= self.maxsize:
+                        self.counters["dropped_full"] += 1
+                        return False
+            self._items.append(item)
+            self._cond.notify_all()
+            return True
+
+    # consumer side
+    def get(self, timeout: float | None = None) -> Received | None:
+        """The next raw sample, or None after ``timeout`` s (None: wait until one arrives or close())."""
+        with self._cond:
+            deadline = None if timeout is None else time.monotonic() + timeout
+            while not self._items:
+                if self._closed:
+                    return None
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    return None
+                self._cond.wait(left)
+            item = self._items.popleft()
+            self._cond.notify_all()
+            return item
+
+    def get_message(self, timeout: float | None = None) -> tuple[Received, Any] | None:
+        """The next sample that decodes, with its message; bad ones are counted as ``dropped_<reason>``
+        and skipped. None on timeout or when closed and empty."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            left = None if deadline is None else max(0.0, deadline - time.monotonic())
+            item = self.get(left)
+            if item is None:
+                return None
+            try:
+                msg = item.decode()
+            except ProtocolError as e:
+                with self._cond:
+                    self.counters[f"dropped_{e.reason}"] += 1
+                continue
+            with self._cond:
+                self.counters["decoded"] += 1
+            return item, msg
+
+    def drain(self, max_items: int | None = None) -> list[Received]:
+        """Everything queued now (up to ``max_items``), without waiting."""
+        with self._cond:
+            n = len(self._items) if max_items is None else min(max_items, len(self._items))
+            out = [self._items.popleft() for _ in range(n)]
+            self._cond.notify_all()
+            return out
+
+    def close(self) -> None:
+        """Wake every waiter; later samples are dropped (``dropped_closed``)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    def __len__(self) -> int:
+        with self._cond:
+            return len(self._items)
+
+    def snapshot(self) -> dict[str, int]:
+        with self._cond:
+            return dict(self.counters)
+
+
+def default_policy(key_expr: str) -> str:
+    """The key table's receive policy for a concrete key or a wildcard of one kind (``hitl/<run>/feedback/*``);
+    ``block`` for anything else (e.g. ``hitl/<run>/**``)."""
+    parts = key_expr.split("/")
+    if len(parts) >= 3 and parts[2] in KEYS:
+        return KEYS[parts[2]].queue_policy
+    return "block"
+
+
+def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None, *, maxsize: int = 1024,
+              policy: str | None = None, block_timeout: float = 5.0) -> tuple[zenoh.Subscriber, Inbox]:
+    """Declare a callback subscriber feeding an :class:`Inbox` (a new one unless given).
+
+    Undeclare the subscriber (or close the session) and ``inbox.close()`` when done."""
+    if inbox is None:
+        inbox = Inbox(maxsize, policy or default_policy(key_expr), block_timeout=block_timeout)
+    sub = session.declare_subscriber(key_expr, inbox.callback)
+    return sub, inbox
+
+
+# -- a router process -----------------------------------------------------------------------------------------------
+
+def run_router(endpoint: str, *, stop: threading.Event | None = None,
+               on_ready: Callable[[zenoh.Session], None] | None = None) -> None:
+    """Run a router session on ``endpoint`` until ``stop`` is set (or SIGTERM/SIGINT in the main thread)."""
+    stop = stop or threading.Event()
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: stop.set())
+    with open_session(router_config(endpoint)) as session:
+        if on_ready is not None:
+            on_ready(session)
+        while not stop.wait(0.2):
+            pass
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m common.transport", description="Zenoh helpers")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+    r = sub.add_parser("router", help="run a loopback router (a Python zenoh session in router mode)")
+    r.add_argument("--port", type=int, default=7447)
+    r.add_argument("--endpoint", help="full endpoint instead of --port, e.g. tcp/127.0.0.1:7447")
+    args = parser.parse_args(argv)
+    endpoint = args.endpoint or tcp_endpoint(args.port)
+
+    def ready(session: zenoh.Session) -> None:
+        print(f"ready {endpoint} {session.zid()}", flush=True)
+
+    run_router(endpoint, on_ready=ready)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
