@@ -34,7 +34,7 @@ class AgentConfig:
     reward_shaping: bool = False
     """Naive shaping: add a feedback to the reward of the newest step at its arrival (DQN+RS)."""
     # DQN (ours).
-    gamma: float = 0.99
+    gamma: float = 0.9
     batch_size: int = 32
     replay_size: int = 10_000
     replay_start: int = 32

@@ -1,0 +1,42 @@
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+from experiments.__main__ import main
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--delay-probs", "0.3,0.3"], "delay-probs must sum to 1"),
+    (["--assumed-delay-probs", "0.5,0.6"], "assumed-delay-probs must sum to 1"),
+    (["--env", "pong"], "invalid choice: 'pong'"),
+    (["--episodes", "-3"], "episodes must be >= 0"),
+    (["--p-feedback", "2"], "p-feedback must be in [0, 1]"),
+    (["--layout", "12"], "layout must be in 0..9"),
+    (["--seed", "x"], "--seed expects int"),
+])
+def test_bad_arguments_give_one_line_error_naming_them(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["run", *argv, "--out", "/nonexistent/never-written"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert message in err
+
+
+def test_run_writes_config_and_episodes(tmp_path):
+    out = tmp_path / "r"
+    proc = subprocess.run([sys.executable, "-m", "experiments", "run", "--env", "maze", "--algo", "dqn-tamer",
+                           "--layout", "1", "--seed", "2", "--episodes", "3", "--p-feedback", "0.5",
+                           "--delay-probs", "0.3,0.6,0.1", "--assumed-delay-probs", "0.3333,0.3333,0.3334",
+                           "--stop-episode", "2", "--flip", "0.1", "--out", str(out)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    config = json.loads((out / "config.json").read_text())
+    assert config["run"]["layout"] == 1 and config["observer"]["p_flip"] == 0.1
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert [r["episode"] for r in rows] == ["0", "1", "2"]
+    assert {"episode", "return", "steps", "feedback_given", "feedback_credited"} <= set(rows[0])
+    assert int(rows[2]["feedback_given"]) <= 2  # the observer stopped after episode 1 (stragglers only)
+    assert (out / "curve.png").stat().st_size > 1000
