@@ -349,6 +349,21 @@ def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None,
     return sub, inbox
 
 
+@contextlib.contextmanager
+def subscription(session: zenoh.Session, key_expr: str, *, maxsize: int = 1024, policy: str | None = None,
+                 block_timeout: float = 5.0) -> Iterator[Inbox]:
+    """``with subscription(session, run_prefix(run)) as inbox: ...``: a callback subscriber feeding an Inbox;
+    on exit the inbox is closed first (releasing a callback blocked on a full queue), then the subscriber
+    is undeclared."""
+    sub, inbox = subscribe(session, key_expr, maxsize=maxsize, policy=policy, block_timeout=block_timeout)
+    try:
+        yield inbox
+    finally:
+        inbox.close()
+        with contextlib.suppress(Exception):
+            sub.undeclare()
+
+
 # -- a router process -----------------------------------------------------------------------------------------------
 
 def run_router(endpoint: str, *, stop: threading.Event | None = None,

@@ -75,6 +75,31 @@ def markdown() -> str:
         w(f"| `{spec.pattern()}` | `{spec.message.__name__}` | {spec.congestion} | {spec.queue_policy} | "
           f"{_cell(spec.doc)} |")
     w("")
+    w("## Publishing, receiving, logging")
+    w("")
+    w("```python")
+    w("from common.protocol import Step, decode, run_prefix, step_key")
+    w("from common.transport import MessagePublisher, client_config, open_session, subscription")
+    w("from common.mcap_log import LogWriter, read_log")
+    w("")
+    w("with open_session(client_config(7447)) as session:          # always closed, even on errors")
+    w("    steps = MessagePublisher(session, step_key(run))           # BLOCK/DROP from the key table")
+    w("    steps.wait_for_subscribers(5)                              # or the first messages may go nowhere")
+    w("    steps.put(step)                                            # encode() validates")
+    w("    with subscription(session, run_prefix(run)) as inbox:      # bounded queue, never decodes in zenoh's thread")
+    w("        received, msg = inbox.get_message(timeout=1.0)         # bad payloads counted as dropped_<reason>")
+    w("")
+    w("with LogWriter(\"runs/<run>/session.mcap\", run_config) as log:  # a recorder is just another subscriber")
+    w("    log.write(received.key, received.data)")
+    w("for rec in read_log(\"runs/<run>\"):                            # all segments, crash-tolerant")
+    w("    rec.key, rec.log_time, rec.data, rec.message")
+    w("```")
+    w("")
+    w("A log segment starts with MCAP metadata `hitl.run` (`run`, `protocol`, `segment`, `run_config`) and the "
+      "RunConfig message on `hitl/<run>/config`; each key is one channel (topic = key), each type one schema "
+      "(name = the type's schema name below, encoding `jsonschema`). Segments are `session.mcap`, "
+      "`session.1.mcap`, ...; a restarted recorder opens the next one and never overwrites.")
+    w("")
     w("## Message types")
     for spec in KEYS.values():
         cls = spec.message

@@ -16,8 +16,8 @@ import pytest
 
 from common.protocol import ServiceStatus, Step, status_key, step_key
 from common.transport import (Inbox, MessagePublisher, Received, client_config, declare_publisher, default_policy,
-                              free_port, open_session, peer_config, router_config, subscribe, tcp_endpoint,
-                              wait_for_router)
+                              free_port, open_session, peer_config, router_config, subscribe, subscription,
+                              tcp_endpoint, wait_for_router)
 
 from .strategies import example
 
@@ -187,3 +187,22 @@ def test_router_and_two_client_processes_exchange_step_and_weights():
                 p.communicate(timeout=10)
     assert all(p.poll() is not None for p in procs)
     assert not [c for c in psutil.Process().children(recursive=True) if c.pid in {p.pid for p in procs}]
+
+
+def test_subscription_closes_inbox_before_undeclaring_and_peers_work_without_router():
+    port = free_port()
+    with open_session(peer_config(listen=[port])) as a, open_session(peer_config(connect=[port])) as b:
+        with subscription(b, "hitl/r1/step", maxsize=1, block_timeout=30) as inbox:
+            assert inbox.policy == "block"
+            steps = MessagePublisher(a, step_key("r1"))
+            assert steps.wait_for_subscribers(5)
+            for i in range(3):
+                steps.put(example(Step, seq=i))
+            deadline = time.monotonic() + 5
+            while inbox.counters["received"] < 2 and time.monotonic() < deadline:
+                time.sleep(0.01)  # the second sample now waits in the callback for room
+            t = time.monotonic()
+        assert time.monotonic() - t < 5  # leaving did not wait for the 30 s block_timeout
+        assert inbox.counters["received"] >= 2
+        t = time.monotonic()
+    assert time.monotonic() - t < 5  # nor did closing the sessions
