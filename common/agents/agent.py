@@ -10,6 +10,15 @@ The pieces (Algorithm 2 of the paper):
   H learner   - StackedMLP + FeedbackMemory (D_global); on each feedback, credit by timestamp gives
                 D_local, updated at once, and D_global is sampled every b steps;
   explorer    - epsilon-greedy on alpha_q Q + alpha_h H (schedules are functions of the step count).
+
+How it stays fast and batch-independent:
+  * every per-trial quantity is an array with a leading trial axis and every method works on a set of
+    trial rows at once (the single-trial methods `record_step`, `give_feedback` wrap the row versions);
+  * random draws are counter-based (`streams`): exploration at step t of trial i and the u-th replay
+    minibatch of trial i are pure functions of (trial key, t or u), never of other trials;
+  * gradient steps run only on the trial rows that are due (gathered, stepped, scattered back), with the
+    hand-written backward of `networks.mlp_backward` and no autograd graph;
+  * `select(rows)` drops finished trials, so a batch costs what its running trials cost.
 """
 from __future__ import annotations
 
@@ -17,21 +26,25 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from common.agents.config import AgentConfig
-from common.agents.networks import StackedMLP
+from common.agents.history import BatchStepHistory
+from common.agents.networks import StackedMLP, mlp_backward, mlp_forward
 from common.agents.optim import MaskedRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.schedules import AlphaSchedule, EpsilonSchedule
-from common.credit import StepHistory
+from common.agents.streams import uniforms
 from common.delay import DelayModel
-from common.seeding import derive_seed, stream
+from common.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
 SHARED_FIELDS = ("hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
                  "replay_start", "target_update_interval", "update_interval", "h_batch_size",
                  "feedback_memory_size", "assumed_delay_probs", "history_steps")
+
+# Status codes of `feedback_round` (the strings of FeedbackOutcome.status, in this order).
+IGNORED, CREDITED, STALE = 0, 1, 2
+STATUS_NAMES = ("ignored", "credited", "stale")
 
 
 @dataclass
@@ -43,14 +56,16 @@ class FeedbackOutcome:
     lost_mass: float = 0.0
 
 
-@dataclass
-class _HeldStep:
-    slot: int
-    obs: np.ndarray
-    action: int
+def _key_array(seeds, purpose: str) -> np.ndarray:
+    return np.array([derive_seed(s, purpose) for s in seeds], dtype=np.uint64)
 
 
 class TrialBatchAgent:
+    # Per-trial arrays that `select` slices (everything else per trial lives in the learners' objects).
+    _ROW_ARRAYS = ("seeds_arr", "explore_key", "q_key", "h_key", "eps_start", "eps_decay", "eps_floor",
+                   "alpha_q", "alpha_h0", "alpha_h_decay", "train_q", "train_h", "shaping", "uses_feedback",
+                   "steps", "q_updates", "h_updates")
+
     def __init__(self, configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
                  step_unit: float = 1.0):
         if len(configs) != len(seeds) or not configs:
@@ -62,128 +77,184 @@ class TrialBatchAgent:
                     raise ValueError(f"trials batched together must share {name}")
         self.configs = list(configs)
         self.base = base
-        self.B = len(configs)
         self.obs_dim, self.n_actions = obs_dim, n_actions
         self.seeds = [int(s) for s in seeds]
         self.assumed_delay = DelayModel(base.assumed_delay_probs, step_unit)
+        self._lags = np.asarray(self.assumed_delay.lags, np.float64)
+        self._lag_probs = np.asarray(self.assumed_delay.probs, np.float64)
+        B = len(configs)
 
         self.q = StackedMLP(obs_dim, base.hidden, n_actions, [derive_seed(s, "q-init") for s in seeds])
         self.h = StackedMLP(obs_dim, base.hidden, n_actions, [derive_seed(s, "h-init") for s in seeds])
         self.q_target = self.q.detached_copy()
         self.q_opt = MaskedRMSProp(self.q.params, base.lr, base.rmsprop_alpha, base.rmsprop_eps)
         self.h_opt = MaskedRMSProp(self.h.params, base.lr, base.rmsprop_alpha, base.rmsprop_eps)
-        self.replay = TransitionReplay(self.B, base.replay_size, obs_dim)
-        self.feedback_memory = FeedbackMemory(self.B, base.feedback_memory_size, obs_dim)
-        self.history = [StepHistory(base.history_steps) for _ in range(self.B)]
+        self.replay = TransitionReplay(B, base.replay_size, obs_dim)
+        self.feedback_memory = FeedbackMemory(B, base.feedback_memory_size, obs_dim)
+        self.history = BatchStepHistory(B, base.history_steps, obs_dim)
+        # At most one held step per assumed lag can be credited by one feedback.
+        self.local_width = min(len(base.assumed_delay_probs), base.history_steps)
 
-        self.explore_rng = [stream(s, "explore") for s in seeds]
-        self.q_rng = [stream(s, "q-replay") for s in seeds]
-        self.h_rng = [stream(s, "h-replay") for s in seeds]
+        self.seeds_arr = np.array(self.seeds, dtype=np.int64)
+        self.explore_key = _key_array(seeds, "explore")
+        self.q_key = _key_array(seeds, "q-replay")
+        self.h_key = _key_array(seeds, "h-replay")
         self.epsilon = [EpsilonSchedule(c.epsilon_start, c.epsilon_decay, c.epsilon_floor) for c in configs]
         self.alpha = [AlphaSchedule(c.alpha_q, c.alpha_h, c.alpha_h_decay) for c in configs]
+        self.eps_start = np.array([c.epsilon_start for c in configs], np.float64)
+        self.eps_decay = np.array([c.epsilon_decay for c in configs], np.float64)
+        self.eps_floor = np.array([c.epsilon_floor for c in configs], np.float64)
+        self.alpha_q = np.array([c.alpha_q for c in configs], np.float64)
+        self.alpha_h0 = np.array([c.alpha_h for c in configs], np.float64)
+        self.alpha_h_decay = np.array([c.alpha_h_decay for c in configs], np.float64)
         self.train_q = np.array([c.train_q for c in configs])
         self.train_h = np.array([c.train_h for c in configs])
         self.shaping = np.array([c.reward_shaping for c in configs])
         self.uses_feedback = self.train_h | self.shaping
-        self.steps = np.zeros(self.B, dtype=np.int64)  # steps taken so far, per trial
-        self.q_updates = np.zeros(self.B, dtype=np.int64)
-        self.h_updates = np.zeros(self.B, dtype=np.int64)
-        self.local_width = len(base.assumed_delay_probs)  # at most one held step per assumed lag
+        self.steps = np.zeros(B, dtype=np.int64)  # steps taken so far, per trial
+        self.q_updates = np.zeros(B, dtype=np.int64)
+        self.h_updates = np.zeros(B, dtype=np.int64)
+
+    @property
+    def B(self) -> int:
+        return len(self.seeds_arr)
+
+    @staticmethod
+    def _rows_tensor(rows: np.ndarray, B: int) -> torch.Tensor | None:
+        """None (meaning all, no copy) when `rows` is every trial in order, else an index tensor."""
+        if len(rows) == B:
+            return None
+        return torch.from_numpy(np.ascontiguousarray(rows, dtype=np.int64))
 
     # ----------------------------------------------------------------------------------- acting
-    def mixture_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
-        aq = torch.tensor([a.alpha_q for a in self.alpha], dtype=torch.float32).view(-1, 1, 1)
-        ah = torch.tensor([a.alpha_h_at(int(t)) for a, t in zip(self.alpha, self.steps)],
-                          dtype=torch.float32).view(-1, 1, 1)
+    def epsilons(self, rows: np.ndarray | None = None) -> np.ndarray:
+        rows = np.arange(self.B) if rows is None else rows
+        return np.maximum(self.eps_floor[rows], self.eps_start[rows] - self.eps_decay[rows] * self.steps[rows])
+
+    def alpha_h(self, rows: np.ndarray | None = None) -> np.ndarray:
+        rows = np.arange(self.B) if rows is None else rows
+        return self.alpha_h0[rows] * self.alpha_h_decay[rows] ** self.steps[rows].astype(np.float64)
+
+    def mixture_weights(self, rows: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        rows = np.arange(self.B) if rows is None else rows
+        aq = torch.from_numpy(self.alpha_q[rows].astype(np.float32)).view(-1, 1, 1)
+        ah = torch.from_numpy(self.alpha_h(rows).astype(np.float32)).view(-1, 1, 1)
         return aq, ah
 
     @torch.no_grad()
+    def _scores(self, rows: np.ndarray, obs: np.ndarray) -> torch.Tensor:
+        """alpha_q Q + alpha_h H for trials `rows`, one observation each (obs: [len(rows), obs_dim])."""
+        x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).view(len(rows), 1, self.obs_dim)
+        r = self._rows_tensor(rows, self.B)
+        aq, ah = self.mixture_weights(rows)
+        q = mlp_forward(self.q.rows(r), x)[1]
+        h = mlp_forward(self.h.rows(r), x)[1]
+        return (aq * q + ah * h)[:, 0, :]
+
     def scores(self, obs: np.ndarray) -> torch.Tensor:
         """alpha_q Q + alpha_h H for one observation per trial: [B, n_actions]."""
-        x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).view(self.B, 1, self.obs_dim)
-        aq, ah = self.mixture_weights()
-        return (aq * self.q(x) + ah * self.h(x))[:, 0, :]
+        return self._scores(np.arange(self.B), np.asarray(obs, np.float32).reshape(self.B, self.obs_dim))
 
-    @torch.no_grad()
     def greedy_action(self, i: int, obs: np.ndarray) -> int:
         """Trial i's greedy action for one observation, touching no random stream (for evaluation)."""
-        x = torch.from_numpy(np.asarray(obs, dtype=np.float32)).view(1, 1, self.obs_dim)
-        qp = {k: v[i:i + 1] for k, v in self.q.params.items()}
-        hp = {k: v[i:i + 1] for k, v in self.h.params.items()}
-        a = self.alpha[i]
-        s = a.alpha_q * self.q(x, qp) + a.alpha_h_at(int(self.steps[i])) * self.h(x, hp)
-        return int(s[0, 0].argmax())
+        return int(self._scores(np.array([i]), np.asarray(obs, np.float32).reshape(1, -1))[0].argmax())
 
     def act(self, obs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
-        """Epsilon-greedy actions for the active trials (-1 for the others)."""
-        active = np.ones(self.B, bool) if active is None else active
-        greedy = self.scores(obs).argmax(dim=1).numpy()
+        """Epsilon-greedy actions for the active trials (-1 for the others). obs: [B, obs_dim].
+
+        Step t of trial i explores when u(i, 2t) < epsilon(t), with action floor(u(i, 2t + 1) * n_actions).
+        """
+        rows = np.arange(self.B) if active is None else np.flatnonzero(active)
         actions = np.full(self.B, -1, dtype=np.int64)
-        for i in np.flatnonzero(active):
-            rng = self.explore_rng[i]
-            if rng.random() < self.epsilon[i](int(self.steps[i])):
-                actions[i] = int(rng.integers(self.n_actions))
-            else:
-                actions[i] = int(greedy[i])
+        if len(rows) == 0:
+            return actions
+        obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
+        greedy = self._scores(rows, obs[rows]).argmax(dim=1).numpy()
+        u = uniforms(self.explore_key[rows, None], 2 * self.steps[rows, None] + np.arange(2)[None, :])
+        explore = u[:, 0] < self.epsilons(rows)
+        random_action = np.minimum((u[:, 1] * self.n_actions).astype(np.int64), self.n_actions - 1)
+        actions[rows] = np.where(explore, random_action, greedy)
         return actions
 
     # ---------------------------------------------------------------------------------- observing
+    def record_steps(self, rows: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
+                     next_obs: np.ndarray, terminated: np.ndarray, t_actions: np.ndarray) -> None:
+        """Trials `rows` (distinct) took `actions` at times `t_actions`: store transitions, remember steps."""
+        rows = np.asarray(rows, np.int64)
+        obs = np.asarray(obs, np.float32).reshape(len(rows), self.obs_dim)
+        actions = np.asarray(actions, np.int64)
+        slots = self.replay.add_rows(rows, obs=obs, action=actions,
+                                     reward=np.asarray(rewards, np.float32),
+                                     next_obs=np.asarray(next_obs, np.float32).reshape(len(rows), self.obs_dim),
+                                     terminated=np.asarray(terminated, np.float32))
+        self.history.push(rows, np.asarray(t_actions, np.float64), obs, actions, slots)
+        self.steps[rows] += 1
+
     def record_step(self, i: int, obs, action: int, reward: float, next_obs, terminated: bool,
                     t_action: float) -> None:
         """Trial i took `action` at time t_action: store the transition and remember the step."""
-        slot = self.replay.add(i, obs=obs, action=action, reward=reward, next_obs=next_obs,
-                               terminated=float(terminated))
-        self.history[i].push(t_action, _HeldStep(slot, np.asarray(obs, dtype=np.float32), int(action)))
-        self.steps[i] += 1
+        self.record_steps(np.array([i]), obs, np.array([action]), np.array([reward]), next_obs,
+                          np.array([float(terminated)]), np.array([t_action]))
 
     def forget_history(self, i: int) -> None:
         """Drop trial i's held steps (e.g. the actor restarted: nothing before may be credited)."""
-        self.history[i].clear()
+        self.history.clear(i)
 
     def give_feedback(self, events: list[tuple[int, float, int]]) -> list[FeedbackOutcome]:
         """One round of feedback, at most one event per trial: (trial, t_feedback, value +-1).
 
         Shaping trials add the value to the newest step's reward; H trials credit it by timestamp,
-        grow D_global and update H on D_local at once (one masked batched update for the round).
+        grow D_global and update H on D_local at once (one batched update for the round).
         """
-        outcomes: list[FeedbackOutcome] = []
-        L = self.local_width
-        obs = np.zeros((self.B, L, self.obs_dim), np.float32)
-        act = np.zeros((self.B, L), np.int64)
-        wts = np.zeros((self.B, L), np.float32)
-        fb = np.zeros((self.B, 1), np.float32)
-        mask = np.zeros(self.B, bool)
         seen = set()
-        for i, t_f, value in events:
+        for i, _, value in events:
             if i in seen:
                 raise ValueError(f"trial {i} has two feedbacks in one round")
             seen.add(i)
             if value not in (-1, 1):
                 raise ValueError(f"feedback must be -1 or +1, got {value!r}")
-            if not self.uses_feedback[i]:
-                outcomes.append(FeedbackOutcome("ignored"))
-                continue
-            if self.shaping[i]:
-                held = self.history[i].latest_at(t_f)
-                if held is None:
-                    outcomes.append(FeedbackOutcome("stale", 0, 1.0))
-                else:
-                    self.replay.add_reward(i, held.slot, float(value))
-                    outcomes.append(FeedbackOutcome("credited", 1, 0.0))
-                continue
-            result = self.history[i].credit(t_f, self.assumed_delay)
-            if not result.credited:
-                outcomes.append(FeedbackOutcome("stale", 0, result.lost_mass))
-                continue
-            for j, (held, w) in enumerate(result.entries):
-                obs[i, j], act[i, j], wts[i, j] = held.obs, held.action, w
-                self.feedback_memory.add(i, obs=held.obs, action=held.action, feedback=float(value), weight=w)
-            fb[i, 0] = value
-            mask[i] = True
-            outcomes.append(FeedbackOutcome("credited", len(result.entries), result.lost_mass))
-        if mask.any():
-            self._h_step(obs, act, fb.repeat(L, axis=1), wts, mask, reduce="sum")
-        return outcomes
+        if not events:
+            return []
+        rows = np.array([e[0] for e in events], np.int64)
+        status, steps, lost = self.feedback_round(rows, np.array([e[1] for e in events], np.float64),
+                                                  np.array([e[2] for e in events], np.int64))
+        return [FeedbackOutcome(STATUS_NAMES[s], int(n), float(m)) for s, n, m in zip(status, steps, lost)]
+
+    def feedback_round(self, rows: np.ndarray, t_feedback: np.ndarray,
+                       values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`give_feedback` on arrays (rows distinct, values +-1, not checked): (status, steps, lost mass)."""
+        n = len(rows)
+        status = np.full(n, IGNORED, np.int64)
+        steps = np.zeros(n, np.int64)
+        lost = np.zeros(n, np.float64)
+        shaping = self.shaping[rows]
+        if shaping.any():
+            k = np.flatnonzero(shaping)
+            r = rows[k]
+            pos = self.history.latest_at(r, t_feedback[k])
+            hit = pos >= 0
+            self.replay.add_reward(r[hit], self.history.slot[r[hit], pos[hit]], values[k[hit]].astype(np.float32))
+            status[k] = np.where(hit, CREDITED, STALE)
+            steps[k] = hit.astype(np.int64)
+            lost[k] = np.where(hit, 0.0, 1.0)
+        learn = self.train_h[rows] & ~shaping
+        if learn.any():
+            k = np.flatnonzero(learn)
+            r = rows[k]
+            credit = self.history.credit(r, t_feedback[k], self._lags, self._lag_probs)
+            ok = credit.counts > 0
+            status[k] = np.where(ok, CREDITED, STALE)
+            steps[k] = credit.counts
+            lost[k] = credit.lost
+            if ok.any():
+                r, pos, w, cnt = r[ok], credit.positions[ok], credit.weights[ok], credit.counts[ok]
+                fb = np.repeat(values[k[ok]].astype(np.float32)[:, None], pos.shape[1], axis=1)
+                obs = self.history.obs[r[:, None], pos]
+                act = self.history.action[r[:, None], pos]
+                w32 = w.astype(np.float32)
+                self.feedback_memory.add_many(r, cnt, obs=obs, action=act, feedback=fb, weight=w32)
+                self._h_step(r, obs, act, fb, w32, reduce="sum")
+        return status, steps, lost
 
     # ---------------------------------------------------------------------------------- learning
     def update(self, active: np.ndarray | None = None) -> None:
@@ -191,51 +262,112 @@ class TrialBatchAgent:
         active = np.ones(self.B, bool) if active is None else active
         c = self.base
         due = active & (self.steps > 0) & (self.steps % c.update_interval == 0)
-        q_mask = due & self.train_q & (self.replay.size >= max(c.replay_start, 1))
-        if q_mask.any():
-            self._q_step(q_mask)
-        h_mask = due & self.train_h & (self.feedback_memory.size > 0)
-        if h_mask.any():
-            idx = self.feedback_memory.sample_indices(self.h_rng, h_mask, c.h_batch_size)
-            g = self.feedback_memory.gather
-            self._h_step(g("obs", idx), g("action", idx), g("feedback", idx), g("weight", idx), h_mask,
-                         reduce="mean")
-        sync = active & self.train_q & (self.steps % c.target_update_interval == 0) & (self.steps > 0)
-        if sync.any():
-            with torch.no_grad():
-                m = torch.from_numpy(sync)
-                for k, v in self.q.params.items():
-                    mm = m.view(-1, *([1] * (v.dim() - 1)))
-                    self.q_target[k].copy_(torch.where(mm, v, self.q_target[k]))
+        q_rows = np.flatnonzero(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
+        if len(q_rows):
+            self._q_step(q_rows)
+        h_rows = np.flatnonzero(due & self.train_h & (self.feedback_memory.size > 0))
+        if len(h_rows):
+            m = self.feedback_memory
+            idx = m.sample_indices(self.h_key[h_rows], self.h_updates[h_rows], h_rows, c.h_batch_size)
+            self._h_step(h_rows, m.gather("obs", h_rows, idx), m.gather("action", h_rows, idx),
+                         m.gather("feedback", h_rows, idx), m.gather("weight", h_rows, idx), reduce="mean")
+        sync = np.flatnonzero(active & self.train_q & (self.steps % c.target_update_interval == 0)
+                              & (self.steps > 0))
+        if len(sync):
+            r = torch.from_numpy(sync)
+            for k, v in self.q.params.items():
+                self.q_target[k].index_copy_(0, r, v.index_select(0, r))
 
-    def _q_step(self, mask: np.ndarray) -> None:
+    @torch.no_grad()
+    def _q_step(self, rows: np.ndarray) -> None:
+        """One Huber-loss TD step (mean over the minibatch) on trials `rows`."""
         c = self.base
-        idx = self.replay.sample_indices(self.q_rng, mask, c.batch_size)
+        r = self._rows_tensor(rows, self.B)
+        idx = self.replay.sample_indices(self.q_key[rows], self.q_updates[rows], rows, c.batch_size)
         g = self.replay.gather
-        obs = torch.from_numpy(g("obs", idx))
-        act = torch.from_numpy(g("action", idx))
-        rew = torch.from_numpy(g("reward", idx))
-        nxt = torch.from_numpy(g("next_obs", idx))
-        term = torch.from_numpy(g("terminated", idx))
-        with torch.no_grad():
-            q_next = self.q(nxt, self.q_target).max(dim=2).values
-            target = rew + c.gamma * (1.0 - term) * q_next
-        q_sa = self.q(obs).gather(2, act.unsqueeze(2)).squeeze(2)
-        loss = F.smooth_l1_loss(q_sa, target, reduction="none").mean(dim=1)
-        self.q_opt.zero_grad()
-        loss.sum().backward()
-        self.q_opt.step(torch.from_numpy(mask))
-        self.q_updates += mask
+        obs = torch.from_numpy(g("obs", rows, idx))
+        act = torch.from_numpy(g("action", rows, idx)).unsqueeze(2)
+        rew = torch.from_numpy(g("reward", rows, idx))
+        nxt = torch.from_numpy(g("next_obs", rows, idx))
+        term = torch.from_numpy(g("terminated", rows, idx))
+        target_params = self.q_target if r is None else {k: v.index_select(0, r) for k, v in self.q_target.items()}
+        q_next = mlp_forward(target_params, nxt)[1].max(dim=2).values
+        target = rew + c.gamma * (1.0 - term) * q_next
+        params = self.q.rows(r)
+        hidden, q = mlp_forward(params, obs)
+        q_sa = q.gather(2, act).squeeze(2)
+        # d/dq_sa of mean Huber(q_sa - target): the error clipped to [-1, 1], over the batch size.
+        d_q_sa = (q_sa - target).clamp_(-1.0, 1.0).div_(c.batch_size)
+        d_out = torch.zeros_like(q).scatter_(2, act, d_q_sa.unsqueeze(2))
+        self.q_opt.step_rows(r, mlp_backward(params, obs, hidden, d_out))
+        self.q_updates[rows] += 1
 
-    def _h_step(self, obs, act, fb, wts, mask: np.ndarray, reduce: str) -> None:
+    @torch.no_grad()
+    def _h_step(self, rows: np.ndarray, obs, act, fb, wts, reduce: str) -> None:
         """Weighted squared error w (H(s, a) - f)^2: summed over D_local, averaged over a minibatch."""
-        h_sa = self.h(torch.from_numpy(obs)).gather(2, torch.from_numpy(act).unsqueeze(2)).squeeze(2)
-        err = torch.from_numpy(wts) * (h_sa - torch.from_numpy(fb)) ** 2
-        loss = err.sum(dim=1) if reduce == "sum" else err.mean(dim=1)
-        self.h_opt.zero_grad()
-        loss.sum().backward()
-        self.h_opt.step(torch.from_numpy(mask))
-        self.h_updates += mask
+        r = self._rows_tensor(rows, self.B)
+        x = torch.from_numpy(np.ascontiguousarray(obs, np.float32))
+        a = torch.from_numpy(np.ascontiguousarray(act, np.int64)).unsqueeze(2)
+        params = self.h.rows(r)
+        hidden, h = mlp_forward(params, x)
+        h_sa = h.gather(2, a).squeeze(2)
+        d_h_sa = 2.0 * torch.from_numpy(np.ascontiguousarray(wts, np.float32)) * (
+            h_sa - torch.from_numpy(np.ascontiguousarray(fb, np.float32)))
+        if reduce == "mean":
+            d_h_sa.div_(x.shape[1])
+        d_out = torch.zeros_like(h).scatter_(2, a, d_h_sa.unsqueeze(2))
+        self.h_opt.step_rows(r, mlp_backward(params, x, hidden, d_out))
+        self.h_updates[rows] += 1
+
+    # -------------------------------------------------------------------------- batch bookkeeping
+    def select(self, rows: np.ndarray) -> None:
+        """Keep only trials `rows` (in that order): row k of the batch becomes what row rows[k] was.
+
+        Used to drop finished trials; a kept trial continues exactly as it would have."""
+        rows = np.asarray(rows, np.int64)
+        r = torch.from_numpy(rows)
+        self.q.select(r)
+        self.h.select(r)
+        self.q_target = {k: v.index_select(0, r) for k, v in self.q_target.items()}
+        self.q_opt.select(r, self.q.params)
+        self.h_opt.select(r, self.h.params)
+        self.replay.select(rows)
+        self.feedback_memory.select(rows)
+        self.history.select(rows)
+        for name in self._ROW_ARRAYS:
+            setattr(self, name, getattr(self, name)[rows])
+        self.configs = [self.configs[k] for k in rows]
+        self.seeds = [self.seeds[k] for k in rows]
+        self.epsilon = [self.epsilon[k] for k in rows]
+        self.alpha = [self.alpha[k] for k in rows]
+
+    def state_dict(self) -> dict:
+        """Everything that changes while learning (configs and seeds are given at construction)."""
+        return {
+            "q": {k: v.clone() for k, v in self.q.params.items()},
+            "h": {k: v.clone() for k, v in self.h.params.items()},
+            "q_target": {k: v.clone() for k, v in self.q_target.items()},
+            "q_opt": self.q_opt.state_dict(), "h_opt": self.h_opt.state_dict(),
+            "replay": self.replay.state_dict(), "feedback_memory": self.feedback_memory.state_dict(),
+            "history": self.history.state_dict(),
+            "steps": self.steps.copy(), "q_updates": self.q_updates.copy(), "h_updates": self.h_updates.copy(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        with torch.no_grad():
+            for k, v in state["q"].items():
+                self.q.params[k].copy_(v)
+            for k, v in state["h"].items():
+                self.h.params[k].copy_(v)
+            for k, v in state["q_target"].items():
+                self.q_target[k].copy_(v)
+        self.q_opt.load_state_dict(state["q_opt"])
+        self.h_opt.load_state_dict(state["h_opt"])
+        self.replay.load_state_dict(state["replay"])
+        self.feedback_memory.load_state_dict(state["feedback_memory"])
+        self.history.load_state_dict(state["history"])
+        for name in ("steps", "q_updates", "h_updates"):
+            getattr(self, name)[...] = state[name]
 
     # ------------------------------------------------------------------------------- weights I/O
     def policy_weights(self, i: int = 0) -> dict[str, torch.Tensor]:

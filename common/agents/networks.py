@@ -3,6 +3,12 @@
 Trial i's weights are W1[i], b1[i], W2[i], b2[i]; `forward` uses batched matrix products so B trials cost
 one call. Each trial is initialised from its own generator, so a trial gets the same weights whether it
 runs alone (B = 1) or among others.
+
+Gradients are written out by hand (`mlp_backward`) instead of using autograd: the network is two affine
+maps and a tanh, the hand-written backward is a handful of batched products, and it avoids building a
+graph on every update (autograd's bookkeeping cost more than the arithmetic at these sizes). Every
+operation is either a per-trial batched matrix product or elementwise, never a reduction across trials,
+so a trial's numbers do not depend on which or how many trials share the batch.
 """
 from __future__ import annotations
 
@@ -25,26 +31,63 @@ def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, tor
     }
 
 
+def mlp_hidden(p: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
+    """tanh(x W1 + b1): [n, N, in] -> [n, N, hidden]."""
+    return torch.bmm(x, p["w1"]).add_(p["b1"]).tanh_()
+
+
+def mlp_forward(p: dict[str, torch.Tensor], x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(hidden activations, outputs) for x: [n, N, in] -> [n, N, hidden], [n, N, out]."""
+    h = mlp_hidden(p, x)
+    return h, torch.bmm(h, p["w2"]).add_(p["b2"])
+
+
+def mlp_backward(p: dict[str, torch.Tensor], x: torch.Tensor, h: torch.Tensor,
+                 d_out: torch.Tensor) -> dict[str, torch.Tensor]:
+    """Gradients of sum(d_out * out) with respect to each trial's weights (what autograd would give).
+
+    Bias gradients are sums over the N rows, written as products with a row of ones so that they are
+    per-trial matrix products like the rest.
+    """
+    n, N, _ = x.shape
+    ones = torch.ones(n, 1, N, dtype=x.dtype)
+    g_w2 = torch.bmm(h.transpose(1, 2), d_out)
+    g_b2 = torch.bmm(ones, d_out)
+    d_pre = torch.bmm(d_out, p["w2"].transpose(1, 2))
+    d_pre.mul_(1.0 - h * h)
+    g_w1 = torch.bmm(x.transpose(1, 2), d_pre)
+    g_b1 = torch.bmm(ones, d_pre)
+    return {"w1": g_w1, "b1": g_b1, "w2": g_w2, "b2": g_b2}
+
+
 class StackedMLP:
     """B MLPs in -> hidden (tanh) -> out, parameters stacked on a leading trial axis."""
 
     def __init__(self, in_dim: int, hidden: int, out_dim: int, seeds: list[int]):
         self.in_dim, self.hidden, self.out_dim = in_dim, hidden, out_dim
         per_trial = [init_mlp(in_dim, hidden, out_dim, s) for s in seeds]
-        self.params = {name: torch.stack([p[name] for p in per_trial]).requires_grad_(True)
-                       for name in PARAM_NAMES}
+        self.params = {name: torch.stack([p[name] for p in per_trial]) for name in PARAM_NAMES}
 
     @property
     def trials(self) -> int:
         return self.params["w1"].shape[0]
 
+    @torch.no_grad()
     def forward(self, x: torch.Tensor, params: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
         """x: [B, N, in] -> [B, N, out]."""
-        p = self.params if params is None else params
-        h = torch.tanh(torch.baddbmm(p["b1"], x, p["w1"]))
-        return torch.baddbmm(p["b2"], h, p["w2"])
+        return mlp_forward(self.params if params is None else params, x)[1]
 
     __call__ = forward
+
+    def rows(self, idx: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """The weights of the trials `idx` (all trials, without copying, when idx is None)."""
+        if idx is None:
+            return self.params
+        return {k: v.index_select(0, idx) for k, v in self.params.items()}
+
+    def select(self, idx: torch.Tensor) -> None:
+        """Keep only the trials `idx` (in that order)."""
+        self.params = {k: v.index_select(0, idx) for k, v in self.params.items()}
 
     def detached_copy(self) -> dict[str, torch.Tensor]:
         return {k: v.detach().clone() for k, v in self.params.items()}

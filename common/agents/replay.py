@@ -1,11 +1,14 @@
-"""Per-trial replay memories stored as stacked arrays, so a batch of trials samples in one gather.
+"""Per-trial replay memories stored as stacked arrays, so a batch of trials adds and samples in one call.
 
-Each trial samples with its own generator and only when asked, so its draws are the same alone or
-batched. `TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's D_global.
+Sampling is counter-based (`streams`): the j-th index of a trial's u-th minibatch is a pure function of
+(trial key, u, j) and the trial's current size, so its draws are the same alone or batched.
+`TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's D_global.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from common.agents import streams
 
 
 class _Ring:
@@ -25,16 +28,38 @@ class _Ring:
         self.size[trial] = min(self.size[trial] + 1, self.capacity)
         return slot
 
-    def sample_indices(self, rngs: list[np.random.Generator], mask: np.ndarray, n: int) -> np.ndarray:
-        """[B, n] slots; trials outside `mask` get slot 0 and do not touch their generator."""
-        idx = np.zeros((len(rngs), n), dtype=np.int64)
-        for i in np.flatnonzero(mask):
-            idx[i] = rngs[i].integers(0, self.size[i], size=n)
-        return idx
+    def add_rows(self, trials: np.ndarray, **values) -> np.ndarray:
+        """Append one entry for each of `trials` (distinct); values are arrays with a leading trial axis."""
+        slots = self.pos[trials].copy()
+        for name, value in values.items():
+            self.data[name][trials, slots] = value
+        self.pos[trials] = (slots + 1) % self.capacity
+        self.size[trials] = np.minimum(self.size[trials] + 1, self.capacity)
+        return slots
 
-    def gather(self, name: str, idx: np.ndarray) -> np.ndarray:
-        rows = np.arange(idx.shape[0])[:, None]
-        return self.data[name][rows, idx]
+    def add_many(self, trials: np.ndarray, counts: np.ndarray, **values) -> None:
+        """Append counts[k] entries for trials[k] (distinct); values[name] is [len(trials), max count, ...]
+        and entry j of trial k is values[name][k, j] for j < counts[k]."""
+        k_idx, j_idx = np.nonzero(np.arange(values[next(iter(values))].shape[1])[None, :] < counts[:, None])
+        rows = trials[k_idx]
+        slots = (self.pos[rows] + j_idx) % self.capacity
+        for name, value in values.items():
+            self.data[name][rows, slots] = value[k_idx, j_idx]
+        self.pos[trials] = (self.pos[trials] + counts) % self.capacity
+        self.size[trials] = np.minimum(self.size[trials] + counts, self.capacity)
+
+    def sample_indices(self, keys: np.ndarray, draws: np.ndarray, trials: np.ndarray, n: int) -> np.ndarray:
+        """[len(trials), n] slots: trial k's minibatch number draws[k], drawn with its key keys[k]."""
+        counters = draws[:, None] * n + np.arange(n)[None, :]
+        return streams.integers(keys[:, None], counters, self.size[trials][:, None])
+
+    def gather(self, name: str, trials: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        return self.data[name][trials[:, None], idx]
+
+    def select(self, trials: np.ndarray) -> None:
+        """Keep only `trials` (in that order)."""
+        self.data = {k: v[trials] for k, v in self.data.items()}
+        self.size, self.pos = self.size[trials], self.pos[trials]
 
     def state_dict(self) -> dict:
         return {"data": {k: v.copy() for k, v in self.data.items()}, "size": self.size.copy(), "pos": self.pos.copy()}
@@ -52,8 +77,8 @@ class TransitionReplay(_Ring):
             "obs": ((obs_dim,), np.float32), "action": ((), np.int64), "reward": ((), np.float32),
             "next_obs": ((obs_dim,), np.float32), "terminated": ((), np.float32)})
 
-    def add_reward(self, trial: int, slot: int, amount: float) -> None:
-        """Naive reward shaping: feedback added to an already stored transition."""
+    def add_reward(self, trial, slot, amount) -> None:
+        """Naive reward shaping: feedback added to already stored transitions (arrays allowed)."""
         self.data["reward"][trial, slot] += amount
 
 

@@ -1,0 +1,99 @@
+"""The recent steps of every trial in a batch, and credit assignment by timestamp over them, vectorised.
+
+Same rule as `common.credit.credit_weights` (Deep TAMER's): a feedback stamped t_f gives held step k the
+assumed-delay mass of the lags l for which step k is the newest step taken at or before t_f - l; mass that
+falls before the oldest held step is lost. Here the rule runs for one feedback per trial of a batch at
+once, over ring buffers (time, obs, action, replay slot) of the last `capacity` steps of each trial. The
+weights are accumulated lag by lag in float64 exactly as `credit_weights` does; tests check the two agree.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class BatchCredit:
+    """Credit of one feedback per trial (rows = the trials asked about, in order)."""
+
+    counts: np.ndarray     # [n] held steps credited (weight > 0)
+    lost: np.ndarray       # [n] assumed-delay mass that fell before the oldest held step
+    positions: np.ndarray  # [n, L] ring positions of the credited steps, oldest first (valid: j < counts)
+    weights: np.ndarray    # [n, L] their weights (0 beyond counts)
+
+
+class BatchStepHistory:
+    def __init__(self, trials: int, capacity: int, obs_dim: int):
+        self.capacity = capacity
+        self.times = np.zeros((trials, capacity), np.float64)
+        self.obs = np.zeros((trials, capacity, obs_dim), np.float32)
+        self.action = np.zeros((trials, capacity), np.int64)
+        self.slot = np.zeros((trials, capacity), np.int64)
+        self.count = np.zeros(trials, np.int64)
+        self.head = np.zeros(trials, np.int64)  # next write position
+
+    def push(self, trials: np.ndarray, t: np.ndarray, obs: np.ndarray, action: np.ndarray,
+             slot: np.ndarray) -> None:
+        """Trial trials[k] took action[k] at time t[k] (trials distinct)."""
+        held = self.count[trials] > 0
+        newest = self.times[trials, (self.head[trials] - 1) % self.capacity]
+        if np.any(held & (t < newest)):
+            k = int(np.flatnonzero(held & (t < newest))[0])
+            raise ValueError(f"step time {t[k]} is older than the previous step {newest[k]}")
+        pos = self.head[trials]
+        self.times[trials, pos] = t
+        self.obs[trials, pos] = obs
+        self.action[trials, pos] = action
+        self.slot[trials, pos] = slot
+        self.head[trials] = (pos + 1) % self.capacity
+        self.count[trials] = np.minimum(self.count[trials] + 1, self.capacity)
+
+    def clear(self, trials) -> None:
+        self.count[trials] = 0
+
+    def _chronological(self, trials: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ring positions oldest first [n, capacity] and the held times there (+inf where nothing is held)."""
+        j = np.arange(self.capacity)[None, :]
+        count = self.count[trials][:, None]
+        pos = (self.head[trials][:, None] - count + j) % self.capacity
+        times = np.where(j < count, self.times[trials[:, None], pos], np.inf)
+        return pos, times
+
+    def latest_at(self, trials: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """Ring position of the newest step taken at or before t[k] for each trial, -1 if none."""
+        pos, times = self._chronological(trials)
+        k = (times <= t[:, None]).sum(axis=1) - 1
+        return np.where(k >= 0, pos[np.arange(len(trials)), np.maximum(k, 0)], -1)
+
+    def credit(self, trials: np.ndarray, t_feedback: np.ndarray, lags: np.ndarray,
+               probs: np.ndarray) -> BatchCredit:
+        n, L = len(trials), len(probs)
+        pos, times = self._chronological(trials)
+        rows = np.arange(n)
+        w = np.zeros((n, self.capacity), np.float64)
+        for lag, p in zip(lags, probs):
+            if p == 0.0:
+                continue
+            k = (times <= (t_feedback - lag)[:, None]).sum(axis=1) - 1
+            ok = k >= 0
+            w[rows[ok], k[ok]] += p
+        lost = np.maximum(0.0, 1.0 - w.sum(axis=1))
+        credited = w > 0
+        counts = credited.sum(axis=1)
+        order = np.argsort(~credited, axis=1, kind="stable")[:, :L]
+        valid = np.arange(L)[None, :] < counts[:, None]
+        weights = np.where(valid, np.take_along_axis(w, order, axis=1), 0.0)
+        positions = np.where(valid, np.take_along_axis(pos, order, axis=1), 0)
+        return BatchCredit(counts, lost, positions, weights)
+
+    def select(self, trials: np.ndarray) -> None:
+        for name in ("times", "obs", "action", "slot", "count", "head"):
+            setattr(self, name, getattr(self, name)[trials])
+
+    def state_dict(self) -> dict:
+        return {name: getattr(self, name).copy() for name in ("times", "obs", "action", "slot", "count", "head")}
+
+    def load_state_dict(self, state: dict) -> None:
+        for name, value in state.items():
+            getattr(self, name)[...] = value
