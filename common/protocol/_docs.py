@@ -154,6 +154,3 @@ def _schema_block(w, cls: type, title: str = "JSON Schema") -> None:
     w("```")
     w("")
     w("</details>")
-
-
-

@@ -201,7 +201,7 @@ class Weights:
             "properties": {"__metadata__": {"type": "object", "properties": meta_props,
                                             "required": list(METADATA_FIELDS), "additionalProperties": False}},
             "required": ["__metadata__"],
-            "propertyNames": {"pattern": f"^(__metadata__|[A-Za-z0-9_.]{{1,128}})$"},
+            "propertyNames": {"pattern": "^(__metadata__|[A-Za-z0-9_.]{1,128})$"},
             "maxProperties": MAX_TENSORS + 1,
             "additionalProperties": {
                 "type": "object",
