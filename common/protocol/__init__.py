@@ -16,18 +16,21 @@ No zenoh or mcap import here: the pure core may use these types too.
 
 from ._base import PROTOCOL_VERSION, Message
 from ._keys import (KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, config_key, decode, episode_key,
-                    feedback_key, feedback_wildcard, message_type, parse_key, perception_key, run_prefix,
+                    feedback_key, feedback_wildcard, ingest_key, message_type, parse_key, perception_key, run_prefix,
                     status_key, step_key, validate_name, weights_key)
 from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary,
-                        ExpressionPrediction, Feedback, RunConfig, ServiceStatus, Step, Time)
+                        ExpressionPrediction, Feedback, Ingest, IngestEntry, RunConfig, ServiceStatus, Step,
+                        Time)
 from ._spec import REASONS, ProtocolError
 from ._weights import Weights, check_spec
 
 __all__ = [
     "PROTOCOL_VERSION", "Message", "ProtocolError", "REASONS",
-    "Step", "Feedback", "Weights", "EpisodeSummary", "ServiceStatus", "CompressedImage", "ExpressionPrediction",
+    "Step", "Feedback", "Weights", "Ingest", "IngestEntry", "EpisodeSummary", "ServiceStatus", "CompressedImage",
+    "ExpressionPrediction",
     "RunConfig", "Time", "Box", "SERVICE_STATES", "NAME_PATTERN", "TOKEN_PATTERN", "check_spec",
     "KEYS", "KeySpec", "ParsedKey", "MESSAGE_TYPES", "ROOT", "parse_key", "message_type", "decode", "validate_name",
-    "run_prefix", "step_key", "feedback_key", "feedback_wildcard", "weights_key", "episode_key", "status_key",
+    "run_prefix", "step_key", "feedback_key", "feedback_wildcard", "weights_key", "episode_key", "ingest_key",
+    "status_key",
     "camera_key", "perception_key", "config_key",
 ]

@@ -10,8 +10,8 @@ import dataclasses
 import re
 from typing import Any
 
-from ._messages import (NAME_PATTERN, CompressedImage, EpisodeSummary, ExpressionPrediction, Feedback, RunConfig,
-                        ServiceStatus, Step)
+from ._messages import (NAME_PATTERN, CompressedImage, EpisodeSummary, ExpressionPrediction, Feedback, Ingest,
+                        RunConfig, ServiceStatus, Step)
 from ._spec import ProtocolError
 from ._weights import Weights
 
@@ -57,7 +57,9 @@ KEYS: dict[str, KeySpec] = {k.kind: k for k in [
     KeySpec("feedback", Feedback, "teacher_id", "block", "block", "Binary feedback, one key per teacher."),
     KeySpec("weights", Weights, None, "block", "block",
             "Network weights, from the learner. An actor wants only the newest: receive with drop_oldest, maxsize 1."),
-    KeySpec("episode", EpisodeSummary, None, "block", "block", "End-of-episode summary, from the actor."),
+    KeySpec("episode", EpisodeSummary, None, "block", "block", "End-of-episode summary, from the learner."),
+    KeySpec("ingest", Ingest, None, "block", "block",
+            "The learner's input order (what `replay retrain` feeds a fresh learner), from the learner."),
     KeySpec("status", ServiceStatus, "service", "drop", "drop_oldest", "Service liveness and counters."),
     KeySpec("camera", CompressedImage, "camera", "drop", "drop_oldest", "Camera frames (JPEG)."),
     KeySpec("perception", ExpressionPrediction, "camera", "drop", "drop_oldest", "Expression read from each frame."),
@@ -112,6 +114,10 @@ def camera_key(run: str, camera: str) -> str:
 
 def perception_key(run: str, camera: str) -> str:
     return KEYS["perception"].key(run, camera)
+
+
+def ingest_key(run: str) -> str:
+    return KEYS["ingest"].key(run)
 
 
 def config_key(run: str) -> str:

@@ -96,7 +96,8 @@ class Feedback(Message):
 
 @dataclasses.dataclass(frozen=True)
 class EpisodeSummary(Message):
-    """End-of-episode numbers from the actor (published on `hitl/<run>/episode`)."""
+    """End-of-episode numbers (published on `hitl/<run>/episode` by the learner, which sees the episode's steps
+    and what became of its feedback; `incarnation` is the actor's)."""
 
     TYPE_NAME: ClassVar[str] = "hitl.EpisodeSummary"
     MAX_BYTES: ClassVar[int] = 4096
@@ -110,6 +111,57 @@ class EpisodeSummary(Message):
     feedback_credited: int = fld(Count("Feedback messages credited to at least one step of the episode."))
     weights_version: int = fld(Count("Weights version in use at the end of the episode."))
     t_end: float = fld(Seconds("Wall-clock time (s) when the episode ended."))
+
+
+INGEST_KINDS = ("step", "feedback", "end", "outcome")
+
+
+@dataclasses.dataclass(frozen=True)
+class IngestEntry:
+    """One line of a learner's ingest record (see `Ingest`)."""
+
+    kind: str
+    source: str
+    seq: int
+    status: str
+    t: float
+
+
+INGEST_ENTRY_SPEC = Obj({
+    "kind": Str(enum=INGEST_KINDS, description=(
+        "`step` / `feedback`: an input consumed, in consumption order; `end`: the learner stopped taking inputs; "
+        "`outcome`: what became of a feedback (not an input; retrain checks it).")),
+    "source": Str(128, pattern=TOKEN_PATTERN, min_len=1, description=(
+        "The input's origin: the actor incarnation (step), the teacher id (feedback, outcome), the learner (end).")),
+    "seq": Int(0, description="The input's own `seq` (Step.seq, Feedback.seq); 0 for `end`."),
+    "status": Str(32, description=(
+        "For `outcome`: credited, stale, ignored, after_end, unknown_actor; for `step`: learned, gap, old; "
+        "else empty.")),
+    "t": Float(0.0, description="Wall-clock time (s) of consumption: diagnostics only, never used by retrain."),
+}, cls=IngestEntry, description="One ingest entry.")
+
+
+@dataclasses.dataclass(frozen=True)
+class Ingest(Message):
+    """A learner's record of the inputs it consumed, in the order it consumed them (published on
+    `hitl/<run>/ingest`, in batches, and logged by the recorder).
+
+    Every learning decision of the learner depends only on this ordered input, so feeding a fresh learner the
+    recorded Step and Feedback messages in this order reproduces its weights bit for bit (`replay retrain`).
+    `seq` is contiguous per learner incarnation; `index` is the position of the first entry in the
+    incarnation's whole record. The first batch (`seq` 0) carries the learner's config.
+    """
+
+    TYPE_NAME: ClassVar[str] = "hitl.Ingest"
+    MAX_BYTES: ClassVar[int] = 512 * 1024
+
+    run: str = fld(Name(RUN))
+    learner: str = fld(Token("The learner process's incarnation."))
+    seq: int = fld(Count("Batch counter, 0, 1, 2, ... without gaps within one learner incarnation."))
+    index: int = fld(Count("Position of the first entry in this incarnation's record."))
+    entries: list = fld(List(INGEST_ENTRY_SPEC, max_items=2048, description="Entries in consumption order."))
+    config: dict | None = fld(Nullable(AnyJSON(object_only=True, description=(
+        "The learner's config (first batch only): everything retrain needs to rebuild it."))), optional=True)
 
 
 SERVICE_STATES = ("starting", "ready", "stopping", "stopped")

@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from common.protocol import (NAME_PATTERN, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary, ExpressionPrediction,
-                             Feedback, RunConfig, ServiceStatus, Step, Time, Weights)
+                             Feedback, Ingest, IngestEntry, RunConfig, ServiceStatus, Step, Time, Weights)
 from common.protocol._spec import AnyJSON, Bool, Bytes64, Float, Int, List, Map, Nullable, Obj, Spec, Str
 
 TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)
@@ -77,7 +77,7 @@ def weights() -> st.SearchStrategy:
     )
 
 
-JSON_TYPES = (Step, Feedback, EpisodeSummary, ServiceStatus, CompressedImage, ExpressionPrediction, RunConfig)
+JSON_TYPES = (Step, Feedback, EpisodeSummary, ServiceStatus, CompressedImage, ExpressionPrediction, RunConfig, Ingest)
 ALL_TYPES = JSON_TYPES + (Weights,)
 
 
@@ -98,6 +98,10 @@ def example(cls: type, **changes):
         ExpressionPrediction: dict(t_capture=1700000000.1, frame=12,
                                    box=Box(10, 20, 64, 64),
                                    label="happy", confidence=0.9, probabilities={"happy": 0.9, "neutral": 0.1}),
+        Ingest: dict(run="r1", learner="learner-1", seq=0, index=0, config={"algo": "dqn-tamer"},
+                     entries=[IngestEntry("step", "actor-1", 0, "learned", 1700000000.3),
+                              IngestEntry("feedback", "oracle", 0, "", 1700000000.4),
+                              IngestEntry("outcome", "oracle", 0, "credited", 1700000000.4)]),
         RunConfig: dict(run="r1", t_created=1700000000.0, protocol=1, config={"env": "maze", "lr": 0.001}),
         Weights: dict(run="r1", incarnation="learner-1", version=5, t_published=1700000002.0,
                       tensors={"q.0.weight": np.ones((4, 2), np.float32), "q.0.bias": np.zeros(4, np.float32)}),
