@@ -1,0 +1,40 @@
+"""python -m services {up, bench}: the live system on this machine.
+
+  up     start an embedded Zenoh router and every service as its own process; progress; summary
+  bench  throughput and latency figures of the live system on this machine (not a test)
+
+Each service also runs on its own: python -m services.{actor,teacher,learner,recorder} --help, and
+python -m services.replay --help for logs.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from common.config import add_config_arguments, config_from_namespace
+
+
+def main(argv: list[str] | None = None) -> int:
+    from services.bench import BenchConfig, bench
+    from services.launcher import UpConfig, up
+
+    parser = argparse.ArgumentParser(prog="python -m services", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    commands = {"up": (UpConfig, up), "bench": (BenchConfig, bench)}
+    parsers = {}
+    for name, (cls, _) in commands.items():
+        doc = (cls.__doc__ or "").strip()
+        parsers[name] = p = sub.add_parser(name, help=doc.split("\n")[0], description=doc)
+        add_config_arguments(p, cls)
+    args = parser.parse_args(argv)
+    cls, fn = commands[args.command]
+    try:
+        config = config_from_namespace(cls, args)
+    except (ValueError, OSError) as exc:
+        parsers[args.command].error(str(exc))
+    return fn(config)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,5 @@
+import sys
+
+from services.actor.service import cli
+
+sys.exit(cli())

@@ -1,0 +1,175 @@
+"""Config dataclasses of the live services: each is documented, is the service's command line
+(`common.config`), and is written to the run's log.
+
+Every service shares `ServiceConfig` (run name, router endpoint, launcher link, stats file); the task fields
+(`env`, `layout`, `seed`, `algo`) mean what they mean for the in-process runner, so a live run and an
+in-process run with the same values are the same experiment.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from common.agents import ALGOS
+from common.config import option
+from common.delay import parse_probs
+from common.envs import ENV_NAMES
+from common.envs.maze import LAYOUT_COUNT
+from common.protocol import validate_name
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+CLOCKS = ("steps", "wall")
+
+
+def _check_name(value: str, what: str) -> None:
+    try:
+        validate_name(value, what)
+    except Exception as exc:  # ProtocolError -> ValueError for the CLI
+        raise ValueError(f"{what}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """Settings every service has."""
+
+    run: str = option("live", "run name: the second chunk of every key (hitl/<run>/...)")
+    connect: tuple[str, ...] = option((DEFAULT_ENDPOINT,), "Zenoh router endpoint(s) to connect to, comma-separated")
+    parent_pid: int | None = option(None, "exit when this process is gone (the launcher passes its pid)")
+    stats_out: str | None = option(None, "write final counters and latency samples to this JSON file at exit")
+    status_period: float = option(1.0, "seconds between ServiceStatus messages")
+    connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
+
+    def __post_init__(self):
+        _check_name(self.run, "run")
+        if not self.connect:
+            raise ValueError("connect: at least one endpoint")
+        for name in ("status_period", "connect_timeout"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
+
+
+@dataclass(frozen=True)
+class TaskConfig(ServiceConfig):
+    """The experiment: environment, layout, seed (same meaning as `python -m experiments run`)."""
+
+    env: str = option("maze", "environment", choices=ENV_NAMES)
+    layout: int = option(0, f"maze layout 0..{LAYOUT_COUNT - 1} (ignored by taxi)")
+    seed: int = option(0, "trial seed: network init, exploration, observer, replay sampling, env")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.env not in ENV_NAMES:
+            raise ValueError(f"unknown env {self.env!r}; choose one of {', '.join(ENV_NAMES)}")
+        if not 0 <= self.layout < LAYOUT_COUNT:
+            raise ValueError(f"layout must be in 0..{LAYOUT_COUNT - 1}, got {self.layout}")
+
+
+@dataclass(frozen=True)
+class ActorConfig(TaskConfig):
+    """The actor: steps the environment, acts with the newest weights it has, publishes every Step."""
+
+    algo: str = option("dqn-tamer", "agent (sets the exploration and mixing schedules)", choices=ALGOS)
+    episodes: int = option(50, "episodes to run, then stop")
+    rate: float = option(0.0, "steps per second; 0 = as fast as possible")
+    max_ahead: int | None = option(2, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
+                                      "(0 = lockstep with the learner, as the in-process runner; none = never wait)")
+    wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
+    start_timeout: float = option(60.0, "seconds to wait for those services")
+    weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.algo not in ALGOS:
+            raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
+        if self.episodes < 0:
+            raise ValueError(f"episodes must be >= 0, got {self.episodes}")
+        if not (math.isfinite(self.rate) and self.rate >= 0):
+            raise ValueError(f"rate must be >= 0, got {self.rate}")
+        if self.max_ahead is not None and self.max_ahead < 0:
+            raise ValueError(f"max-ahead must be >= 0 or none, got {self.max_ahead}")
+        for name in self.wait_for:
+            _check_name(name, "wait-for")
+
+
+@dataclass(frozen=True)
+class TeacherConfig(TaskConfig):
+    """The simulated teacher: the core's SimulatedObserver reacting on its own clock to the steps it sees."""
+
+    teacher_id: str = option("oracle", "teacher name (last chunk of its feedback key)")
+    p_feedback: float = option(0.5, "probability that the observer gives feedback on a step")
+    delay_probs: tuple[float, ...] = option((0.3, 0.6, 0.1), "true lag distribution over 0,1,2.. steps")
+    flip: float = option(0.0, "probability the polarity is flipped (misread reaction)")
+    stop_episode: int | None = option(None, "silent from this episode on (0-based); none = never")
+    stop_step: int | None = option(None, "silent from this global step on; none = never")
+    clock: str = option("steps", "steps: a reaction to step k with lag d is sent once step k+d+1 is seen, stamped "
+                                 "half-way between steps k+d and k+d+1; wall: sent at t_action(k) + (d + 0.5) * "
+                                 "step-unit seconds (for a fixed actor rate)", choices=CLOCKS)
+    step_unit: float = option(0.1, "seconds per step for --clock wall (1 / the actor's rate)")
+
+    def __post_init__(self):
+        super().__post_init__()
+        _check_name(self.teacher_id, "teacher-id")
+        for name in ("p_feedback", "flip"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and 0 <= v <= 1):
+                raise ValueError(f"{name.replace('_', '-')} must be in [0, 1], got {v}")
+        object.__setattr__(self, "delay_probs", parse_probs(self.delay_probs, "delay-probs"))
+        if self.clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {CLOCKS}, got {self.clock!r}")
+        if not (math.isfinite(self.step_unit) and self.step_unit > 0):
+            raise ValueError(f"step-unit must be positive, got {self.step_unit}")
+
+    @property
+    def service_name(self) -> str:
+        return teacher_service_name(self.teacher_id)
+
+
+def teacher_service_name(teacher_id: str) -> str:
+    """The service name (status key, liveliness token) of teacher `teacher_id`."""
+    return f"teacher.{teacher_id}"
+
+
+@dataclass(frozen=True)
+class LearnerConfig(TaskConfig):
+    """The learner: aligns feedback to steps by timestamp, trains Q and H, publishes weights and episodes."""
+
+    algo: str = option("dqn-tamer", "agent", choices=ALGOS)
+    assumed_delay_probs: tuple[float, ...] = option((0.3333, 0.3333, 0.3334),
+                                                    "lag distribution over 0,1,2.. steps the learner assumes for credit")
+    weights_every: int = option(1, "publish weights at least every N learned steps (and whenever it has caught up)")
+    ingest_batch: int = option(256, "at most this many entries per Ingest message")
+    end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
+    wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.algo not in ALGOS:
+            raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
+        object.__setattr__(self, "assumed_delay_probs", parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        if self.weights_every < 1:
+            raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
+        if not 1 <= self.ingest_batch <= 2048:
+            raise ValueError(f"ingest-batch must be in 1..2048, got {self.ingest_batch}")
+        if not (math.isfinite(self.end_grace) and self.end_grace >= 0):
+            raise ValueError(f"end-grace must be >= 0, got {self.end_grace}")
+
+
+@dataclass(frozen=True)
+class RecorderConfig(ServiceConfig):
+    """The recorder: everything under hitl/<run>/** into one MCAP file."""
+
+    out: str = option("runs/live/session.mcap", "MCAP file to write (later segments beside it)")
+    run_config: str | None = option(None, "JSON file whose object becomes the log's run config "
+                                          "(default: this recorder's own config)")
+    stop_when: tuple[str, ...] = option((), "finish once all these services have reported state 'stopped' "
+                                            "(empty: only on SIGTERM / Ctrl-C)")
+    flush_interval: float = option(0.5, "seconds between MCAP chunk flushes while data is pending")
+    linger: float = option(0.3, "seconds to keep recording after the last awaited service stopped")
+
+    def __post_init__(self):
+        super().__post_init__()
+        for name in self.stop_when:
+            _check_name(name, "stop-when")
+        if not (math.isfinite(self.flush_interval) and self.flush_interval > 0):
+            raise ValueError(f"flush-interval must be positive, got {self.flush_interval}")

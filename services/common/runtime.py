@@ -1,0 +1,201 @@
+"""What every service process does besides its job: stop on SIGTERM/SIGINT or when its launcher is gone,
+open a Zenoh client session that always closes, announce itself (liveliness token
+`hitl/<run>/alive/<service>` once ready, ServiceStatus on `hitl/<run>/status/<service>`), count things,
+and write its final counters to a JSON file.
+"""
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import os
+import signal
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from common.protocol import ServiceStatus, status_key, validate_name
+
+ALIVE = "alive"
+
+
+def alive_key(run: str, service: str = "*") -> str:
+    """Liveliness token of a ready service (`*`: every service of the run)."""
+    validate_name(run, "run")
+    return f"hitl/{run}/{ALIVE}/{service}"
+
+
+def new_incarnation(service: str) -> str:
+    """A process's own id, new at every start (Step.incarnation, Weights.incarnation, Ingest.learner)."""
+    return f"{service}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+class ServiceRuntime:
+    """Life cycle of one service process. Use::
+
+        rt = ServiceRuntime("learner", config)
+        with rt.session() as session:
+            ...declare subscribers...
+            rt.ready()                   # liveliness token + status "ready"
+            while not rt.stop.is_set(): ...; rt.tick()
+        rt.finish()                      # final status was sent in session(); stats file written
+    """
+
+    def __init__(self, name: str, config: Any, *, install_signals: bool = True):
+        validate_name(name, "service")
+        self.name = name
+        self.config = config
+        self.stop = threading.Event()
+        self.counters: collections.Counter[str] = collections.Counter()
+        self.samples: dict[str, list[float]] = collections.defaultdict(list)
+        self.state = "starting"
+        self.incarnation = new_incarnation(name)
+        self._session = None
+        self._status_pub = None
+        self._token = None
+        self._last_status = 0.0
+        self._extra_counters: Callable[[], dict[str, int]] | None = None
+        if install_signals and threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                signal.signal(sig, self._on_signal)
+        parent = getattr(config, "parent_pid", None)
+        if parent:
+            threading.Thread(target=self._watch_parent, args=(int(parent),), name="parent-watch", daemon=True).start()
+
+    # -- stopping ----------------------------------------------------------------------------------------------
+    def _on_signal(self, signum, _frame) -> None:
+        self.counters[f"signal_{signal.Signals(signum).name}"] += 1
+        self.stop.set()
+
+    def _watch_parent(self, pid: int) -> None:
+        while not self.stop.wait(0.5):
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                self.log(f"parent {pid} is gone; stopping")
+                self.counters["parent_gone"] += 1
+                self.stop.set()
+                return
+            except PermissionError:
+                pass
+
+    def log(self, text: str) -> None:
+        print(f"[{self.name}] {text}", file=sys.stderr, flush=True)
+
+    # -- session -----------------------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def session(self) -> Iterator[Any]:
+        """A client session to the configured router(s); on exit: final status 'stopped', token dropped,
+        a short linger so BLOCK publishers' queues drain, then close."""
+        from common.transport import MessagePublisher, client_config, open_session
+
+        cfg = self.config
+        with open_session(client_config(*cfg.connect, connect_timeout=cfg.connect_timeout)) as session:
+            self._session = session
+            self._status_pub = MessagePublisher(session, status_key(cfg.run, self.name), congestion="block")
+            try:
+                self.publish_status("starting")
+                yield session
+            finally:
+                with contextlib.suppress(Exception):
+                    self.publish_status("stopped")
+                if self._token is not None:
+                    with contextlib.suppress(Exception):
+                        self._token.undeclare()
+                time.sleep(0.2)  # let the transmission queues empty before the session closes
+                self._status_pub.close()
+                self._session = None
+
+    def ready(self) -> None:
+        """Subscribers are declared: announce liveliness and state 'ready'."""
+        self._token = self._session.liveliness().declare_token(alive_key(self.config.run, self.name))
+        self.publish_status("ready")
+
+    def set_counters_source(self, fn: Callable[[], dict[str, int]]) -> None:
+        """Extra counters (e.g. a core's) merged into every status and the stats file."""
+        self._extra_counters = fn
+
+    def all_counters(self) -> dict[str, int]:
+        out = {k: int(v) for k, v in self.counters.items()}
+        if self._extra_counters is not None:
+            out.update({k: int(v) for k, v in self._extra_counters().items()})
+        return out
+
+    def publish_status(self, state: str | None = None) -> None:
+        if state is not None:
+            self.state = state
+        if self._status_pub is None:
+            return
+        counters = dict(sorted(self.all_counters().items())[:256])
+        self._status_pub.put(ServiceStatus(run=self.config.run, service=self.name, pid=os.getpid(),
+                                           state=self.state, t=time.time(), counters=counters))
+        self._last_status = time.monotonic()
+
+    def tick(self) -> None:
+        """Publish the periodic status when due."""
+        if time.monotonic() - self._last_status >= self.config.status_period:
+            self.publish_status()
+
+    # -- end ---------------------------------------------------------------------------------------------------
+    def write_stats(self, **extra: Any) -> None:
+        path = getattr(self.config, "stats_out", None)
+        if not path:
+            return
+        data = {"service": self.name, "incarnation": self.incarnation, "pid": os.getpid(),
+                "counters": self.all_counters(), "samples": dict(self.samples), **extra}
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(f"{path}.tmp")
+        tmp.write_text(json.dumps(data))
+        tmp.replace(path)
+
+
+def wait_alive(session: Any, run: str, names: tuple[str, ...] | list[str], timeout: float,
+               stop: threading.Event | None = None) -> set[str]:
+    """Wait until every service in `names` holds its liveliness token; returns those still missing."""
+    missing = set(names)
+    if not missing:
+        return missing
+    cond = threading.Condition()
+    alive: set[str] = set()
+
+    def on_sample(sample: Any) -> None:
+        import zenoh
+
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        with cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                alive.add(name)
+            else:
+                alive.discard(name)
+            cond.notify_all()
+
+    sub = session.liveliness().declare_subscriber(alive_key(run), on_sample, history=True)
+    try:
+        deadline = time.monotonic() + timeout
+        with cond:
+            while not missing <= alive:
+                left = deadline - time.monotonic()
+                if left <= 0 or (stop is not None and stop.is_set()):
+                    break
+                cond.wait(min(left, 0.1))
+            return missing - alive
+    finally:
+        sub.undeclare()
+
+
+def apply_torch_threads() -> None:
+    """One torch thread: the same arithmetic live and in retrain (and room on small machines)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, prog: str) -> int:
+    """Parse `cls` from the command line (or --config FILE) and run `main(config)`."""
+    from common.config import parse_config
+
+    config = parse_config(cls, argv, prog=prog)
+    return main(config)

@@ -1,0 +1,5 @@
+import sys
+
+from services.learner.service import cli
+
+sys.exit(cli())

@@ -1,0 +1,231 @@
+"""The learner's input handling, without transport: what the live learner does with each Step and Feedback,
+and exactly what `replay retrain` does with the recorded ones.
+
+It wraps the core's `TrialBatchAgent` (B = 1) the way the in-process runner does: steps are recorded with
+their step number as time (the runner's virtual clock), feedback is credited by the core's credit function
+at its step-clock time (`StepClock`: its wall-clock stamp placed between the two actions around it).
+
+Per input, in consumption order:
+
+- Step k+1 of the current actor incarnation: place it on the step clock; credit every held feedback now
+  placeable (stamped before this action), oldest stamp first; record the step; run the every-b-steps update.
+- Feedback: if a step newer than its stamp has arrived, credit it now; otherwise hold it until one does (so it
+  is not credited to an older step just because newer steps are still in flight).
+- End: held feedback can no longer be placed and is rejected (`after_end`).
+
+Every decision depends only on the ordered inputs (no wall clock, no queue lengths), so the same inputs in
+the same order give the same weights bit for bit. The consumption order is written as `IngestEntry`s.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import heapq
+from typing import Any
+
+import numpy as np
+
+from common.agents import TrialBatchAgent, agent_config
+from common.config import config_record
+from common.envs import make_env
+from common.protocol import Feedback, IngestEntry, Step
+from services.common.config import LearnerConfig
+from services.common.stepclock import StepClock
+
+REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
+
+
+@dataclasses.dataclass
+class FeedbackResult:
+    teacher: str
+    seq: int
+    status: str  # credited | stale | ignored | after_end | actor_restarted
+    steps: int = 0
+    lost_mass: float = 0.0
+    received_at: int = 0  # position of the feedback in the ingest record (for latency bookkeeping)
+
+
+@dataclasses.dataclass
+class EpisodeRecord:
+    incarnation: str
+    episode: int
+    return_: float
+    steps: int
+    feedback_received: int
+    feedback_credited: int
+    weights_version: int
+    t_end: float
+
+
+class LearnerCore:
+    def __init__(self, config: LearnerConfig):
+        self.config = config
+        env, _ = make_env(config.env, config.layout)
+        self.obs_dim = int(env.observation_space.shape[0])
+        self.n_actions = int(env.action_space.n)
+        env.close()
+        self.agent_config = agent_config(config.algo, assumed_delay_probs=config.assumed_delay_probs)
+        self.agent = TrialBatchAgent([self.agent_config], self.obs_dim, self.n_actions, [config.seed])
+        self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
+        self.actor: str | None = None
+        self.next_seq = 0
+        self.teacher_next: dict[str, int] = {}
+        self._held: list[tuple[float, int, Feedback, int]] = []  # (t_reaction, arrival, feedback, position)
+        self._arrivals = 0
+        self.entries: list[IngestEntry] = []  # not yet handed out (see take_entries)
+        self.position = 0  # entries written so far
+        self.counters: collections.Counter[str] = collections.Counter()
+        self.episodes: list[EpisodeRecord] = []
+        self.ended = False
+        self._ep = self._new_episode_accumulator()
+
+    # -- identity ----------------------------------------------------------------------------------------------
+    def config_record(self) -> dict:
+        """Everything needed to rebuild this learner (written in the first Ingest message)."""
+        return {"learner": config_record(self.config), "agent": config_record(self.agent_config),
+                "obs_dim": self.obs_dim, "n_actions": self.n_actions}
+
+    @property
+    def steps_learned(self) -> int:
+        return int(self.agent.steps[0])
+
+    def policy_weights(self) -> dict[str, np.ndarray]:
+        return {k: v.detach().cpu().numpy().astype(np.float32, copy=True)
+                for k, v in self.agent.policy_weights(0).items()}
+
+    def weights_spec(self) -> dict[str, tuple[int, ...]]:
+        return {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
+
+    # -- ingest record -----------------------------------------------------------------------------------------
+    def _entry(self, kind: str, source: str, seq: int, status: str, t: float) -> int:
+        self.entries.append(IngestEntry(kind, source, int(seq), status, max(0.0, float(t))))
+        self.position += 1
+        return self.position - 1
+
+    def take_entries(self, limit: int | None = None) -> list[IngestEntry]:
+        n = len(self.entries) if limit is None else min(limit, len(self.entries))
+        out, self.entries = self.entries[:n], self.entries[n:]
+        return out
+
+    # -- inputs ------------------------------------------------------------------------------------------------
+    def on_step(self, step: Step, t: float = 0.0) -> tuple[list[FeedbackResult], EpisodeRecord | None]:
+        """Consume one Step. Returns the feedback resolved by it and the episode it ended (if any)."""
+        results: list[FeedbackResult] = []
+        if self.ended:
+            self._entry("step", step.incarnation, step.seq, "after_end", t)
+            self.counters["steps_after_end"] += 1
+            return results, None
+        if step.incarnation != self.actor:
+            if self.actor is not None:
+                self.counters["actor_restarts"] += 1
+                results += self._reject_held("actor_restarted", t)
+                self.agent.forget_history(0)
+                self.clock.reset()
+                self._ep = self._new_episode_accumulator()
+            elif step.seq > 0:
+                self.counters["steps_missed_at_start"] += step.seq
+            self.actor = step.incarnation
+            self.next_seq = step.seq
+        if step.seq < self.next_seq:
+            self._entry("step", step.incarnation, step.seq, "old", t)
+            self.counters["steps_old"] += 1
+            return results, None
+        status = "learned"
+        if step.seq > self.next_seq:
+            self.counters["steps_lost"] += step.seq - self.next_seq
+            status = "gap"
+            self.agent.forget_history(0)  # the steps in between are unknown: no credit across the gap
+            self.clock.reset()
+        self.next_seq = step.seq + 1
+        self._entry("step", step.incarnation, step.seq, status, t)
+
+        index = self.steps_learned  # this step's time on the step clock (the runner's virtual time)
+        self.clock.push(index, step.t_action)
+        while self._held and self.clock.placeable(self._held[0][0]):
+            _, _, fb, pos = heapq.heappop(self._held)
+            results.append(self._credit(fb, pos, t))
+        a = self.agent
+        a.record_step(0, np.asarray(step.obs, np.float32), int(step.action), float(step.reward),
+                      np.asarray(step.next_obs, np.float32), bool(step.terminated), float(index))
+        a.update()
+        self.counters["steps_learned"] += 1
+
+        ep = self._ep
+        if ep["episode"] is None:
+            ep["episode"] = step.episode
+        ep["return"] += float(step.reward)
+        ep["steps"] += 1
+        ep["t_end"] = step.t_action
+        done = None
+        if step.terminated or step.truncated:
+            done = EpisodeRecord(step.incarnation, int(ep["episode"]), float(ep["return"]), int(ep["steps"]),
+                                 int(ep["received"]), int(ep["credited"]), self.steps_learned, float(ep["t_end"]))
+            self.episodes.append(done)
+            self.counters["episodes"] += 1
+            self._ep = self._new_episode_accumulator()
+        return results, done
+
+    def on_feedback(self, fb: Feedback, t: float = 0.0) -> list[FeedbackResult]:
+        """Consume one Feedback. Returns it resolved, or nothing if it is held."""
+        pos = self._entry("feedback", fb.teacher_id, fb.seq, "", t)
+        self.counters["feedback_received"] += 1
+        self._ep["received"] += 1
+        expected = self.teacher_next.get(fb.teacher_id, 0)
+        if fb.seq != expected:
+            self.counters["feedback_seq_gaps"] += 1
+            if fb.seq > expected:
+                self.counters["feedback_lost"] += fb.seq - expected
+        self.teacher_next[fb.teacher_id] = max(expected, fb.seq + 1)
+        if self.ended:
+            return [self._outcome(fb, pos, "after_end", t)]
+        if self.clock.placeable(fb.t_reaction):
+            return [self._credit(fb, pos, t)]
+        self._arrivals += 1
+        heapq.heappush(self._held, (fb.t_reaction, self._arrivals, fb, pos))
+        self.counters["feedback_held"] += 1
+        return []
+
+    def end(self, t: float = 0.0) -> list[FeedbackResult]:
+        """No more inputs: held feedback is rejected (`after_end`)."""
+        if self.ended:
+            return []
+        self._entry("end", self.actor or "none", 0, "", t)
+        results = self._reject_held("after_end", t)
+        self.ended = True
+        return results
+
+    @property
+    def held(self) -> int:
+        return len(self._held)
+
+    # -- internals ---------------------------------------------------------------------------------------------
+    def _credit(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
+        tau = self.clock.to_steps(fb.t_reaction)
+        out = self.agent.give_feedback([(0, tau, int(fb.value))])[0]
+        return self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
+
+    def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:
+        results = []
+        while self._held:
+            _, _, fb, pos = heapq.heappop(self._held)
+            results.append(self._outcome(fb, pos, reason, t))
+        return results
+
+    def _outcome(self, fb: Feedback, pos: int, status: str, t: float, steps: int = 0,
+                 lost: float = 0.0) -> FeedbackResult:
+        self._entry("outcome", fb.teacher_id, fb.seq, status, t)
+        self.counters[f"feedback_{status}"] += 1
+        if status == "credited":
+            self._ep["credited"] += 1
+        return FeedbackResult(fb.teacher_id, fb.seq, status, steps, lost, pos)
+
+    @staticmethod
+    def _new_episode_accumulator() -> dict[str, Any]:
+        return {"episode": None, "return": 0.0, "steps": 0, "received": 0, "credited": 0, "t_end": 0.0}
+
+
+def learner_config_from_record(record: dict) -> LearnerConfig:
+    """Inverse of `LearnerCore.config_record()['learner']`."""
+    data = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k != "type"}
+    known = {f.name for f in dataclasses.fields(LearnerConfig)}
+    return LearnerConfig(**{k: v for k, v in data.items() if k in known})

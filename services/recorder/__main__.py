@@ -1,0 +1,5 @@
+import sys
+
+from services.recorder.service import cli
+
+sys.exit(cli())

@@ -1,0 +1,90 @@
+"""`python -m services.recorder`: everything under `hitl/<run>/**` into one MCAP file.
+
+Just another subscriber: samples are written as received (bytes untouched, log time = arrival, publish time
+= the sample's Zenoh timestamp), one channel per key, one schema per type, zstd chunks flushed every
+`flush_interval` s (so a killed recorder loses at most that much). The log's run config (its metadata and
+first message) is the JSON object in `run_config` (the launcher writes the whole run's settings there) or
+this recorder's own config. Stops on SIGTERM/SIGINT, or once every service in `stop_when` has reported
+'stopped' (plus `linger` s for stragglers).
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+
+from common.config import config_record
+from common.protocol import ProtocolError, RunConfig, ServiceStatus, run_prefix, status_key
+from services.common.config import RecorderConfig
+from services.common.runtime import ServiceRuntime, service_main
+
+
+def load_run_config(config: RecorderConfig) -> RunConfig:
+    if config.run_config:
+        with open(config.run_config) as fh:
+            payload = json.load(fh)
+        if not isinstance(payload, dict):
+            raise ValueError(f"{config.run_config}: expected a JSON object")
+    else:
+        payload = {"recorder": config_record(config)}
+    return RunConfig.create(config.run, payload)
+
+
+def main(config: RecorderConfig) -> int:
+    from common.mcap_log import LogWriter
+    from common.transport import subscription
+
+    rt = ServiceRuntime("recorder", config)
+    run_config = load_run_config(config)
+    writer = LogWriter(config.out, run_config, flush_interval=config.flush_interval)
+    rt.set_counters_source(lambda: {"messages_written": writer.counters["messages"],
+                                    "bytes_written": writer.counters["bytes"]})
+    stopped: set[str] = set()
+    try:
+        with rt.session() as session:
+            with subscription(session, run_prefix(config.run), maxsize=1 << 16, policy="block",
+                              block_timeout=3600) as inbox:
+                rt.ready()
+                linger_until: float | None = None
+                while True:
+                    if rt.stop.is_set() and linger_until is None:
+                        linger_until = time.monotonic() + min(config.linger, 0.2)
+                    if linger_until is not None and time.monotonic() >= linger_until and len(inbox) == 0:
+                        break
+                    item = inbox.get(timeout=0.05)
+                    if item is not None:
+                        try:
+                            writer.write(item.key, item.data, log_time=int(item.t_recv * 1e9),
+                                         publish_time=int((item.t_zenoh or item.t_recv) * 1e9))
+                        except ProtocolError as e:
+                            rt.counters[f"dropped_{e.reason}"] += 1
+                            continue
+                        if config.stop_when and "/status/" in item.key:
+                            try:
+                                st = item.decode()
+                            except ProtocolError:
+                                continue
+                            if isinstance(st, ServiceStatus) and st.state == "stopped":
+                                stopped.add(st.service)
+                                if linger_until is None and set(config.stop_when) <= stopped:
+                                    linger_until = time.monotonic() + config.linger
+                    rt.tick()
+                rt.counters.update({f"inbox_{k}": v for k, v in inbox.snapshot().items()})
+                # Its own last word goes straight into the file (its subscription is closing).
+                writer.write(status_key(config.run, rt.name), ServiceStatus(
+                    run=config.run, service=rt.name, pid=os.getpid(), state="stopped", t=time.time(),
+                    counters=dict(sorted(rt.all_counters().items())[:256])))
+    finally:
+        writer.finish()
+    rt.write_stats(paths=[str(p) for p in writer.paths])
+    rt.log(f"stopped: {writer.counters['messages']} messages in {', '.join(str(p) for p in writer.paths)}")
+    return 0
+
+
+def cli(argv: list[str] | None = None) -> int:
+    return service_main(RecorderConfig, main, argv, "python -m services.recorder")
+
+
+if __name__ == "__main__":
+    sys.exit(cli())

@@ -1,0 +1,147 @@
+"""What a session log says: counts, losses, what became of every feedback, per-episode returns.
+
+Used by `python -m services.replay LOG summary` and by the launcher for `summary.json`.
+"""
+from __future__ import annotations
+
+import collections
+import os
+import warnings
+from typing import Any
+
+from common.mcap_log import LogRecoveryWarning, read_log
+from common.protocol import EpisodeSummary, Feedback, Ingest, ServiceStatus, Step, Weights
+
+
+def _contiguous(seqs: list[int]) -> bool:
+    return seqs == list(range(seqs[0], seqs[0] + len(seqs))) if seqs else True
+
+
+def summarize(path: str | os.PathLike) -> dict[str, Any]:
+    """Read the log (also a truncated one: recovered up to its last complete chunk, with a warning)."""
+    reader = read_log(path)
+    steps: dict[str, list[Step]] = collections.defaultdict(list)  # by actor incarnation, in log order
+    feedback: dict[str, list[int]] = collections.defaultdict(list)  # teacher -> seqs
+    feedback_values = collections.Counter()
+    ingest: dict[str, list[Ingest]] = collections.defaultdict(list)
+    episodes: list[EpisodeSummary] = []
+    statuses: dict[str, ServiceStatus] = {}
+    weights: dict[str, list[int]] = collections.defaultdict(list)
+    kinds = collections.Counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", LogRecoveryWarning)
+        for rec in reader:
+            m = rec.message
+            kinds[rec.key.split("/")[2] if rec.key.count("/") >= 2 else rec.key] += 1
+            if isinstance(m, Step):
+                steps[m.incarnation].append(m)
+            elif isinstance(m, Feedback):
+                feedback[m.teacher_id].append(m.seq)
+                feedback_values[m.value] += 1
+            elif isinstance(m, Ingest):
+                ingest[m.learner].append(m)
+            elif isinstance(m, EpisodeSummary):
+                episodes.append(m)
+            elif isinstance(m, ServiceStatus):
+                statuses[m.service] = m
+            elif isinstance(m, Weights):
+                weights[m.incarnation].append(m.version)
+    for w in caught:
+        warnings.warn(w.message, w.category, stacklevel=2)
+    status = reader.status
+
+    # Steps: contiguous per incarnation; episode returns from the actor's own steps.
+    step_seqs = {inc: [s.seq for s in ss] for inc, ss in steps.items()}
+    ep_rows = []
+    for inc, ss in steps.items():
+        by_ep: dict[int, list[Step]] = collections.defaultdict(list)
+        for s in ss:
+            by_ep[s.episode].append(s)
+        for ep, items in sorted(by_ep.items()):
+            finished = items[-1].terminated or items[-1].truncated
+            ep_rows.append({"actor": inc, "episode": ep, "return": float(sum(s.reward for s in items)),
+                            "steps": len(items), "finished": bool(finished),
+                            "reached_goal": bool(items[-1].terminated)})
+    learner_eps = {(e.incarnation, e.episode): e for e in episodes}
+    for row in ep_rows:
+        e = learner_eps.get((row["actor"], row["episode"]))
+        if e is not None:
+            row.update(feedback_received=e.feedback_received, feedback_credited=e.feedback_credited,
+                       weights_version=e.weights_version)
+
+    # What became of each feedback: the learners' outcome entries.
+    outcome: dict[tuple[str, int], str] = {}
+    learner_steps = collections.Counter()
+    learners = {}
+    for inc, batches in ingest.items():
+        batches.sort(key=lambda b: b.seq)
+        entries = [e for b in batches for e in b.entries]
+        learners[inc] = {"batches": len(batches), "batch_seq_contiguous": _contiguous([b.seq for b in batches]),
+                         "entries": len(entries), "ended": any(e.kind == "end" for e in entries)}
+        for e in entries:
+            if e.kind == "outcome":
+                outcome[(e.source, e.seq)] = e.status
+            elif e.kind == "step":
+                learner_steps[e.status] += 1
+    logged_fb = [(t, s) for t, seqs in feedback.items() for s in seqs]
+    by_status = collections.Counter(outcome.get(k, "unresolved") for k in logged_fb)
+    rejected = {k: v for k, v in sorted(by_status.items()) if k != "credited"}
+
+    def counter(service: str, name: str) -> int | None:
+        st = statuses.get(service)
+        return None if st is None or name not in st.counters else int(st.counters[name])
+
+    teacher_services = sorted(s for s in statuses if s.startswith("teacher."))
+    sent = [counter(s, "feedback_published") for s in teacher_services]
+    out = {
+        "run": reader.run_config.run if reader.run_config else None,
+        "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
+                "truncated_files": status.truncated, "recovery": status.summary(), "by_kind": dict(kinds),
+                "warnings": [str(w.message) for w in caught]},
+        "steps_sent": counter("actor", "steps_published"),
+        "steps_logged": sum(len(v) for v in step_seqs.values()),
+        "steps_seq_contiguous_in_log": all(_contiguous(v) for v in step_seqs.values()),
+        "actor_incarnations": len(step_seqs),
+        "steps_learned": counter("learner", "steps_learned"),
+        "steps_lost_at_learner": counter("learner", "steps_lost"),
+        "learner_step_entries": dict(learner_steps),
+        "feedback_sent": sum(x for x in sent if x is not None) if sent else None,
+        "feedback_logged": len(logged_fb),
+        "feedback_seq_contiguous_in_log": all(_contiguous(v) for v in feedback.values()),
+        "feedback_positive": feedback_values.get(1, 0),
+        "feedback_negative": feedback_values.get(-1, 0),
+        "feedback_credited": by_status.get("credited", 0),
+        "feedback_rejected": rejected,
+        "weights_published": sum(len(v) for v in weights.values()),
+        "learners": learners,
+        "episodes": ep_rows,
+        "returns": [r["return"] for r in ep_rows],
+        "services": {name: {"state": st.state, "counters": dict(st.counters)} for name, st in sorted(statuses.items())},
+    }
+    return out
+
+
+def format_summary(s: dict[str, Any]) -> str:
+    lines = [f"run {s['run']}: {s['log']['messages']} messages ({'complete' if s['log']['complete'] else 'INCOMPLETE'})"]
+    if s["log"]["truncated_files"]:
+        lines.append(f"  recovered: {s['log']['recovery']}")
+    lines.append(f"  steps: sent {s['steps_sent']}, logged {s['steps_logged']} "
+                 f"(contiguous: {s['steps_seq_contiguous_in_log']}), learned {s['steps_learned']}")
+    lines.append(f"  feedback: sent {s['feedback_sent']}, logged {s['feedback_logged']}, "
+                 f"credited {s['feedback_credited']}, rejected {s['feedback_rejected'] or {}}")
+    rets = s["returns"]
+    if rets:
+        k = min(5, len(rets))
+        lines.append(f"  episodes: {len(rets)}; mean return first {k}: {sum(rets[:k]) / k:.3f}, "
+                     f"last {k}: {sum(rets[-k:]) / k:.3f}")
+    lines.append(f"  weights published: {s['weights_published']}")
+    return "\n".join(lines)
+
+
+def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> None:
+    import numpy as np
+
+    from experiments.plots import plot_curves
+
+    rets = np.asarray(s["returns"], dtype=float)
+    plot_curves({"live": rets}, str(path), title or f"live run {s['run']}: return per episode")

@@ -1,0 +1,5 @@
+import sys
+
+from services.teacher.service import cli
+
+sys.exit(cli())
