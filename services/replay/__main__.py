@@ -1,0 +1,5 @@
+import sys
+
+from services.replay.service import cli
+
+sys.exit(cli())

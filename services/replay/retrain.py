@@ -1,0 +1,139 @@
+"""`replay LOG retrain`: feed a fresh learner the recorded inputs in the recorded order.
+
+The live learner wrote its consumption order (Ingest messages: step / feedback / end entries, plus the
+outcome of every feedback) and its config (first Ingest message). Replaying the referenced Step and Feedback
+messages from the same log through a fresh `LearnerCore` in that order repeats every decision; on the same
+machine (same torch build, one thread) the final weights are equal bit for bit to the live learner's last
+Weights message (published after its `end` entry).
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import warnings
+from typing import Any
+
+import numpy as np
+
+from common.mcap_log import LogRecoveryWarning, read_log
+from common.protocol import Feedback, Ingest, Step, Weights
+
+
+@dataclasses.dataclass
+class RetrainResult:
+    learner: str
+    inputs: int
+    steps: int
+    feedback: int
+    ended: bool
+    outcomes_match: bool
+    entry_mismatch: str | None
+    compared: bool  # the log holds the live learner's final weights
+    identical: bool
+    max_abs_diff: float | None
+    live_version: int | None
+    weights: dict[str, np.ndarray]
+    missing_inputs: int
+    warnings: list[str]
+
+    def report(self) -> str:
+        lines = [f"learner {self.learner}: replayed {self.inputs} inputs ({self.steps} steps, {self.feedback} "
+                 f"feedback){'' if self.ended else ', log ends before the learner ended'}"]
+        if self.missing_inputs:
+            lines.append(f"  {self.missing_inputs} recorded inputs are missing from the log")
+        lines.append(f"  feedback outcomes and input statuses {'match' if self.outcomes_match else 'DIFFER'}"
+                     + (f" ({self.entry_mismatch})" if self.entry_mismatch else ""))
+        if not self.compared:
+            lines.append("  final weights: NOT COMPARED (the log has no Weights published after the learner's end)")
+        elif self.identical:
+            lines.append(f"  final weights: IDENTICAL bit for bit to the live learner's (version {self.live_version})")
+        else:
+            lines.append(f"  final weights: DIFFERENT from the live learner's (version {self.live_version}, "
+                         f"max |diff| {self.max_abs_diff:.3g})")
+        return "\n".join(lines)
+
+
+def _bit_equal(a: np.ndarray, b: np.ndarray) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResult:
+    from services.common.runtime import apply_torch_threads
+    from services.learner.core import LearnerCore, learner_config_from_record
+
+    steps: dict[tuple[str, int], Step] = {}
+    feedback: dict[tuple[str, int], Feedback] = {}
+    ingest: dict[str, list[Ingest]] = {}
+    weights: dict[str, list[Weights]] = {}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", LogRecoveryWarning)
+        for rec in read_log(path):
+            m = rec.message
+            if isinstance(m, Step):
+                steps[(m.incarnation, m.seq)] = m
+            elif isinstance(m, Feedback):
+                feedback[(m.teacher_id, m.seq)] = m
+            elif isinstance(m, Ingest):
+                ingest.setdefault(m.learner, []).append(m)
+            elif isinstance(m, Weights):
+                weights.setdefault(m.incarnation, []).append(m)
+    if not ingest:
+        raise ValueError(f"{path}: no Ingest messages (no learner recorded)")
+    if learner is None:
+        learner = list(ingest)[-1]
+    if learner not in ingest:
+        raise ValueError(f"{path}: no learner {learner!r}; found {', '.join(ingest)}")
+    batches = sorted(ingest[learner], key=lambda b: b.seq)
+    if batches[0].seq != 0 or batches[0].config is None:
+        raise ValueError(f"{path}: the first Ingest message of {learner} (with its config) is missing")
+    entries = []
+    for b in batches:
+        if b.index != len(entries):
+            break  # a batch lost (truncated log): replay up to the gap
+        entries.extend(b.entries)
+
+    apply_torch_threads()
+    core = LearnerCore(learner_config_from_record(batches[0].config["learner"]))
+    n_steps = n_fb = missing = 0
+    ended = False
+    for e in entries:
+        if e.kind == "step":
+            msg = steps.get((e.source, e.seq))
+            if msg is None:
+                missing += 1
+                continue
+            core.on_step(msg)
+            n_steps += 1
+        elif e.kind == "feedback":
+            msg = feedback.get((e.source, e.seq))
+            if msg is None:
+                missing += 1
+                continue
+            core.on_feedback(msg)
+            n_fb += 1
+        elif e.kind == "end":
+            core.end()
+            ended = True
+    mine = core.take_entries()
+    key = lambda e: (e.kind, e.source, e.seq, e.status)  # noqa: E731
+    mismatch = None
+    for i, (a, b) in enumerate(zip(mine, entries)):
+        if key(a) != key(b):
+            mismatch = f"entry {i}: recorded {key(b)}, retrained {key(a)}"
+            break
+    if mismatch is None and len(mine) != len(entries):
+        mismatch = f"recorded {len(entries)} entries, retrained {len(mine)}"
+    final = core.policy_weights()
+    live = weights.get(learner, [])
+    compared = ended and bool(live) and live[-1].version == core.steps_learned + 1
+    identical, diff, version = False, None, None
+    if compared:
+        w = live[-1]
+        version = w.version
+        identical = set(w.tensors) == set(final) and all(_bit_equal(w.tensors[k], final[k]) for k in final)
+        if set(w.tensors) == set(final):
+            diff = max(float(np.max(np.abs(np.asarray(w.tensors[k], np.float64) - final[k]))) if final[k].size else 0.0
+                       for k in final)
+    return RetrainResult(learner, n_steps + n_fb, n_steps, n_fb, ended, mismatch is None, mismatch, compared,
+                         identical, diff, version, final, missing, [str(w.message) for w in caught])

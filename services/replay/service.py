@@ -1,0 +1,115 @@
+"""python -m services.replay LOG.mcap {summary, play, retrain}: a recorded session, offline.
+
+  summary   counts, losses, what became of every feedback, per-episode returns, learning-curve plot
+  play      re-publish the session over Zenoh at the recorded pace (or faster)
+  retrain   feed a fresh learner the recorded inputs in the recorded order; says whether its final weights
+            equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)
+
+A log cut short by a crash is read up to its last complete chunk, with a warning saying how much was
+recovered. LOG may be a run directory (its session.mcap).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import threading
+import time
+import warnings
+from pathlib import Path
+
+
+def _warn_to_stderr(message, category, filename, lineno, file=None, line=None):
+    print(f"warning: {message}", file=sys.stderr)
+
+
+def cmd_summary(args) -> int:
+    from services.replay.summary import format_summary, plot_summary, summarize
+
+    s = summarize(args.log)
+    if args.json:
+        print(json.dumps(s, indent=2))
+    else:
+        print(format_summary(s))
+    if not args.no_plot and s["returns"]:
+        log = Path(args.log)
+        plot = Path(args.plot) if args.plot else (log if log.is_dir() else log.parent) / "replay_curve.png"
+        plot_summary(s, plot)
+        print(f"plot: {plot}", file=sys.stderr)
+    return 0
+
+
+def cmd_play(args) -> int:
+    import signal
+
+    from common.transport import client_config, free_port, open_session, router_config, tcp_endpoint
+    from services.replay.play import play
+
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    if args.connect:
+        config = client_config(*args.connect.split(","))
+        where = args.connect
+    else:
+        where = tcp_endpoint(args.port or free_port())
+        config = router_config(where)
+    with open_session(config) as session:
+        print(f"zenoh endpoint: {where}", file=sys.stderr, flush=True)
+        if args.start_delay > 0:
+            stop.wait(args.start_delay)
+        t = time.perf_counter()
+        counts = play(args.log, session, speed=args.speed, kinds=tuple(k for k in args.kinds.split(",") if k),
+                      stop=stop)
+        time.sleep(0.2)  # let BLOCK queues drain before closing
+    total = sum(counts.values())
+    print(f"published {total} records in {time.perf_counter() - t:.2f} s: {counts}", file=sys.stderr)
+    return 130 if stop.is_set() else 0
+
+
+def cmd_retrain(args) -> int:
+    from services.replay.retrain import retrain
+
+    result = retrain(args.log, args.learner)
+    print(result.report())
+    if args.save:
+        import safetensors.numpy
+
+        safetensors.numpy.save_file(result.weights, args.save)
+        print(f"retrained weights: {args.save}", file=sys.stderr)
+    if not result.compared:
+        return 2
+    return 0 if result.identical and result.outcomes_match and not result.missing_inputs else 1
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m services.replay", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("log", help="session.mcap (or a run directory); later segments are read too")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("summary", help="counts, returns, plot")
+    p.add_argument("--json", action="store_true", help="print the whole summary as JSON")
+    p.add_argument("--plot", help="learning-curve PNG (default: replay_curve.png beside the log)")
+    p.add_argument("--no-plot", action="store_true", help="no plot")
+    p = sub.add_parser("play", help="re-publish over Zenoh")
+    p.add_argument("--connect", help="router endpoint(s) to publish through (default: run an embedded router)")
+    p.add_argument("--port", type=int, default=0, help="embedded router port (0 = a free one)")
+    p.add_argument("--speed", type=float, default=1.0, help="pace multiplier; 0 = as fast as possible")
+    p.add_argument("--kinds", default="", help="only these key kinds, comma-separated (e.g. step,feedback)")
+    p.add_argument("--start-delay", type=float, default=1.0, help="seconds to wait before publishing")
+    p = sub.add_parser("retrain", help="fresh learner on the recorded inputs; compare final weights")
+    p.add_argument("--learner", help="learner incarnation (default: the last one in the log)")
+    p.add_argument("--save", help="write the retrained final weights to this safetensors file")
+    args = parser.parse_args(argv)
+    warnings.showwarning = _warn_to_stderr
+    if not Path(args.log).exists():
+        parser.error(f"{args.log}: no such file or directory")
+    return {"summary": cmd_summary, "play": cmd_play, "retrain": cmd_retrain}[args.command](args)
+
+
+def cli(argv: list[str] | None = None) -> int:
+    return main(argv)
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
