@@ -60,6 +60,7 @@ import shutil
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -496,15 +497,19 @@ def run_secured_router(security: SecurityConfig, port: int | None = None, *, hos
     """Run the secured router until ``stop`` is set or SIGTERM/SIGINT (main thread); prints
     ``ready <endpoint> <zid>`` once listening."""
     stop = stop or threading.Event()
+    signalled: list[int] = []
     if threading.current_thread() is threading.main_thread():
+        # The handler only appends to a list: calling stop.set() there can deadlock, because the signal may
+        # arrive while the main thread holds the Event's lock inside stop.wait() (seen here: a router that
+        # ignored SIGTERM forever, its main thread stuck in Event.set under Event.wait).
         for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: stop.set())
+            signal.signal(sig, lambda signum, _frame: signalled.append(signum))
     endpoint = tls_endpoint(security.port if port is None else port, security.router_host if host is None else host)
     session = zenoh.open(router_config_for(security, port, host=host))
     try:
         print(f"ready {endpoint} {session.zid()}", flush=True)
-        while not stop.wait(0.2):
-            pass
+        while not signalled and not stop.is_set():  # is_set() takes no lock
+            time.sleep(0.1)
     finally:
         session.close()
 

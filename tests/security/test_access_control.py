@@ -28,7 +28,7 @@ from common.security import (PUBLISH_ALL, SecurityConfig, SecurityError, access_
                              router_config_dict, tls_endpoint)
 from common.transport import free_port
 
-pytestmark = pytest.mark.live
+pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]
 
 ROOT = Path(__file__).resolve().parents[2]
 CLIENT = Path(__file__).with_name("secure_client.py")
@@ -307,3 +307,21 @@ def test_access_client_config_for_refuses_what_it_cannot_secure(deployment):
     assert full["listen"]["endpoints"] == ["tls/0.0.0.0:7447"]
     assert full["transport"]["link"]["protocols"] == ["tls"]
     assert full["access_control"]["default_permission"] == "deny"
+
+
+def test_access_router_stops_on_sigterm(deployment):
+    """The router CLI exits promptly on SIGTERM (a handler that took the stop Event's lock once deadlocked)."""
+    for delay in (0.0, 0.07, 0.23):
+        port = free_port()
+        proc = subprocess.Popen([sys.executable, "-m", "common.security", "router",
+                                 "--security", str(deployment / "security.json"), "--port", str(port)],
+                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        try:
+            assert proc.stdout.readline().startswith("ready tls/")
+            time.sleep(delay)
+            proc.terminate()
+            assert proc.wait(5) == 0
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(5)
