@@ -370,14 +370,17 @@ def run_router(endpoint: str, *, stop: threading.Event | None = None,
                on_ready: Callable[[zenoh.Session], None] | None = None) -> None:
     """Run a router session on ``endpoint`` until ``stop`` is set (or SIGTERM/SIGINT in the main thread)."""
     stop = stop or threading.Event()
+    # The handler only records the signal: calling stop.set() from a handler that interrupted
+    # stop.wait() in the same thread deadlocks on the Event's internal lock.
+    signalled: list[int] = []
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: stop.set())
+            signal.signal(sig, lambda signum, _frame: signalled.append(signum))
     with open_session(router_config(endpoint)) as session:
         if on_ready is not None:
             on_ready(session)
-        while not stop.wait(0.2):
-            pass
+        while not signalled and not stop.is_set():
+            time.sleep(0.1)
 
 
 def main(argv: list[str] | None = None) -> int:
