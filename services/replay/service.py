@@ -70,7 +70,11 @@ def cmd_play(args) -> int:
 def cmd_retrain(args) -> int:
     from services.replay.retrain import retrain
 
-    result = retrain(args.log, args.learner)
+    try:
+        result = retrain(args.log, args.learner)
+    except ValueError as exc:
+        print(f"cannot retrain: {exc}", file=sys.stderr)
+        return 2
     print(result.report())
     if args.save:
         import safetensors.numpy
