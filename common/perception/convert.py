@@ -12,12 +12,14 @@ Layout: Keras keeps NHWC; the produced graph takes **NCHW** float32 ``input`` of
 and returns ``probs`` of shape [N, classes]. TensorFlow's ``same`` padding (extra pixel at the end when
 the total is odd) is reproduced with explicit ONNX pads computed from the tracked spatial shape.
 
-The converted file is cached next to the weights and keyed by the SHA-256 of the HDF5 file, stored in
-the ONNX metadata (``source_sha256``) together with ``CONVERTER_VERSION``.
+The converted file is cached next to the weights and keyed by the SHA-256 of the HDF5 file and a
+fingerprint of this converter (its version and source hash), both stored in the ONNX metadata
+(``source_sha256``, ``converter``): a new weights file or a changed converter rebuilds it.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 from dataclasses import dataclass
@@ -271,13 +273,18 @@ def keras_h5_to_onnx(h5_path: Path, labels: list[str] | tuple[str, ...] | None =
     return model
 
 
+def converter_fingerprint() -> str:
+    digest = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+    return f"{CONVERTER_VERSION}-{digest}"
+
+
 def _cached_key(path: Path) -> tuple[str | None, str | None]:
     try:
         m = onnx.load(str(path), load_external_data=False)
     except Exception:
         return None, None
     props = {p.key: p.value for p in m.metadata_props}
-    return props.get("source_sha256"), props.get("converter_version")
+    return props.get("source_sha256"), props.get("converter")
 
 
 def convert_cached(h5_path: Path | None = None, out_path: Path | None = None,
@@ -290,10 +297,12 @@ def convert_cached(h5_path: Path | None = None, out_path: Path | None = None,
     h5_path = Path(h5_path) if h5_path else assets.fer_model_path()
     out_path = Path(out_path) if out_path else assets.perception_dir() / DEFAULT_ONNX_NAME
     digest = assets.file_sha256(h5_path)
-    if out_path.exists() and _cached_key(out_path) == (digest, CONVERTER_VERSION):
+    fingerprint = converter_fingerprint()
+    if out_path.exists() and _cached_key(out_path) == (digest, fingerprint):
         return out_path
     model = keras_h5_to_onnx(h5_path, labels)
-    helper.set_model_props(model, {**{p.key: p.value for p in model.metadata_props}, "source_sha256": digest})
+    helper.set_model_props(model, {**{p.key: p.value for p in model.metadata_props},
+                                   "source_sha256": digest, "converter": fingerprint})
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
     onnx.save(model, str(tmp))

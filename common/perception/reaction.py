@@ -7,8 +7,11 @@ over the model's labels, capture time) and returns a ``FeedbackEvent`` or None:
    ``models.label_feedback`` (happy +1; anger, contempt, disgust, fear, sadness -1; the rest none).
 2. Smoothing: an exponential moving average over *time* (time constant ``tau_s``), so the behaviour is
    the same at 24 or 30 fps: ``s += (1 - exp(-dt / tau_s)) * (p - s)``. A new face starts from
-   (0, 0, 1), "no reaction"; with the defaults a clear expression fires after about 0.14 s (5 frames at
-   30 fps), and ``tau_s = 0`` turns smoothing off (each frame judged alone, as for still images).
+   (0, 0, 1), "no reaction"; with the defaults a clear expression fires after about 0.3 s (9-10 frames
+   at 30 fps), and ``tau_s = 0`` turns smoothing off (each frame judged alone, as for still images).
+   Why 0.25 s and 0.7: in the sad part of the labelled clip a crying grimace reads as "happy" for about
+   half a second; with tau 0.15 s and 0.6 it fired a false +1, with these its smoothed probability
+   peaks at 0.55-0.60, below the threshold (see docs/perception.md).
 3. Hysteresis per polarity: an armed polarity fires once when its smoothed probability reaches
    ``on_threshold``; it re-arms only after it has fallen below ``off_threshold``. A held smile
    therefore gives exactly one +1; a new +1 needs the smile to go away first.
@@ -65,8 +68,8 @@ class FeedbackEvent:
 
 @dataclass(frozen=True)
 class ReactionConfig:
-    tau_s: float = 0.15  # EMA time constant
-    on_threshold: float = 0.6  # smoothed polarity probability that fires an event
+    tau_s: float = 0.25  # EMA time constant
+    on_threshold: float = 0.7  # smoothed polarity probability that fires an event
     off_threshold: float = 0.35  # ... and below which that polarity re-arms
     lost_after_s: float = 0.5  # a face missing longer than this resets the detector
     max_dt_s: float = 1.0  # a larger gap between frames is treated as this (robust to stalls)

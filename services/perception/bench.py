@@ -77,8 +77,9 @@ def bench_one(pipeline: PerceptionPipeline, frames: list[np.ndarray], fps: float
 
 
 def run_bench(sizes=((320, 240), (640, 480)), repeats: int = 3, naive: bool = True, one_core: bool = True,
-              config: PipelineConfig = PipelineConfig(), out: TextIO = sys.stdout,
+              config: PipelineConfig = PipelineConfig(), out: TextIO | None = None,
               as_json: bool = False) -> list[BenchRow]:
+    out = out or sys.stdout
     pinned = pin_to_one_core() if one_core else "not pinned"
     cv2.setNumThreads(1)
     model = load_model(config.model)  # onnxruntime session on one thread

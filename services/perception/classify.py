@@ -44,12 +44,13 @@ def format_json(pred: FramePrediction, event: FeedbackEvent | None, source: str 
 
 
 def classify(path: str, config: PipelineConfig = PipelineConfig(), as_json: bool = False, every: int = 1,
-             out: TextIO = sys.stdout) -> int:
+             out: TextIO | None = None) -> int:
     """Classify every ``every``-th frame of ``path`` (a video, an image or a folder of images).
 
     Returns the number of feedback events. Raises ``MediaError`` / ``AssetsMissingError`` /
     ``FileNotFoundError`` with a readable message for bad paths or a missing model.
     """
+    out = out or sys.stdout
     spec = SourceSpec.parse(path)
     if spec.kind not in ("video", "image"):
         raise ValueError(f"classify reads files; {path!r} is a live source (the live service will read it)")
