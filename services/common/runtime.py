@@ -20,6 +20,7 @@ from typing import Any, Callable, Iterator
 from common.protocol import ServiceStatus, status_key, validate_name
 
 ALIVE = "alive"
+HARD_EXIT_AFTER = 5.0  # s a service gets to stop cleanly once its launcher is gone
 
 
 def alive_key(run: str, service: str = "*") -> str:
@@ -71,16 +72,23 @@ class ServiceRuntime:
         self.stop.set()
 
     def _watch_parent(self, pid: int) -> None:
-        while not self.stop.wait(0.5):
+        """The launcher is gone (e.g. SIGKILLed): stop, and if a clean stop does not finish within
+        HARD_EXIT_AFTER s (zenoh.open retrying a dead router cannot be interrupted), exit hard."""
+        while True:
+            time.sleep(0.5)
             try:
                 os.kill(pid, 0)
+                continue
             except ProcessLookupError:
-                self.log(f"parent {pid} is gone; stopping")
-                self.counters["parent_gone"] += 1
-                self.stop.set()
-                return
-            except PermissionError:
                 pass
+            except PermissionError:
+                continue
+            self.log(f"parent {pid} is gone; stopping")
+            self.counters["parent_gone"] += 1
+            self.stop.set()
+            time.sleep(HARD_EXIT_AFTER)
+            self.log(f"still running {HARD_EXIT_AFTER} s after the parent left; exiting hard")
+            os._exit(3)
 
     def log(self, text: str) -> None:
         print(f"[{self.name}] {text}", file=sys.stderr, flush=True)
