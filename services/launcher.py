@@ -46,6 +46,7 @@ class UpConfig:
     teacher: str = option("oracle", "teacher kind (services/teacher/registry.py)", choices=tuple(TEACHERS))
     teacher_id: str = option("oracle", "the teacher's name (its feedback key's last chunk)")
     episodes: int = option(50, "episodes the actor runs")
+    max_steps: int | None = option(None, "the actor also stops after this many steps (none = no limit)")
     out: str = option("runs", "parent directory of the run's directory")
     run: str | None = option(None, "run name (default: live-<date>-<time>)")
     seed: int = option(0, "trial seed (network init, exploration, observer, replay sampling, env)")
@@ -62,7 +63,9 @@ class UpConfig:
     stop_step: int | None = option(None, "observer silent from this global step on; none = never")
     host: str = option("127.0.0.1", "address the router listens on (0.0.0.0 to let other machines join)")
     port: int = option(0, "router port; 0 = pick a free one")
-    weights_every: int = option(1, "learner publishes weights at least every N learned steps")
+    update_interval: int = option(1, "learner's b: Q and D_global minibatch updates every b steps (paper: 1)")
+    weights_every: int = option(16, "learner publishes weights whenever it has caught up, and at least every N "
+                                    "learned steps while behind")
     end_grace: float = option(3.0, "learner's wait for teachers after the last step (s)")
     start_timeout: float = option(60.0, "seconds for all services to come up")
     stop_timeout: float = option(10.0, "seconds after the actor ends (or Ctrl-C) before stragglers are terminated")
@@ -112,12 +115,13 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
         raise ValueError(f"teacher kind {c.teacher!r} starts no process")
     teacher_names = [teachers[0].name]
     learner = LearnerConfig(**launch.common("learner"), env=c.env, layout=c.layout, seed=c.seed, algo=c.algo,
-                            assumed_delay_probs=c.assumed_delay_probs, weights_every=c.weights_every,
+                            assumed_delay_probs=c.assumed_delay_probs, update_interval=c.update_interval,
+                            weights_every=c.weights_every,
                             end_grace=c.end_grace,
                             wait_teachers=tuple(n.split(".", 1)[1] for n in teacher_names if n.startswith("teacher.")))
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), env=c.env, layout=c.layout, seed=c.seed, algo=c.algo,
-                        episodes=c.episodes, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
+                        episodes=c.episodes, max_steps=c.max_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
                         start_timeout=c.start_timeout)
     recorder = RecorderConfig(**launch.common("recorder"), out=str(launch.rundir / "session.mcap"),
                               run_config=str(launch.rundir / "config" / "run.json"),

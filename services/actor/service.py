@@ -96,7 +96,8 @@ def main(config: ActorConfig) -> int:
             next_tick = time.perf_counter()
             t_prev = 0.0
             episode = t_in_episode = 0
-            while episode < config.episodes and not rt.stop.is_set():
+            limit = config.max_steps if config.max_steps is not None else float("inf")
+            while episode < config.episodes and seq < limit and not rt.stop.is_set():
                 slot.adopt(weights_in)
                 if config.max_ahead is not None:
                     need = seq - config.max_ahead
@@ -112,10 +113,10 @@ def main(config: ActorConfig) -> int:
                     rt.counters["weights_wait_us"] += int((time.monotonic() - waited) * 1e6)
                 if period:
                     next_tick += period
-                    delay = next_tick - time.perf_counter()
-                    if delay > 0:
-                        time.sleep(delay)
-                    else:
+                    # Wait for the next tick on the weights inbox: weights are adopted as they arrive.
+                    while (delay := next_tick - time.perf_counter()) > 0 and not rt.stop.is_set():
+                        slot.adopt(weights_in, timeout=delay)
+                    if delay < -period:
                         next_tick = time.perf_counter()  # fell behind: do not try to catch up with a burst
                 agent.steps[0] = seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
                 action = int(agent.act(obs.reshape(1, -1))[0])

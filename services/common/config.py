@@ -71,6 +71,7 @@ class ActorConfig(TaskConfig):
 
     algo: str = option("dqn-tamer", "agent (sets the exploration and mixing schedules)", choices=ALGOS)
     episodes: int = option(50, "episodes to run, then stop")
+    max_steps: int | None = option(None, "also stop after this many steps (none = no limit)")
     rate: float = option(0.0, "steps per second; 0 = as fast as possible")
     max_ahead: int | None = option(2, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
                                       "(0 = lockstep with the learner, as the in-process runner; none = never wait)")
@@ -84,6 +85,8 @@ class ActorConfig(TaskConfig):
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         if self.episodes < 0:
             raise ValueError(f"episodes must be >= 0, got {self.episodes}")
+        if self.max_steps is not None and self.max_steps < 0:
+            raise ValueError(f"max-steps must be >= 0 or none, got {self.max_steps}")
         if not (math.isfinite(self.rate) and self.rate >= 0):
             raise ValueError(f"rate must be >= 0, got {self.rate}")
         if self.max_ahead is not None and self.max_ahead < 0:
@@ -137,7 +140,10 @@ class LearnerConfig(TaskConfig):
     algo: str = option("dqn-tamer", "agent", choices=ALGOS)
     assumed_delay_probs: tuple[float, ...] = option((0.3333, 0.3333, 0.3334),
                                                     "lag distribution over 0,1,2.. steps the learner assumes for credit")
-    weights_every: int = option(1, "publish weights at least every N learned steps (and whenever it has caught up)")
+    update_interval: int = option(1, "b: a Q and a D_global minibatch update every b steps (Algorithm 2; the paper's "
+                                     "setting is 1; larger trades learning per step for throughput)")
+    weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
+                                    "learned steps while it is behind")
     ingest_batch: int = option(256, "at most this many entries per Ingest message")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
     wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
@@ -147,6 +153,8 @@ class LearnerConfig(TaskConfig):
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         object.__setattr__(self, "assumed_delay_probs", parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        if self.update_interval < 1:
+            raise ValueError(f"update-interval must be >= 1, got {self.update_interval}")
         if self.weights_every < 1:
             raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
         if not 1 <= self.ingest_batch <= 2048:

@@ -64,7 +64,8 @@ class LearnerCore:
         self.obs_dim = int(env.observation_space.shape[0])
         self.n_actions = int(env.action_space.n)
         env.close()
-        self.agent_config = agent_config(config.algo, assumed_delay_probs=config.assumed_delay_probs)
+        self.agent_config = agent_config(config.algo, assumed_delay_probs=config.assumed_delay_probs,
+                                         update_interval=config.update_interval)
         self.agent = TrialBatchAgent([self.agent_config], self.obs_dim, self.n_actions, [config.seed])
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
         self.actor: str | None = None

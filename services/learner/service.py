@@ -38,7 +38,7 @@ def main(config: LearnerConfig) -> int:
     rt.set_counters_source(lambda: {**core.counters, "steps_learned": core.steps_learned,
                                     "feedback_held_now": core.held})
     ingest_seq = 0
-    sent_at: dict[int, float] = {}  # ingest position of a held feedback -> when it was sent
+    sent_at: dict[int, tuple] = {}  # ingest position of a held feedback -> (when sent, when it arrived)
 
     with rt.session() as session:
         inbox = Inbox(1 << 16, "block", block_timeout=3600)
@@ -70,12 +70,16 @@ def main(config: LearnerConfig) -> int:
                     last_version["v"] = version
                     rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
 
-                def handle(results, t_sent: float | None = None, now: float = 0.0) -> None:
+                def handle(results, t_sent: float | None = None) -> None:
+                    """Latency samples: send -> H updated, and how much of it was the wait for a newer step."""
                     done = time.time()
                     for r in results:
-                        t0 = t_sent if r.received_at not in sent_at else sent_at.pop(r.received_at)
+                        t0, t_held = t_sent, None
+                        if r.received_at in sent_at:
+                            t0, t_held = sent_at.pop(r.received_at)
                         if r.status == "credited" and t0 is not None:
                             rt.samples["feedback_to_h_s"].append(done - t0)
+                            rt.samples["feedback_hold_s"].append(0.0 if t_held is None else done - t_held)
 
                 flush_ingest(config_too=True)
                 rt.ready()
@@ -91,7 +95,7 @@ def main(config: LearnerConfig) -> int:
                         t_sent = received.t_zenoh if received.t_zenoh is not None else received.t_recv
                         if isinstance(msg, Step):
                             results, ep = core.on_step(msg, now)
-                            handle(results, now=now)
+                            handle(results)
                             if ep is not None:
                                 epub.put(EpisodeSummary(run=config.run, incarnation=ep.incarnation,
                                                         episode=ep.episode, return_=ep.return_, steps=ep.steps,
@@ -101,9 +105,9 @@ def main(config: LearnerConfig) -> int:
                         elif isinstance(msg, Feedback):
                             teachers_known.add(msg.teacher_id)
                             results = core.on_feedback(msg, now)
-                            if not results:
-                                sent_at[core.position - 1] = t_sent
-                            handle(results, t_sent=t_sent, now=now)
+                            if not results:  # held: remember when it was sent and when it arrived
+                                sent_at[core.position - 1] = (t_sent, now)
+                            handle(results, t_sent=t_sent)
                         idle = len(inbox) == 0
                         v = core.steps_learned
                         if v != last_version["v"] and (idle or v - last_version["v"] >= config.weights_every):

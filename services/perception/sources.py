@@ -55,10 +55,9 @@ def open_source(spec: SourceSpec, every: int = 1, realtime: bool = False) -> Ite
     if spec.kind == "camera":
         return iter_camera(int(spec.target), every)
     if spec.kind == "mcap":
-        raise NotImplementedError(
-            "mcap: sources need the recorded frame message type (foxglove.CompressedImage) from the "
-            "live perception service, which is not built yet"
-        )
+        # To add with the live service: read the `camera` key's common.protocol.CompressedImage records
+        # (foxglove.CompressedImage) from the log, decode with cv2.imdecode, stamp with their timestamp.
+        raise NotImplementedError(f"mcap:{spec.target}: replaying recorded camera frames is not built yet")
     if spec.kind == "video" and realtime:
         return iter_video_realtime(spec.target, every)
     return iter_media(spec.target, every)
