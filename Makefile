@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml Makefile
 	touch $(STAMP)
 
 run: setup
-	$(PY) -m experiments run --env maze --algo dqn-tamer --episodes 60 --out runs/maze-dqn-tamer
+	$(PY) -m services up --env maze --algo dqn-tamer --teacher oracle --episodes 50 --out runs/
 
 test: setup
 	$(PY) -m pytest -q
