@@ -51,15 +51,14 @@ def main(config: LearnerConfig) -> int:
                     MessagePublisher(session, episode_key(config.run)) as epub, \
                     MessagePublisher(session, ingest_key(config.run)) as ipub:
 
-                def flush_ingest(config_too: bool = False) -> None:
+                def flush_ingest() -> None:
                     nonlocal ingest_seq
-                    while core.entries or config_too:
+                    while core.entries:
                         index = core.position - len(core.entries)
                         entries = core.take_entries(config.ingest_batch)
                         ipub.put(Ingest(run=config.run, learner=rt.incarnation, seq=ingest_seq, index=index,
                                         entries=entries, config=core.config_record() if ingest_seq == 0 else None))
                         ingest_seq += 1
-                        config_too = False
 
                 last_version = {"v": 0}
 
@@ -81,7 +80,8 @@ def main(config: LearnerConfig) -> int:
                             rt.samples["feedback_to_h_s"].append(done - t0)
                             rt.samples["feedback_hold_s"].append(0.0 if t_held is None else done - t_held)
 
-                flush_ingest(config_too=True)
+                # The first Ingest (with the config) goes out with the first inputs: they only flow once the actor
+                # has seen every awaited service alive, so the recorder is subscribed by then.
                 rt.ready()
                 actor_final: int | None = None
                 teachers_final: dict[str, int] = {}

@@ -173,9 +173,9 @@ def test_dqn_tamer_live_learns_like_in_process(tmp_path):
 
 def test_ctrl_c_stops_everything_cleanly(tmp_path):
     launch = start_up(tmp_path, "int", "--episodes", "100000", "--rate", "200")
-    log = launch.rundir / "stats"
-    assert wait_for(lambda: len(processes_mentioning(str(launch.rundir))) >= 4, 60)
-    time.sleep(4.0)
+    log = launch.rundir / "session.mcap"
+    assert wait_for(lambda: log.exists() and log.stat().st_size > 20_000, 90)  # steps are flowing
+    time.sleep(1.0)
     t = time.time()
     os.killpg(launch.popen.pid, signal.SIGINT)  # what a terminal's Ctrl-C does to the foreground group
     rc = launch.wait(timeout=30)
