@@ -91,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--repeats", type=int, default=3, help="passes over the clip per row (default: 3)")
     b.add_argument("--no-naive", action="store_true", help="skip the naive full-frame Haar rows")
     b.add_argument("--all-cores", action="store_true", help="do not pin the process to one CPU")
+    b.add_argument("--frame-step", type=int, default=1, metavar="N",
+                   help="quick look: run the clip on every N-th frame only (default: all)")
     b.add_argument("--json", action="store_true")
     _add_pipeline_args(b)
     return parser
@@ -111,7 +113,8 @@ def cli(argv: list[str] | None = None) -> int:
             from .bench import run_bench
 
             run_bench(sizes=args.sizes, repeats=args.repeats, naive=not args.no_naive,
-                      one_core=not args.all_cores, config=_pipeline_config(args), as_json=args.json)
+                      one_core=not args.all_cores, config=_pipeline_config(args), as_json=args.json,
+                      frame_step=max(1, args.frame_step))
             return 0
     except (MediaError, AssetsMissingError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -97,11 +97,14 @@ def test_bare_command_is_kept_for_the_live_service(capsys):
     assert "live mode" in capsys.readouterr().err
 
 
-def test_bench_smoke(capsys, onnx_path):
+def test_bench_smoke(capsys, onnx_path, pexels_sized, monkeypatch):
+    from services.perception import bench
     from services.perception.bench import run_bench
 
-    rows = run_bench(sizes=[(320, 240)], repeats=1, naive=False, one_core=False)
-    assert len(rows) == 1 and rows[0].accuracy >= 0.95 and rows[0].smile_events == 1
+    frames, fps = pexels_sized
+    monkeypatch.setattr(bench.evaluate, "pexels_frames", lambda size: (frames[f"{size[0]}x{size[1]}"], fps))
+    rows = run_bench(sizes=[(320, 240)], repeats=1, naive=False, one_core=False, frame_step=8)
+    assert len(rows) == 1 and rows[0].accuracy >= 0.85 and rows[0].smile_events == 1  # 55 frames only
     assert rows[0].fps > 0 and rows[0].latency_p99_ms >= rows[0].latency_p50_ms
     out = capsys.readouterr().out
     assert "p50 ms" in out and "320x240" in out
