@@ -1,4 +1,4 @@
-"""python -m experiments {run, ...}: experiments on the in-process runner (virtual clock)."""
+"""python -m experiments {run, reproduce, bench}: experiments on the in-process runner (virtual clock)."""
 from __future__ import annotations
 
 import argparse
@@ -45,12 +45,64 @@ def cmd_run(config: RunConfig) -> int:
     return 0
 
 
+def cmd_reproduce(args, argv: list[str]) -> int:
+    from experiments.conditions import select
+    from experiments.reproduce import reproduce
+
+    conds = select(args.only)
+    stats = reproduce(conds, args.trials, args.out, workers=args.workers, progress=not args.no_progress,
+                      argv=argv)
+    with open(os.path.join(args.out, "claims.json")) as fh:
+        verdicts = {k: v["verdict"] for k, v in json.load(fh)["claims"].items()}
+    print(f"{stats.trials} trials ({stats.trials_run} run, {stats.trials_cached} cached, {stats.trials_shared} "
+          f"shared) in {stats.total_s:.1f} s; wrote {args.out}/REPORT.md, claims.json, timing.json, *.png")
+    for claim, verdict in verdicts.items():
+        print(f"  {claim}: {verdict}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from experiments.bench import bench, format_report
+
+    report = bench(args.conditions, args.trials, args.episodes, workers=args.workers, out=args.out)
+    print(format_report(report))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    from experiments.conditions import BY_NAME
+
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(prog="python -m experiments", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help=RunConfig.__doc__, description=RunConfig.__doc__)
     add_config_arguments(p_run, RunConfig)
+    p_rep = sub.add_parser("reproduce", help="every condition of the paper with all four agents: figures, "
+                           "claims with computed verdicts, timing (cached: re-running only re-plots)")
+    p_rep.add_argument("--trials", type=int, default=30, help="trials per agent and condition (default: 30 = "
+                       "10 maze layouts x 3 seeds)")
+    p_rep.add_argument("--only", nargs="+", metavar="NAME", choices=list(BY_NAME),
+                       help=f"run only these conditions ({', '.join(BY_NAME)})")
+    p_rep.add_argument("--out", default="docs/results", help="output directory (default: docs/results)")
+    p_rep.add_argument("--workers", type=int, default=2, help="worker processes (default: 2; 1 = in this process)")
+    p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
+                             "loop, measured side by side on the same trials")
+    p_bench.add_argument("--conditions", nargs="+", default=["maze-high-delay", "maze-stop"],
+                         choices=list(BY_NAME), help="conditions to draw trials from")
+    p_bench.add_argument("--trials", type=int, default=4, help="trials per agent and condition (default: 4)")
+    p_bench.add_argument("--episodes", type=int, default=40, help="episodes per trial (default: 40)")
+    p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
+    p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
     args = parser.parse_args(argv)
+    if args.command == "reproduce":
+        if args.trials < 2:
+            p_rep.error("--trials must be at least 2 (intervals need resampling)")
+        return cmd_reproduce(args, argv)
+    if args.command == "bench":
+        if args.trials < 1 or args.episodes < 1:
+            p_bench.error("--trials and --episodes must be positive")
+        return cmd_bench(args)
     if args.command == "run":
         try:
             config = config_from_namespace(RunConfig, args)

@@ -6,11 +6,13 @@ action. Per tick (Algorithm 2 of the paper): act, step the env, store the transi
 that has arrived (credit by timestamp, D_local update, or shaping), then the every-b-steps updates.
 
 Trials batched together only share arithmetic: each has its own env, observer, agent state and random
-streams, so a trial's actions and returns do not depend on which other trials run beside it.
+streams, so a trial's actions and returns do not depend on which other trials run beside it. Every
+per-tick operation is vectorised over the running trials (the agent's row methods, `envbatch` tables, the
+observers' pre-drawn uniforms), and finished trials are dropped from the batch (`TrialBatchAgent.select`),
+so a batch costs what its running trials cost.
 """
 from __future__ import annotations
 
-import heapq
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -18,9 +20,11 @@ import numpy as np
 import torch
 
 from common.agents import AgentConfig, TrialBatchAgent
+from common.agents.agent import CREDITED, STALE
 from common.envs import make_env
-from common.observer import ObserverConfig, SimulatedObserver
+from common.observer import REACTION_OFFSET, ObserverConfig, SimulatedObserver
 from common.seeding import derive_seed
+from experiments.envbatch import LoopEnvs, TableEnvs
 
 EPISODE_FIELDS = ("episode", "return", "steps", "feedback_given", "feedback_credited", "feedback_stale",
                   "epsilon", "alpha_h")
@@ -51,7 +55,7 @@ class TrialResult:
 
 
 def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 100) -> int | None:
-    """Steps the greedy policy of trial i needs to finish an episode on a fresh copy of its env
+    """Steps the greedy policy of trial (row) i needs to finish an episode on a fresh copy of its env
     (None if it does not within `limit`). Learning and random streams are untouched."""
     env, _ = make_env(spec.env, spec.layout)
     obs = env.reset(seed=derive_seed(spec.seed, "greedy-eval") % (2**31))[0]
@@ -64,95 +68,187 @@ def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 1
     return None
 
 
-def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] | None = None,
-               record_actions: bool = False, greedy_eval: bool = False) -> list[TrialResult]:
-    """Run every trial to its episode count; trials must share the environment kind.
+class ObserverBatch:
+    """`SimulatedObserver.react` for many trials at once.
 
-    `greedy_eval` adds `greedy_steps` to each episode record: the length of the greedy policy's path
-    after that episode (None if it does not reach the goal in 100 steps)."""
+    Each observer draws three uniforms per step from its own generator (give, lag, flip); here they are
+    drawn `block` steps at a time from that same generator (numpy gives the same numbers either way) and
+    the observer's rule is applied to arrays: silent after the stop, feedback with probability
+    p_feedback, lag by inverse CDF (the same running sum as `DelayModel.sample_steps`), polarity flipped
+    with probability p_flip. A test checks it against `SimulatedObserver.react` event for event.
+    """
+
+    def __init__(self, observers: list[SimulatedObserver], block: int = 1024):
+        self.observers = list(observers)
+        self.block = block
+        cfgs = [o.config for o in observers]
+        big = np.iinfo(np.int64).max
+        self.p_feedback = np.array([c.p_feedback for c in cfgs], np.float64)
+        self.p_flip = np.array([c.p_flip for c in cfgs], np.float64)
+        self.stop_episode = np.array([big if c.stop_episode is None else c.stop_episode for c in cfgs], np.int64)
+        self.stop_step = np.array([big if c.stop_step is None else c.stop_step for c in cfgs], np.int64)
+        self.n_lags = np.array([len(o.delay.probs) for o in observers], np.int64)
+        self.max_lag = int(self.n_lags.max()) - 1
+        self.cum = np.zeros((len(observers), self.max_lag + 1), np.float64)
+        for k, o in enumerate(observers):
+            c = np.cumsum(np.asarray(o.delay.probs, np.float64))
+            self.cum[k, :len(c)] = c
+            self.cum[k, len(c):] = c[-1]
+        self.u = np.zeros((len(observers), block, 3), np.float64)
+        self.drawn = np.zeros(len(observers), np.int64)  # steps' worth of uniforms drawn so far
+
+    def react(self, rows: np.ndarray, step: np.ndarray, intended: np.ndarray, episode: np.ndarray):
+        """Trials `rows` took their step number `step`: (gives feedback, value, lag in steps)."""
+        need = step >= self.drawn[rows]
+        for k in rows[need]:
+            self.u[k] = self.observers[k].rng.random((self.block, 3))
+            self.drawn[k] += self.block
+        u = self.u[rows, step % self.block]
+        silent = (episode >= self.stop_episode[rows]) | (step >= self.stop_step[rows])
+        give = ~silent & (u[:, 0] < self.p_feedback[rows])
+        lag = np.minimum((u[:, 1:2] >= self.cum[rows]).sum(axis=1), self.n_lags[rows] - 1)
+        value = np.where(u[:, 2] < self.p_flip[rows], -intended, intended)
+        return give, value, lag
+
+    def select(self, rows: np.ndarray) -> None:
+        for name in ("p_feedback", "p_flip", "stop_episode", "stop_step", "n_lags", "cum", "u", "drawn"):
+            setattr(self, name, getattr(self, name)[rows])
+        self.observers = [self.observers[k] for k in rows]
+
+
+def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] | None = None,
+               record_actions: bool = False, greedy_eval: bool = False,
+               on_trial_done: Callable[[int, TrialResult], None] | None = None,
+               use_tables: bool = True) -> list[TrialResult]:
+    """Run every trial to its episode count; trials must share observation and action spaces.
+
+    `on_episode(i, record)` is called after each episode of trial i (the index into `specs`),
+    `on_trial_done(i, result)` when trial i has run all its episodes. `greedy_eval` adds `greedy_steps`
+    to each episode record: the length of the greedy policy's path after that episode (None if it does not
+    reach the goal in 100 steps). `use_tables=False` steps the real environments one by one instead of
+    the compiled tables (same results, slower; for tests and for environments without tables).
+    """
     if not specs:
         return []
     torch.set_num_threads(1)  # one thread: the same arithmetic whatever the batch, and room for workers
+    assert 0 < REACTION_OFFSET < 1, "delivery below assumes reactions land strictly between two steps"
     B = len(specs)
-    envs, observers = [], []
+    envs, rules, keys, observers = [], [], [], []
     for s in specs:
         if s.episodes < 0:
             raise ValueError(f"episodes must be >= 0, got {s.episodes}")
         env, rule = make_env(s.env, s.layout)
         envs.append(env)
+        rules.append(rule)
+        keys.append((s.env, s.layout))
         observers.append(SimulatedObserver(s.observer, rule, derive_seed(s.seed, "observer")))
     obs_dim = envs[0].observation_space.shape[0]
     n_actions = envs[0].action_space.n
     if any(e.observation_space.shape[0] != obs_dim or e.action_space.n != n_actions for e in envs):
         raise ValueError("trials batched together must share observation and action spaces")
+    env_seeds = [derive_seed(s.seed, "env") % (2**31) for s in specs]
+    EnvBatch = TableEnvs if use_tables and TableEnvs.supports(envs) else LoopEnvs
+    world = EnvBatch(envs, rules, keys, env_seeds)
+    watchers = ObserverBatch(observers)
     agent = TrialBatchAgent([s.agent for s in specs], obs_dim, n_actions, [s.seed for s in specs])
-
     results = [TrialResult(s) for s in specs]
-    obs = np.zeros((B, obs_dim), np.float32)
-    for i, (env, s) in enumerate(zip(envs, specs)):
-        obs[i] = env.reset(seed=derive_seed(s.seed, "env") % (2**31))[0]
-    active = np.array([s.episodes > 0 for s in specs])
-    pending: list[list] = [[] for _ in range(B)]
-    event_counter = 0
-    episode = np.zeros(B, np.int64)
-    ep_return = np.zeros(B)
-    ep_steps = np.zeros(B, np.int64)
-    ep_given = np.zeros(B, np.int64)
-    ep_credited = np.zeros(B, np.int64)
-    ep_stale = np.zeros(B, np.int64)
 
-    while active.any():
-        actions = agent.act(obs, active)
-        ended = []
-        for i in np.flatnonzero(active):
-            a = int(actions[i])
-            t = float(agent.steps[i])  # virtual time of this action
-            nxt, r, term, trunc, info = envs[i].step(a)
-            agent.record_step(i, obs[i], a, r, nxt, term, t)
-            event = observers[i].react(t, info, int(episode[i]), int(t))
-            if event is not None:
-                event_counter += 1
-                heapq.heappush(pending[i], (event.t_reaction, event_counter, event))
-            if record_actions:
-                results[i].actions.append(a)
-            ep_return[i] += r
-            ep_steps[i] += 1
-            obs[i] = nxt
-            if term or trunc:
-                ended.append(i)
-        # Deliver what arrives before each trial's next action, one event per trial per round.
-        due: list[list] = [[] for _ in range(B)]
-        for i in np.flatnonzero(active):
-            horizon = float(agent.steps[i])  # the next action's time
-            while pending[i] and pending[i][0][0] < horizon:
-                due[i].append(heapq.heappop(pending[i])[2])
-        rounds = max((len(d) for d in due), default=0)
-        for r_ in range(rounds):
-            batch = [(i, d[r_].t_reaction, d[r_].value) for i, d in enumerate(due) if len(d) > r_]
-            for (i, _, _), outcome in zip(batch, agent.give_feedback(batch)):
-                ep_given[i] += 1
-                ep_credited[i] += outcome.status == "credited"
-                ep_stale[i] += outcome.status == "stale"
+    # Per-row state of the running batch (rows are renumbered when finished trials are dropped).
+    R = watchers.max_lag + 1  # events in flight arrive within R ticks
+    st = {
+        "orig": np.arange(B),
+        "active": np.array([s.episodes > 0 for s in specs]),
+        "obs": np.zeros((B, obs_dim), np.float32),
+        "episode": np.zeros(B, np.int64),
+        "ep_return": np.zeros(B),
+        "ep_steps": np.zeros(B, np.int64),
+        "ep_given": np.zeros(B, np.int64),
+        "ep_credited": np.zeros(B, np.int64),
+        "ep_stale": np.zeros(B, np.int64),
+        # inbox[row, arrival tick % R, R - 1 - lag]: value of the event from step (arrival - lag), 0 = none;
+        # along the last axis events are in the order they were emitted (oldest step first).
+        "inbox": np.zeros((B, R, R), np.int64),
+    }
+    for k in range(B):
+        st["obs"][k] = world.reset(k)
+    n_episodes = np.array([s.episodes for s in specs], np.int64)
+    finished_rows = 0
+
+    while st["active"].any():
+        active = st["active"]
+        rows = np.flatnonzero(active)
+        actions = agent.act(st["obs"], active)
+        a = actions[rows]
+        step = agent.steps[rows].copy()  # this action's virtual time, in steps
+        nxt, rew, term, trunc, intended = world.step(rows, a)
+        agent.record_steps(rows, st["obs"][rows], a, rew, nxt, term, step.astype(np.float64))
+        give, value, lag = watchers.react(rows, step, intended, st["episode"][rows])
+        g = np.flatnonzero(give)
+        st["inbox"][rows[g], (step[g] + lag[g]) % R, R - 1 - lag[g]] = value[g]
+        if record_actions:
+            for i, act in zip(st["orig"][rows], a):
+                results[i].actions.append(int(act))
+        st["ep_return"][rows] += rew
+        st["ep_steps"][rows] += 1
+        st["obs"][rows] = nxt
+        ended = rows[term | trunc]
+
+        # Deliver what arrives before each trial's next action (at step + REACTION_OFFSET), in emission
+        # order, one event per trial per round.
+        slot = step % R
+        due = st["inbox"][rows, slot]
+        st["inbox"][rows, slot] = 0
+        has = due != 0
+        counts = has.sum(axis=1)
+        if counts.any():
+            order = np.argsort(~has, axis=1, kind="stable")
+            t_f = step.astype(np.float64) + REACTION_OFFSET
+            for r_ in range(int(counts.max())):
+                k = np.flatnonzero(counts > r_)
+                vals = due[k, order[k, r_]]
+                status, _, _ = agent.feedback_round(rows[k], t_f[k], vals)
+                rk = rows[k]
+                st["ep_given"][rk] += 1
+                st["ep_credited"][rk] += status == CREDITED
+                st["ep_stale"][rk] += status == STALE
         agent.update(active)
-        for i in ended:
-            record = {"episode": int(episode[i]), "return": float(ep_return[i]), "steps": int(ep_steps[i]),
-                      "feedback_given": int(ep_given[i]), "feedback_credited": int(ep_credited[i]),
-                      "feedback_stale": int(ep_stale[i]),
-                      "epsilon": agent.epsilon[i](int(agent.steps[i])),
-                      "alpha_h": agent.alpha[i].alpha_h_at(int(agent.steps[i]))}
-            if greedy_eval:
-                record["greedy_steps"] = greedy_steps(agent, i, specs[i])
-            results[i].episodes.append(record)
-            if on_episode is not None:
-                on_episode(i, record)
-            episode[i] += 1
-            ep_return[i] = 0.0
-            ep_steps[i] = ep_given[i] = ep_credited[i] = ep_stale[i] = 0
-            if episode[i] >= specs[i].episodes:
-                active[i] = False
-                pending[i].clear()
-            else:
-                obs[i] = envs[i].reset()[0]
-    for i, res in enumerate(results):
-        res.total_steps = int(agent.steps[i])
+
+        if len(ended):
+            eps_now, alpha_now = agent.epsilons(ended), agent.alpha_h(ended)
+            for j, row in enumerate(ended):
+                i = int(st["orig"][row])
+                record = {"episode": int(st["episode"][row]), "return": float(st["ep_return"][row]),
+                          "steps": int(st["ep_steps"][row]), "feedback_given": int(st["ep_given"][row]),
+                          "feedback_credited": int(st["ep_credited"][row]),
+                          "feedback_stale": int(st["ep_stale"][row]),
+                          "epsilon": float(eps_now[j]), "alpha_h": float(alpha_now[j])}
+                if greedy_eval:
+                    record["greedy_steps"] = greedy_steps(agent, int(row), specs[i])
+                results[i].episodes.append(record)
+                if on_episode is not None:
+                    on_episode(i, record)
+                st["episode"][row] += 1
+                st["ep_return"][row] = 0.0
+                st["ep_steps"][row] = st["ep_given"][row] = st["ep_credited"][row] = st["ep_stale"][row] = 0
+                if st["episode"][row] >= n_episodes[i]:
+                    st["active"][row] = False
+                    st["inbox"][row] = 0
+                    results[i].total_steps = int(agent.steps[row])
+                    finished_rows += 1
+                    if on_trial_done is not None:
+                        on_trial_done(i, results[i])
+                else:
+                    st["obs"][row] = world.reset(int(row))
+            # Drop finished trials once they are an eighth of the batch (or the batch is small).
+            n_rows = len(st["orig"])
+            if finished_rows and finished_rows >= max(1, n_rows // 8) and st["active"].any():
+                keep = np.flatnonzero(st["active"])
+                agent.select(keep)
+                world.select(keep)
+                watchers.select(keep)
+                st = {k: v[keep] for k, v in st.items()}
+                finished_rows = 0
+    for i, s in enumerate(specs):
+        if s.episodes == 0 and on_trial_done is not None:
+            on_trial_done(i, results[i])
     return results
