@@ -196,6 +196,8 @@ def analyse(rundir: Path) -> dict[str, Any]:
                                                   - np.asarray(learner.get("feedback_hold_s", []))),
         "weights_publish_to_adoption_ms": pct(actor.get("adopt_latency_s")),
         "weights_publish_cost_ms": pct(learner.get("weights_publish_cost_s")),
+        "cpu_ms_per_step": {name: round(1e3 * st.get("cpu_since_ready_s", 0.0) / max(n, 1), 3)
+                            for name, st in sorted(stats.items())},
         "feedback": {"sent": summary.get("feedback_sent"), "credited": summary.get("feedback_credited"),
                      "rejected": summary.get("feedback_rejected")},
         "t_first_step": t_action[0] if t_action else None, "t_last_step": t_action[-1] if t_action else None,
@@ -256,6 +258,7 @@ def format_phase(name: str, r: dict) -> str:
         f"    less the wait for a newer step {_fmt(r['feedback_to_h_update_after_hold_ms'])}",
         f"  weights -> actor adoption  {_fmt(r['weights_publish_to_adoption_ms'])}",
         f"  zenoh RTT 64 B             idle {_fmt(rtt['idle'])}; during run {_fmt(rtt['during_run'])}",
+        "  CPU ms per step (after start-up): " + ", ".join(f"{k} {v:.2f}" for k, v in r["cpu_ms_per_step"].items()),
     ])
 
 

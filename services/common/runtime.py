@@ -59,6 +59,7 @@ class ServiceRuntime:
         self._token = None
         self._last_status = 0.0
         self._extra_counters: Callable[[], dict[str, int]] | None = None
+        self._cpu_at_ready: float | None = None
         if install_signals and threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGTERM, signal.SIGINT):
                 signal.signal(sig, self._on_signal)
@@ -120,6 +121,7 @@ class ServiceRuntime:
     def ready(self) -> None:
         """Subscribers are declared: announce liveliness and state 'ready'."""
         self._token = self._session.liveliness().declare_token(alive_key(self.config.run, self.name))
+        self._cpu_at_ready = time.process_time()
         self.publish_status("ready")
 
     def set_counters_source(self, fn: Callable[[], dict[str, int]]) -> None:
@@ -153,7 +155,9 @@ class ServiceRuntime:
         if not path:
             return
         data = {"service": self.name, "incarnation": self.incarnation, "pid": os.getpid(),
-                "counters": self.all_counters(), "samples": dict(self.samples), **extra}
+                "cpu_s": round(time.process_time(), 3),
+                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3), "counters": self.all_counters(), "samples": dict(self.samples),
+                **extra}
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(f"{path}.tmp")
         tmp.write_text(json.dumps(data))
