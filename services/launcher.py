@@ -290,13 +290,13 @@ def up(cfg: UpConfig) -> int:
     children: list[Child] = []
     t_start = time.time()
     outcome = "ok"
-    progress = Progress(cfg.episodes, cfg.progress, f"{cfg.algo} on {cfg.env}")
     session = zenoh.open(router_config(endpoint))
+    print(f"zenoh endpoint: {endpoint}  (run {run}; join with --connect {endpoint} --run {run})",
+          file=sys.stderr, flush=True)
+    print(f"run directory: {rundir}", file=sys.stderr, flush=True)
+    progress = Progress(cfg.episodes, cfg.progress, f"{cfg.algo} on {cfg.env}")
     try:
         sub = session.declare_subscriber(episode_key(run), progress.callback)
-        print(f"zenoh endpoint: {endpoint}  (run {run}; join with --connect {endpoint} --run {run})",
-              file=sys.stderr, flush=True)
-        print(f"run directory: {rundir}", file=sys.stderr, flush=True)
         for spec in procs:
             children.append(spawn(spec, rundir))
         by_name = {c.name: c for c in children}
