@@ -226,3 +226,39 @@ def test_teacher_config_rejects_bad_values():
     with pytest.raises(ValueError):
         TeacherConfig(p_feedback=1.5)
     assert dataclasses.replace(TeacherConfig(), clock="wall").clock == "wall"
+
+
+# -- actor's weights slot -------------------------------------------------------------------------------------------
+
+def test_actor_never_goes_back_to_an_older_version():
+    import time as _time
+
+    import torch
+
+    from common.agents import TrialBatchAgent, agent_config
+    from common.protocol import Weights, weights_key
+    from common.transport import Inbox, Received
+    from services.actor.service import WeightsSlot
+    from services.common.config import ActorConfig
+    from services.common.runtime import ServiceRuntime
+
+    agent = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [0])
+    spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
+    rt = ServiceRuntime("actor", ActorConfig(run=RUN), install_signals=False)
+    slot = WeightsSlot(agent, spec, rt)
+    inbox = Inbox(8, "block")
+
+    def send(version: int, fill: float, learner: str = "learner-1") -> None:
+        tensors = {k: np.full(s, fill, np.float32) for k, s in spec.items()}
+        w = Weights(run=RUN, incarnation=learner, version=version, t_published=_time.time(), tensors=tensors)
+        inbox.put(Received(weights_key(RUN), w.encode(), _time.time(), None))
+
+    send(5, 0.5)
+    send(3, 0.3)  # older, arrives later: ignored
+    assert slot.adopt(inbox) and slot.version == 5
+    assert all(torch.all(v == 0.5) for v in agent.policy_weights(0).values())
+    assert rt.counters["weights_not_newer"] == 1
+    send(7, 0.7)
+    assert slot.adopt(inbox, timeout=1.0) and slot.version == 7
+    send(1, 0.1, learner="learner-2")  # a restarted learner starts again from low versions
+    assert slot.adopt(inbox) and slot.version == 1 and rt.counters["learner_restarts"] == 1
