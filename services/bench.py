@@ -137,8 +137,10 @@ def echo_main(endpoint: str, run: str) -> int:
 
     from common.transport import client_config, open_session
 
+    from services.common.runtime import set_from_handler
+
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: set_from_handler(stop))
     with open_session(client_config(endpoint, connect_timeout=30)) as session:
         pub = session.declare_publisher(PONG_KEY.format(run=run), express=True,
                                         congestion_control=zenoh.CongestionControl.BLOCK)

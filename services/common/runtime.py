@@ -23,6 +23,12 @@ ALIVE = "alive"
 HARD_EXIT_AFTER = 5.0  # s a service gets to stop cleanly once its launcher is gone
 
 
+def set_from_handler(event: threading.Event) -> None:
+    """Set `event` from a signal handler. Not directly: a handler that interrupted `event.wait()` in the same
+    thread would deadlock on the Event's internal lock; a helper thread takes it once the waiter lets go."""
+    threading.Thread(target=event.set, name="signal-set", daemon=True).start()
+
+
 def alive_key(run: str, service: str = "*") -> str:
     """Liveliness token of a ready service (`*`: every service of the run)."""
     validate_name(run, "run")
@@ -70,7 +76,7 @@ class ServiceRuntime:
     # -- stopping ----------------------------------------------------------------------------------------------
     def _on_signal(self, signum, _frame) -> None:
         self.counters[f"signal_{signal.Signals(signum).name}"] += 1
-        self.stop.set()
+        set_from_handler(self.stop)
 
     def _watch_parent(self, pid: int) -> None:
         """The launcher is gone (e.g. SIGKILLed): stop, and if a clean stop does not finish within

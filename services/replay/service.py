@@ -45,9 +45,11 @@ def cmd_play(args) -> int:
     from common.transport import client_config, free_port, open_session, router_config, tcp_endpoint
     from services.replay.play import play
 
+    from services.common.runtime import set_from_handler
+
     stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: set_from_handler(stop))
+    signal.signal(signal.SIGTERM, lambda *_: set_from_handler(stop))
     if args.connect:
         config = client_config(*args.connect.split(","))
         where = args.connect
