@@ -52,8 +52,9 @@ class UpConfig:
     seed: int = option(0, "trial seed (network init, exploration, observer, replay sampling, env)")
     layout: int = option(0, "maze layout 0..9")
     rate: float = option(0.0, "actor steps per second; 0 = as fast as possible")
-    max_ahead: int | None = option(2, "steps the actor may run ahead of the weights it holds (0 = lockstep; "
-                                      "none = never wait)")
+    max_ahead: int | None = option(0, "steps the actor may run ahead of the weights it holds (0 = lockstep, as the "
+                                      "in-process runner; more trades learning fidelity for throughput; none = never "
+                                      "wait)")
     p_feedback: float = option(0.5, "probability that the simulated observer gives feedback on a step")
     delay_probs: tuple[float, ...] = option((0.3, 0.6, 0.1), "observer's true lag distribution over 0,1,2.. steps")
     assumed_delay_probs: tuple[float, ...] = option((0.3333, 0.3333, 0.3334),

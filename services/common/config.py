@@ -73,8 +73,9 @@ class ActorConfig(TaskConfig):
     episodes: int = option(50, "episodes to run, then stop")
     max_steps: int | None = option(None, "also stop after this many steps (none = no limit)")
     rate: float = option(0.0, "steps per second; 0 = as fast as possible")
-    max_ahead: int | None = option(2, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
-                                      "(0 = lockstep with the learner, as the in-process runner; none = never wait)")
+    max_ahead: int | None = option(0, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
+                                      "(0 = lockstep with the learner, as the in-process runner, learns best; more "
+                                      "trades fidelity for throughput; none = never wait)")
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
