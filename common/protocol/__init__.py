@@ -16,10 +16,10 @@ No zenoh or mcap import here: the pure core may use these types too.
 
 from ._base import PROTOCOL_VERSION, Message
 from ._keys import (KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, config_key, decode, episode_key,
-                    feedback_key, feedback_wildcard, ingest_key, message_type, parse_key, perception_key, run_prefix,
+                    feedback_key, feedback_wildcard, ingest_key, log_key, message_type, parse_key, perception_key, run_prefix,
                     status_key, step_key, validate_name, weights_key)
 from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary,
-                        ExpressionPrediction, Feedback, Ingest, IngestEntry, RunConfig, ServiceStatus, Step,
+                        ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, RunConfig, ServiceStatus, Step,
                         Time)
 from ._spec import REASONS, ProtocolError
 from ._weights import Weights, check_spec
@@ -27,7 +27,7 @@ from ._weights import Weights, check_spec
 __all__ = [
     "PROTOCOL_VERSION", "Message", "ProtocolError", "REASONS",
     "Step", "Feedback", "Weights", "Ingest", "IngestEntry", "EpisodeSummary", "ServiceStatus", "CompressedImage",
-    "ExpressionPrediction",
+    "ExpressionPrediction", "Log", "LOG_LEVELS", "log_key",
     "RunConfig", "Time", "Box", "SERVICE_STATES", "NAME_PATTERN", "TOKEN_PATTERN", "check_spec",
     "KEYS", "KeySpec", "ParsedKey", "MESSAGE_TYPES", "ROOT", "parse_key", "message_type", "decode", "validate_name",
     "run_prefix", "step_key", "feedback_key", "feedback_wildcard", "weights_key", "episode_key", "ingest_key",

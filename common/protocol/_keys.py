@@ -11,7 +11,7 @@ import re
 from typing import Any
 
 from ._messages import (NAME_PATTERN, CompressedImage, EpisodeSummary, ExpressionPrediction, Feedback, Ingest,
-                        RunConfig, ServiceStatus, Step)
+                        Log, RunConfig, ServiceStatus, Step)
 from ._spec import ProtocolError
 from ._weights import Weights
 
@@ -61,6 +61,8 @@ KEYS: dict[str, KeySpec] = {k.kind: k for k in [
     KeySpec("ingest", Ingest, None, "block", "block",
             "The learner's input order (what `replay retrain` feeds a fresh learner), from the learner."),
     KeySpec("status", ServiceStatus, "service", "drop", "drop_oldest", "Service liveness and counters."),
+    KeySpec("log", Log, "name", "block", "block",
+            "Events for humans (foxglove.Log): supervision, restores, first rejection of each reason."),
     KeySpec("camera", CompressedImage, "camera", "drop", "drop_oldest", "Camera frames (JPEG)."),
     KeySpec("perception", ExpressionPrediction, "camera", "drop", "drop_oldest", "Expression read from each frame."),
 ]}
@@ -106,6 +108,10 @@ def episode_key(run: str) -> str:
 
 def status_key(run: str, service: str) -> str:
     return KEYS["status"].key(run, service)
+
+
+def log_key(run: str, name: str) -> str:
+    return KEYS["log"].key(run, name)
 
 
 def camera_key(run: str, camera: str) -> str:
@@ -166,4 +172,6 @@ def decode(key: str, data: bytes) -> Any:
         raise ProtocolError("bad_value", f"teacher_id {msg.teacher_id!r} does not match key")
     if isinstance(msg, ServiceStatus) and msg.service != parsed.name:
         raise ProtocolError("bad_value", f"service {msg.service!r} does not match key")
+    if isinstance(msg, Log) and msg.name != parsed.name:
+        raise ProtocolError("bad_value", f"name {msg.name!r} does not match key")
     return msg

@@ -135,7 +135,8 @@ INGEST_ENTRY_SPEC = Obj({
         "The input's origin: the actor incarnation (step), the teacher id (feedback, outcome), the learner (end).")),
     "seq": Int(0, description="The input's own `seq` (Step.seq, Feedback.seq); 0 for `end`."),
     "status": Str(32, description=(
-        "For `outcome`: credited, stale, ignored, after_end, unknown_actor; for `step`: learned, gap, old; "
+        "For `outcome`: credited, stale, ignored, after_end, actor_restarted; for `step`: learned, gap, old, "
+        "after_end; "
         "else empty.")),
     "t": Float(0.0, description="Wall-clock time (s) of consumption: diagnostics only, never used by retrain."),
 }, cls=IngestEntry, description="One ingest entry.")
@@ -148,8 +149,10 @@ class Ingest(Message):
 
     Every learning decision of the learner depends only on this ordered input, so feeding a fresh learner the
     recorded Step and Feedback messages in this order reproduces its weights bit for bit (`replay retrain`).
-    `seq` is contiguous per learner incarnation; `index` is the position of the first entry in the
-    incarnation's whole record. The first batch (`seq` 0) carries the learner's config.
+    `seq` is contiguous per learner incarnation; `index` is the position of the first entry in the learner's
+    whole record. The first batch (`seq` 0) carries the learner's config. A learner restored from a checkpoint
+    continues the record of the learner it replaces: its config names `resumed_from` (`learner`, `position`),
+    its `index` starts at that position, and the old learner's entries from that position on are superseded.
     """
 
     TYPE_NAME: ClassVar[str] = "hitl.Ingest"
@@ -181,6 +184,12 @@ class ServiceStatus(Message):
     state: str = fld(Str(enum=SERVICE_STATES, description="Life-cycle state."))
     t: float = fld(Seconds("Wall-clock time (s) of this status."))
     counters: dict = fld(Map(Count(""), max_items=256, description="Named counters, e.g. `steps_published`, `dropped_malformed`."))
+    incarnation: str | None = fld(Nullable(Token(
+        "The process's own id (as Step.incarnation, Weights.incarnation, Ingest.learner): a subscriber accepts "
+        "steps or weights from a new incarnation only once its status has announced it.")), optional=True)
+
+
+LOG_LEVELS = {0: "UNKNOWN", 1: "DEBUG", 2: "INFO", 3: "WARNING", 4: "ERROR", 5: "FATAL"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -201,6 +210,25 @@ class Time:
 
 TIME_SPEC = Obj({"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)}, cls=Time,
                 description="Capture time (foxglove.Time).")
+
+
+@dataclasses.dataclass(frozen=True)
+class Log(Message):
+    """A human-readable event, exactly Foxglove's `foxglove.Log` in its JSON form (published on
+    `hitl/<run>/log/<name>`): the launcher's supervision (a service died, was restarted, gave up), a learner's
+    restore and catch-up, the first rejected input of each reason. Foxglove lists them in its Log panel."""
+
+    TYPE_NAME: ClassVar[str] = "foxglove.Log"
+    MAX_BYTES: ClassVar[int] = 16 * 1024
+
+    timestamp: Time = fld(Obj({"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)}, cls=Time,
+                              description="Time of the event (foxglove.Time)."))
+    level: int = fld(Int(enum=tuple(LOG_LEVELS), description=(
+        "0 unknown, 1 debug, 2 info, 3 warning, 4 error, 5 fatal (foxglove.LogLevel).")))
+    message: str = fld(Str(8192, description="What happened."))
+    name: str = fld(Str(64, description="Who says it: the service name (the key's last chunk)."))
+    file: str = fld(Str(256, description="Source file (may be empty)."))
+    line: int = fld(Int(0, 2**32 - 1, description="Source line (0 if unknown)."))
 
 
 @dataclasses.dataclass(frozen=True)
