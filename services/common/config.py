@@ -38,6 +38,8 @@ class ServiceConfig:
     stats_out: str | None = option(None, "write final counters and latency samples to this JSON file at exit")
     status_period: float = option(1.0, "seconds between ServiceStatus messages")
     connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
+    security: str | None = option(None, "security.json of this machine (common/security.py: TLS, user/password, "
+                                        "access control); connect to the secured router as this service's identity")
 
     def __post_init__(self):
         _check_name(self.run, "run")

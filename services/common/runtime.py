@@ -62,6 +62,7 @@ class ServiceRuntime:
         self.incarnation = new_incarnation(name)
         self._session = None
         self._status_pub = None
+        self._log_pub = None
         self._token = None
         self._last_status = 0.0
         self._extra_counters: Callable[[], dict[str, int]] | None = None
@@ -108,7 +109,7 @@ class ServiceRuntime:
         from common.transport import MessagePublisher, client_config, open_session
 
         cfg = self.config
-        with open_session(client_config(*cfg.connect, connect_timeout=cfg.connect_timeout)) as session:
+        with open_session(self.zenoh_config()) as session:
             self._session = session
             self._status_pub = MessagePublisher(session, status_key(cfg.run, self.name), congestion="block")
             try:
@@ -122,7 +123,45 @@ class ServiceRuntime:
                         self._token.undeclare()
                 time.sleep(0.2)  # let the transmission queues empty before the session closes
                 self._status_pub.close()
+                if self._log_pub is not None:
+                    self._log_pub.close()
+                    self._log_pub = None
                 self._session = None
+
+    def zenoh_config(self) -> Any:
+        """A plain loopback client of `connect`, or with `security` the secured client of this service's
+        identity (role from the service name: `teacher.<id>` is teacher `<id>`)."""
+        from common.transport import client_config
+
+        cfg = self.config
+        security = getattr(cfg, "security", None)
+        if not security:
+            return client_config(*cfg.connect, connect_timeout=cfg.connect_timeout)
+        from common.security import client_config_for, load_security
+
+        sec = load_security(security)
+        endpoint = next((e for e in cfg.connect if e.startswith("tls/")), None)
+        if self.name.startswith("teacher."):
+            return client_config_for(sec, "teacher", endpoint, teacher=self.name.split(".", 1)[1],
+                                     connect_timeout=cfg.connect_timeout)
+        role = self.name.split(".", 1)[0]
+        return client_config_for(sec, role, endpoint, connect_timeout=cfg.connect_timeout)
+
+    def event(self, text: str, level: int = 2) -> None:
+        """Say it on stderr and as a foxglove.Log on `hitl/<run>/log/<service>` (recorded with the run)."""
+        self.log(text)
+        if self._session is None:
+            return
+        from common.protocol import Log, Time, log_key
+        from common.transport import MessagePublisher
+
+        try:
+            if self._log_pub is None:
+                self._log_pub = MessagePublisher(self._session, log_key(self.config.run, self.name))
+            self._log_pub.put(Log(timestamp=Time.from_seconds(time.time()), level=level, message=text[:8000],
+                                  name=self.name, file="", line=0))
+        except Exception as exc:  # a log line must never take a service down
+            self.log(f"(could not publish the log record: {exc})")
 
     def ready(self) -> None:
         """Subscribers are declared: announce liveliness and state 'ready'."""
@@ -147,7 +186,8 @@ class ServiceRuntime:
             return
         counters = dict(sorted(self.all_counters().items())[:256])
         self._status_pub.put(ServiceStatus(run=self.config.run, service=self.name, pid=os.getpid(),
-                                           state=self.state, t=time.time(), counters=counters))
+                                           state=self.state, t=time.time(), counters=counters,
+                                           incarnation=self.incarnation))
         self._last_status = time.monotonic()
 
     def tick(self) -> None:

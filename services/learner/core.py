@@ -76,7 +76,7 @@ class LearnerCore:
         self.entries: list[IngestEntry] = []  # not yet handed out (see take_entries)
         self.position = 0  # entries written so far
         self.counters: collections.Counter[str] = collections.Counter()
-        self.episodes: list[EpisodeRecord] = []
+        self.episodes: collections.deque[EpisodeRecord] = collections.deque(maxlen=1000)  # the latest ones
         self.ended = False
         self._ep = self._new_episode_accumulator()
 
@@ -198,6 +198,42 @@ class LearnerCore:
     @property
     def held(self) -> int:
         return len(self._held)
+
+    # -- checkpoint ------------------------------------------------------------------------------------------
+    def snapshot(self) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Everything that changes while learning, as (tensors: the agent's state, nested; meta: plain JSON).
+
+        Taken between two inputs, with every entry handed out (`take_entries`) so that `position` is the
+        number of inputs and outcomes recorded. `restore` on a fresh core with the same config continues
+        exactly as this core would (bit for bit)."""
+        if self.entries:
+            raise RuntimeError("snapshot with entries not yet handed out")
+        held = [[t, arrival, fb.encode().decode(), pos] for t, arrival, fb, pos in sorted(self._held)]
+        meta = {
+            "steps_learned": self.steps_learned, "actor": self.actor, "next_seq": self.next_seq,
+            "teacher_next": dict(self.teacher_next), "held": held, "arrivals": self._arrivals,
+            "position": self.position, "counters": dict(self.counters), "ended": self.ended, "episode": dict(self._ep),
+            "clock": [list(self.clock._index), list(self.clock._time)],
+        }
+        return self.agent.state_dict(), meta
+
+    def restore(self, tensors: dict[str, Any], meta: dict[str, Any]) -> None:
+        self.agent.load_state_dict(tensors)
+        if self.steps_learned != int(meta["steps_learned"]):
+            raise ValueError("checkpoint: agent step count does not match its metadata")
+        self.actor, self.next_seq = meta["actor"], int(meta["next_seq"])
+        self.teacher_next = {str(k): int(v) for k, v in meta["teacher_next"].items()}
+        self._held = [(float(t), int(a), Feedback.decode(fb.encode()), int(pos)) for t, a, fb, pos in meta["held"]]
+        heapq.heapify(self._held)
+        self._arrivals = int(meta["arrivals"])
+        self.position = int(meta["position"])
+        self.counters = collections.Counter({str(k): int(v) for k, v in meta["counters"].items()})
+        self.ended = bool(meta["ended"])
+        self._ep = dict(meta["episode"])
+        self.clock.reset()
+        for i, t in zip(*meta["clock"]):
+            self.clock.push(int(i), float(t))
+        self.entries = []
 
     # -- internals ---------------------------------------------------------------------------------------------
     def _credit(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:

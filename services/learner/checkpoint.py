@@ -1,0 +1,95 @@
+"""The learner's checkpoint: one safetensors file, written atomically (temporary file + `os.replace`).
+
+Tensors: the agent's whole learning state (`TrialBatchAgent.state_dict()`: Q and H networks, the target
+network, both RMSProp states, the replay memory, D_global, the held step history, the step and update
+counters that drive the epsilon / alpha_h schedules and the counter-based random streams), flattened to
+named arrays (`agent.q`, `agent.replay.rec`, ...). Metadata (strings, JSON): the core's input bookkeeping
+(actor incarnation and next seq, each teacher's next seq, held feedback as Feedback JSON, the step clock,
+the episode in progress, counters, the ingest position), the service's input gate (announced incarnations,
+dedup state, rejection counts) and its own counters, and the learner config it was taken with.
+
+Nothing is unpickled: safetensors holds raw arrays and a JSON header; torch tensors are rebuilt with
+`torch.from_numpy`.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from services.common.faults import atomic_write
+
+FORMAT = "hitl.learner-checkpoint/1"
+SEP = "."
+
+
+def flatten(tree: Any, prefix: str = "") -> tuple[dict[str, np.ndarray], Any]:
+    """Nested dicts of torch tensors / numpy arrays / JSON scalars -> (named arrays, a JSON skeleton that says
+    where each array goes and whether it was a torch tensor)."""
+    import torch
+
+    arrays: dict[str, np.ndarray] = {}
+    if isinstance(tree, dict):
+        skeleton = {}
+        for k, v in tree.items():
+            if not isinstance(k, str) or SEP in k:
+                raise ValueError(f"checkpoint keys must be strings without {SEP!r}: {k!r}")
+            sub, sk = flatten(v, f"{prefix}{SEP}{k}" if prefix else k)
+            arrays.update(sub)
+            skeleton[k] = sk
+        return arrays, {"dict": skeleton}
+    if isinstance(tree, torch.Tensor):
+        arrays[prefix] = np.ascontiguousarray(tree.detach().cpu().numpy()).copy()
+        return arrays, {"torch": prefix}
+    if isinstance(tree, np.ndarray):
+        arrays[prefix] = np.ascontiguousarray(tree).copy()
+        return arrays, {"numpy": prefix}
+    if isinstance(tree, (np.integer, np.floating, np.bool_)):
+        arrays[prefix] = np.asarray(tree).copy()
+        return arrays, {"scalar": prefix}
+    if tree is None or isinstance(tree, (bool, int, float, str)):
+        return arrays, {"json": tree}
+    raise TypeError(f"cannot checkpoint {type(tree).__name__} at {prefix!r}")
+
+
+def unflatten(arrays: dict[str, np.ndarray], skeleton: Any) -> Any:
+    import torch
+
+    if "dict" in skeleton:
+        return {k: unflatten(arrays, v) for k, v in skeleton["dict"].items()}
+    if "torch" in skeleton:
+        return torch.from_numpy(np.array(arrays[skeleton["torch"]], copy=True))
+    if "numpy" in skeleton:
+        return np.array(arrays[skeleton["numpy"]], copy=True)
+    if "scalar" in skeleton:
+        return np.array(arrays[skeleton["scalar"]], copy=True)[()]
+    return skeleton["json"]
+
+
+def save(path: str | Path, tensors: dict[str, Any], meta: dict[str, Any]) -> int:
+    """Write the checkpoint atomically; returns its size in bytes."""
+    import safetensors.numpy
+
+    arrays, skeleton = flatten(tensors)
+    header = {"format": FORMAT, "skeleton": json.dumps(skeleton), "meta": json.dumps(meta)}
+    data = safetensors.numpy.save({f"agent.{k}": v for k, v in arrays.items()}, metadata=header)
+    atomic_write(path, data)
+    return len(data)
+
+
+def load(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
+    """(tensors, meta) from a checkpoint file, or None if there is none. A damaged file raises."""
+    import safetensors
+    import safetensors.numpy
+
+    path = Path(path)
+    if not path.exists():
+        return None
+    with safetensors.safe_open(str(path), framework="numpy") as f:
+        header = f.metadata() or {}
+    if header.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a learner checkpoint ({header.get('format')!r})")
+    arrays = {k[len("agent."):]: v for k, v in safetensors.numpy.load_file(str(path)).items()}
+    return unflatten(arrays, json.loads(header["skeleton"])), json.loads(header["meta"])

@@ -1,0 +1,217 @@
+"""Fault tolerance without processes: the learner's checkpoint restores bit for bit, the input gate rejects what
+must not reach a model (property-based), the resend ring is bounded, state files are atomic."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from common.protocol import Feedback, ServiceStatus, Step
+from services.common.config import LearnerConfig
+from services.common.faults import GATE_REASONS, InputGate, ResendRing, atomic_write_json, read_json
+from services.learner import checkpoint
+from services.learner.core import LearnerCore
+
+from .test_cores import RUN, fb, make_steps
+
+NOW = 1.7e9
+
+
+def feed(core: LearnerCore, inputs) -> None:
+    for x in inputs:
+        if isinstance(x, Step):
+            core.on_step(x)
+        else:
+            core.on_feedback(x)
+
+
+def scenario(n: int = 240, seed: int = 3):
+    """Steps with feedback between them (some held, some credited at once), as a live learner sees them."""
+    steps = make_steps(n, [NOW + k for k in range(n)], seed=seed)
+    rng = np.random.default_rng(seed)
+    inputs, f = [], 0
+    for k, s in enumerate(steps):
+        inputs.append(s)
+        if rng.random() < 0.5:
+            inputs.append(fb(f, NOW + k + rng.choice([-1.5, -0.5, 0.5]), int(rng.choice([-1, 1]))))
+            f += 1
+    return inputs
+
+
+def weights_bytes(core: LearnerCore) -> dict[str, bytes]:
+    return {k: v.tobytes() for k, v in core.policy_weights().items()}
+
+
+@pytest.mark.parametrize("algo", ["dqn-tamer", "dqn-rs"])
+def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo):
+    """Learn, checkpoint mid-way (with held feedback), restore into a fresh core, continue: the same weights,
+    entries and counters as a learner that never stopped."""
+    inputs = scenario()
+    cut = next(i for i in range(150, len(inputs)) if isinstance(inputs[i], Feedback) and
+               inputs[i].t_reaction > inputs[i - 1].t_action)  # a held feedback at the cut
+    ref = LearnerCore(LearnerConfig(run=RUN, algo=algo))
+    feed(ref, inputs)
+    ref.end()
+
+    a = LearnerCore(LearnerConfig(run=RUN, algo=algo))
+    feed(a, inputs[:cut + 1])
+    assert a.held >= 1 or algo == "dqn-rs"
+    head = a.take_entries()
+    tensors, meta = a.snapshot()
+    size = checkpoint.save(tmp_path / "learner.ckpt", tensors, meta)
+    assert size > 0 and not list(tmp_path.glob(".*tmp"))
+    tensors2, meta2 = checkpoint.load(tmp_path / "learner.ckpt")
+    b = LearnerCore(LearnerConfig(run=RUN, algo=algo))
+    b.restore(tensors2, meta2)
+    assert b.position == len(head)
+    feed(b, inputs[cut + 1:])
+    b.end()
+    assert weights_bytes(b) == weights_bytes(ref)
+    assert [dataclasses.astuple(e)[:4] for e in head + b.take_entries()] == \
+        [dataclasses.astuple(e)[:4] for e in ref.take_entries()]
+    assert b.counters == ref.counters
+    full_a, full_ref = a.agent.state_dict(), ref.agent.state_dict()  # noqa: F841 (a kept learning state)
+    assert checkpoint.load(tmp_path / "missing.ckpt") is None
+
+
+def test_checkpoint_is_not_a_pickle_and_rejects_other_files(tmp_path):
+    core = LearnerCore(LearnerConfig(run=RUN))
+    feed(core, scenario(20))
+    core.take_entries()
+    checkpoint.save(tmp_path / "c.ckpt", *core.snapshot())
+    raw = (tmp_path / "c.ckpt").read_bytes()
+    assert b"\x80\x04" not in raw[:16] and raw[8:9] == b"{"  # a safetensors JSON header, not a pickle
+    (tmp_path / "bad.ckpt").write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{\"__metadata__\":{}}  ")
+    with pytest.raises(Exception):
+        checkpoint.load(tmp_path / "bad.ckpt")
+
+
+# -- input gate -------------------------------------------------------------------------------------------------------
+
+def gate(**kw) -> InputGate:
+    g = InputGate(8, 4, teachers=("oracle",), **kw)
+    g.on_status(ServiceStatus(run=RUN, service="actor", pid=1, state="ready", t=NOW, counters={},
+                              incarnation="actor-1"))
+    return g
+
+
+def step(seq=0, t=NOW, inc="actor-1", obs_len=8, action=1) -> Step:
+    return Step(run=RUN, incarnation=inc, seq=seq, t_action=t, episode=0, t_in_episode=seq, obs=[0.0] * obs_len,
+                action=action, reward=0.0, next_obs=[0.0] * obs_len, terminated=False, truncated=False,
+                weights_version=0, info={})
+
+
+def test_gate_admits_announced_steps_in_order_and_drops_duplicates():
+    g = gate()
+    assert g.admit_step(step(0), NOW) is None and g.admit_step(step(1), NOW) is None
+    assert g.admit_step(step(1), NOW) == "duplicate" and g.admit_step(step(0), NOW) == "duplicate"
+    assert g.admit_step(step(3), NOW) is None  # a gap is the core's business (counted as lost there)
+    assert g.admit_step(step(0, inc="actor-2"), NOW) == "unknown_incarnation"
+    g.on_status(ServiceStatus(run=RUN, service="actor", pid=2, state="starting", t=NOW, counters={},
+                              incarnation="actor-2"))
+    assert g.admit_step(step(0, inc="actor-2"), NOW) is None  # the restarted actor replaces the old one
+    assert g.admit_step(step(4, inc="actor-1"), NOW) == "retired_incarnation"
+    assert g.rejected() == {"unknown_incarnation": 1, "retired_incarnation": 1}
+    assert g.counters["duplicate"] == 2
+
+
+def test_gate_rejects_wrong_shapes_actions_times_teachers_and_seq_jumps():
+    g = gate(max_future=10, max_past=600, max_seq_jump=100)
+    assert g.admit_step(step(obs_len=3), NOW) == "obs_shape"
+    assert g.admit_step(step(action=4), NOW) == "action_range"
+    assert g.admit_step(step(t=NOW + 11), NOW) == "future_timestamp"
+    assert g.admit_step(step(t=NOW - 601), NOW) == "stale_timestamp"
+    assert g.admit_step(step(0), NOW) is None
+    assert g.admit_step(step(102), NOW) == "bad_seq"
+    assert g.admit_feedback(fb(0, NOW, teacher="mallory"), NOW) == "unknown_teacher"
+    assert g.admit_feedback(fb(0, NOW + 60), NOW) == "future_timestamp"
+    assert g.admit_feedback(fb(0, NOW), NOW) is None
+    assert g.admit_feedback(fb(0, NOW), NOW) == "duplicate"
+    assert g.admit_feedback(fb(500, NOW), NOW) == "bad_seq"
+    g.on_status(ServiceStatus(run=RUN, service="teacher.bob", pid=3, state="ready", t=NOW, counters={}))
+    assert g.admit_feedback(fb(0, NOW, teacher="bob"), NOW) is None
+
+
+def test_gate_state_round_trips_through_json():
+    import json
+
+    g = gate()
+    g.admit_step(step(0), NOW)
+    g.admit_feedback(fb(0, NOW), NOW)
+    h = InputGate(8, 4, teachers=("oracle",))
+    h.load(json.loads(json.dumps(g.state())))
+    assert h.admit_step(step(0), NOW) == "duplicate" and h.admit_step(step(1), NOW) is None
+    assert h.admit_feedback(fb(0, NOW), NOW) == "duplicate"
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(st.tuples(st.sampled_from(["actor-1", "actor-2", "x"]), st.integers(0, 10**6),
+                          finite | st.sampled_from([math.nan, math.inf]), st.integers(1, 12), st.integers(0, 1023)),
+                max_size=40))
+def test_gate_never_admits_what_a_model_cannot_take(items):
+    """Whatever mix of steps arrives, an admitted one has the env's shapes, an announced incarnation, a
+    timestamp near its arrival, and a seq beyond every one admitted before from that incarnation."""
+    g = gate(max_future=10, max_past=600, max_seq_jump=1000)
+    last: dict[str, int] = {}
+    for inc, seq, dt, n, action in items:
+        s = dataclasses.replace(step(0, inc=inc, obs_len=n, action=min(action, 1023)), seq=seq,
+                                t_action=NOW + dt if math.isfinite(dt) else dt)
+        reason = g.admit_step(s, NOW)
+        if reason is None:
+            assert n == 8 and 0 <= action < 4 and inc == "actor-1"
+            assert -600 <= s.t_action - NOW <= 10
+            assert seq > last.get(inc, -1)
+            last[inc] = seq
+        else:
+            assert reason in GATE_REASONS or reason == "duplicate"
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(["oracle", "mallory"]), st.integers(0, 10**6), finite), max_size=40))
+def test_gate_feedback_is_admitted_once_per_teacher_seq(items):
+    g = gate(max_seq_jump=1000)
+    admitted = set()
+    for teacher, seq, dt in items:
+        f = fb(seq, NOW + max(-1e6, min(dt, 1e6)), teacher=teacher)
+        if g.admit_feedback(f, NOW) is None:
+            assert teacher == "oracle" and (teacher, seq) not in admitted
+            assert all(seq > s for _, s in admitted)
+            admitted.add((teacher, seq))
+
+
+# -- resend ring, state files ----------------------------------------------------------------------------------------
+
+class Pub:
+    def __init__(self):
+        self.sent = []
+
+    def put(self, data):
+        self.sent.append(data)
+
+
+def test_resend_ring_is_bounded_and_resends_in_order():
+    ring, pub = ResendRing(window=60, max_items=5), Pub()
+    for i in range(12):
+        ring.add(pub, bytes([i]))
+    assert len(ring) == 5
+    assert ring.resend() == 5 and pub.sent == [bytes([i]) for i in range(7, 12)]
+    old = ResendRing(window=0.0, max_items=5)
+    old.add(pub, b"x")
+    assert old.resend() == 0
+
+
+def test_atomic_json_state_file(tmp_path):
+    p = tmp_path / "s" / "actor.json"
+    assert read_json(p) is None
+    atomic_write_json(p, {"episodes_done": 3})
+    atomic_write_json(p, {"episodes_done": 4})
+    assert read_json(p) == {"episodes_done": 4}
+    assert sorted(os.listdir(p.parent)) == ["actor.json"]
