@@ -16,10 +16,11 @@ No zenoh or mcap import here: the pure core may use these types too.
 
 from ._base import PROTOCOL_VERSION, Message
 from ._keys import (KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, config_key, decode, episode_key,
-                    feedback_key, feedback_wildcard, ingest_key, log_key, message_type, parse_key, perception_key, run_prefix,
+                    feedback_key, feedback_wildcard, ingest_key, log_key, message_type, parse_key, perception_key, reaction_key,
+                    run_prefix,
                     status_key, step_key, validate_name, weights_key)
 from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary,
-                        ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, RunConfig, ServiceStatus, Step,
+                        ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, ObserverReaction, RunConfig, ServiceStatus, Step,
                         Time)
 from ._spec import REASONS, ProtocolError
 from ._weights import Weights, check_spec
@@ -32,5 +33,5 @@ __all__ = [
     "KEYS", "KeySpec", "ParsedKey", "MESSAGE_TYPES", "ROOT", "parse_key", "message_type", "decode", "validate_name",
     "run_prefix", "step_key", "feedback_key", "feedback_wildcard", "weights_key", "episode_key", "ingest_key",
     "status_key",
-    "camera_key", "perception_key", "config_key",
+    "camera_key", "perception_key", "config_key", "ObserverReaction", "reaction_key",
 ]

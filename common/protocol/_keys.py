@@ -11,6 +11,7 @@ import re
 from typing import Any
 
 from ._messages import (NAME_PATTERN, CompressedImage, EpisodeSummary, ExpressionPrediction, Feedback, Ingest,
+                        ObserverReaction,
                         Log, RunConfig, ServiceStatus, Step)
 from ._spec import ProtocolError
 from ._weights import Weights
@@ -65,6 +66,8 @@ KEYS: dict[str, KeySpec] = {k.kind: k for k in [
             "Events for humans (foxglove.Log): supervision, restores, first rejection of each reason."),
     KeySpec("camera", CompressedImage, "camera", "drop", "drop_oldest", "Camera frames (JPEG)."),
     KeySpec("perception", ExpressionPrediction, "camera", "drop", "drop_oldest", "Expression read from each frame."),
+    KeySpec("reaction", ObserverReaction, "teacher_id", "block", "block",
+            "Diagnostics of a video-backed observer: each reaction it showed the camera (never learned from)."),
 ]}
 
 MESSAGE_TYPES: tuple[type, ...] = tuple(k.message for k in KEYS.values())
@@ -122,6 +125,10 @@ def perception_key(run: str, camera: str) -> str:
     return KEYS["perception"].key(run, camera)
 
 
+def reaction_key(run: str, teacher_id: str) -> str:
+    return KEYS["reaction"].key(run, teacher_id)
+
+
 def ingest_key(run: str) -> str:
     return KEYS["ingest"].key(run)
 
@@ -168,7 +175,7 @@ def decode(key: str, data: bytes) -> Any:
     run = getattr(msg, "run", None)
     if run is not None and run != parsed.run:
         raise ProtocolError("bad_value", f"run {run!r} does not match key {key[:120]}")
-    if isinstance(msg, Feedback) and msg.teacher_id != parsed.name:
+    if isinstance(msg, (Feedback, ObserverReaction)) and msg.teacher_id != parsed.name:
         raise ProtocolError("bad_value", f"teacher_id {msg.teacher_id!r} does not match key")
     if isinstance(msg, ServiceStatus) and msg.service != parsed.name:
         raise ProtocolError("bad_value", f"service {msg.service!r} does not match key")
