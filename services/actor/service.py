@@ -9,6 +9,14 @@ A Weights version is the number of steps the learner has learned from. With `max
 acts at step k only once it holds a version >= k - m (m = 0 is the runner's lockstep: every action sees the
 update of the step before it).
 
+Restarts (docs/faults.md): with `state_file`, the number of finished episodes is saved (atomically) before
+each episode's last step is published. An actor started on an existing state file is a new incarnation
+that continues the run: it starts the next episode (the broken one is closed by the learner), waits for
+the current weights of an announced learner first and counts its schedules and lockstep from that version
+on. Weights are accepted only from a learner incarnation that a ServiceStatus announced, with a plausible
+timestamp and the right tensor names and shapes; everything else is dropped and counted. Steps of the last
+`resend_window` s are published again when a learner or recorder (re)starts.
+
 Pace: `rate` steps per second (a fixed period, for a human watching) or as fast as possible (0). Each Step
 carries the actor's incarnation, a contiguous seq, the wall time of the action (strictly increasing), the
 episode, the weights version it acted with, and the env's info for the simulated teacher's rule.
@@ -22,9 +30,10 @@ import numpy as np
 
 from common.agents import TrialBatchAgent, agent_config
 from common.envs import make_env
-from common.protocol import ProtocolError, Step, Weights, step_key, weights_key
+from common.protocol import ProtocolError, ServiceStatus, Step, Weights, status_key, step_key, weights_key
 from common.seeding import derive_seed
 from services.common.config import ActorConfig
+from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, atomic_write_json, first_time_logger, publish_kept, read_json
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main, wait_alive
 
 INFO_KEYS = ("target_distance_before", "target_distance_after", "subgoal_reached")
@@ -37,22 +46,55 @@ class WeightsSlot:
         self.agent, self.spec, self.rt = agent, spec, rt
         self.version = 0
         self.learner: str | None = None
+        self.announced: list[str] = []  # learner incarnations announced by their ServiceStatus (newest last)
+        self.watch = None  # an IncarnationWatch of the learner (liveliness), set once the session is open
+        self._note = first_time_logger(rt.event, "weights")
 
-    def adopt(self, inbox, timeout: float | None = None) -> bool:
+    def on_status(self, inbox) -> None:
+        for it in inbox.drain():
+            try:
+                st = it.decode()
+            except ProtocolError:
+                self.rt.counters["rejected_status"] += 1
+                continue
+            if isinstance(st, ServiceStatus) and st.incarnation and st.incarnation not in self.announced:
+                self.announced = (self.announced + [st.incarnation])[-16:]
+
+    def known(self, incarnation: str) -> bool:
+        return (incarnation == self.learner or incarnation in self.announced
+                or (self.watch is not None and self.watch.known(incarnation)))
+
+    def _reject(self, reason: str) -> None:
+        self.rt.counters[f"weights_dropped_{reason}"] += 1
+        self._note(reason, "")
+
+    def adopt(self, inbox, timeout: float | None = None, status=None) -> bool:
         """Take the newest queued weights (waiting up to `timeout` s for one if given). True if adopted."""
         import torch
 
         item = inbox.get(timeout) if timeout is not None else None
         items = ([item] if item is not None else []) + inbox.drain()
         adopted = False
+        cfg = self.rt.config
         for it in items:
             try:
                 w = Weights.decode(it.data, expected=self.spec)
             except ProtocolError as e:
-                self.rt.counters[f"weights_dropped_{e.reason}"] += 1
+                self._reject(e.reason)
                 continue
-            if w.run != self.rt.config.run:
-                self.rt.counters["weights_dropped_wrong_run"] += 1
+            if w.run != cfg.run:
+                self._reject("wrong_run")
+                continue
+            if w.t_published > it.t_recv + cfg.max_future:
+                self._reject("future_timestamp")
+                continue
+            if w.t_published < it.t_recv - cfg.max_past:
+                self._reject("stale_timestamp")
+                continue
+            if not self.known(w.incarnation) and status is not None:
+                self.on_status(status)  # its announcement may be waiting in the status queue
+            if not self.known(w.incarnation):
+                self._reject("unknown_incarnation")
                 continue
             if w.incarnation == self.learner and w.version <= self.version:
                 self.rt.counters["weights_not_newer"] += 1
@@ -79,31 +121,67 @@ def main(config: ActorConfig) -> int:
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
     slot = WeightsSlot(agent, spec, rt)
     seq = 0
-    rt.set_counters_source(lambda: {"steps_published": seq, "weights_version": slot.version})
+    rt.set_counters_source(lambda: {"steps_published": seq, "weights_version": slot.version, "resent": ring.resent})
     code = 0
+    state = read_json(config.state_file) if config.state_file else None
+    restart = state is not None
+    episodes_done = int(state["episodes_done"]) if state else 0
+    restarts = int(state.get("restarts", 0)) + 1 if state else 0
+    ring = ResendRing(config.resend_window)
+
+    def save_state(episodes: int) -> None:
+        if config.state_file:
+            atomic_write_json(config.state_file, {"episodes_done": episodes, "restarts": restarts,
+                                                  "incarnation": rt.incarnation})
 
     with rt.session() as session:
-        with subscription(session, weights_key(config.run), maxsize=1, policy="drop_oldest") as weights_in, \
+        # Not maxsize 1: garbage flooding the weights key must not evict the real weights before they are read.
+        with subscription(session, weights_key(config.run), maxsize=64, policy="drop_oldest") as weights_in, \
+                subscription(session, status_key(config.run, "learner"), maxsize=16,
+                             policy="drop_oldest") as learner_status, \
                 MessagePublisher(session, step_key(config.run)) as pub:
+            watch = AliveWatch(session, config.run, ("learner", "recorder"))
+            slot.watch = IncarnationWatch(session, config.run, "learner")
+            save_state(episodes_done)
             rt.ready()
             missing = wait_alive(session, config.run, config.wait_for, config.start_timeout, rt.stop)
             if missing and not rt.stop.is_set():
                 rt.log(f"gave up waiting for {sorted(missing)} after {config.start_timeout} s")
                 rt.stop.set()
                 code = 3
-            obs = env.reset(seed=derive_seed(config.seed, "env") % (2**31))[0]
+            base = 0  # steps the learner had learned before this incarnation's first step (its version then)
+            if restart and not rt.stop.is_set():
+                waited = time.monotonic()
+                while slot.learner is None and not rt.stop.is_set():
+                    slot.on_status(learner_status)
+                    slot.adopt(weights_in, timeout=0.05, status=learner_status)
+                    if time.monotonic() - waited > config.weights_timeout:
+                        rt.log(f"restarted, but no weights after {config.weights_timeout} s; stopping")
+                        rt.stop.set()
+                        code = 4
+                base = slot.version
+                rt.event(f"actor restarted (restart {restarts}): continuing at episode {episodes_done} with the "
+                         f"learner's weights version {base}", 3)
+            env_seed = derive_seed(config.seed, "env" if not restart else f"env-restart-{restarts}")
+            obs = env.reset(seed=env_seed % (2**31))[0]
             period = 1.0 / config.rate if config.rate > 0 else 0.0
             next_tick = time.perf_counter()
             t_prev = 0.0
-            episode = t_in_episode = 0
+            episode, t_in_episode = episodes_done, 0
             limit = config.max_steps if config.max_steps is not None else float("inf")
-            while episode < config.episodes and seq < limit and not rt.stop.is_set():
-                slot.adopt(weights_in)
+            while episode < config.episodes and base + seq < limit and not rt.stop.is_set():
+                slot.on_status(learner_status)
+                slot.adopt(weights_in, status=learner_status)
+                if watch.take() and len(ring):
+                    rt.log(f"learner or recorder (re)started: re-sending the last {len(ring)} steps")
+                    ring.resend()
                 if config.max_ahead is not None:
-                    need = seq - config.max_ahead
+                    need = base + seq - config.max_ahead
                     waited = time.monotonic()
                     while slot.version < need and not rt.stop.is_set():
-                        slot.adopt(weights_in, timeout=0.05)
+                        slot.adopt(weights_in, timeout=0.05, status=learner_status)
+                        if watch.take() and len(ring):
+                            ring.resend()
                         if time.monotonic() - waited > config.weights_timeout:
                             rt.log(f"no weights >= {need} after {config.weights_timeout} s; stopping")
                             rt.stop.set()
@@ -115,19 +193,22 @@ def main(config: ActorConfig) -> int:
                     next_tick += period
                     # Wait for the next tick on the weights inbox: weights are adopted as they arrive.
                     while (delay := next_tick - time.perf_counter()) > 0 and not rt.stop.is_set():
-                        slot.adopt(weights_in, timeout=delay)
+                        slot.adopt(weights_in, timeout=delay, status=learner_status)
                     if delay < -period:
                         next_tick = time.perf_counter()  # fell behind: do not try to catch up with a burst
-                agent.steps[0] = seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
+                agent.steps[0] = base + seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
                 action = int(agent.act(obs.reshape(1, -1))[0])
                 t_action = max(time.time(), t_prev + 1e-6)  # strictly increasing, even if the clock steps back
                 t_prev = t_action
                 nxt, reward, terminated, truncated, info = env.step(action)
-                pub.put(Step(run=config.run, incarnation=rt.incarnation, seq=seq, t_action=t_action,
-                             episode=episode, t_in_episode=t_in_episode, obs=obs.tolist(), action=action,
-                             reward=float(reward), next_obs=np.asarray(nxt).tolist(), terminated=bool(terminated),
-                             truncated=bool(truncated), weights_version=slot.version,
-                             info={k: float(info[k]) for k in INFO_KEYS if k in info}))
+                if terminated or truncated:
+                    save_state(episode + 1)  # before the last step goes out: a restart never repeats an episode
+                publish_kept(pub, Step(run=config.run, incarnation=rt.incarnation, seq=seq, t_action=t_action,
+                                       episode=episode, t_in_episode=t_in_episode, obs=obs.tolist(), action=action,
+                                       reward=float(reward), next_obs=np.asarray(nxt).tolist(),
+                                       terminated=bool(terminated), truncated=bool(truncated),
+                                       weights_version=slot.version,
+                                       info={k: float(info[k]) for k in INFO_KEYS if k in info}), ring)
                 seq += 1
                 t_in_episode += 1
                 obs = nxt
@@ -137,6 +218,8 @@ def main(config: ActorConfig) -> int:
                     obs = env.reset()[0]
                 rt.tick()
             rt.counters["episodes"] = episode
+            watch.close()
+            slot.watch.close()
     rt.write_stats()
     rt.log(f"stopped after {seq} steps, {episode} episodes")
     return code

@@ -58,9 +58,17 @@ class TaskConfig(ServiceConfig):
     env: str = option("maze", "environment", choices=ENV_NAMES)
     layout: int = option(0, f"maze layout 0..{LAYOUT_COUNT - 1} (ignored by taxi)")
     seed: int = option(0, "trial seed: network init, exploration, observer, replay sampling, env")
+    max_future: float = option(10.0, "reject inputs stamped more than this many seconds after they arrive")
+    max_past: float = option(600.0, "reject inputs stamped more than this many seconds before they arrive")
+    resend_window: float = option(30.0, "re-send what was published in the last N s when a learner or recorder "
+                                        "(re)starts (receivers drop duplicates)")
 
     def __post_init__(self):
         super().__post_init__()
+        for name in ("max_future", "max_past", "resend_window"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name.replace('_', '-')} must be >= 0, got {v}")
         if self.env not in ENV_NAMES:
             raise ValueError(f"unknown env {self.env!r}; choose one of {', '.join(ENV_NAMES)}")
         if not 0 <= self.layout < LAYOUT_COUNT:
@@ -81,6 +89,9 @@ class ActorConfig(TaskConfig):
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
+    state_file: str | None = option(None, "progress file (episodes done), rewritten atomically at each episode end; "
+                                          "an actor started on an existing one is a restart: it continues with the "
+                                          "next episode and waits for the learner's current weights first")
 
     def __post_init__(self):
         super().__post_init__()
@@ -150,6 +161,15 @@ class LearnerConfig(TaskConfig):
     ingest_batch: int = option(256, "at most this many entries per Ingest message")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
     wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
+    checkpoint: str | None = option(None, "checkpoint file: restored at start if it exists, rewritten atomically "
+                                          "every checkpoint-period s while learning")
+    checkpoint_period: float = option(2.0, "seconds between checkpoints (when something was learned)")
+    catchup_log: str | None = option(None, "the run's MCAP log (first segment): at start, consume the steps and "
+                                           "feedback it holds beyond the checkpoint (none: only what arrives live)")
+    inbox_size: int = option(1 << 16, "bounded input queue (steps + feedback); when full, Zenoh's BLOCK "
+                                      "congestion control slows the publishers down")
+    debug_update_sleep: float = option(0.0, "TEST ONLY: sleep this many seconds after each learned step "
+                                            "(a deliberately slow learner)")
 
     def __post_init__(self):
         super().__post_init__()
@@ -164,6 +184,12 @@ class LearnerConfig(TaskConfig):
             raise ValueError(f"ingest-batch must be in 1..2048, got {self.ingest_batch}")
         if not (math.isfinite(self.end_grace) and self.end_grace >= 0):
             raise ValueError(f"end-grace must be >= 0, got {self.end_grace}")
+        if not (math.isfinite(self.checkpoint_period) and self.checkpoint_period > 0):
+            raise ValueError(f"checkpoint-period must be positive, got {self.checkpoint_period}")
+        if self.inbox_size < 1:
+            raise ValueError(f"inbox-size must be >= 1, got {self.inbox_size}")
+        if not (math.isfinite(self.debug_update_sleep) and self.debug_update_sleep >= 0):
+            raise ValueError(f"debug-update-sleep must be >= 0, got {self.debug_update_sleep}")
 
 
 @dataclass(frozen=True)

@@ -64,6 +64,7 @@ class ServiceRuntime:
         self._status_pub = None
         self._log_pub = None
         self._token = None
+        self._inc_token = None
         self._last_status = 0.0
         self._extra_counters: Callable[[], dict[str, int]] | None = None
         self._cpu_at_ready: float | None = None
@@ -118,9 +119,10 @@ class ServiceRuntime:
             finally:
                 with contextlib.suppress(Exception):
                     self.publish_status("stopped")
-                if self._token is not None:
-                    with contextlib.suppress(Exception):
-                        self._token.undeclare()
+                for token in (self._token, self._inc_token):
+                    if token is not None:
+                        with contextlib.suppress(Exception):
+                            token.undeclare()
                 time.sleep(0.2)  # let the transmission queues empty before the session closes
                 self._status_pub.close()
                 if self._log_pub is not None:
@@ -166,6 +168,9 @@ class ServiceRuntime:
     def ready(self) -> None:
         """Subscribers are declared: announce liveliness and state 'ready'."""
         self._token = self._session.liveliness().declare_token(alive_key(self.config.run, self.name))
+        # Announces this incarnation to receivers that accept inputs only from announced ones (faults.py).
+        self._inc_token = self._session.liveliness().declare_token(
+            f"{alive_key(self.config.run, self.name)}/{self.incarnation}")
         self._cpu_at_ready = time.process_time()
         self.publish_status("ready")
 
