@@ -123,6 +123,8 @@ class TeacherConfig(TaskConfig):
                                  "half-way between steps k+d and k+d+1; wall: sent at t_action(k) + (d + 0.5) * "
                                  "step-unit seconds (for a fixed actor rate)", choices=CLOCKS)
     step_unit: float = option(0.1, "seconds per step for --clock wall (1 / the actor's rate)")
+    state_file: str | None = option(None, "the next feedback seq, rewritten atomically before each feedback is "
+                                          "sent: a restarted teacher continues its seq (never reuses one)")
 
     def __post_init__(self):
         super().__post_init__()

@@ -6,6 +6,12 @@ Just another subscriber: samples are written as received (bytes untouched, log t
 first message) is the JSON object in `run_config` (the launcher writes the whole run's settings there) or
 this recorder's own config. Stops on SIGTERM/SIGINT, or once every service in `stop_when` has reported
 'stopped' (plus `linger` s for stragglers).
+
+Every sample is decoded (validated) before it is written: what does not decode (malformed, oversized, wrong
+types, NaN, a key the protocol does not know...) is dropped and counted (`rejected_<reason>`), so the log holds
+only valid messages. A restarted recorder opens the next segment (`session.1.mcap`, ...); the publishers
+re-send their last seconds to it, so a reader of all segments (`read_log`, which drops the duplicates) gets
+what the killed recorder had not flushed.
 """
 from __future__ import annotations
 
@@ -15,8 +21,9 @@ import sys
 import time
 
 from common.config import config_record
-from common.protocol import ProtocolError, RunConfig, ServiceStatus, run_prefix, status_key
+from common.protocol import ProtocolError, RunConfig, ServiceStatus, decode, run_prefix, status_key
 from services.common.config import RecorderConfig
+from services.common.faults import first_time_logger
 from services.common.runtime import ServiceRuntime, service_main
 
 
@@ -46,6 +53,9 @@ def main(config: RecorderConfig) -> int:
             with subscription(session, run_prefix(config.run), maxsize=1 << 16, policy="block",
                               block_timeout=3600) as inbox:
                 rt.ready()
+                note_rejected = first_time_logger(rt.event, "message")
+                if writer.segment > 0:
+                    rt.event(f"recorder restarted: writing segment {writer.segment} ({writer.path})", 3)
                 linger_until: float | None = None
                 while True:
                     if rt.stop.is_set() and linger_until is None:
@@ -55,16 +65,14 @@ def main(config: RecorderConfig) -> int:
                     item = inbox.get(timeout=0.05)
                     if item is not None:
                         try:
+                            st = decode(item.key, item.data)
                             writer.write(item.key, item.data, log_time=int(item.t_recv * 1e9),
                                          publish_time=int((item.t_zenoh or item.t_recv) * 1e9))
                         except ProtocolError as e:
-                            rt.counters[f"dropped_{e.reason}"] += 1
+                            rt.counters[f"rejected_{e.reason}"] += 1
+                            note_rejected(e.reason, item.key[:80])
                             continue
                         if config.stop_when and "/status/" in item.key:
-                            try:
-                                st = item.decode()
-                            except ProtocolError:
-                                continue
                             if isinstance(st, ServiceStatus) and st.state == "stopped":
                                 stopped.add(st.service)
                                 if linger_until is None and set(config.stop_when) <= stopped:
