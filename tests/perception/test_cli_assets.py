@@ -92,9 +92,11 @@ def test_classify_friendly_errors(tmp_path, capsys, make, message):
     assert err.startswith("error: ") and message in err
 
 
-def test_bare_command_is_kept_for_the_live_service(capsys):
-    assert cli([]) == 2
-    assert "live mode" in capsys.readouterr().err
+def test_bare_command_is_the_live_service_and_needs_a_source(capsys):
+    with pytest.raises(SystemExit) as e:
+        cli([])
+    assert e.value.code == 2
+    assert "--source is required" in capsys.readouterr().err
 
 
 def test_bench_smoke(capsys, onnx_path, pexels_sized, monkeypatch):
@@ -117,13 +119,16 @@ def test_service_config_sources():
     with pytest.raises(ValueError):
         SourceSpec.parse("camera:front")
     assert PerceptionServiceConfig().source_spec.kind == "camera"
+    assert SourceSpec.parse("zenoh:face") == SourceSpec("zenoh", "face")
+    with pytest.raises(ValueError):
+        SourceSpec.parse("zenoh:a/b")
 
 
 def test_service_main_runs_the_pure_pipeline_on_a_file(onnx_path):
-    from services.perception.__main__ import main
+    from services.perception.__main__ import run_pipeline
 
     seen = []
-    n = main(PerceptionServiceConfig(source=str(assets.media_path("single_face_video")), max_frames=40),
+    n = run_pipeline(PerceptionServiceConfig(source=str(assets.media_path("single_face_video")), max_frames=40),
              sink=lambda pred, event: seen.append((pred, event)))
     assert len(seen) == 40 and all(p.box is not None for p, _ in seen)
     assert n == sum(e is not None for _, e in seen)
