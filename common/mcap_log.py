@@ -253,6 +253,7 @@ class ReadStatus:
     messages: int = 0
     undecodable: collections.Counter = dataclasses.field(default_factory=collections.Counter)
     duplicate_configs_skipped: int = 0
+    duplicates_skipped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # by kind
 
     @property
     def complete(self) -> bool:
@@ -273,6 +274,8 @@ class ReadStatus:
                 parts.append(f"{f.path}: all data read, summary missing ({f.error})")
         if self.undecodable:
             parts.append(f"undecodable: {dict(self.undecodable)}")
+        if self.duplicates_skipped:
+            parts.append(f"duplicates skipped: {dict(self.duplicates_skipped)}")
         return "; ".join(parts)
 
 
@@ -280,9 +283,11 @@ class LogReader:
     """Iterate to get :class:`LogRecord` in file order; ``status``, ``metadata`` and ``run_config`` fill in
     as files are read (complete after the iteration ends). Iterable once."""
 
-    def __init__(self, paths: list[Path], *, decode_messages: bool = True):
+    def __init__(self, paths: list[Path], *, decode_messages: bool = True, dedup: bool = True):
         self.paths = paths
         self.decode_messages = decode_messages
+        self.dedup = dedup and decode_messages
+        self._seen: set[tuple] = set()
         self.status = ReadStatus()
         self.metadata: list[tuple[str, dict[str, str]]] = []
         self.run_config: RunConfig | None = None
@@ -357,17 +362,46 @@ class LogReader:
                 return None  # the same run config repeated at the top of a later segment
             else:
                 warnings.warn(f"segment {segment} has a different run config", LogRecoveryWarning, stacklevel=4)
+        if self.dedup and message is not None:
+            ident = identity(message)
+            if ident is not None:
+                if ident in self._seen:
+                    self.status.duplicates_skipped[ident[0]] += 1
+                    return None
+                self._seen.add(ident)
         return LogRecord(key, m.log_time, bytes(m.data), message, m.publish_time, segment, error)
 
 
+def identity(message: Any) -> tuple | None:
+    """What makes a message unique within a run, for messages that may be published twice (re-sent to a
+    restarted recorder or learner; docs/faults.md); None for the others (statuses, frames, ...)."""
+    from common.protocol import EpisodeSummary, Feedback, Ingest, Log, Step, Weights
+
+    if isinstance(message, Step):
+        return ("step", message.incarnation, message.seq)
+    if isinstance(message, Feedback):
+        return ("feedback", message.teacher_id, message.seq)
+    if isinstance(message, Ingest):
+        return ("ingest", message.learner, message.seq)
+    if isinstance(message, EpisodeSummary):
+        return ("episode", message.incarnation, message.episode)
+    if isinstance(message, Weights):
+        return ("weights", message.incarnation, message.version)
+    if isinstance(message, Log):
+        return ("log", message.name, message.timestamp.sec, message.timestamp.nsec, message.message)
+    return None
+
+
 def read_log(path: str | os.PathLike | Iterable[str | os.PathLike], *, decode: bool = True,
-             segments: bool = True) -> LogReader:
+             segments: bool = True, dedup: bool = True) -> LogReader:
     """Records of a log in file order.
 
     ``path``: a file (with ``segments=True``, also its later segments ``<stem>.1<suffix>``, ... as one log),
     a directory (its ``session.mcap`` segments), or a list of files read in the given order.
     ``decode``: decode each payload by its key (failures are counted in ``status.undecodable`` and the record
     is still yielded with ``error`` set). Later segments' copies of the same run config are skipped.
+    ``dedup`` (with ``decode``): a message published twice (the same :func:`identity`: re-sent to a restarted
+    recorder) is yielded once, the first time; ``status.duplicates_skipped`` counts the others by kind.
     """
     if isinstance(path, (str, os.PathLike)):
         p = Path(path)
@@ -378,7 +412,7 @@ def read_log(path: str | os.PathLike | Iterable[str | os.PathLike], *, decode: b
             raise FileNotFoundError(p)
     else:
         paths = [Path(x) for x in path]
-    return LogReader(paths, decode_messages=decode)
+    return LogReader(paths, decode_messages=decode, dedup=dedup)
 
 
 def load_log(path: Any, **kwargs: Any) -> tuple[list[LogRecord], ReadStatus]:

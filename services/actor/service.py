@@ -37,6 +37,7 @@ from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, ato
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main, wait_alive
 
 INFO_KEYS = ("target_distance_before", "target_distance_after", "subgoal_reached")
+RECORDER_WAIT = 20.0  # s to wait at the end for a recorder that is restarting (it must get what it missed)
 
 
 class WeightsSlot:
@@ -218,6 +219,7 @@ def main(config: ActorConfig) -> int:
                     obs = env.reset()[0]
                 rt.tick()
             rt.counters["episodes"] = episode
+            watch.before_exit(ring, RECORDER_WAIT, rt.log)
             watch.close()
             slot.watch.close()
     rt.write_stats()

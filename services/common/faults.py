@@ -57,7 +57,9 @@ class InputGate:
         self.retired: collections.OrderedDict[str, None] = collections.OrderedDict()
         self.actor: str | None = None
         self.next_step: int | None = None  # next seq of self.actor (None: take whatever comes first)
-        self.next_feedback: dict[str, int] = {}
+        # Configured teachers start with the run at seq 0 (a restarted one continues its seq), so a forged seq far
+        # ahead is `bad_seq` from the start; an announced teacher may be joined mid-stream.
+        self.next_feedback: dict[str, int] = {t: 0 for t in self.configured_teachers}
         self.counters: collections.Counter[str] = collections.Counter()
 
     # -- announcements -------------------------------------------------------------------------------------------
@@ -273,23 +275,49 @@ class AliveWatch:
         self._lock = threading.Lock()
         self._came: list[str] = []
         self.seen: collections.Counter[str] = collections.Counter()
+        self.alive: set[str] = set()  # holding their token now
+        self.gone_since: dict[str, float] = {}  # monotonic time each one lost its token
         self._sub = session.liveliness().declare_subscriber(alive_key(run), self._on_sample, history=True)
 
     def _on_sample(self, sample: Any) -> None:
         import zenoh
 
-        if sample.kind != zenoh.SampleKind.PUT:
-            return
         name = str(sample.key_expr).rsplit("/", 1)[-1]
-        if name in self.names:
-            with self._lock:
+        if name not in self.names:
+            return
+        with self._lock:
+            if sample.kind != zenoh.SampleKind.PUT:
+                self.alive.discard(name)
+                self.gone_since[name] = time.monotonic()
+                return
+            self.alive.add(name)
+            self.gone_since.pop(name, None)
+            self.seen[name] += 1
+            if self.seen[name] > 1:  # a restart (the first token is the service starting with us)
                 self._came.append(name)
-                self.seen[name] += 1
 
     def take(self) -> list[str]:
+        """Names that came back (a new token after an earlier one) since the last call."""
         with self._lock:
             out, self._came = self._came, []
         return out
+
+    def is_alive(self, name: str) -> bool:
+        with self._lock:
+            return name in self.alive
+
+    def before_exit(self, ring: "ResendRing", timeout: float, say: Callable[[str], None] | None = None) -> None:
+        """Leaving with a recorder down would lose what it missed: wait (at most `timeout` s) for it to come
+        back, then re-send the ring to it."""
+        if "recorder" not in self.names or not len(ring) or not self.seen["recorder"]:
+            return
+        deadline = time.monotonic() + timeout
+        if not self.is_alive("recorder") and say is not None:
+            say(f"waiting up to {timeout:.0f} s for the recorder to come back before leaving")
+        while not self.is_alive("recorder") and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if self.take():
+            ring.resend()
 
     def close(self) -> None:
         try:

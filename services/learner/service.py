@@ -259,6 +259,8 @@ def main(config: LearnerConfig) -> int:
                 handle(core.end(time.time()))
                 flush_ingest()
                 publish_weights(core.steps_learned + 1)
+                ring.add(wpub, last_version["data"])  # the final weights too, if the recorder must get them again
+                watch.before_exit(ring, 20.0, rt.log)
                 rt.counters.update({f"inbox_{k}": v for k, v in inbox.snapshot().items()})
                 rt.counters["resent"] = ring.resent
         finally:

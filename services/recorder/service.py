@@ -23,7 +23,7 @@ import time
 from common.config import config_record
 from common.protocol import ProtocolError, RunConfig, ServiceStatus, decode, run_prefix, status_key
 from services.common.config import RecorderConfig
-from services.common.faults import first_time_logger
+from services.common.faults import AliveWatch, first_time_logger
 from services.common.runtime import ServiceRuntime, service_main
 
 
@@ -54,8 +54,12 @@ def main(config: RecorderConfig) -> int:
                               block_timeout=3600) as inbox:
                 rt.ready()
                 note_rejected = first_time_logger(rt.event, "message")
+                others = None
                 if writer.segment > 0:
                     rt.event(f"recorder restarted: writing segment {writer.segment} ({writer.path})", 3)
+                    if config.stop_when:  # they may have stopped while we were down: watch their tokens
+                        others = AliveWatch(session, config.run, config.stop_when)
+                t_ready = time.monotonic()
                 linger_until: float | None = None
                 while True:
                     if rt.stop.is_set() and linger_until is None:
@@ -77,7 +81,14 @@ def main(config: RecorderConfig) -> int:
                                 stopped.add(st.service)
                                 if linger_until is None and set(config.stop_when) <= stopped:
                                     linger_until = time.monotonic() + config.linger
+                    if others is not None and linger_until is None and time.monotonic() - t_ready > 3.0 \
+                            and not others.alive and all(time.monotonic() - others.gone_since.get(n, t_ready) > 1.0
+                                                         for n in config.stop_when):
+                        rt.log(f"none of {', '.join(config.stop_when)} is alive any more: the run is over")
+                        linger_until = time.monotonic() + config.linger
                     rt.tick()
+                if others is not None:
+                    others.close()
                 rt.counters.update({f"inbox_{k}": v for k, v in inbox.snapshot().items()})
                 # Its own last word goes straight into the file (its subscription is closing).
                 writer.write(status_key(config.run, rt.name), ServiceStatus(

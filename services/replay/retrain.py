@@ -81,17 +81,26 @@ def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResul
     if not ingest:
         raise ValueError(f"{path}: no Ingest messages (no learner recorded)")
     if learner is None:
-        learner = list(ingest)[-1]
-    if learner not in ingest:
-        raise ValueError(f"{path}: no learner {learner!r}; found {', '.join(ingest)}")
-    batches = sorted(ingest[learner], key=lambda b: b.seq)
-    if batches[0].seq != 0 or batches[0].config is None:
-        raise ValueError(f"{path}: the first Ingest message of {learner} (with its config) is missing")
+        # The whole record: a learner restored from a checkpoint continues its predecessor's (resumed_from).
+        from services.replay.summary import effective_ingest
+
+        merged, chain, _ = effective_ingest(ingest)
+        learner, origin = chain[-1], chain[0]
+    else:
+        if learner not in ingest:
+            raise ValueError(f"{path}: no learner {learner!r}; found {', '.join(ingest)}")
+        merged, origin = None, learner
+    batches = sorted(ingest[origin], key=lambda b: b.seq)
+    if batches[0].seq != 0 or batches[0].config is None or batches[0].index != 0:
+        raise ValueError(f"{path}: the first Ingest message of {origin} (with its config) is missing")
     entries = []
-    for b in batches:
-        if b.index != len(entries):
-            break  # a batch lost (truncated log): replay up to the gap
-        entries.extend(b.entries)
+    if merged is None:
+        for b in batches:
+            if b.index != len(entries):
+                break  # a batch lost (truncated log): replay up to the gap
+            entries.extend(b.entries)
+    else:
+        entries = merged
 
     apply_torch_threads()
     core = LearnerCore(learner_config_from_record(batches[0].config["learner"]))

@@ -27,7 +27,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     reactions: list[ObserverReaction] = []  # a video-backed observer's diagnostics (face-video teacher)
     ingest: dict[str, list[Ingest]] = collections.defaultdict(list)
     episodes: list[EpisodeSummary] = []
-    statuses: dict[str, ServiceStatus] = {}
+    statuses: dict[str, ServiceStatus] = {}  # the latest of each service
+    by_pid: dict[tuple[str, int], ServiceStatus] = {}  # the latest of each process (restarts are new pids)
     weights: dict[str, list[int]] = collections.defaultdict(list)
     kinds = collections.Counter()
     with warnings.catch_warnings(record=True) as caught:
@@ -49,6 +50,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
                 episodes.append(m)
             elif isinstance(m, ServiceStatus):
                 statuses[m.service] = m
+                by_pid[(m.service, m.pid)] = m
             elif isinstance(m, Weights):
                 weights[m.incarnation].append(m.version)
     for w in caught:
@@ -74,42 +76,73 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             row.update(feedback_received=e.feedback_received, feedback_credited=e.feedback_credited,
                        weights_version=e.weights_version)
 
-    # What became of each feedback: the learners' outcome entries.
+    # What became of each feedback: the outcome entries of the learner's record (across restored learners).
     outcome: dict[tuple[str, int], str] = {}
     learner_steps = collections.Counter()
     learners = {}
     for inc, batches in ingest.items():
         batches.sort(key=lambda b: b.seq)
         entries = [e for b in batches for e in b.entries]
+        first = batches[0]
         learners[inc] = {"batches": len(batches), "batch_seq_contiguous": _contiguous([b.seq for b in batches]),
-                         "entries": len(entries), "ended": any(e.kind == "end" for e in entries)}
-        for e in entries:
-            if e.kind == "outcome":
-                outcome[(e.source, e.seq)] = e.status
-            elif e.kind == "step":
-                learner_steps[e.status] += 1
+                         "entries": len(entries), "ended": any(e.kind == "end" for e in entries),
+                         "first_index": first.index,
+                         "resumed_from": (first.config or {}).get("resumed_from") if first.seq == 0 else None}
+    record, chain, record_gaps = effective_ingest(ingest)
+    learned: dict[str, list[int]] = collections.defaultdict(list)  # actor incarnation -> seqs learned, in order
+    consumed_fb: set[tuple[str, int]] = set()
+    for e in record:
+        if e.kind == "outcome":
+            outcome[(e.source, e.seq)] = e.status
+        elif e.kind == "step":
+            learner_steps[e.status] += 1
+            if e.status in ("learned", "gap"):
+                learned[e.source].append(e.seq)
+        elif e.kind == "feedback":
+            consumed_fb.add((e.source, e.seq))
     logged_fb = [(t, s) for t, seqs in feedback.items() for s in seqs]
     by_status = collections.Counter(outcome.get(k, "unresolved") for k in logged_fb)
     rejected = {k: v for k, v in sorted(by_status.items()) if k != "credited"}
+    learned_keys = {(inc, q) for inc, seqs in learned.items() for q in seqs}
+    steps_not_ingested = sum(1 for inc, seqs in step_seqs.items() for q in seqs if (inc, q) not in learned_keys)
 
     def counter(service: str, name: str) -> int | None:
         st = statuses.get(service)
         return None if st is None or name not in st.counters else int(st.counters[name])
 
+    # Steps sent: each actor process's own count (a killed one's last status may be old: the log tells more).
+    actor_sent, killed_actors = 0, []
+    for (service, _pid), st in by_pid.items():
+        if service != "actor":
+            continue
+        n = int(st.counters.get("steps_published", 0))
+        if st.state != "stopped":
+            killed_actors.append(st.incarnation)
+            n = max(n, len(step_seqs.get(st.incarnation or "", [])))
+        actor_sent += n
+
     teacher_services = sorted(s for s in statuses if s.startswith("teacher."))
-    sent = [counter(s, "feedback_published") for s in teacher_services]
+    sent = [counter(s, "feedback_published") for s in teacher_services]  # kept across restarts (state file)
     out = {
         "run": reader.run_config.run if reader.run_config else None,
         "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
                 "truncated_files": status.truncated, "recovery": status.summary(), "by_kind": dict(kinds),
                 "warnings": [str(w.message) for w in caught]},
-        "steps_sent": counter("actor", "steps_published"),
+        "steps_sent": actor_sent if any(k[0] == "actor" for k in by_pid) else None,
+        "actor_incarnations_killed": killed_actors,
         "steps_logged": sum(len(v) for v in step_seqs.values()),
         "steps_seq_contiguous_in_log": all(_contiguous(v) for v in step_seqs.values()),
         "actor_incarnations": len(step_seqs),
         "steps_learned": counter("learner", "steps_learned"),
         "steps_lost_at_learner": counter("learner", "steps_lost"),
         "learner_step_entries": dict(learner_steps),
+        "learner_chain": chain,
+        "learner_record_gaps": record_gaps,
+        "learner_seq_contiguous": all(_contiguous(v) for v in learned.values()),
+        "steps_not_ingested": steps_not_ingested,
+        "feedback_not_ingested": sum(1 for k in logged_fb if k not in consumed_fb),
+        "rejected_inputs": rejected_inputs(by_pid),
+        "duplicates_dropped": rejected_inputs(by_pid, prefixes=("duplicates_",)),
         "feedback_sent": sum(x for x in sent if x is not None) if sent else None,
         "feedback_logged": len(logged_fb),
         "feedback_seq_contiguous_in_log": all(_contiguous(v) for v in feedback.values()),
@@ -130,6 +163,60 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     return out
 
 
+def effective_ingest(ingest: dict[str, list[Ingest]]) -> tuple[list, list[str], int]:
+    """The learner's record of consumed inputs across restarts: (entries in position order, the learner
+    incarnations it comes from, positions missing from the log).
+
+    A learner restored from a checkpoint names `resumed_from` (learner, position) in its first Ingest: its
+    record continues the old one's at that position, the old one's entries from there on are superseded. A
+    learner started without a checkpoint (it replayed the whole log) has a record of its own."""
+    records: dict[str, dict[int, Any]] = {}
+    links: dict[str, tuple[str, int] | None] = {}
+    for inc, batches in ingest.items():
+        rec: dict[int, Any] = {}
+        link = None
+        for b in sorted(batches, key=lambda b: b.seq):
+            if b.seq == 0 and b.config and isinstance(b.config.get("resumed_from"), dict):
+                r = b.config["resumed_from"]
+                link = (str(r.get("learner")), int(r.get("position", 0)))
+            for i, e in enumerate(b.entries):
+                rec[b.index + i] = e
+        records[inc], links[inc] = rec, link
+    if not records:
+        return [], [], 0
+    last = list(records)[-1]
+    chain, merged, seen = [], {}, set()
+    inc, upto = last, None
+    while inc is not None and inc in records and inc not in seen:
+        seen.add(inc)
+        chain.append(inc)
+        for pos, e in records[inc].items():
+            if (upto is None or pos < upto) and pos not in merged:
+                merged[pos] = e
+        link = links[inc]
+        inc, upto = (link[0], link[1]) if link else (None, None)
+    positions = sorted(merged)
+    gaps = (positions[-1] + 1 - len(positions)) if positions else 0
+    return [merged[p] for p in positions], chain[::-1], gaps
+
+
+def rejected_inputs(by_pid: dict[tuple[str, int], ServiceStatus],
+                    prefixes: tuple[str, ...] = ("rejected_", "weights_dropped_")) -> dict[str, dict[str, int]]:
+    """Inputs each service dropped, by reason: summed over its processes (a restarted learner carries its
+    counts over in its checkpoint, so only its newest process counts)."""
+    out: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    newest_learner = max((pid for (svc, pid) in by_pid if svc == "learner"),
+                         key=lambda pid: by_pid[("learner", pid)].t, default=None)
+    for (service, pid), st in by_pid.items():
+        if service == "learner" and pid != newest_learner:
+            continue
+        for k, v in st.counters.items():
+            for p in prefixes:
+                if k.startswith(p) and v:
+                    out[service][k[len(p):]] += int(v)
+    return {svc: dict(sorted(c.items())) for svc, c in sorted(out.items()) if c}
+
+
 def format_summary(s: dict[str, Any]) -> str:
     lines = [f"run {s['run']}: {s['log']['messages']} messages ({'complete' if s['log']['complete'] else 'INCOMPLETE'})"]
     if s["log"]["truncated_files"]:
@@ -144,6 +231,15 @@ def format_summary(s: dict[str, Any]) -> str:
         lines.append(f"  episodes: {len(rets)}; mean return first {k}: {sum(rets[:k]) / k:.3f}, "
                      f"last {k}: {sum(rets[-k:]) / k:.3f}")
     lines.append(f"  weights published: {s['weights_published']}")
+    if s.get("steps_not_ingested") or s.get("feedback_not_ingested") or len(s.get("learner_chain", [])) > 1:
+        lines.append(f"  learner record across {len(s['learner_chain'])} learner process(es): steps not ingested "
+                     f"{s['steps_not_ingested']}, feedback not ingested {s['feedback_not_ingested']}, seqs contiguous "
+                     f"{s['learner_seq_contiguous']}")
+    for r in s.get("restarts") or []:
+        back = "not back" if r.get("recovered_s") is None else f"back after {r['recovered_s']:.2f} s"
+        lines.append(f"  restart: {r['service']} died ({r['how']}), {back}")
+    if s.get("rejected_inputs"):
+        lines.append(f"  rejected inputs: {s['rejected_inputs']}")
     for tid, f in (s.get("face") or {}).items():
         rate = f["polarity_error_rate"]
         lag = (f["lag_s"] or {}).get("p50")

@@ -115,6 +115,7 @@ def main(config: TeacherConfig) -> int:
                         break
                 rt.tick()
             send(core.finish(time.time()))
+            watch.before_exit(ring, 20.0, rt.log)
             rt.counters.update({f"inbox_{k}": v for k, v in steps.snapshot().items()})
             actors.close()
             watch.close()
