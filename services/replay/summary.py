@@ -57,7 +57,10 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         warnings.warn(w.message, w.category, stacklevel=2)
     status = reader.status
 
-    # Steps: contiguous per incarnation; episode returns from the actor's own steps.
+    # Steps: contiguous per incarnation (all seqs once; after a recorder restart the re-sent ones come later in
+    # the log than newer live ones, so in seq order); episode returns from the actor's own steps.
+    for ss in steps.values():
+        ss.sort(key=lambda s: s.seq)
     step_seqs = {inc: [s.seq for s in ss] for inc, ss in steps.items()}
     ep_rows = []
     for inc, ss in steps.items():
@@ -69,6 +72,9 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             ep_rows.append({"actor": inc, "episode": ep, "return": float(sum(s.reward for s in items)),
                             "steps": len(items), "finished": bool(finished),
                             "reached_goal": bool(items[-1].terminated)})
+    last_actor = list(steps)[-1] if steps else None
+    for row in ep_rows:  # the episode a killed actor was in: closed by the learner, not a result
+        row["aborted"] = not row["finished"] and row["actor"] != last_actor
     learner_eps = {(e.incarnation, e.episode): e for e in episodes}
     for row in ep_rows:
         e = learner_eps.get((row["actor"], row["episode"]))
@@ -145,7 +151,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "duplicates_dropped": rejected_inputs(by_pid, prefixes=("duplicates_",)),
         "feedback_sent": sum(x for x in sent if x is not None) if sent else None,
         "feedback_logged": len(logged_fb),
-        "feedback_seq_contiguous_in_log": all(_contiguous(v) for v in feedback.values()),
+        "feedback_seq_contiguous_in_log": all(_contiguous(sorted(v)) for v in feedback.values()),
         "feedback_positive": feedback_values.get(1, 0),
         "feedback_negative": feedback_values.get(-1, 0),
         "feedback_credited": by_status.get("credited", 0),
@@ -153,7 +159,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "weights_published": sum(len(v) for v in weights.values()),
         "learners": learners,
         "episodes": ep_rows,
-        "returns": [r["return"] for r in ep_rows],
+        "returns": [r["return"] for r in ep_rows if not r["aborted"]],
         "services": {name: {"state": st.state, "counters": dict(st.counters)} for name, st in sorted(statuses.items())},
     }
     if reactions:  # face-video: what the perception path did to the observer's reactions
