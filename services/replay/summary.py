@@ -39,8 +39,6 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             if isinstance(m, Step):
                 steps[m.incarnation].append(m)
             elif isinstance(m, Feedback):
-                feedback[m.teacher_id].append(m.seq)
-                feedback_values[m.value] += 1
                 feedback_msgs.append(m)
             elif isinstance(m, ObserverReaction):
                 reactions.append(m)
@@ -56,6 +54,33 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     for w in caught:
         warnings.warn(w.message, w.category, stacklevel=2)
     status = reader.status
+
+    # Valid messages from nobody in the run (forged or garbage: the recorder keeps whatever decodes) are left out:
+    # steps of actor incarnations no actor status announced, feedback of teachers without a status or with a
+    # seq far beyond the teacher's count. `log.not_from_run` counts them.
+    actor_incs = {st.incarnation for (svc, _), st in by_pid.items() if svc == "actor" and st.incarnation}
+    not_from_run = collections.Counter()
+    if actor_incs:
+        for inc in [i for i in steps if i not in actor_incs]:
+            not_from_run["step"] += len(steps.pop(inc))
+    learner_incs = {st.incarnation for (svc, _), st in by_pid.items() if svc == "learner" and st.incarnation}
+    if learner_incs:
+        for inc in [i for i in weights if i not in learner_incs]:
+            not_from_run["weights"] += len(weights.pop(inc))
+    teacher_count: dict[str, int] = {}
+    for (svc, _), st in by_pid.items():
+        if svc.startswith("teacher."):
+            tid = svc[len("teacher."):]
+            teacher_count[tid] = max(teacher_count.get(tid, 0), int(st.counters.get("feedback_published", 0)))
+    kept = []
+    for m in feedback_msgs:
+        if teacher_count and (m.teacher_id not in teacher_count or m.seq > teacher_count[m.teacher_id] + 4096):
+            not_from_run["feedback"] += 1
+            continue
+        kept.append(m)
+        feedback[m.teacher_id].append(m.seq)
+        feedback_values[m.value] += 1
+    feedback_msgs = kept
 
     # Steps: contiguous per incarnation (all seqs once; after a recorder restart the re-sent ones come later in
     # the log than newer live ones, so in seq order); episode returns from the actor's own steps.
@@ -133,7 +158,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "run": reader.run_config.run if reader.run_config else None,
         "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
                 "truncated_files": status.truncated, "recovery": status.summary(), "by_kind": dict(kinds),
-                "warnings": [str(w.message) for w in caught]},
+                "warnings": [str(w.message) for w in caught], "not_from_run": dict(not_from_run)},
         "steps_sent": actor_sent if any(k[0] == "actor" for k in by_pid) else None,
         "actor_incarnations_killed": killed_actors,
         "steps_logged": sum(len(v) for v in step_seqs.values()),
