@@ -81,6 +81,9 @@ class PerceptionService:
         self._predictions: dict[str, Any] = {}
         self._frames: dict[str, Any] = {}
         self.feedback_seq = 0
+        self.t_first: float | None = None  # monotonic time of the first and last processed frame
+        self.t_last = 0.0
+        self.cpu_first = 0.0
 
     def _publisher(self, table: dict, key: str) -> Any:
         from common.transport import MessagePublisher
@@ -97,8 +100,11 @@ class PerceptionService:
     def process(self, image: np.ndarray, index: int, t_capture: float, camera: str,
                 live_clock: bool) -> FeedbackEvent | None:
         t0 = time.perf_counter()
+        if self.t_first is None:
+            self.t_first, self.cpu_first = time.monotonic(), time.process_time()
         pred, event = self.pipeline.process(image, index, t_capture)
         self.rt.samples["process_s"].append(time.perf_counter() - t0)
+        self.t_last = time.monotonic()
         c = self.rt.counters
         c["frames_processed"] += 1
         c["frames_with_face"] += pred.box is not None
@@ -129,6 +135,17 @@ class PerceptionService:
                               f"dropped (counted as frames_undecodable)", level=3)
             return None
         return self.process(image, frame.index, frame.t_capture, frame.camera, live_clock)
+
+    def throughput(self) -> dict[str, float]:
+        """Frames processed per wall second and CPU ms per frame (the whole process: decode, pipeline,
+        publishing), from the first processed frame to the last."""
+        n = self.rt.counters["frames_processed"]
+        if self.t_first is None or n < 2:
+            return {}
+        wall = max(1e-9, self.t_last - self.t_first)
+        cpu = time.process_time() - self.cpu_first
+        return {"frames": n, "wall_s": round(wall, 3), "fps": round((n - 1) / wall, 2),
+                "cpu_ms_per_frame": round(1e3 * cpu / n, 3)}
 
     def close(self) -> None:
         for pub in (self.feedback, *self._predictions.values(), *self._frames.values()):
@@ -186,8 +203,10 @@ def main(config: PerceptionLiveConfig) -> int:
                 processed = _run_iterator(config, rt, svc, spec)
         finally:
             svc.close()
-    rt.write_stats()
-    rt.log(f"stopped: {processed} frames processed, {svc.feedback_seq} feedback published "
+    tp = svc.throughput()
+    rt.write_stats(throughput=tp)
+    rate = f" in {tp['wall_s']:.1f} s ({tp['fps']:.1f} fps, {tp['cpu_ms_per_frame']:.1f} ms CPU per frame)" if tp else ""
+    rt.log(f"stopped: {processed} frames processed{rate}, {svc.feedback_seq} feedback published "
            f"({rt.counters['feedback_positive']} +1, {rt.counters['feedback_negative']} -1)")
     return code
 
