@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from scipy.stats import trim_mean
 
 TRIM = 0.1
 N_BOOT = 2000
@@ -51,7 +50,13 @@ Returns = dict[str, dict[str, np.ndarray]]  # condition -> agent -> [trials, epi
 
 
 def tmean(x: np.ndarray, axis: int = 0) -> np.ndarray:
-    return trim_mean(x, TRIM, axis=axis)
+    """Trimmed mean cutting int(TRIM * n) values at each end (as scipy.stats.trim_mean), vectorised:
+    the trial axis is moved last and sorted, which is much faster than scipy's partition along a middle
+    axis of the bootstrap arrays."""
+    x = np.ascontiguousarray(np.moveaxis(np.asarray(x, np.float64), axis, -1))
+    n = x.shape[-1]
+    cut = int(TRIM * n)
+    return np.sort(x, axis=-1)[..., cut:n - cut].mean(axis=-1)
 
 
 # ------------------------------------------------------------------------------------- metrics

@@ -25,8 +25,8 @@ STOP_EPISODE = 30
 FLIP = 0.15
 
 # Episode counts (ours; why: docs/hyperparameters.md "Episode counts").
-MAZE_EPISODES = 100
-TAXI_EPISODES = 200
+MAZE_EPISODES = 60
+TAXI_EPISODES = 50
 
 
 @dataclass(frozen=True)

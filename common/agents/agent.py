@@ -16,8 +16,9 @@ How it stays fast and batch-independent:
     trial rows at once (the single-trial methods `record_step`, `give_feedback` wrap the row versions);
   * random draws are counter-based (`streams`): exploration at step t of trial i and the u-th replay
     minibatch of trial i are pure functions of (trial key, t or u), never of other trials;
-  * gradient steps run only on the trial rows that are due (gathered, stepped, scattered back), with the
-    hand-written backward of `networks.mlp_backward` and no autograd graph;
+  * gradient steps run only on the trial rows that are due (gathered, stepped, scattered back), in numpy
+    float32 with the hand-written backward of `networks.mlp_backward` (no autograd graph, low per-call
+    overhead); weights go in and out as torch tensors (`policy_weights`, `load_policy_weights`);
   * `select(rows)` drops finished trials, so a batch costs what its running trials cost.
 """
 from __future__ import annotations
@@ -29,8 +30,8 @@ import torch
 
 from common.agents.config import AgentConfig
 from common.agents.history import BatchStepHistory
-from common.agents.networks import StackedMLP, mlp_backward, mlp_forward
-from common.agents.optim import MaskedRMSProp
+from common.agents.networks import StackedMLP, mlp_backward, mlp_forward, row_max, views
+from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.schedules import AlphaSchedule, EpsilonSchedule
 from common.agents.streams import uniforms
@@ -47,6 +48,11 @@ IGNORED, CREDITED, STALE = 0, 1, 2
 STATUS_NAMES = ("ignored", "credited", "stale")
 
 
+def _nz(mask: np.ndarray) -> np.ndarray:
+    """Indices of the true entries of a 1-d mask (np.flatnonzero without its overhead)."""
+    return mask.nonzero()[0]
+
+
 @dataclass
 class FeedbackOutcome:
     """What became of one feedback: credited to `steps` held steps, stale (all mass lost), or ignored."""
@@ -54,6 +60,12 @@ class FeedbackOutcome:
     status: str  # "credited" | "stale" | "ignored"
     steps: int = 0
     lost_mass: float = 0.0
+
+
+def _pick(values: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """values[i, j, actions[i, j, 0]] for values [n, N, A]: [n, N]."""
+    n, N, A = values.shape
+    return values.reshape(n * N, A)[np.arange(n * N), actions.reshape(-1)].reshape(n, N)
 
 
 def _key_array(seeds, purpose: str) -> np.ndarray:
@@ -86,9 +98,9 @@ class TrialBatchAgent:
 
         self.q = StackedMLP(obs_dim, base.hidden, n_actions, [derive_seed(s, "q-init") for s in seeds])
         self.h = StackedMLP(obs_dim, base.hidden, n_actions, [derive_seed(s, "h-init") for s in seeds])
-        self.q_target = self.q.detached_copy()
-        self.q_opt = MaskedRMSProp(self.q.params, base.lr, base.rmsprop_alpha, base.rmsprop_eps)
-        self.h_opt = MaskedRMSProp(self.h.params, base.lr, base.rmsprop_alpha, base.rmsprop_eps)
+        self.q_target_flat = self.q.flat.copy()
+        self.q_opt = FlatRMSProp(self.q, base.lr, base.rmsprop_alpha, base.rmsprop_eps)
+        self.h_opt = FlatRMSProp(self.h, base.lr, base.rmsprop_alpha, base.rmsprop_eps)
         self.replay = TransitionReplay(B, base.replay_size, obs_dim)
         self.feedback_memory = FeedbackMemory(B, base.feedback_memory_size, obs_dim)
         self.history = BatchStepHistory(B, base.history_steps, obs_dim)
@@ -119,12 +131,9 @@ class TrialBatchAgent:
     def B(self) -> int:
         return len(self.seeds_arr)
 
-    @staticmethod
-    def _rows_tensor(rows: np.ndarray, B: int) -> torch.Tensor | None:
-        """None (meaning all, no copy) when `rows` is every trial in order, else an index tensor."""
-        if len(rows) == B:
-            return None
-        return torch.from_numpy(np.ascontiguousarray(rows, dtype=np.int64))
+    def _rows_index(self, rows: np.ndarray) -> np.ndarray | None:
+        """None (meaning all, no copy) when `rows` is every trial in order, else the row indices."""
+        return None if len(rows) == self.B else rows
 
     # ----------------------------------------------------------------------------------- acting
     def epsilons(self, rows: np.ndarray | None = None) -> np.ndarray:
@@ -135,17 +144,17 @@ class TrialBatchAgent:
         rows = np.arange(self.B) if rows is None else rows
         return self.alpha_h0[rows] * self.alpha_h_decay[rows] ** self.steps[rows].astype(np.float64)
 
-    def mixture_weights(self, rows: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    def mixture_weights(self, rows: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(alpha_q, alpha_h) per trial as float32 [n, 1, 1] (alpha_h at each trial's current step)."""
         rows = np.arange(self.B) if rows is None else rows
-        aq = torch.from_numpy(self.alpha_q[rows].astype(np.float32)).view(-1, 1, 1)
-        ah = torch.from_numpy(self.alpha_h(rows).astype(np.float32)).view(-1, 1, 1)
+        aq = self.alpha_q[rows].astype(np.float32).reshape(-1, 1, 1)
+        ah = self.alpha_h(rows).astype(np.float32).reshape(-1, 1, 1)
         return aq, ah
 
-    @torch.no_grad()
-    def _scores(self, rows: np.ndarray, obs: np.ndarray) -> torch.Tensor:
+    def _scores(self, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """alpha_q Q + alpha_h H for trials `rows`, one observation each (obs: [len(rows), obs_dim])."""
-        x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32)).view(len(rows), 1, self.obs_dim)
-        r = self._rows_tensor(rows, self.B)
+        x = np.asarray(obs, np.float32).reshape(len(rows), 1, self.obs_dim)
+        r = self._rows_index(rows)
         aq, ah = self.mixture_weights(rows)
         q = mlp_forward(self.q.rows(r), x)[1]
         h = mlp_forward(self.h.rows(r), x)[1]
@@ -153,7 +162,7 @@ class TrialBatchAgent:
 
     def scores(self, obs: np.ndarray) -> torch.Tensor:
         """alpha_q Q + alpha_h H for one observation per trial: [B, n_actions]."""
-        return self._scores(np.arange(self.B), np.asarray(obs, np.float32).reshape(self.B, self.obs_dim))
+        return torch.from_numpy(self._scores(np.arange(self.B), np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)))
 
     def greedy_action(self, i: int, obs: np.ndarray) -> int:
         """Trial i's greedy action for one observation, touching no random stream (for evaluation)."""
@@ -164,12 +173,12 @@ class TrialBatchAgent:
 
         Step t of trial i explores when u(i, 2t) < epsilon(t), with action floor(u(i, 2t + 1) * n_actions).
         """
-        rows = np.arange(self.B) if active is None else np.flatnonzero(active)
+        rows = np.arange(self.B) if active is None else _nz(active)
         actions = np.full(self.B, -1, dtype=np.int64)
         if len(rows) == 0:
             return actions
         obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
-        greedy = self._scores(rows, obs[rows]).argmax(dim=1).numpy()
+        greedy = self._scores(rows, obs[rows]).argmax(axis=1)
         u = uniforms(self.explore_key[rows, None], 2 * self.steps[rows, None] + np.arange(2)[None, :])
         explore = u[:, 0] < self.epsilons(rows)
         random_action = np.minimum((u[:, 1] * self.n_actions).astype(np.int64), self.n_actions - 1)
@@ -229,7 +238,7 @@ class TrialBatchAgent:
         lost = np.zeros(n, np.float64)
         shaping = self.shaping[rows]
         if shaping.any():
-            k = np.flatnonzero(shaping)
+            k = _nz(shaping)
             r = rows[k]
             pos = self.history.latest_at(r, t_feedback[k])
             hit = pos >= 0
@@ -239,7 +248,7 @@ class TrialBatchAgent:
             lost[k] = np.where(hit, 0.0, 1.0)
         learn = self.train_h[rows] & ~shaping
         if learn.any():
-            k = np.flatnonzero(learn)
+            k = _nz(learn)
             r = rows[k]
             credit = self.history.credit(r, t_feedback[k], self._lags, self._lag_probs)
             ok = credit.counts > 0
@@ -262,60 +271,54 @@ class TrialBatchAgent:
         active = np.ones(self.B, bool) if active is None else active
         c = self.base
         due = active & (self.steps > 0) & (self.steps % c.update_interval == 0)
-        q_rows = np.flatnonzero(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
+        q_rows = _nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
         if len(q_rows):
             self._q_step(q_rows)
-        h_rows = np.flatnonzero(due & self.train_h & (self.feedback_memory.size > 0))
+        h_rows = _nz(due & self.train_h & (self.feedback_memory.size > 0))
         if len(h_rows):
             m = self.feedback_memory
             idx = m.sample_indices(self.h_key[h_rows], self.h_updates[h_rows], h_rows, c.h_batch_size)
-            self._h_step(h_rows, m.gather("obs", h_rows, idx), m.gather("action", h_rows, idx),
-                         m.gather("feedback", h_rows, idx), m.gather("weight", h_rows, idx), reduce="mean")
-        sync = np.flatnonzero(active & self.train_q & (self.steps % c.target_update_interval == 0)
+            rec = m.gather_records(h_rows, idx)  # obs, action, feedback, weight
+            d = self.obs_dim
+            self._h_step(h_rows, rec[:, :, :d], rec[:, :, d], rec[:, :, d + 1], rec[:, :, d + 2], reduce="mean")
+        sync = _nz(active & self.train_q & (self.steps % c.target_update_interval == 0)
                               & (self.steps > 0))
         if len(sync):
-            r = torch.from_numpy(sync)
-            for k, v in self.q.params.items():
-                self.q_target[k].index_copy_(0, r, v.index_select(0, r))
+            self.q_target_flat[sync] = self.q.flat[sync]
 
-    @torch.no_grad()
     def _q_step(self, rows: np.ndarray) -> None:
         """One Huber-loss TD step (mean over the minibatch) on trials `rows`."""
-        c = self.base
-        r = self._rows_tensor(rows, self.B)
+        c, d = self.base, self.obs_dim
+        r = self._rows_index(rows)
         idx = self.replay.sample_indices(self.q_key[rows], self.q_updates[rows], rows, c.batch_size)
-        g = self.replay.gather
-        obs = torch.from_numpy(g("obs", rows, idx))
-        act = torch.from_numpy(g("action", rows, idx)).unsqueeze(2)
-        rew = torch.from_numpy(g("reward", rows, idx))
-        nxt = torch.from_numpy(g("next_obs", rows, idx))
-        term = torch.from_numpy(g("terminated", rows, idx))
-        target_params = self.q_target if r is None else {k: v.index_select(0, r) for k, v in self.q_target.items()}
-        q_next = mlp_forward(target_params, nxt)[1].max(dim=2).values
-        target = rew + c.gamma * (1.0 - term) * q_next
+        batch = self.replay.gather_records(rows, idx)  # obs, action, reward, next_obs, terminated
+        obs, nxt = batch[:, :, :d], batch[:, :, d + 2:2 * d + 2]
+        act = batch[:, :, d].astype(np.int64)[:, :, None]
+        rew, term = batch[:, :, d + 1], batch[:, :, 2 * d + 2]
+        target_flat = self.q_target_flat if r is None else self.q_target_flat[r]
+        q_next = row_max(mlp_forward(views(target_flat, self.q.shapes), nxt)[1])
+        target = rew + np.float32(c.gamma) * (np.float32(1) - term) * q_next
         params = self.q.rows(r)
         hidden, q = mlp_forward(params, obs)
-        q_sa = q.gather(2, act).squeeze(2)
+        q_sa = _pick(q, act)
         # d/dq_sa of mean Huber(q_sa - target): the error clipped to [-1, 1], over the batch size.
-        d_q_sa = (q_sa - target).clamp_(-1.0, 1.0).div_(c.batch_size)
-        d_out = torch.zeros_like(q).scatter_(2, act, d_q_sa.unsqueeze(2))
+        d_q_sa = np.clip(q_sa - target, -1.0, 1.0) / np.float32(c.batch_size)
+        d_out = np.where(act == np.arange(self.n_actions), d_q_sa[:, :, None], np.float32(0))
         self.q_opt.step_rows(r, mlp_backward(params, obs, hidden, d_out))
         self.q_updates[rows] += 1
 
-    @torch.no_grad()
     def _h_step(self, rows: np.ndarray, obs, act, fb, wts, reduce: str) -> None:
         """Weighted squared error w (H(s, a) - f)^2: summed over D_local, averaged over a minibatch."""
-        r = self._rows_tensor(rows, self.B)
-        x = torch.from_numpy(np.ascontiguousarray(obs, np.float32))
-        a = torch.from_numpy(np.ascontiguousarray(act, np.int64)).unsqueeze(2)
+        r = self._rows_index(rows)
+        x = np.asarray(obs, np.float32)
+        a = np.asarray(act).astype(np.int64)[:, :, None]
         params = self.h.rows(r)
         hidden, h = mlp_forward(params, x)
-        h_sa = h.gather(2, a).squeeze(2)
-        d_h_sa = 2.0 * torch.from_numpy(np.ascontiguousarray(wts, np.float32)) * (
-            h_sa - torch.from_numpy(np.ascontiguousarray(fb, np.float32)))
+        h_sa = _pick(h, a)
+        d_h_sa = np.float32(2) * np.asarray(wts, np.float32) * (h_sa - np.asarray(fb, np.float32))
         if reduce == "mean":
-            d_h_sa.div_(x.shape[1])
-        d_out = torch.zeros_like(h).scatter_(2, a, d_h_sa.unsqueeze(2))
+            d_h_sa /= np.float32(x.shape[1])
+        d_out = np.where(a == np.arange(self.n_actions), d_h_sa[:, :, None], np.float32(0))
         self.h_opt.step_rows(r, mlp_backward(params, x, hidden, d_out))
         self.h_updates[rows] += 1
 
@@ -325,12 +328,11 @@ class TrialBatchAgent:
 
         Used to drop finished trials; a kept trial continues exactly as it would have."""
         rows = np.asarray(rows, np.int64)
-        r = torch.from_numpy(rows)
-        self.q.select(r)
-        self.h.select(r)
-        self.q_target = {k: v.index_select(0, r) for k, v in self.q_target.items()}
-        self.q_opt.select(r, self.q.params)
-        self.h_opt.select(r, self.h.params)
+        self.q.select(rows)
+        self.h.select(rows)
+        self.q_target_flat = self.q_target_flat[rows]
+        self.q_opt.select(rows)
+        self.h_opt.select(rows)
         self.replay.select(rows)
         self.feedback_memory.select(rows)
         self.history.select(rows)
@@ -344,9 +346,7 @@ class TrialBatchAgent:
     def state_dict(self) -> dict:
         """Everything that changes while learning (configs and seeds are given at construction)."""
         return {
-            "q": {k: v.clone() for k, v in self.q.params.items()},
-            "h": {k: v.clone() for k, v in self.h.params.items()},
-            "q_target": {k: v.clone() for k, v in self.q_target.items()},
+            "q": self.q.flat.copy(), "h": self.h.flat.copy(), "q_target": self.q_target_flat.copy(),
             "q_opt": self.q_opt.state_dict(), "h_opt": self.h_opt.state_dict(),
             "replay": self.replay.state_dict(), "feedback_memory": self.feedback_memory.state_dict(),
             "history": self.history.state_dict(),
@@ -354,13 +354,9 @@ class TrialBatchAgent:
         }
 
     def load_state_dict(self, state: dict) -> None:
-        with torch.no_grad():
-            for k, v in state["q"].items():
-                self.q.params[k].copy_(v)
-            for k, v in state["h"].items():
-                self.h.params[k].copy_(v)
-            for k, v in state["q_target"].items():
-                self.q_target[k].copy_(v)
+        self.q.flat[...] = state["q"]
+        self.h.flat[...] = state["h"]
+        self.q_target_flat[...] = state["q_target"]
         self.q_opt.load_state_dict(state["q_opt"])
         self.h_opt.load_state_dict(state["h_opt"])
         self.replay.load_state_dict(state["replay"])

@@ -13,6 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def _nz(mask: np.ndarray) -> np.ndarray:
+    """Indices of the true entries of a 1-d mask (np.flatnonzero without its overhead)."""
+    return mask.nonzero()[0]
+
+
 @dataclass
 class BatchCredit:
     """Credit of one feedback per trial (rows = the trials asked about, in order)."""
@@ -39,7 +44,7 @@ class BatchStepHistory:
         held = self.count[trials] > 0
         newest = self.times[trials, (self.head[trials] - 1) % self.capacity]
         if np.any(held & (t < newest)):
-            k = int(np.flatnonzero(held & (t < newest))[0])
+            k = int(_nz(held & (t < newest))[0])
             raise ValueError(f"step time {t[k]} is older than the previous step {newest[k]}")
         pos = self.head[trials]
         self.times[trials, pos] = t

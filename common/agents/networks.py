@@ -1,19 +1,24 @@
 """A stack of independent one-hidden-layer MLPs, one per trial, evaluated as one batched computation.
 
-Trial i's weights are W1[i], b1[i], W2[i], b2[i]; `forward` uses batched matrix products so B trials cost
-one call. Each trial is initialised from its own generator, so a trial gets the same weights whether it
-runs alone (B = 1) or among others.
+Trial i's weights are W1[i], b1[i], W2[i], b2[i]. Each trial is initialised from its own torch
+generator with PyTorch's nn.Linear default (so a trial gets the same weights alone or among others, and
+the same as a torch model of the paper's network), then kept as float32 numpy arrays: all of a trial's
+weights live in one row of a flat [B, P] array (`flat`), and `params` are views into it, so selecting
+trials, an optimiser step or a target-network copy is one operation.
 
-Gradients are written out by hand (`mlp_backward`) instead of using autograd: the network is two affine
-maps and a tanh, the hand-written backward is a handful of batched products, and it avoids building a
-graph on every update (autograd's bookkeeping cost more than the arithmetic at these sizes). Every
-operation is either a per-trial batched matrix product or elementwise, never a reduction across trials,
-so a trial's numbers do not depend on which or how many trials share the batch.
+The arithmetic is numpy, written out by hand: forward is one batched product per layer (the first with
+the augmented matrix [W1; b1] against the input with a ones column appended), and `mlp_backward` is the exact
+gradient (what autograd computes for the same loss). At these sizes (a few to a hundred trials, 100
+hidden units, minibatches of 32) per-call overhead dominates the arithmetic; numpy's overhead per call
+is several times lower than torch's, which matters most for the last, slow trials of a batch. Every
+operation is a per-trial matrix product or elementwise, never a reduction across trials, so a trial's
+numbers do not depend on which or how many trials share its batch (tests/experiments/test_batching.py).
 """
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 
 PARAM_NAMES = ("w1", "b1", "w2", "b2")
@@ -31,33 +36,63 @@ def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, tor
     }
 
 
-def mlp_hidden(p: dict[str, torch.Tensor], x: torch.Tensor) -> torch.Tensor:
-    """tanh(x W1 + b1): [n, N, in] -> [n, N, hidden]."""
-    return torch.bmm(x, p["w1"]).add_(p["b1"]).tanh_()
+def param_shapes(in_dim: int, hidden: int, out_dim: int) -> dict[str, tuple[int, int]]:
+    return {"w1": (in_dim, hidden), "b1": (1, hidden), "w2": (hidden, out_dim), "b2": (1, out_dim)}
 
 
-def mlp_forward(p: dict[str, torch.Tensor], x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def views(flat: np.ndarray, shapes: dict[str, tuple[int, int]]) -> dict[str, np.ndarray]:
+    """Views into the rows of a flat [n, P] parameter array: w1, b1, w2, b2 and the augmented first-layer
+    matrix a1 = [w1; b1] ([n, in + 1, hidden])."""
+    out, o = {}, 0
+    n = flat.shape[0]
+    for name, (r, c) in shapes.items():
+        out[name] = flat[:, o:o + r * c].reshape(n, r, c)
+        o += r * c
+    i, h = shapes["w1"]
+    out["a1"] = flat[:, :(i + 1) * h].reshape(n, i + 1, h)
+    return out
+
+
+def with_ones(x: np.ndarray) -> np.ndarray:
+    """x [n, N, k] with a column of ones appended (the bias input): [n, N, k + 1]."""
+    out = np.empty((*x.shape[:-1], x.shape[-1] + 1), np.float32)
+    out[..., :-1] = x
+    out[..., -1] = 1.0
+    return out
+
+
+def mlp_forward(p: dict[str, np.ndarray], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(hidden activations, outputs) for x: [n, N, in] -> [n, N, hidden], [n, N, out]."""
-    h = mlp_hidden(p, x)
-    return h, torch.bmm(h, p["w2"]).add_(p["b2"])
+    h = with_ones(x) @ p["a1"]
+    np.tanh(h, out=h)
+    out = h @ p["w2"]
+    out += p["b2"]
+    return h, out
 
 
-def mlp_backward(p: dict[str, torch.Tensor], x: torch.Tensor, h: torch.Tensor,
-                 d_out: torch.Tensor) -> dict[str, torch.Tensor]:
-    """Gradients of sum(d_out * out) with respect to each trial's weights (what autograd would give).
+def row_max(q: np.ndarray) -> np.ndarray:
+    """max over the last (small) axis, column by column: much faster than q.max(-1) for a few actions."""
+    m = q[..., 0].copy()
+    for a in range(1, q.shape[-1]):
+        np.maximum(m, q[..., a], out=m)
+    return m
 
-    Bias gradients are sums over the N rows, written as products with a row of ones so that they are
-    per-trial matrix products like the rest.
-    """
-    n, N, _ = x.shape
-    ones = torch.ones(n, 1, N, dtype=x.dtype)
-    g_w2 = torch.bmm(h.transpose(1, 2), d_out)
-    g_b2 = torch.bmm(ones, d_out)
-    d_pre = torch.bmm(d_out, p["w2"].transpose(1, 2))
-    d_pre.mul_(1.0 - h * h)
-    g_w1 = torch.bmm(x.transpose(1, 2), d_pre)
-    g_b1 = torch.bmm(ones, d_pre)
-    return {"w1": g_w1, "b1": g_b1, "w2": g_w2, "b2": g_b2}
+
+def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: np.ndarray) -> np.ndarray:
+    """Gradient of sum(d_out * out) with respect to each trial's weights, flat [n, P] (w1, b1, w2, b2).
+
+    h is `mlp_forward`'s first output. Bias gradients are sums over the N rows, written as products
+    (with the ones column of the augmented input, or a row of ones) so that every reduction is a
+    per-trial matrix product."""
+    n, N = x.shape[:2]
+    g_w2 = h.transpose(0, 2, 1) @ d_out                              # [n, hidden, out]
+    g_b2 = np.ones((n, 1, N), np.float32) @ d_out                    # [n, 1, out]
+    d_pre = d_out @ p["w2"].transpose(0, 2, 1)                       # [n, N, hidden]
+    slope = h * h
+    np.subtract(np.float32(1), slope, out=slope)                     # tanh' = 1 - tanh^2
+    d_pre *= slope
+    g1 = with_ones(x).transpose(0, 2, 1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
+    return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1)
 
 
 class StackedMLP:
@@ -65,40 +100,50 @@ class StackedMLP:
 
     def __init__(self, in_dim: int, hidden: int, out_dim: int, seeds: list[int]):
         self.in_dim, self.hidden, self.out_dim = in_dim, hidden, out_dim
+        self.shapes = param_shapes(in_dim, hidden, out_dim)
         per_trial = [init_mlp(in_dim, hidden, out_dim, s) for s in seeds]
-        self.params = {name: torch.stack([p[name] for p in per_trial]) for name in PARAM_NAMES}
+        flat = torch.stack([torch.cat([p[k].reshape(-1) for k in PARAM_NAMES]) for p in per_trial])
+        self.set_flat(np.ascontiguousarray(flat.numpy(), np.float32))
 
     @property
     def trials(self) -> int:
-        return self.params["w1"].shape[0]
+        return self.flat.shape[0]
 
-    @torch.no_grad()
-    def forward(self, x: torch.Tensor, params: dict[str, torch.Tensor] | None = None) -> torch.Tensor:
-        """x: [B, N, in] -> [B, N, out]."""
-        return mlp_forward(self.params if params is None else params, x)[1]
+    def forward(self, x, params: dict[str, np.ndarray] | None = None):
+        """x: [B, N, in] -> [B, N, out] (numpy in, numpy out; a torch tensor in gives a tensor out)."""
+        as_torch = isinstance(x, torch.Tensor)
+        xn = x.detach().numpy() if as_torch else x
+        out = mlp_forward(self.params if params is None else params, np.asarray(xn, np.float32))[1]
+        return torch.from_numpy(out) if as_torch else out
 
     __call__ = forward
 
-    def rows(self, idx: torch.Tensor | None) -> dict[str, torch.Tensor]:
-        """The weights of the trials `idx` (all trials, without copying, when idx is None)."""
-        if idx is None:
-            return self.params
-        return {k: v.index_select(0, idx) for k, v in self.params.items()}
+    def rows(self, idx: np.ndarray | None) -> dict[str, np.ndarray]:
+        """Views of the weights of trials `idx` (of all trials, without copying, when idx is None)."""
+        return self.params if idx is None else views(self.flat[idx], self.shapes)
 
-    def select(self, idx: torch.Tensor) -> None:
+    def set_flat(self, flat: np.ndarray) -> None:
+        self.flat = flat
+        self.params = views(flat, self.shapes)
+
+    def select(self, idx: np.ndarray) -> None:
         """Keep only the trials `idx` (in that order)."""
-        self.params = {k: v.index_select(0, idx) for k, v in self.params.items()}
+        self.set_flat(self.flat[idx])
 
-    def detached_copy(self) -> dict[str, torch.Tensor]:
-        return {k: v.detach().clone() for k, v in self.params.items()}
+    def detached_copy(self) -> dict[str, np.ndarray]:
+        return {k: self.params[k].copy() for k in PARAM_NAMES}
 
     def trial_state(self, i: int) -> dict[str, torch.Tensor]:
-        """Trial i's weights as plain tensors (what the learner publishes)."""
-        return {k: v[i].detach().clone() for k, v in self.params.items()}
+        """Trial i's weights as torch tensors (what the learner publishes)."""
+        return {k: torch.from_numpy(self.params[k][i].copy()) for k in PARAM_NAMES}
 
-    def load_trial_state(self, i: int, state: dict[str, torch.Tensor]) -> None:
-        with torch.no_grad():
-            for k, v in self.params.items():
-                if tuple(state[k].shape) != tuple(v[i].shape):
-                    raise ValueError(f"weights {k}: expected shape {tuple(v[i].shape)}, got {tuple(state[k].shape)}")
-                v[i].copy_(state[k])
+    def load_trial_state(self, i: int, state: dict) -> None:
+        arrays = {}
+        for k in PARAM_NAMES:
+            v = state[k]
+            a = v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else np.asarray(v)
+            if tuple(a.shape) != tuple(self.params[k][i].shape):
+                raise ValueError(f"weights {k}: expected shape {tuple(self.params[k][i].shape)}, got {tuple(a.shape)}")
+            arrays[k] = a
+        for k, a in arrays.items():
+            self.params[k][i] = a

@@ -1,13 +1,21 @@
 """RMSProp over stacked trial parameters, stepping only the trials selected.
 
-Same update as torch.optim.RMSprop (alpha 0.99, eps 1e-8, no momentum): a trial that is not selected
-keeps both its weights and its running average untouched, exactly as if it had not been asked to step.
-Two entry points: `step(mask)` reads `.grad` (autograd users), `step_rows(idx, grads)` takes gradients
-for the selected trials only (the agent's hand-written backward).
+The update of torch.optim.RMSprop (alpha 0.99, eps 1e-8, no momentum, same fused operations): a trial
+that is not selected keeps both its weights and its running average untouched, exactly as if it had not
+been asked to step. Two front ends: `MaskedRMSProp` over a dict of parameters with `.grad` (autograd
+users), and `FlatRMSProp` over one flat [B, P] numpy array with gradients for selected rows (the agent).
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
+
+
+def rmsprop_update(p: torch.Tensor, sq: torch.Tensor, g: torch.Tensor, lr: float, alpha: float,
+                   eps: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(new parameters, new running average of squared gradients); inputs are left untouched."""
+    new_sq = torch.addcmul(sq * alpha, g, g, value=1 - alpha)
+    return torch.addcdiv(p, g, new_sq.sqrt().add_(eps), value=-lr), new_sq
 
 
 class MaskedRMSProp:
@@ -21,10 +29,6 @@ class MaskedRMSProp:
         for p in self.params.values():
             p.grad = None
 
-    def _update(self, p: torch.Tensor, sq: torch.Tensor, g: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        new_sq = sq * self.alpha + g * g * (1 - self.alpha)
-        return p - g / (new_sq.sqrt() + self.eps) * self.lr, new_sq
-
     @torch.no_grad()
     def step(self, mask: torch.Tensor) -> None:
         """mask: bool [B]; trials with False are left exactly as they were."""
@@ -34,28 +38,9 @@ class MaskedRMSProp:
                 continue
             m = mask.view(-1, *([1] * (p.dim() - 1)))
             sq = self.square_avg[name]
-            new_p, new_sq = self._update(p, sq, g)
+            new_p, new_sq = rmsprop_update(p, sq, g, self.lr, self.alpha, self.eps)
             sq.copy_(torch.where(m, new_sq, sq))
             p.copy_(torch.where(m, new_p, p))
-
-    @torch.no_grad()
-    def step_rows(self, idx: torch.Tensor | None, grads: dict[str, torch.Tensor]) -> None:
-        """Step trials `idx` (all when None) with `grads[name]` of shape [len(idx), ...]."""
-        for name, g in grads.items():
-            p, sq = self.params[name], self.square_avg[name]
-            if idx is None:
-                new_p, new_sq = self._update(p, sq, g)
-                p.copy_(new_p)
-                sq.copy_(new_sq)
-            else:
-                new_p, new_sq = self._update(p.index_select(0, idx), sq.index_select(0, idx), g)
-                p.index_copy_(0, idx, new_p)
-                sq.index_copy_(0, idx, new_sq)
-
-    def select(self, idx: torch.Tensor, params: dict[str, torch.Tensor]) -> None:
-        """Keep only trials `idx`; `params` are the (already selected) parameter tensors."""
-        self.params = params
-        self.square_avg = {k: v.index_select(0, idx) for k, v in self.square_avg.items()}
 
     def state_dict(self) -> dict:
         return {k: v.clone() for k, v in self.square_avg.items()}
@@ -63,3 +48,35 @@ class MaskedRMSProp:
     def load_state_dict(self, state: dict) -> None:
         for k, v in state.items():
             self.square_avg[k].copy_(v)
+
+
+class FlatRMSProp:
+    """The same update on the rows of a flat [B, P] float32 numpy array owned by a `StackedMLP`."""
+
+    def __init__(self, net, lr: float = 1e-3, alpha: float = 0.99, eps: float = 1e-8):
+        self.net = net
+        self.lr, self.alpha, self.eps = np.float32(lr), np.float32(alpha), np.float32(eps)
+        self.square_avg = np.zeros_like(net.flat)
+
+    def step_rows(self, idx: np.ndarray | None, grad: np.ndarray) -> None:
+        """Step trials `idx` (all when None) with `grad` [len(idx), P]."""
+        flat = self.net.flat
+        sq = self.square_avg if idx is None else self.square_avg[idx]
+        p = flat if idx is None else flat[idx]
+        new_sq = sq * self.alpha + grad * grad * (np.float32(1) - self.alpha)
+        new_p = p - grad / (np.sqrt(new_sq) + self.eps) * self.lr
+        if idx is None:
+            self.square_avg[...] = new_sq
+            flat[...] = new_p
+        else:
+            self.square_avg[idx] = new_sq
+            flat[idx] = new_p
+
+    def select(self, idx: np.ndarray) -> None:
+        self.square_avg = self.square_avg[idx]
+
+    def state_dict(self) -> np.ndarray:
+        return self.square_avg.copy()
+
+    def load_state_dict(self, state) -> None:
+        self.square_avg[...] = np.asarray(state)

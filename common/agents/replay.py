@@ -1,8 +1,11 @@
 """Per-trial replay memories stored as stacked arrays, so a batch of trials adds and samples in one call.
 
-Sampling is counter-based (`streams`): the j-th index of a trial's u-th minibatch is a pure function of
-(trial key, u, j) and the trial's current size, so its draws are the same alone or batched.
-`TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's D_global.
+All fields of an entry are stored side by side in one float32 record (`rec`, [B, capacity, width];
+integer fields such as the action are small and exact in float32), so a minibatch is one gather;
+`data[name]` are views of the columns. Sampling is counter-based (`streams`): the j-th index of a trial's
+u-th minibatch is a pure function of (trial key, u, j) and the trial's current size, so its draws are the
+same alone or batched. `TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's
+D_global.
 """
 from __future__ import annotations
 
@@ -12,27 +15,38 @@ from common.agents import streams
 
 
 class _Ring:
-    def __init__(self, trials: int, capacity: int, fields: dict[str, tuple[tuple[int, ...], type]]):
+    def __init__(self, trials: int, capacity: int, fields: dict[str, int]):
+        """fields: name -> width (0 for a scalar field)."""
         self.capacity = capacity
-        self.data = {name: np.zeros((trials, capacity, *shape), dtype=dtype)
-                     for name, (shape, dtype) in fields.items()}
+        self.fields = dict(fields)
+        self.columns, o = {}, 0
+        for name, width in fields.items():
+            self.columns[name] = slice(o, o + max(width, 1))
+            o += max(width, 1)
+        self.width = o
+        self.rec = np.zeros((trials, capacity, o), np.float32)
         self.size = np.zeros(trials, dtype=np.int64)
         self.pos = np.zeros(trials, dtype=np.int64)
+        self._make_views()
+
+    def _make_views(self) -> None:
+        self.data = {name: (self.rec[:, :, self.columns[name]] if w else self.rec[:, :, self.columns[name].start])
+                     for name, w in self.fields.items()}
+
+    def _record(self, n: int, values: dict) -> np.ndarray:
+        row = np.zeros((n, self.width), np.float32)
+        for name, value in values.items():
+            row[:, self.columns[name]] = np.asarray(value, np.float32).reshape(n, -1)
+        return row
 
     def add(self, trial: int, **values) -> int:
         """Append one entry for `trial`; returns its slot (overwriting the oldest when full)."""
-        slot = int(self.pos[trial])
-        for name, value in values.items():
-            self.data[name][trial, slot] = value
-        self.pos[trial] = (slot + 1) % self.capacity
-        self.size[trial] = min(self.size[trial] + 1, self.capacity)
-        return slot
+        return int(self.add_rows(np.array([trial]), **{k: np.asarray(v)[None] for k, v in values.items()})[0])
 
     def add_rows(self, trials: np.ndarray, **values) -> np.ndarray:
         """Append one entry for each of `trials` (distinct); values are arrays with a leading trial axis."""
         slots = self.pos[trials].copy()
-        for name, value in values.items():
-            self.data[name][trials, slots] = value
+        self.rec[trials, slots] = self._record(len(trials), values)
         self.pos[trials] = (slots + 1) % self.capacity
         self.size[trials] = np.minimum(self.size[trials] + 1, self.capacity)
         return slots
@@ -40,11 +54,11 @@ class _Ring:
     def add_many(self, trials: np.ndarray, counts: np.ndarray, **values) -> None:
         """Append counts[k] entries for trials[k] (distinct); values[name] is [len(trials), max count, ...]
         and entry j of trial k is values[name][k, j] for j < counts[k]."""
-        k_idx, j_idx = np.nonzero(np.arange(values[next(iter(values))].shape[1])[None, :] < counts[:, None])
+        width = np.asarray(values[next(iter(values))]).shape[1]
+        k_idx, j_idx = np.nonzero(np.arange(width)[None, :] < counts[:, None])
         rows = trials[k_idx]
         slots = (self.pos[rows] + j_idx) % self.capacity
-        for name, value in values.items():
-            self.data[name][rows, slots] = value[k_idx, j_idx]
+        self.rec[rows, slots] = self._record(len(k_idx), {k: np.asarray(v)[k_idx, j_idx] for k, v in values.items()})
         self.pos[trials] = (self.pos[trials] + counts) % self.capacity
         self.size[trials] = np.minimum(self.size[trials] + counts, self.capacity)
 
@@ -53,29 +67,32 @@ class _Ring:
         counters = draws[:, None] * n + np.arange(n)[None, :]
         return streams.integers(keys[:, None], counters, self.size[trials][:, None])
 
+    def gather_records(self, trials: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The records at slots idx [n, m] of trials [n]: [n, m, width] float32."""
+        return self.rec[trials[:, None], idx]
+
     def gather(self, name: str, trials: np.ndarray, idx: np.ndarray) -> np.ndarray:
         return self.data[name][trials[:, None], idx]
 
     def select(self, trials: np.ndarray) -> None:
         """Keep only `trials` (in that order)."""
-        self.data = {k: v[trials] for k, v in self.data.items()}
+        self.rec = self.rec[trials]
         self.size, self.pos = self.size[trials], self.pos[trials]
+        self._make_views()
 
     def state_dict(self) -> dict:
-        return {"data": {k: v.copy() for k, v in self.data.items()}, "size": self.size.copy(), "pos": self.pos.copy()}
+        return {"rec": self.rec.copy(), "size": self.size.copy(), "pos": self.pos.copy()}
 
     def load_state_dict(self, state: dict) -> None:
-        for k, v in state["data"].items():
-            self.data[k][...] = v
+        self.rec[...] = state["rec"]
         self.size[...] = state["size"]
         self.pos[...] = state["pos"]
 
 
 class TransitionReplay(_Ring):
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {
-            "obs": ((obs_dim,), np.float32), "action": ((), np.int64), "reward": ((), np.float32),
-            "next_obs": ((obs_dim,), np.float32), "terminated": ((), np.float32)})
+        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "reward": 0, "next_obs": obs_dim,
+                                            "terminated": 0})
 
     def add_reward(self, trial, slot, amount) -> None:
         """Naive reward shaping: feedback added to already stored transitions (arrays allowed)."""
@@ -86,6 +103,4 @@ class FeedbackMemory(_Ring):
     """D_global: every credited (state, action, feedback, weight) so far (FIFO beyond capacity)."""
 
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {
-            "obs": ((obs_dim,), np.float32), "action": ((), np.int64), "feedback": ((), np.float32),
-            "weight": ((), np.float32)})
+        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "feedback": 0, "weight": 0})

@@ -117,3 +117,10 @@ def test_episodes_to_level_and_bands():
     mid, lo, hi = C.curve_band(R, n_boot=200)
     assert np.all(lo <= mid + 1e-12) and np.all(mid <= hi + 1e-12)
     np.testing.assert_allclose(mid, C.tmean(R, axis=0))
+
+
+def test_trimmed_mean_is_scipys():
+    from scipy.stats import trim_mean
+    x = np.random.default_rng(0).normal(size=(7, 30, 5))
+    for axis in range(3):
+        np.testing.assert_allclose(C.tmean(x, axis), trim_mean(x, 0.1, axis=axis))
