@@ -88,6 +88,8 @@ class UpConfig:
     security: str | None = option(None, "security.json of the router machine (python -m common.security init): "
                                         "run the secured router (TLS on HOST:PORT) and connect every service to it")
     learner_inbox: int = option(1 << 16, "the learner's bounded input queue (steps + feedback)")
+    max_lag: int = option(2048, "the actor never runs more than this many steps ahead of the learner's newest weights "
+                                "(whatever max-ahead says): a bound on everything in flight")
     debug_update_sleep: float = option(0.0, "TEST ONLY: the learner sleeps this long after each step (slow learner)")
 
     def __post_init__(self):
@@ -153,7 +155,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), env=c.env, layout=c.layout, seed=c.seed, algo=c.algo,
                         episodes=c.episodes, max_steps=c.max_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
-                        start_timeout=c.start_timeout,
+                        start_timeout=c.start_timeout, max_lag=c.max_lag,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights
                         weights_timeout=120.0 if c.restart_limit else 30.0)
     recorder = RecorderConfig(**launch.common("recorder"), out=str(launch.rundir / "session.mcap"),

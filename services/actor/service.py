@@ -176,20 +176,20 @@ def main(config: ActorConfig) -> int:
                 if watch.take() and len(ring):
                     rt.log(f"learner or recorder (re)started: re-sending the last {len(ring)} steps")
                     ring.resend()
-                if config.max_ahead is not None:
-                    need = base + seq - config.max_ahead
-                    waited = time.monotonic()
-                    while slot.version < need and not rt.stop.is_set():
-                        slot.adopt(weights_in, timeout=0.05, status=learner_status)
-                        if watch.take() and len(ring):
-                            ring.resend()
-                        if time.monotonic() - waited > config.weights_timeout:
-                            rt.log(f"no weights >= {need} after {config.weights_timeout} s; stopping")
-                            rt.stop.set()
-                            code = 4
-                    if rt.stop.is_set():
-                        break
-                    rt.counters["weights_wait_us"] += int((time.monotonic() - waited) * 1e6)
+                ahead = config.max_lag if config.max_ahead is None else min(config.max_ahead, config.max_lag)
+                need = base + seq - ahead
+                waited = time.monotonic()
+                while slot.version < need and not rt.stop.is_set():
+                    slot.adopt(weights_in, timeout=0.05, status=learner_status)
+                    if watch.take() and len(ring):
+                        ring.resend()
+                    if time.monotonic() - waited > config.weights_timeout:
+                        rt.log(f"no weights >= {need} after {config.weights_timeout} s; stopping")
+                        rt.stop.set()
+                        code = 4
+                if rt.stop.is_set():
+                    break
+                rt.counters["weights_wait_us"] += int((time.monotonic() - waited) * 1e6)
                 if period:
                     next_tick += period
                     # Wait for the next tick on the weights inbox: weights are adopted as they arrive.

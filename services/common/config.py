@@ -86,6 +86,8 @@ class ActorConfig(TaskConfig):
     max_ahead: int | None = option(0, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
                                       "(0 = lockstep with the learner, as the in-process runner, learns best; more "
                                       "trades fidelity for throughput; none = never wait)")
+    max_lag: int = option(2048, "whatever max-ahead says, never more than this many steps ahead of the learner's "
+                                "newest weights: bounds what is in flight and queued (back-pressure; docs/faults.md)")
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
@@ -105,6 +107,8 @@ class ActorConfig(TaskConfig):
             raise ValueError(f"rate must be >= 0, got {self.rate}")
         if self.max_ahead is not None and self.max_ahead < 0:
             raise ValueError(f"max-ahead must be >= 0 or none, got {self.max_ahead}")
+        if self.max_lag < 0:
+            raise ValueError(f"max-lag must be >= 0, got {self.max_lag}")
         for name in self.wait_for:
             _check_name(name, "wait-for")
 

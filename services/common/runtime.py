@@ -21,6 +21,7 @@ from common.protocol import ServiceStatus, status_key, validate_name
 
 ALIVE = "alive"
 HARD_EXIT_AFTER = 5.0  # s a service gets to stop cleanly once its launcher is gone
+MAX_SAMPLES = 200_000  # latency samples kept per kind
 
 
 def set_from_handler(event: threading.Event) -> None:
@@ -57,7 +58,9 @@ class ServiceRuntime:
         self.config = config
         self.stop = threading.Event()
         self.counters: collections.Counter[str] = collections.Counter()
-        self.samples: dict[str, list[float]] = collections.defaultdict(list)
+        # Latency samples: the newest MAX_SAMPLES of each (bounded, however long the run).
+        self.samples: dict[str, collections.deque] = collections.defaultdict(
+            lambda: collections.deque(maxlen=MAX_SAMPLES))
         self.state = "starting"
         self.incarnation = new_incarnation(name)
         self._session = None
@@ -207,7 +210,7 @@ class ServiceRuntime:
             return
         data = {"service": self.name, "incarnation": self.incarnation, "pid": os.getpid(),
                 "cpu_s": round(time.process_time(), 3),
-                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3), "counters": self.all_counters(), "samples": dict(self.samples),
+                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3), "counters": self.all_counters(), "samples": {k: list(v) for k, v in self.samples.items()},
                 **extra}
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(f"{path}.tmp")

@@ -70,8 +70,8 @@ def main(config: LearnerConfig) -> int:
     inbox = Inbox(config.inbox_size, "block", block_timeout=3600)
 
     with rt.session() as session:
-        subs = [session.declare_subscriber(step_key(config.run), inbox.callback),
-                session.declare_subscriber(feedback_wildcard(config.run), inbox.callback)]
+        subs = [session.declare_subscriber(step_key(config.run), inbox.handler()),
+                session.declare_subscriber(feedback_wildcard(config.run), inbox.handler())]
         watch = AliveWatch(session, config.run, ("recorder", "actor"))
         actors = IncarnationWatch(session, config.run, "actor")
         try:
