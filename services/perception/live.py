@@ -21,6 +21,7 @@ carries ``feedback_published``, which the learner waits for at the end of a run.
 """
 from __future__ import annotations
 
+import os
 import sys
 import time
 from typing import Any, Iterator
@@ -28,6 +29,7 @@ from typing import Any, Iterator
 import cv2
 import numpy as np
 
+from common.perception.media import MediaError
 from common.perception.pipeline import PerceptionPipeline
 from common.perception.reaction import FeedbackEvent, FramePrediction
 from common.protocol import (KEYS, Box, CompressedImage, ExpressionPrediction, Feedback, ProtocolError, Time, camera_key,
@@ -173,6 +175,8 @@ def main(config: PerceptionLiveConfig) -> int:
     from common.transport import subscription
 
     spec = config.source_spec
+    if spec.kind in ("video", "image", "mcap") and not os.path.exists(spec.target):
+        raise MediaError(f"{spec.target}: no such file or directory")
     pipeline_config = config.pipeline
     if _stills(spec):  # each image alone: no smoothing across unrelated pictures (as `classify`)
         pipeline_config = dataclasses.replace(
@@ -283,11 +287,15 @@ def _run_zenoh(config: PerceptionLiveConfig, rt: ServiceRuntime, svc: Perception
 def cli(argv: list[str] | None = None) -> int:
     from common.config import parse_config
     from common.perception.assets import AssetsMissingError
-    from common.perception.media import MediaError
 
     config = parse_config(PerceptionLiveConfig, argv, prog="python -m services.perception")
     try:
         return main(config)
     except (MediaError, AssetsMissingError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except Exception as exc:
+        if type(exc).__name__ != "ZError":
+            raise
+        print(f"error: cannot reach the Zenoh router at {', '.join(config.connect)}: {exc}", file=sys.stderr)
         return 2

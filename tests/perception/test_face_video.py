@@ -183,3 +183,53 @@ def test_config_is_validated():
     for bad in (dict(clip_s=0), dict(gap_s=-1), dict(width=8), dict(p_feedback=2), dict(camera="a/b")):
         with pytest.raises(ValueError):
             FaceVideoConfig(**bad)
+
+
+def test_mcap_source_reads_a_sessions_camera_frames(tmp_path, onnx_path, capsys):
+    """`mcap:LOG` yields the recorded frames with their capture times; a record that is not an image, or whose
+    bytes are not a JPEG, is reported (not a crash); `classify mcap:LOG` prints one line per good frame."""
+    import cv2
+
+    from common.mcap_log import LogWriter
+    from common.perception import assets
+    from common.perception.media import load_video
+    from common.protocol import CompressedImage, RunConfig, Time, camera_key
+    from services.perception.__main__ import cli
+    from services.perception.sources import iter_mcap, iter_mcap_frames
+
+    frames, _ = load_video(assets.media_path("single_face_video"))
+    log = tmp_path / "session.mcap"
+    t0 = 1_700_000_000.0
+    with LogWriter(log, RunConfig.create("r", {})) as w:
+        for i in range(6):
+            data = cv2.imencode(".jpg", frames[i])[1].tobytes() if i != 3 else b"not a jpeg"
+            w.write(camera_key("r", "cam"), CompressedImage(timestamp=Time.from_seconds(t0 + i / 30), frame_id="cam",
+                                                            data=data, format="jpeg"))
+        w.write(camera_key("r", "cam"), b"{broken")
+        w.write(camera_key("r", "other"), CompressedImage(timestamp=Time.from_seconds(t0), frame_id="other",
+                                                          data=b"x", format="jpeg"))
+    got = list(iter_mcap_frames(str(log), camera="cam"))
+    assert [f.index for f in got] == list(range(7))
+    assert got[0].t_capture == pytest.approx(t0) and got[5].t_capture == pytest.approx(t0 + 5 / 30)
+    assert got[6].data is None and got[6].error == "malformed"
+    bad = []
+    good = list(iter_mcap(str(log), on_bad=bad.append))
+    assert [f.index for f in good] == [0, 1, 2, 4, 5] and len(bad) == 3  # bad JPEG, broken record, "x"
+    assert cli(["classify", f"mcap:{log}"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 5 and all("box=[" in line for line in lines)
+    empty = tmp_path / "empty.mcap"
+    with LogWriter(empty, RunConfig.create("r", {})):
+        pass
+    assert cli(["classify", f"mcap:{empty}"]) == 2
+    assert "no camera frames" in capsys.readouterr().err
+
+
+def test_face_video_without_the_wheels_names_make_setup(tmp_path, monkeypatch):
+    from services.launcher import UpConfig
+    from services.teacher.face_video import cli as observer_cli
+
+    monkeypatch.setenv("HITL_CACHE", str(tmp_path))
+    with pytest.raises(ValueError, match="make setup"):
+        UpConfig(teacher="face-video")
+    assert observer_cli(["--run", "x"]) == 2
