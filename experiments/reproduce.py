@@ -25,8 +25,10 @@ import multiprocessing as mp
 import os
 import platform
 import queue
+import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -132,44 +134,64 @@ def plan(conds: list[Condition], trials: int, cache_dir: str) -> tuple[dict, lis
     return cached, todo, reused
 
 
+# Rough environment steps per episode, to balance jobs between workers (measured with the default
+# agents: Maze episodes average about 150 steps over a run, POMDP about 80, Taxi about 1000 because no
+# agent learns Taxi within the run, see docs/hyperparameters.md).
+STEPS_PER_EPISODE = {"maze": 150, "maze-pomdp": 80, "taxi": 1000}
+
+
+def job_cost(tasks: list[Task]) -> float:
+    return sum(t.spec.episodes * STEPS_PER_EPISODE.get(t.spec.env, 300) for t in tasks)
+
+
 def make_jobs(tasks: list[Task], workers: int) -> list[list[Task]]:
-    """Batches: trials of one environment kind together, split in `workers` interleaved parts (each
-    part gets a similar mix of conditions and agents); largest jobs first."""
+    """Batches for the workers, largest first.
+
+    All trials of one environment kind form one batch (one lockstep tail: the few trials stuck in
+    1000-step episodes then share ticks instead of each batch paying for its own). A kind is split
+    into interleaved parts (each with a similar mix of conditions and agents) only when it is more
+    than a worker's fair share of the work, so that all workers stay busy."""
     by_env: dict[str, list[Task]] = {}
     for t in tasks:
         by_env.setdefault(t.spec.env, []).append(t)
+    total = sum(job_cost(ts) for ts in by_env.values())
+    share = total / max(workers, 1)
     jobs = []
     for env, ts in by_env.items():
-        ts = sorted(ts, key=lambda t: (t.spec.agent.algo, t.slots[0].cond, t.slots[0].trial))
-        parts = max(1, min(workers, len(ts)))
+        ts = sorted(ts, key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "", t.slots[0].trial if t.slots else 0))
+        parts = max(1, min(workers, len(ts), int(round(job_cost(ts) / max(share, 1e-9)))))
         jobs.extend([ts[i::parts] for i in range(parts)])
-    cost = {"taxi": 3.0, "maze-pomdp": 1.5}
-    jobs.sort(key=lambda j: -len(j) * cost.get(j[0].spec.env, 1.0) * j[0].spec.episodes)
+    jobs.sort(key=lambda j: -job_cost(j))
     return jobs
 
 
 # ------------------------------------------------------------------------------------- running
 def _run_job(job_id: int, tasks: list[Task], emit: Callable[[tuple], None]) -> dict:
-    """Run one batch; write each trial's cache files when it finishes; report progress via emit."""
+    """Run one batch; write each trial's cache files when it finishes; report progress via emit:
+    ("progress", fraction of trials) as episodes end, ("trial", slots, fraction already reported) when
+    a trial is done."""
     specs = [t.spec for t in tasks]
-    pending_eps = [0]
+    reported = [0.0] * len(tasks)
+    unsent = [0.0]
     last = [time.perf_counter()]
 
     def on_episode(i: int, record: dict) -> None:
-        pending_eps[0] += len(tasks[i].slots)
+        step = len(tasks[i].slots) / max(specs[i].episodes, 1)
+        reported[i] += step
+        unsent[0] += step
         now = time.perf_counter()
         if now - last[0] > 0.25:
-            emit(("episodes", pending_eps[0]))
-            pending_eps[0] = 0
+            emit(("progress", unsent[0]))
+            unsent[0] = 0.0
             last[0] = now
 
     def on_trial_done(i: int, result: TrialResult) -> None:
         rec = result_record(tasks[i].key, result)
         for s in tasks[i].slots:
             write_json_atomic(s.path, rec)
-        emit(("episodes", pending_eps[0]))
-        pending_eps[0] = 0
-        emit(("trial", len(tasks[i].slots)))
+        emit(("progress", unsent[0]))
+        unsent[0] = 0.0
+        emit(("trial", len(tasks[i].slots), reported[i]))
 
     t0 = time.perf_counter()
     results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done)
@@ -180,16 +202,22 @@ def _run_job(job_id: int, tasks: list[Task], emit: Callable[[tuple], None]) -> d
             "steps": {tasks[i].key: r.total_steps for i, r in enumerate(results)}}
 
 
-def _worker(jobs_q, msg_q) -> None:
+def _worker(jobs_q, msg_q, parent: int) -> None:
     import torch
     torch.set_num_threads(1)
+
+    def emit(msg):
+        if os.getppid() != parent:  # the parent is gone: stop (finished trials are already cached)
+            raise SystemExit(1)
+        msg_q.put(msg)
+
     while True:
         item = jobs_q.get()
         if item is None:
             return
         job_id, tasks = item
         try:
-            info = _run_job(job_id, tasks, lambda m: msg_q.put(m))
+            info = _run_job(job_id, tasks, emit)
             msg_q.put(("job", info))
         except BaseException as exc:  # report, then die: the parent stops the run
             msg_q.put(("error", f"job {job_id}: {type(exc).__name__}: {exc}"))
@@ -207,7 +235,9 @@ def run_jobs(jobs: list[list[Task]], workers: int, on_message: Callable[[tuple],
         return infos
     ctx = mp.get_context("spawn")
     jobs_q, msg_q = ctx.Queue(), ctx.Queue()
-    procs = [ctx.Process(target=_worker, args=(jobs_q, msg_q), daemon=True) for _ in range(min(workers, len(jobs)))]
+    procs = [ctx.Process(target=_worker, args=(jobs_q, msg_q, os.getpid()), daemon=True)
+             for _ in range(min(workers, len(jobs)))]
+    old_term = signal.signal(signal.SIGTERM, _raise_exit) if threading.current_thread() is threading.main_thread() else None
     for p in procs:
         p.start()
     for j, tasks in enumerate(jobs):
@@ -234,7 +264,13 @@ def run_jobs(jobs: list[list[Task]], workers: int, on_message: Callable[[tuple],
                 p.terminate()
         for p in procs:
             p.join(timeout=5)
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
     return infos
+
+
+def _raise_exit(signum, frame):
+    raise SystemExit(128 + signum)
 
 
 # ---------------------------------------------------------------------------------------- output
@@ -379,20 +415,20 @@ def reproduce(conds: list[Condition], trials: int, out: str, workers: int = 2, p
         bar = tqdm(total=float(total), initial=float(done0), desc="trials", unit="trial", file=sys.stderr,
                    bar_format="{desc}: {n:.0f}/{total:.0f} trials |{bar}| {elapsed} elapsed, {remaining} left")
     done = [done0]
-    episodes_total = {t.key: t.spec.episodes for t in todo}
-    ep_per_trial = max(episodes_total.values()) if episodes_total else 1
+    partial = [0.0]  # progress of unfinished trials, in trials
 
     def on_message(msg: tuple) -> None:
         kind = msg[0]
-        if kind == "episodes" and bar is not None:
-            bar.update(msg[1] / ep_per_trial * 0.999)
+        if kind == "progress":
+            partial[0] += msg[1]
         elif kind == "trial":
             done[0] += msg[1]
-            if bar is not None:
-                bar.n = float(done[0])
-                bar.refresh()
+            partial[0] -= msg[2]
             if on_progress is not None:
                 on_progress(done[0], total)
+        if bar is not None and kind in ("progress", "trial"):
+            bar.n = min(float(total), done[0] + max(partial[0], 0.0))
+            bar.refresh()
 
     t_run = time.perf_counter()
     infos = run_jobs(jobs, workers, on_message) if jobs else []
