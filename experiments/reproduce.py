@@ -193,10 +193,10 @@ def _run_job(job_id: int, tasks: list[Task], emit: Callable[[tuple], None]) -> d
         unsent[0] = 0.0
         emit(("trial", len(tasks[i].slots), reported[i]))
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done)
-    wall = time.perf_counter() - t0
-    return {"job": job_id, "env": specs[0].env, "trials": len(specs), "wall_s": wall,
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return {"job": job_id, "pid": os.getpid(), "env": specs[0].env, "trials": len(specs), "wall_s": wall, "cpu_s": cpu,
             "trial_steps": int(sum(r.total_steps for r in results)),
             "max_trial_steps": int(max(r.total_steps for r in results)),
             "steps": {tasks[i].key: r.total_steps for i, r in enumerate(results)}}
@@ -375,6 +375,15 @@ def write_report(path: str, evaluation: dict, conds: list[Condition], timing: di
         fh.write("\n".join(lines))
 
 
+def _cpu_per_worker(infos: list[dict]) -> dict[str, float]:
+    """CPU seconds each worker process spent in its jobs: on dedicated cores the run's wall time is
+    about the largest of these (plus start-up and plotting), whatever else the machine was doing."""
+    out: dict[str, float] = {}
+    for info in infos:
+        out[str(info["pid"])] = out.get(str(info["pid"]), 0.0) + info["cpu_s"]
+    return out
+
+
 def git_commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
@@ -465,6 +474,8 @@ def reproduce(conds: list[Condition], trials: int, out: str, workers: int = 2, p
         "trials_run": slots_todo, "trials_computed": len(todo), "trials_cached": done0 - reused,
         "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "cpus": os.cpu_count(),
         "python": platform.python_version(), "commit": git_commit(),
+        "load_average_at_end": list(os.getloadavg()),
+        "cpu_s_per_worker": _cpu_per_worker(infos),
         "conditions": {c.name: {"wall_s_attributed": per_cond[c.name],
                                 "trial_steps": int(sum(int(v.sum()) for v in steps[c.name].values()))}
                        for c in conds},

@@ -267,45 +267,72 @@ class TrialBatchAgent:
 
     # ---------------------------------------------------------------------------------- learning
     def update(self, active: np.ndarray | None = None) -> None:
-        """Every b steps: a Q minibatch update and a D_global minibatch update (where they apply)."""
+        """Every b steps: a Q minibatch update and a D_global minibatch update (where they apply).
+
+        Q and H are separate networks of the same shape, so both minibatch steps of a tick run as one
+        stacked computation over the Q rows and the H rows (each row's arithmetic is its own)."""
         active = np.ones(self.B, bool) if active is None else active
         c = self.base
         due = active & (self.steps > 0) & (self.steps % c.update_interval == 0)
         q_rows = _nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
-        if len(q_rows):
-            self._q_step(q_rows)
         h_rows = _nz(due & self.train_h & (self.feedback_memory.size > 0))
-        if len(h_rows):
-            m = self.feedback_memory
-            idx = m.sample_indices(self.h_key[h_rows], self.h_updates[h_rows], h_rows, c.h_batch_size)
-            rec = m.gather_records(h_rows, idx)  # obs, action, feedback, weight
-            d = self.obs_dim
-            self._h_step(h_rows, rec[:, :, :d], rec[:, :, d], rec[:, :, d + 1], rec[:, :, d + 2], reduce="mean")
-        sync = _nz(active & self.train_q & (self.steps % c.target_update_interval == 0)
-                              & (self.steps > 0))
+        if c.batch_size == c.h_batch_size:
+            if len(q_rows) or len(h_rows):
+                self._minibatch_step(q_rows, h_rows)
+        else:
+            if len(q_rows):
+                self._minibatch_step(q_rows, h_rows[:0])
+            if len(h_rows):
+                self._minibatch_step(q_rows[:0], h_rows)
+        sync = _nz(active & self.train_q & (self.steps % c.target_update_interval == 0) & (self.steps > 0))
         if len(sync):
             self.q_target_flat[sync] = self.q.flat[sync]
 
-    def _q_step(self, rows: np.ndarray) -> None:
-        """One Huber-loss TD step (mean over the minibatch) on trials `rows`."""
+    def _minibatch_step(self, q_rows: np.ndarray, h_rows: np.ndarray) -> None:
+        """Q: one Huber-loss TD step (mean over its minibatch) on trials `q_rows`; H: one weighted
+        squared-error step (mean over its minibatch from D_global) on trials `h_rows`."""
         c, d = self.base, self.obs_dim
-        r = self._rows_index(rows)
-        idx = self.replay.sample_indices(self.q_key[rows], self.q_updates[rows], rows, c.batch_size)
-        batch = self.replay.gather_records(rows, idx)  # obs, action, reward, next_obs, terminated
-        obs, nxt = batch[:, :, :d], batch[:, :, d + 2:2 * d + 2]
-        act = batch[:, :, d].astype(np.int64)[:, :, None]
-        rew, term = batch[:, :, d + 1], batch[:, :, 2 * d + 2]
-        target_flat = self.q_target_flat if r is None else self.q_target_flat[r]
-        q_next = row_max(mlp_forward(views(target_flat, self.q.shapes), nxt)[1])
-        target = rew + np.float32(c.gamma) * (np.float32(1) - term) * q_next
-        params = self.q.rows(r)
-        hidden, q = mlp_forward(params, obs)
-        q_sa = _pick(q, act)
-        # d/dq_sa of mean Huber(q_sa - target): the error clipped to [-1, 1], over the batch size.
-        d_q_sa = np.clip(q_sa - target, -1.0, 1.0) / np.float32(c.batch_size)
-        d_out = np.where(act == np.arange(self.n_actions), d_q_sa[:, :, None], np.float32(0))
-        self.q_opt.step_rows(r, mlp_backward(params, obs, hidden, d_out))
-        self.q_updates[rows] += 1
+        nq, nh = len(q_rows), len(h_rows)
+        xs, flats = [], []
+        if nq:
+            rq = self._rows_index(q_rows)
+            idx = self.replay.sample_indices(self.q_key[q_rows], self.q_updates[q_rows], q_rows, c.batch_size)
+            bq = self.replay.gather_records(q_rows, idx)  # obs, action, reward, next_obs, terminated
+            act_q = bq[:, :, d].astype(np.int64)[:, :, None]
+            target_flat = self.q_target_flat if rq is None else self.q_target_flat[rq]
+            q_next = row_max(mlp_forward(views(target_flat, self.q.shapes), bq[:, :, d + 2:2 * d + 2])[1])
+            target = bq[:, :, d + 1] + np.float32(c.gamma) * (np.float32(1) - bq[:, :, 2 * d + 2]) * q_next
+            xs.append(bq[:, :, :d])
+            flats.append(self.q.flat if rq is None else self.q.flat[rq])
+        if nh:
+            rh = self._rows_index(h_rows)
+            m = self.feedback_memory
+            idx = m.sample_indices(self.h_key[h_rows], self.h_updates[h_rows], h_rows, c.h_batch_size)
+            bh = m.gather_records(h_rows, idx)  # obs, action, feedback, weight
+            act_h = bh[:, :, d].astype(np.int64)[:, :, None]
+            xs.append(bh[:, :, :d])
+            flats.append(self.h.flat if rh is None else self.h.flat[rh])
+        x = xs[0] if len(xs) == 1 else np.concatenate(xs)
+        params = views(flats[0] if len(flats) == 1 else np.concatenate(flats), self.q.shapes)
+        hidden, out = mlp_forward(params, x)
+        d_out = np.empty_like(out)
+        arange_a = np.arange(self.n_actions)
+        if nq:
+            q_sa = _pick(out[:nq], act_q)
+            # d/dq_sa of mean Huber(q_sa - target): the error clipped to [-1, 1], over the batch size.
+            d_q_sa = np.clip(q_sa - target, -1.0, 1.0) / np.float32(c.batch_size)
+            d_out[:nq] = np.where(act_q == arange_a, d_q_sa[:, :, None], np.float32(0))
+        if nh:
+            h_sa = _pick(out[nq:], act_h)
+            d_h_sa = np.float32(2) * bh[:, :, d + 2] * (h_sa - bh[:, :, d + 1]) / np.float32(c.h_batch_size)
+            d_out[nq:] = np.where(act_h == arange_a, d_h_sa[:, :, None], np.float32(0))
+        grad = mlp_backward(params, x, hidden, d_out)
+        if nq:
+            self.q_opt.step_rows(rq, grad[:nq])
+            self.q_updates[q_rows] += 1
+        if nh:
+            self.h_opt.step_rows(rh, grad[nq:])
+            self.h_updates[h_rows] += 1
 
     def _h_step(self, rows: np.ndarray, obs, act, fb, wts, reduce: str) -> None:
         """Weighted squared error w (H(s, a) - f)^2: summed over D_local, averaged over a minibatch."""
