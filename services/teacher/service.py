@@ -93,6 +93,8 @@ def main(config: TeacherConfig) -> int:
                 if got is not None:
                     step = admitted(got)
                     if step is not None:
+                        rt.samples["step_transit_s"].append(got.t_recv - step.t_action)
+                        rt.samples["step_queued_s"].append(time.time() - got.t_recv)
                         send(core.on_step(step))
                 send(core.due(time.time()))
                 for item in status.drain():

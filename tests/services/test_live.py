@@ -192,7 +192,7 @@ def test_ctrl_c_stops_everything_cleanly(tmp_path):
 
 
 def test_killed_recorder_log_is_recovered_up_to_its_last_chunk(tmp_path):
-    launch = start_up(tmp_path, "crash", "--episodes", "100000", "--rate", "200")
+    launch = start_up(tmp_path, "crash", "--episodes", "100000", "--rate", "200", "--restart-limit", "0")
 
     def recorder():
         return [p for p in processes_mentioning(str(launch.rundir)) if "services.recorder" in p.info["cmdline"]]
