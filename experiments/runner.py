@@ -206,16 +206,15 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
         has = due != 0
         counts = has.sum(axis=1)
         if counts.any():
-            order = np.argsort(~has, axis=1, kind="stable")
-            t_f = step.astype(np.float64) + REACTION_OFFSET
-            for r_ in range(int(counts.max())):
-                k = _nz(counts > r_)
-                vals = due[k, order[k, r_]]
-                status, _, _ = agent.feedback_round(rows[k], t_f[k], vals)
-                rk = rows[k]
-                st["ep_given"][rk] += 1
-                st["ep_credited"][rk] += status == CREDITED
-                st["ep_stale"][rk] += status == STALE
+            k = _nz(counts > 0)
+            order = np.argsort(~has[k], axis=1, kind="stable")
+            vals = np.take_along_axis(due[k], order, axis=1)  # each trial's events, oldest step first
+            status, _, _ = agent.feedback_rounds(rows[k], step[k].astype(np.float64) + REACTION_OFFSET, vals,
+                                                 counts[k])
+            rk = rows[k]
+            st["ep_given"][rk] += counts[k]
+            st["ep_credited"][rk] += np.where(status == CREDITED, counts[k], 0)
+            st["ep_stale"][rk] += np.where(status == STALE, counts[k], 0)
         agent.update(active)
 
         if len(ended):

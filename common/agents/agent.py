@@ -232,6 +232,15 @@ class TrialBatchAgent:
     def feedback_round(self, rows: np.ndarray, t_feedback: np.ndarray,
                        values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """`give_feedback` on arrays (rows distinct, values +-1, not checked): (status, steps, lost mass)."""
+        return self.feedback_rounds(rows, t_feedback, np.asarray(values)[:, None], np.ones(len(rows), np.int64))
+
+    def feedback_rounds(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray,
+                        counts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Several rounds of feedback stamped at the same times: round r gives values[k, r] to trial
+        rows[k] if counts[k] > r. The same as one `feedback_round` per round (nothing is recorded in
+        between, so each trial's credit is the same in every round and is computed once); every round
+        is still its own D_local update, in order. Returns (status, steps, lost mass) per trial, the
+        same in each of its rounds."""
         n = len(rows)
         status = np.full(n, IGNORED, np.int64)
         steps = np.zeros(n, np.int64)
@@ -242,10 +251,12 @@ class TrialBatchAgent:
             r = rows[k]
             pos = self.history.latest_at(r, t_feedback[k])
             hit = pos >= 0
-            self.replay.add_reward(r[hit], self.history.slot[r[hit], pos[hit]], values[k[hit]].astype(np.float32))
             status[k] = np.where(hit, CREDITED, STALE)
             steps[k] = hit.astype(np.int64)
             lost[k] = np.where(hit, 0.0, 1.0)
+            for rnd in range(values.shape[1]):
+                g = hit & (counts[k] > rnd)
+                self.replay.add_reward(r[g], self.history.slot[r[g], pos[g]], values[k[g], rnd].astype(np.float32))
         learn = self.train_h[rows] & ~shaping
         if learn.any():
             k = _nz(learn)
@@ -256,13 +267,17 @@ class TrialBatchAgent:
             steps[k] = credit.counts
             lost[k] = credit.lost
             if ok.any():
-                r, pos, w, cnt = r[ok], credit.positions[ok], credit.weights[ok], credit.counts[ok]
-                fb = np.repeat(values[k[ok]].astype(np.float32)[:, None], pos.shape[1], axis=1)
+                k, r, pos, w, cnt = k[ok], r[ok], credit.positions[ok], credit.weights[ok], credit.counts[ok]
                 obs = self.history.obs[r[:, None], pos]
                 act = self.history.action[r[:, None], pos]
                 w32 = w.astype(np.float32)
-                self.feedback_memory.add_many(r, cnt, obs=obs, action=act, feedback=fb, weight=w32)
-                self._h_step(r, obs, act, fb, w32, reduce="sum")
+                for rnd in range(values.shape[1]):
+                    g = _nz(counts[k] > rnd)
+                    if not len(g):
+                        break
+                    fb = np.repeat(values[k[g], rnd].astype(np.float32)[:, None], pos.shape[1], axis=1)
+                    self.feedback_memory.add_many(r[g], cnt[g], obs=obs[g], action=act[g], feedback=fb, weight=w32[g])
+                    self._h_step(r[g], obs[g], act[g], fb, w32[g], reduce="sum")
         return status, steps, lost
 
     # ---------------------------------------------------------------------------------- learning
