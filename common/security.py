@@ -85,14 +85,17 @@ _USERNAME_RE = re.compile(USERNAME_PATTERN[:-1] + r"\Z")
 SERVICE_ROLES = ("learner", "actor", "recorder", "perception")
 ROLES = SERVICE_ROLES + ("teacher",)
 PUBLISH: dict[str, tuple[str, ...]] = {
-    "learner": ("weights",),
-    "actor": ("step", "episode", "config"),
+    "learner": ("weights", "episode", "ingest"),
+    "actor": ("step",),
     "recorder": (),
     "perception": ("camera/*", "perception/*"),
     "teacher": (),  # plus feedback/<own username>, added per teacher
 }
-#: What every authenticated identity may publish besides its role's kinds: liveness only.
-PUBLISH_ALL: tuple[str, ...] = ("status/*",)
+#: What every authenticated identity may publish besides its role's kinds: liveness and events for humans.
+PUBLISH_ALL: tuple[str, ...] = ("status/*", "log/*")
+#: Liveliness tokens (services.common.runtime): `alive/<service>` and `alive/<service>/<incarnation>`, each
+#: identity only under its own service name (a teacher's is `teacher.<username>`).
+ALIVE = "alive"
 
 
 class SecurityError(ValueError):
@@ -272,28 +275,44 @@ def access_control(security: SecurityConfig) -> dict[str, Any]:
       nothing) and egress ``put`` (the router forwards data to it) on ``hitl/<run>/**``.
     - ``publish-<user>``: ingress ``put`` on the keys its role may publish (:data:`PUBLISH`, plus
       ``feedback/<user>`` for a teacher, plus :data:`PUBLISH_ALL`).
+    - liveliness: every identity may watch ``hitl/<run>/alive/**`` (subscriber, history query and its replies,
+      tokens forwarded to it); ``alive-<user>`` lets it declare tokens only under its own service name
+      (``alive/<service>`` and ``alive/<service>/<incarnation>``).
 
-    Everything else (delete, queries, queryables, liveliness, other keys) falls to the default: deny.
+    Everything else (delete, queries, queryables, other tokens, other keys) falls to the default: deny.
     Subjects also require the ``tls`` link protocol, so a password alone over some other link is useless.
     """
     users = security.usernames()
     read_scope = f"{ROOT}/**" if security.run == "*" else f"{ROOT}/{security.run}/**"
+    alive_scope = f"{ROOT}/*/{ALIVE}/**" if security.run == "*" else f"{ROOT}/{security.run}/{ALIVE}/**"
     rules: list[dict[str, Any]] = [
         {"id": "read-subscribe", "messages": ["declare_subscriber"], "flows": ["ingress", "egress"],
          "permission": "allow", "key_exprs": [read_scope]},
         {"id": "read-receive", "messages": ["put"], "flows": ["egress"], "permission": "allow",
          "key_exprs": [read_scope]},
+        # Who is alive: anyone may watch the tokens (with history: a liveliness query and its replies).
+        {"id": "alive-watch", "messages": ["declare_liveliness_subscriber", "liveliness_query", "liveliness_token",
+                                           "reply"],
+         "flows": ["egress"], "permission": "allow", "key_exprs": [alive_scope]},
+        {"id": "alive-ask", "messages": ["declare_liveliness_subscriber", "liveliness_query"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": [alive_scope]},
     ]
     subjects: list[dict[str, Any]] = [{"id": "everyone", "usernames": users, "link_protocols": ["tls"]}]
-    policies: list[dict[str, Any]] = [{"id": "everyone-reads", "rules": ["read-subscribe", "read-receive"],
+    policies: list[dict[str, Any]] = [{"id": "everyone-reads",
+                                       "rules": ["read-subscribe", "read-receive", "alive-watch", "alive-ask"],
                                        "subjects": ["everyone"]}]
     for user in users:
         role = security.role_of(user)
         kinds = list(PUBLISH[role]) + ([f"feedback/{user}"] if role == "teacher" else []) + list(PUBLISH_ALL)
+        service = f"teacher.{user}" if role == "teacher" else role
         rules.append({"id": f"publish-{user}", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
                       "key_exprs": _keys(security, kinds)})
+        rules.append({"id": f"alive-{user}", "messages": ["liveliness_token"], "flows": ["ingress"],
+                      "permission": "allow",
+                      "key_exprs": _keys(security, [f"{ALIVE}/{service}", f"{ALIVE}/{service}/*"])})
         subjects.append({"id": f"user-{user}", "usernames": [user], "link_protocols": ["tls"]})
-        policies.append({"id": f"{user}-publishes", "rules": [f"publish-{user}"], "subjects": [f"user-{user}"]})
+        policies.append({"id": f"{user}-publishes", "rules": [f"publish-{user}", f"alive-{user}"],
+                         "subjects": [f"user-{user}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 

@@ -154,9 +154,9 @@ def publish(deployment: Path, endpoint: str, user: str, *puts: tuple[str, str], 
 
 def test_access_learner_weights_and_teacher_feedback_reach_the_recorder(deployment, router, recorder):
     run = "allowed"
-    learner = publish(deployment, router, "learner", (f"hitl/{run}/weights", "w1"))
+    learner = publish(deployment, router, "learner", (f"hitl/{run}/weights", "w1"), (f"hitl/{run}/episode", "e0"))
     alice = publish(deployment, router, "alice", (f"hitl/{run}/feedback/alice", "+1"))
-    actor = publish(deployment, router, "actor", (f"hitl/{run}/step", "s0"), (f"hitl/{run}/episode", "e0"))
+    actor = publish(deployment, router, "actor", (f"hitl/{run}/step", "s0"))
     perception = publish(deployment, router, "perception", (f"hitl/{run}/perception/cam0", "happy"))
     assert all(r["opened"] for r in (learner, alice, actor, perception))
     for key, payload in [("weights", "w1"), ("feedback/alice", "+1"), ("step", "s0"), ("episode", "e0"),
@@ -272,13 +272,23 @@ def test_access_rules_are_default_deny_and_least_privilege():
     for rule in acl["rules"]:
         if rule["id"].startswith("publish-"):
             assert rule["messages"] == ["put"] and rule["flows"] == ["ingress"]
+        elif rule["id"].startswith("alive-") and rule["id"] not in ("alive-watch", "alive-ask"):
+            # liveliness tokens: only ingress, only under the identity's own service name
+            assert rule["messages"] == ["liveliness_token"] and rule["flows"] == ["ingress"]
+            user = rule["id"][len("alive-"):]
+            service = f"teacher.{user}" if user in ("alice", "bob") else user
+            assert rule["key_exprs"] == [f"hitl/*/alive/{service}", f"hitl/*/alive/{service}/*"]
+        elif rule["id"].startswith("alive-"):
+            assert rule["key_exprs"] == ["hitl/*/alive/**"]
+            assert "put" not in rule["messages"] and (rule["flows"] == ["egress"] or "liveliness_token" not in
+                                                      rule["messages"])
         else:
             assert rule["key_exprs"] == ["hitl/**"]
             assert rule["messages"] == ["declare_subscriber"] or rule["flows"] == ["egress"]
     status = [f"hitl/*/{k}" for k in PUBLISH_ALL]
-    assert publish_keys(sec, "learner") == ["hitl/*/weights"] + status
+    assert publish_keys(sec, "learner") == ["hitl/*/weights", "hitl/*/episode", "hitl/*/ingest"] + status
     assert publish_keys(sec, "alice") == ["hitl/*/feedback/alice"] + status
-    assert publish_keys(sec, "actor") == ["hitl/*/step", "hitl/*/episode", "hitl/*/config"] + status
+    assert publish_keys(sec, "actor") == ["hitl/*/step"] + status
     assert publish_keys(sec, "recorder") == status
     assert not any("weights" in k for u in ("actor", "recorder", "perception", "alice", "bob")
                    for k in publish_keys(sec, u))
