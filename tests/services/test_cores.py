@@ -246,6 +246,7 @@ def test_actor_never_goes_back_to_an_older_version():
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
     rt = ServiceRuntime("actor", ActorConfig(run=RUN), install_signals=False)
     slot = WeightsSlot(agent, spec, rt)
+    slot.announced = ["learner-1", "learner-2"]  # their ServiceStatus / liveliness announced them
     inbox = Inbox(8, "block")
 
     def send(version: int, fill: float, learner: str = "learner-1") -> None:
@@ -262,3 +263,5 @@ def test_actor_never_goes_back_to_an_older_version():
     assert slot.adopt(inbox, timeout=1.0) and slot.version == 7
     send(1, 0.1, learner="learner-2")  # a restarted learner starts again from low versions
     assert slot.adopt(inbox) and slot.version == 1 and rt.counters["learner_restarts"] == 1
+    send(99, 0.9, learner="mallory")  # nobody announced it: dropped
+    assert not slot.adopt(inbox) and slot.version == 1 and rt.counters["weights_dropped_unknown_incarnation"] == 1
