@@ -215,3 +215,50 @@ def test_atomic_json_state_file(tmp_path):
     atomic_write_json(p, {"episodes_done": 4})
     assert read_json(p) == {"episodes_done": 4}
     assert sorted(os.listdir(p.parent)) == ["actor.json"]
+
+
+# -- the actor's weights check ------------------------------------------------------------------------------------
+
+shapes = st.dictionaries(st.sampled_from(["q.0.weight", "q.0.bias", "q.2.weight", "q.2.bias", "h.0.weight",
+                                          "h.0.bias", "h.2.weight", "h.2.bias", "x.0.weight"]),
+                         st.lists(st.integers(1, 6), min_size=1, max_size=3).map(tuple), min_size=1, max_size=9)
+
+
+@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(shapes, st.booleans(), st.sampled_from([0.0, 1e6, -1e6, 3600.0]))
+def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(tensors, announced, dt):
+    """Whatever tensors arrive (names, shapes), the actor's networks change only for exactly its own names and
+    shapes, from an announced learner, stamped near arrival; everything else is counted by reason."""
+    import time as _time
+
+    import torch
+
+    from common.agents import TrialBatchAgent, agent_config
+    from common.protocol import Weights, weights_key
+    from common.transport import Inbox, Received
+    from services.actor.service import WeightsSlot
+    from services.common.config import ActorConfig
+    from services.common.runtime import ServiceRuntime
+
+    agent = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [0])
+    spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
+    before = {k: v.clone() for k, v in agent.policy_weights(0).items()}
+    rt = ServiceRuntime("actor", ActorConfig(run=RUN), install_signals=False)
+    slot = WeightsSlot(agent, spec, rt)
+    if announced:
+        slot.announced = ["learner-1"]
+    inbox = Inbox(4, "drop_oldest")
+    now = _time.time()
+    for candidate in (tensors, spec):  # the generated tensors, then exactly the right ones
+        data = Weights(run=RUN, incarnation="learner-1", version=1 if candidate is tensors else 2,
+                       t_published=max(0.0, now + dt), tensors={k: np.full(s, 0.25, np.float32)
+                                                               for k, s in candidate.items()}).encode()
+        inbox.put(Received(weights_key(RUN), data, now, None))
+        adopted = slot.adopt(inbox)
+        ok = announced and abs(dt) <= 10 and dict(candidate) == spec
+        assert adopted == ok, (candidate, rt.counters)
+        after = agent.policy_weights(0)
+        changed = any(not torch.equal(after[k], before[k]) for k in spec)
+        assert changed == (ok or slot.version > 0)
+    assert sum(v for k, v in rt.counters.items() if k.startswith("weights_dropped_")) >= 1 or \
+        (announced and abs(dt) <= 10 and dict(tensors) == spec)
