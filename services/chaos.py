@@ -17,6 +17,7 @@ import signal
 import subprocess
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -151,7 +152,7 @@ def _learner_events(rundir: Path) -> list[str]:
 def report(cfg: ChaosConfig, chaos_dir: Path, base_dir: Path | None, kills: list[dict]) -> dict[str, Any]:
     import numpy as np
 
-    from common.mcap_log import read_log
+    from common.mcap_log import LogRecoveryWarning, read_log
     from services.replay.retrain import retrain
 
     s = json.loads((chaos_dir / "summary.json").read_text())
@@ -160,11 +161,13 @@ def report(cfg: ChaosConfig, chaos_dir: Path, base_dir: Path | None, kills: list
     def finished_returns(summary):
         return [e["return"] for e in summary["episodes"] if e["finished"]]
 
-    reader = read_log(chaos_dir / "session.mcap")
-    n = sum(1 for _ in reader)
-    learner_restart = [e for e in _learner_events(chaos_dir) if e.startswith("learner: restored")
-                       or e.startswith("learner: started without")]
-    rt = retrain(chaos_dir / "session.mcap")
+    with warnings.catch_warnings():  # the killed recorder's segment is cut: expected, reported below
+        warnings.simplefilter("ignore", LogRecoveryWarning)
+        reader = read_log(chaos_dir / "session.mcap")
+        n = sum(1 for _ in reader)
+        learner_restart = [e for e in _learner_events(chaos_dir) if e.startswith("learner: restored")
+                           or e.startswith("learner: started without")]
+        rt = retrain(chaos_dir / "session.mcap")
     k = 10
     out = {
         "outcome": s["outcome"],
@@ -256,5 +259,6 @@ def chaos(cfg: ChaosConfig) -> int:
     r["launcher_exit"] = proc.returncode
     (out / f"{run}.json").write_text(json.dumps(r, indent=2))
     print(format_report(r))
-    print(f"(details: {out / run}.json; launcher output below)\n{text[-3000:]}", file=sys.stderr)
+    print(f"(details: {out / run}.json; the run's own output: {out / run}/launcher.out)", file=sys.stderr)
+    (out / run / "launcher.out").write_text(text)
     return 0 if proc.returncode == 0 else 1
