@@ -25,7 +25,7 @@ def play(path: str | os.PathLike, session: Any, *, speed: float = 1.0, kinds: tu
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("default", LogRecoveryWarning)
-        for rec in read_log(path, decode=False):
+        for rec in read_log(path):  # decoded: what a restarted recorder got twice (re-sent) plays once
             try:
                 kind = parse_key(rec.key).spec.kind
             except ProtocolError:

@@ -100,7 +100,8 @@ def main(config: TeacherConfig) -> int:
                 for item in status.drain():
                     try:
                         st = item.decode()
-                    except Exception:
+                    except ProtocolError as e:
+                        rt.counters[f"rejected_status_{e.reason}"] += 1
                         continue
                     gate.on_status(st)
                     if st.state == "stopped" and actor_final is None and st.incarnation in (None, gate.actor):
