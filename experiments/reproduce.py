@@ -134,14 +134,15 @@ def plan(conds: list[Condition], trials: int, cache_dir: str) -> tuple[dict, lis
     return cached, todo, reused
 
 
-# Rough environment steps per episode, to balance jobs between workers (measured with the default
-# agents: Maze episodes average about 150 steps over a run, POMDP about 80, Taxi about 1000 because no
-# agent learns Taxi within the run, see docs/hyperparameters.md).
-STEPS_PER_EPISODE = {"maze": 150, "maze-pomdp": 80, "taxi": 1000}
+# Rough cost of an episode (CPU, arbitrary units) by environment, to balance jobs between workers:
+# environment steps per episode averaged over a run (Maze about 150, POMDP about 80, Taxi about 1000 as
+# no agent learns Taxi within the run) times the relative cost of a step (Taxi: larger observation,
+# updates every 4 steps). Measured from full runs (docs/results/timing.json).
+EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6}
 
 
 def job_cost(tasks: list[Task]) -> float:
-    return sum(t.spec.episodes * STEPS_PER_EPISODE.get(t.spec.env, 300) for t in tasks)
+    return sum(t.spec.episodes * EPISODE_COST.get(t.spec.env, 300.0) for t in tasks)
 
 
 def make_jobs(tasks: list[Task], workers: int) -> list[list[Task]]:

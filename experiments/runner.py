@@ -121,6 +121,10 @@ class ObserverBatch:
         self.observers = [self.observers[k] for k in rows]
 
 
+def _train_group(agent: AgentConfig) -> int:
+    return {(True, False): 0, (True, True): 1, (False, True): 2}.get((agent.train_q, agent.train_h), 3)
+
+
 def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] | None = None,
                record_actions: bool = False, greedy_eval: bool = False,
                on_trial_done: Callable[[int, TrialResult], None] | None = None,
@@ -138,8 +142,16 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     torch.set_num_threads(1)  # one thread: the same arithmetic whatever the batch, and room for workers
     assert 0 < REACTION_OFFSET < 1, "delivery below assumes reactions land strictly between two steps"
     B = len(specs)
-    envs, rules, keys, observers = [], [], [], []
     for s in specs:
+        if s.episodes < 0:
+            raise ValueError(f"episodes must be >= 0, got {s.episodes}")
+    # Rows in the batch are ordered by what the agents train (Q only, Q and H, H only), so the trials
+    # due for a Q or an H update are consecutive rows (updated in place, without copies). Results and
+    # callbacks use the caller's indices.
+    perm = sorted(range(B), key=lambda i: _train_group(specs[i].agent))
+    rows_specs = [specs[i] for i in perm]
+    envs, rules, keys, observers = [], [], [], []
+    for s in rows_specs:
         if s.episodes < 0:
             raise ValueError(f"episodes must be >= 0, got {s.episodes}")
         env, rule = make_env(s.env, s.layout)
@@ -151,18 +163,18 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     n_actions = envs[0].action_space.n
     if any(e.observation_space.shape[0] != obs_dim or e.action_space.n != n_actions for e in envs):
         raise ValueError("trials batched together must share observation and action spaces")
-    env_seeds = [derive_seed(s.seed, "env") % (2**31) for s in specs]
+    env_seeds = [derive_seed(s.seed, "env") % (2**31) for s in rows_specs]
     EnvBatch = TableEnvs if use_tables and TableEnvs.supports(envs) else LoopEnvs
     world = EnvBatch(envs, rules, keys, env_seeds)
     watchers = ObserverBatch(observers)
-    agent = TrialBatchAgent([s.agent for s in specs], obs_dim, n_actions, [s.seed for s in specs])
+    agent = TrialBatchAgent([s.agent for s in rows_specs], obs_dim, n_actions, [s.seed for s in rows_specs])
     results = [TrialResult(s) for s in specs]
 
     # Per-row state of the running batch (rows are renumbered when finished trials are dropped).
     R = watchers.max_lag + 1  # events in flight arrive within R ticks
     st = {
-        "orig": np.arange(B),
-        "active": np.array([s.episodes > 0 for s in specs]),
+        "orig": np.array(perm, np.int64),
+        "active": np.array([s.episodes > 0 for s in rows_specs]),
         "obs": np.zeros((B, obs_dim), np.float32),
         "episode": np.zeros(B, np.int64),
         "ep_return": np.zeros(B),

@@ -43,6 +43,10 @@ SHARED_FIELDS = ("hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch
                  "replay_start", "target_update_interval", "update_interval", "h_batch_size",
                  "feedback_memory_size", "assumed_delay_probs", "history_steps")
 
+# At most this many due rows run the Q and H minibatch steps as one stacked computation (above it,
+# copying the weights together costs more than the saved calls).
+MERGE_ROWS = 16
+
 # Status codes of `feedback_round` (the strings of FeedbackOutcome.status, in this order).
 IGNORED, CREDITED, STALE = 0, 1, 2
 STATUS_NAMES = ("ignored", "credited", "stale")
@@ -131,9 +135,14 @@ class TrialBatchAgent:
     def B(self) -> int:
         return len(self.seeds_arr)
 
-    def _rows_index(self, rows: np.ndarray) -> np.ndarray | None:
-        """None (meaning all, no copy) when `rows` is every trial in order, else the row indices."""
-        return None if len(rows) == self.B else rows
+    def _rows_index(self, rows: np.ndarray):
+        """How to address trials `rows` (ascending): None for all of them, a slice when they are
+        consecutive (numpy views, no copies), else the index array."""
+        if len(rows) == self.B:
+            return None
+        if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
+            return slice(int(rows[0]), int(rows[-1]) + 1)
+        return rows
 
     # ----------------------------------------------------------------------------------- acting
     def epsilons(self, rows: np.ndarray | None = None) -> np.ndarray:
@@ -284,14 +293,15 @@ class TrialBatchAgent:
     def update(self, active: np.ndarray | None = None) -> None:
         """Every b steps: a Q minibatch update and a D_global minibatch update (where they apply).
 
-        Q and H are separate networks of the same shape, so both minibatch steps of a tick run as one
-        stacked computation over the Q rows and the H rows (each row's arithmetic is its own)."""
+        Q and H are separate networks of the same shape; when few rows are due (the per-call overhead
+        dominates) both minibatch steps run as one stacked computation over the Q rows and the H rows.
+        Each row's arithmetic is its own either way, so this changes speed only."""
         active = np.ones(self.B, bool) if active is None else active
         c = self.base
         due = active & (self.steps > 0) & (self.steps % c.update_interval == 0)
         q_rows = _nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
         h_rows = _nz(due & self.train_h & (self.feedback_memory.size > 0))
-        if c.batch_size == c.h_batch_size:
+        if c.batch_size == c.h_batch_size and len(q_rows) + len(h_rows) <= MERGE_ROWS:
             if len(q_rows) or len(h_rows):
                 self._minibatch_step(q_rows, h_rows)
         else:

@@ -58,19 +58,27 @@ class FlatRMSProp:
         self.lr, self.alpha, self.eps = np.float32(lr), np.float32(alpha), np.float32(eps)
         self.square_avg = np.zeros_like(net.flat)
 
-    def step_rows(self, idx: np.ndarray | None, grad: np.ndarray) -> None:
-        """Step trials `idx` (all when None) with `grad` [len(idx), P]."""
-        flat = self.net.flat
-        sq = self.square_avg if idx is None else self.square_avg[idx]
-        p = flat if idx is None else flat[idx]
-        new_sq = sq * self.alpha + grad * grad * (np.float32(1) - self.alpha)
-        new_p = p - grad / (np.sqrt(new_sq) + self.eps) * self.lr
-        if idx is None:
-            self.square_avg[...] = new_sq
-            flat[...] = new_p
-        else:
-            self.square_avg[idx] = new_sq
-            flat[idx] = new_p
+    def step_rows(self, idx, grad: np.ndarray) -> None:
+        """Step trials `idx` (all when None; a slice or an index array) with `grad` [their number, P].
+
+        All rows or a slice are stepped in place (views, no copies); other selections are gathered,
+        stepped and scattered back. The arithmetic is the same either way."""
+        inplace = idx is None or isinstance(idx, slice)
+        sel = slice(None) if idx is None else idx
+        p = self.net.flat[sel]
+        sq = self.square_avg[sel]
+        sq *= self.alpha                                  # sq = alpha sq + (1 - alpha) g^2
+        tmp = grad * grad
+        tmp *= np.float32(1) - self.alpha
+        sq += tmp
+        np.sqrt(sq, out=tmp)                              # p = p - g / (sqrt(sq) + eps) lr
+        tmp += self.eps
+        np.divide(grad, tmp, out=tmp)
+        tmp *= self.lr
+        p -= tmp
+        if not inplace:
+            self.square_avg[sel] = sq
+            self.net.flat[sel] = p
 
     def select(self, idx: np.ndarray) -> None:
         self.square_avg = self.square_avg[idx]
