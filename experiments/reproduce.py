@@ -195,11 +195,13 @@ def _run_job(job_id: int, tasks: list[Task], emit: Callable[[tuple], None]) -> d
         emit(("trial", len(tasks[i].slots), reported[i]))
 
     t0, c0 = time.perf_counter(), time.process_time()
-    results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done)
+    profile: dict = {}
+    results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done, profile=profile)
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     return {"job": job_id, "pid": os.getpid(), "env": specs[0].env, "trials": len(specs), "wall_s": wall, "cpu_s": cpu,
             "trial_steps": int(sum(r.total_steps for r in results)),
             "max_trial_steps": int(max(r.total_steps for r in results)),
+            "by_running_trials": profile,
             "steps": {tasks[i].key: r.total_steps for i, r in enumerate(results)}}
 
 

@@ -13,6 +13,7 @@ so a batch costs what its running trials cost.
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -121,6 +122,10 @@ class ObserverBatch:
         self.observers = [self.observers[k] for k in rows]
 
 
+def _bucket(n: int) -> str:
+    return "1" if n <= 1 else "2-4" if n <= 4 else "5-16" if n <= 16 else "17-64" if n <= 64 else "65+"
+
+
 def _train_group(agent: AgentConfig) -> int:
     return {(True, False): 0, (True, True): 1, (False, True): 2}.get((agent.train_q, agent.train_h), 3)
 
@@ -128,7 +133,7 @@ def _train_group(agent: AgentConfig) -> int:
 def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] | None = None,
                record_actions: bool = False, greedy_eval: bool = False,
                on_trial_done: Callable[[int, TrialResult], None] | None = None,
-               use_tables: bool = True) -> list[TrialResult]:
+               use_tables: bool = True, profile: dict | None = None) -> list[TrialResult]:
     """Run every trial to its episode count; trials must share observation and action spaces.
 
     `on_episode(i, record)` is called after each episode of trial i (the index into `specs`),
@@ -136,6 +141,8 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     to each episode record: the length of the greedy policy's path after that episode (None if it does not
     reach the goal in 100 steps). `use_tables=False` steps the real environments one by one instead of
     the compiled tables (same results, slower; for tests and for environments without tables).
+    `profile`, if given, receives per batch-size bucket ("1", "2-4", "5-16", "17-64", "65+" running
+    trials) the ticks run and the CPU seconds they took.
     """
     if not specs:
         return []
@@ -191,6 +198,7 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     n_episodes = np.array([s.episodes for s in specs], np.int64)
     finished_rows = 0
 
+    tick_start = time.process_time()
     while st["active"].any():
         active = st["active"]
         rows = _nz(active)
@@ -229,6 +237,13 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
             st["ep_stale"][rk] += np.where(status == STALE, counts[k], 0)
         agent.update(active)
 
+        if profile is not None:
+            now = time.process_time()
+            bucket = profile.setdefault(_bucket(len(rows)), {"ticks": 0, "cpu_s": 0.0, "trial_steps": 0})
+            bucket["ticks"] += 1
+            bucket["cpu_s"] += now - tick_start
+            bucket["trial_steps"] += len(rows)
+            tick_start = now
         if len(ended):
             eps_now, alpha_now = agent.epsilons(ended), agent.alpha_h(ended)
             for j, row in enumerate(ended):
