@@ -34,7 +34,7 @@ from common.agents.networks import StackedMLP, mlp_backward, mlp_forward, row_ma
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.schedules import AlphaSchedule, EpsilonSchedule
-from common.agents.streams import uniforms
+from common.agents.streams import UniformBlocks, to_integers
 from common.delay import DelayModel
 from common.seeding import derive_seed
 
@@ -115,6 +115,10 @@ class TrialBatchAgent:
         self.explore_key = _key_array(seeds, "explore")
         self.q_key = _key_array(seeds, "q-replay")
         self.h_key = _key_array(seeds, "h-replay")
+        # Draws served in blocks (same numbers as one `uniforms` call per step or minibatch).
+        self._explore_u = UniformBlocks(self.explore_key, 2)
+        self._q_u = UniformBlocks(self.q_key, base.batch_size)
+        self._h_u = UniformBlocks(self.h_key, base.h_batch_size)
         self.epsilon = [EpsilonSchedule(c.epsilon_start, c.epsilon_decay, c.epsilon_floor) for c in configs]
         self.alpha = [AlphaSchedule(c.alpha_q, c.alpha_h, c.alpha_h_decay) for c in configs]
         self.eps_start = np.array([c.epsilon_start for c in configs], np.float64)
@@ -188,7 +192,7 @@ class TrialBatchAgent:
             return actions
         obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
         greedy = self._scores(rows, obs[rows]).argmax(axis=1)
-        u = uniforms(self.explore_key[rows, None], 2 * self.steps[rows, None] + np.arange(2)[None, :])
+        u = self._explore_u.get(rows, self.steps[rows])
         explore = u[:, 0] < self.epsilons(rows)
         random_action = np.minimum((u[:, 1] * self.n_actions).astype(np.int64), self.n_actions - 1)
         actions[rows] = np.where(explore, random_action, greedy)
@@ -321,7 +325,7 @@ class TrialBatchAgent:
         xs, flats = [], []
         if nq:
             rq = self._rows_index(q_rows)
-            idx = self.replay.sample_indices(self.q_key[q_rows], self.q_updates[q_rows], q_rows, c.batch_size)
+            idx = to_integers(self._q_u.get(q_rows, self.q_updates[q_rows]), self.replay.size[q_rows][:, None])
             bq = self.replay.gather_records(q_rows, idx)  # obs, action, reward, next_obs, terminated
             act_q = bq[:, :, d].astype(np.int64)[:, :, None]
             target_flat = self.q_target_flat if rq is None else self.q_target_flat[rq]
@@ -332,7 +336,7 @@ class TrialBatchAgent:
         if nh:
             rh = self._rows_index(h_rows)
             m = self.feedback_memory
-            idx = m.sample_indices(self.h_key[h_rows], self.h_updates[h_rows], h_rows, c.h_batch_size)
+            idx = to_integers(self._h_u.get(h_rows, self.h_updates[h_rows]), m.size[h_rows][:, None])
             bh = m.gather_records(h_rows, idx)  # obs, action, feedback, weight
             act_h = bh[:, :, d].astype(np.int64)[:, :, None]
             xs.append(bh[:, :, :d])
@@ -388,6 +392,8 @@ class TrialBatchAgent:
         self.replay.select(rows)
         self.feedback_memory.select(rows)
         self.history.select(rows)
+        for blocks in (self._explore_u, self._q_u, self._h_u):
+            blocks.select(rows)
         for name in self._ROW_ARRAYS:
             setattr(self, name, getattr(self, name)[rows])
         self.configs = [self.configs[k] for k in rows]

@@ -88,8 +88,9 @@ class BatchStepHistory:
         counts = credited.sum(axis=1)
         order = np.argsort(~credited, axis=1, kind="stable")[:, :L]
         valid = np.arange(L)[None, :] < counts[:, None]
-        weights = np.where(valid, np.take_along_axis(w, order, axis=1), 0.0)
-        positions = np.where(valid, np.take_along_axis(pos, order, axis=1), 0)
+        picked = (np.arange(n)[:, None], order)
+        weights = np.where(valid, w[picked], 0.0)
+        positions = np.where(valid, pos[picked], 0)
         return BatchCredit(counts, lost, positions, weights)
 
     def select(self, trials: np.ndarray) -> None:

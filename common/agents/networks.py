@@ -40,16 +40,18 @@ def param_shapes(in_dim: int, hidden: int, out_dim: int) -> dict[str, tuple[int,
     return {"w1": (in_dim, hidden), "b1": (1, hidden), "w2": (hidden, out_dim), "b2": (1, out_dim)}
 
 
-def views(flat: np.ndarray, shapes: dict[str, tuple[int, int]]) -> dict[str, np.ndarray]:
-    """Views into the rows of a flat [n, P] parameter array: w1, b1, w2, b2 and the augmented first-layer
-    matrix a1 = [w1; b1] ([n, in + 1, hidden])."""
-    out, o = {}, 0
+def views(flat: np.ndarray, shapes: dict[str, tuple[int, int]], names: bool = False) -> dict[str, np.ndarray]:
+    """Views into the rows of a flat [n, P] parameter array: the augmented first-layer matrix
+    a1 = [w1; b1] ([n, in + 1, hidden]), w2 and b2 (what `mlp_forward` and `mlp_backward` use), and
+    with names=True also w1 and b1."""
     n = flat.shape[0]
-    for name, (r, c) in shapes.items():
-        out[name] = flat[:, o:o + r * c].reshape(n, r, c)
-        o += r * c
-    i, h = shapes["w1"]
-    out["a1"] = flat[:, :(i + 1) * h].reshape(n, i + 1, h)
+    (i, h), (_, k) = shapes["w1"], shapes["w2"]
+    o = (i + 1) * h
+    out = {"a1": flat[:, :o].reshape(n, i + 1, h), "w2": flat[:, o:o + h * k].reshape(n, h, k),
+           "b2": flat[:, o + h * k:].reshape(n, 1, k)}
+    if names:
+        out["w1"] = flat[:, :i * h].reshape(n, i, h)
+        out["b1"] = flat[:, i * h:o].reshape(n, 1, h)
     return out
 
 
@@ -124,7 +126,7 @@ class StackedMLP:
 
     def set_flat(self, flat: np.ndarray) -> None:
         self.flat = flat
-        self.params = views(flat, self.shapes)
+        self.params = views(flat, self.shapes, names=True)
 
     def select(self, idx: np.ndarray) -> None:
         """Keep only the trials `idx` (in that order)."""

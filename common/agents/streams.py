@@ -38,6 +38,40 @@ def uniforms(keys: np.ndarray, counters: np.ndarray) -> np.ndarray:
 
 def integers(keys: np.ndarray, counters: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Integers in [0, high) from `uniforms` (floor(u * high); bias below 2^-40 for high < 2^13)."""
-    u = uniforms(keys, counters)
+    return to_integers(uniforms(keys, counters), high)
+
+
+def to_integers(u: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """floor(u * high) for uniforms u in [0, 1), kept below high."""
     out = np.floor(u * np.asarray(high, dtype=np.float64)).astype(np.int64)
     return np.minimum(out, np.asarray(high, dtype=np.int64) - 1)
+
+
+class UniformBlocks:
+    """u(key_i, c * width + j) for j < width, served from blocks of `block` consecutive counters c per
+    row, computed in one vectorised call when a row's counter leaves its block. The values are exactly
+    `uniforms`' (so results do not change); only the number of calls does. Rows can be dropped with
+    `select`, like the rest of a batch's state; nothing needs saving (the blocks are recomputed)."""
+
+    def __init__(self, keys: np.ndarray, width: int, block: int | None = None):
+        self.keys = np.asarray(keys, dtype=np.uint64)
+        self.width = width
+        self.block = block if block is not None else max(8, 2048 // width)
+        self.base = np.full(len(self.keys), -1 << 62, dtype=np.int64)
+        self.values = np.zeros((len(self.keys), self.block, width), np.float64)
+
+    def get(self, rows: np.ndarray, counters: np.ndarray) -> np.ndarray:
+        """[len(rows), width] for counter counters[k] of row rows[k] (rows distinct)."""
+        off = counters - self.base[rows]
+        stale = (off < 0) | (off >= self.block)
+        if stale.any():
+            r = rows[stale]
+            c0 = counters[stale]
+            c = (c0[:, None, None] + np.arange(self.block)[None, :, None]) * self.width + np.arange(self.width)
+            self.values[r] = uniforms(self.keys[r, None, None], c)
+            self.base[r] = c0
+            off = counters - self.base[rows]
+        return self.values[rows, off]
+
+    def select(self, rows: np.ndarray) -> None:
+        self.keys, self.base, self.values = self.keys[rows], self.base[rows], self.values[rows]
