@@ -125,6 +125,8 @@ class PerceptionLiveConfig(ServiceConfig):
     idle_stop: float = option(0.5, "see stop-with (s)")
     wait_for: tuple[str, ...] = option((), "services that must be alive before the first frame (e.g. recorder)")
     start_timeout: float = option(60.0, "seconds to wait for those services")
+    state_file: str | None = option(None, "progress file (the next Feedback seq), rewritten before each Feedback, so "
+                                          "a restarted service continues the seq instead of repeating it")
     model: str = option("mini-xception", "mini-xception, haar-smile, or a model config .json/.toml "
                                          "(docs/perception.md)")
     detector: str = option("tracking", "face detector", choices=DETECTORS)

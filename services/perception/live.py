@@ -83,6 +83,13 @@ class PerceptionService:
         self._predictions: dict[str, Any] = {}
         self._frames: dict[str, Any] = {}
         self.feedback_seq = 0
+        if config.state_file:  # a restart continues the seq (receivers drop what they have seen)
+            from services.common.faults import read_json
+
+            state = read_json(config.state_file)
+            if state:
+                self.feedback_seq = int(state["next_seq"])
+                rt.counters["feedback_published"] = self.feedback_seq
         self.t_first: float | None = None  # monotonic time of the first and last processed frame
         self.t_last = 0.0
         self.cpu_first = 0.0
@@ -116,8 +123,13 @@ class PerceptionService:
         except ProtocolError as e:  # never expected; a prediction must not take the service down
             c[f"predictions_invalid_{e.reason}"] += 1
         if event is not None:
-            self.feedback.put(feedback_message(self.config.run, self.config.teacher_id, self.feedback_seq, event))
-            self.feedback_seq += 1
+            seq = self.feedback_seq
+            if self.config.state_file:  # first: a crash right after must not reuse this seq
+                from services.common.faults import atomic_write_json
+
+                atomic_write_json(self.config.state_file, {"next_seq": seq + 1})
+            self.feedback.put(feedback_message(self.config.run, self.config.teacher_id, seq, event))
+            self.feedback_seq = seq + 1
             c["feedback_published"] = self.feedback_seq
             c["feedback_positive" if event.value > 0 else "feedback_negative"] += 1
             if live_clock:  # capture of the triggering frame -> published (queue + decode + pipeline)

@@ -41,6 +41,7 @@ from common.observer import ObserverConfig, SimulatedObserver
 from common.protocol import CompressedImage, ObserverReaction, Step, Time, camera_key, reaction_key, status_key, step_key
 from common.seeding import derive_seed
 from services.common.config import TaskConfig, _check_name
+from services.common.faults import atomic_write_json, read_json
 from services.common.runtime import ServiceRuntime, service_main
 
 STEPS_AFTER_STOP_TIMEOUT = 5.0  # s to wait for steps still in flight once the actor reported 'stopped'
@@ -89,6 +90,8 @@ class FaceVideoConfig(TaskConfig):
     gap_s: float = option(0.6, "seconds without a face after each clip (> the reaction detector's lost_after_s)")
     width: int = option(320, "frame width in pixels (the 640x360 clip is scaled, aspect kept)")
     jpeg_quality: int = option(80, "JPEG quality")
+    state_file: str | None = option(None, "progress file (the next ObserverReaction seq), so a restarted observer "
+                                          "continues the seq")
 
     def __post_init__(self):
         super().__post_init__()
@@ -336,6 +339,10 @@ def main(config: FaceVideoConfig) -> int:
 
     library = ClipLibrary.load(config.width, config.jpeg_quality)  # a missing wheel fails here, before joining
     core = FaceVideoCore(config, library)
+    if config.state_file:  # a restart continues the reaction seq
+        state = read_json(config.state_file)
+        if state:
+            core.shown = int(state["next_seq"])
     rt = ServiceRuntime(config.service_name, config)
     published = {"frames": 0, "reactions": 0}
     rt.set_counters_source(lambda: {**core.counters, "frames_published": published["frames"],
@@ -349,6 +356,8 @@ def main(config: FaceVideoConfig) -> int:
 
             def send(done: list[Shown]) -> None:
                 for s in done:
+                    if config.state_file:
+                        atomic_write_json(config.state_file, {"next_seq": s.seq + 1})
                     rpub.put(reaction_message(config, s))
                     published["reactions"] += 1
 
