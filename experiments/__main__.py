@@ -88,10 +88,10 @@ def main(argv: list[str] | None = None) -> int:
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
     p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
                              "loop, measured side by side on the same trials")
-    p_bench.add_argument("--conditions", nargs="+", default=["maze-high-delay", "maze-stop"],
-                         choices=list(BY_NAME), help="conditions to draw trials from")
-    p_bench.add_argument("--trials", type=int, default=4, help="trials per agent and condition (default: 4)")
-    p_bench.add_argument("--episodes", type=int, default=40, help="episodes per trial (default: 40)")
+    p_bench.add_argument("--conditions", nargs="+", default=list(BY_NAME), choices=list(BY_NAME),
+                         help="conditions to draw trials from (default: all)")
+    p_bench.add_argument("--trials", type=int, default=2, help="trials per agent and condition (default: 2)")
+    p_bench.add_argument("--episodes", type=int, default=30, help="episodes per trial (default: 30)")
     p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
     p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
     args = parser.parse_args(argv)
