@@ -373,7 +373,9 @@ def write_report(path: str, evaluation: dict, conds: list[Condition], timing: di
     lines += ["## Timing", "", f"Total wall {timing['total_s']:.1f} s for {timing['trials']} trials "
               f"({timing['trials_per_s']:.2f} trials/s); {timing['trials_run']} trials computed, "
               f"{timing['trials_cached']} read from the cache, {timing['trials_shared']} shared between conditions "
-              "(DQN ignores feedback, so its trials are the same in every Maze MDP condition). See timing.json.", ""]
+              "(DQN ignores feedback, so its trials are the same in every Maze MDP condition). CPU seconds per "
+              "worker: " + ", ".join(f"{v:.0f}" for v in timing.get("cpu_s_per_worker", {}).values())
+              + f"; load average at the end {timing.get('load_average_at_end', [0])[0]:.1f}. See timing.json.", ""]
     with open(path, "w") as fh:
         fh.write("\n".join(lines))
 
