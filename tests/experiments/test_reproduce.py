@@ -56,8 +56,11 @@ def test_interrupted_sweep_resumes_with_only_the_missing_trials(tmp_path, monkey
     assert returns_of(str(out), conds, trials) == reference
 
     ran.clear()
+    timing_before = json.loads((out / "timing.json").read_text())
     again = rep.reproduce(conds, trials, str(out), workers=1, progress=False, n_boot=50)
     assert ran == [] and again.trials_run == 0  # a second run only re-plots
+    timing_after = json.loads((out / "timing.json").read_text())
+    assert timing_after["total_s"] == timing_before["total_s"] and timing_after["replot_s"] > 0
 
 
 def test_dqn_trials_are_shared_between_conditions_that_differ_only_in_the_observer(tmp_path):
