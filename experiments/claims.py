@@ -9,8 +9,9 @@ Per-trial metrics:
   initial   mean return over the first 10 episodes
   post_stop mean return over the last 10 episodes minus the mean over the 10 before feedback stopped
 Curve metric:
-  to90      first episode at which the 5-episode moving average of the trimmed-mean curve reaches
-            90% of the way from the condition's start level to its best level (censored at the length)
+  to90      first episode (numbered from 1) at which the 5-episode moving average of the trimmed-mean
+            curve reaches 90% of the way from the condition's start level to its best level (length + 1
+            when it never does: censored)
 
 Aggregation: 10%-trimmed mean across trials (the paper's "trimmed mean of 30 runs"). Intervals: 95%
 percentile bootstrap over trials, resampling trial indices jointly for all agents and conditions (paired).
@@ -92,10 +93,11 @@ def moving_average(y: np.ndarray, w: int = SMOOTH) -> np.ndarray:
 
 
 def episodes_to_level(curves: np.ndarray, level: float) -> np.ndarray:
-    """First episode where the smoothed curve reaches `level` (curves [..., E]); E when it never does."""
+    """First episode (numbered from 1) where the smoothed curve reaches `level` (curves [..., E]);
+    E + 1 when it never does (censored)."""
     ma = moving_average(curves)
     hit = ma >= level
-    return np.where(hit.any(axis=-1), hit.argmax(axis=-1), curves.shape[-1])
+    return np.where(hit.any(axis=-1), hit.argmax(axis=-1) + 1, curves.shape[-1] + 1)
 
 
 # ----------------------------------------------------------------------------------- bootstrap
@@ -157,7 +159,7 @@ def condition_table(c: CondData, idx: np.ndarray) -> dict:
         curves = np.concatenate([tmean(R[chunk], axis=1) for chunk in np.array_split(idx, max(1, len(idx) // 200))])
         to90 = episodes_to_level(curves, level)
         row["to90"] = interval(to90.astype(float))
-        row["to90"]["censored_at"] = R.shape[1]
+        row["to90"]["censored_at"] = R.shape[1] + 1
         out[agent] = row
     return out
 

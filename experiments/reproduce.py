@@ -310,6 +310,10 @@ def plot_condition(cond: Condition, returns: dict[str, np.ndarray], path: str) -
     plt.close(fig)
 
 
+def _fmt_ep(v: float, iv: dict) -> str:
+    return "never" if v >= iv["censored_at"] else f"{v:.0f}"
+
+
 def _fmt(iv: dict, digits: int = 2) -> str:
     return f"{iv['estimate']:.{digits}f} [{iv['ci'][0]:.{digits}f}, {iv['ci'][1]:.{digits}f}]"
 
@@ -331,7 +335,7 @@ def write_report(path: str, evaluation: dict, conds: list[Condition], timing: di
               f"({ev['method']['n_boot']} resamples), paired by trial (same layout and seed for every agent "
               "and condition).",
               "- Metrics: AUC = mean return over all episodes; final = mean over the last 10% of episodes; "
-              "initial = mean over the first 10; to90 = first episode where the 5-episode moving average of "
+              "initial = mean over the first 10; to90 = first episode (from 1) where the 5-episode moving average of "
               "the trimmed-mean curve reaches 90% of the way from the condition's start level (lowest "
               "first-episode level of any agent) to its best level (best final level of any agent); "
               "post-stop gain = last 10 episodes minus the 10 before feedback stops.",
@@ -364,7 +368,8 @@ def write_report(path: str, evaluation: dict, conds: list[Condition], timing: di
         lines += [head, "|---" * (6 if stop else 5) + "|"]
         for algo, row in cd["agents"].items():
             to90 = row["to90"]
-            t90 = _fmt(to90, 0) + (" (never: censored)" if to90["estimate"] >= to90["censored_at"] else "")
+            t90 = ("never" if to90["estimate"] >= to90["censored_at"] else f"{to90['estimate']:.0f}") + \
+                f" [{_fmt_ep(to90['ci'][0], to90)}, {_fmt_ep(to90['ci'][1], to90)}]"
             cells = [claims_mod.AGENT_NAMES[algo], _fmt(row["auc"]), _fmt(row["final"]), _fmt(row["initial"]), t90]
             if stop:
                 cells.append(_fmt(row["post_stop"]))

@@ -111,8 +111,8 @@ def test_combining_sub_verdicts_and_missing_conditions():
 
 def test_episodes_to_level_and_bands():
     y = np.concatenate([np.zeros(10), np.ones(10)])
-    assert C.episodes_to_level(y, 0.9) == 14  # the 5-episode average reaches 0.9 at the 5th one
-    assert C.episodes_to_level(np.zeros(7), 0.5) == 7  # never: censored at the length
+    assert C.episodes_to_level(y, 0.9) == 15  # episode 15 (from 1): the 5th of the ones
+    assert C.episodes_to_level(np.zeros(7), 0.5) == 8  # never: censored at length + 1
     R = curve(0.1, n=30)
     mid, lo, hi = C.curve_band(R, n_boot=200)
     assert np.all(lo <= mid + 1e-12) and np.all(mid <= hi + 1e-12)
