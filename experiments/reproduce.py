@@ -375,11 +375,11 @@ def write_report(path: str, evaluation: dict, conds: list[Condition], timing: di
                 cells.append(_fmt(row["post_stop"]))
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
-    lines += ["## Timing", "", f"Total wall {timing['total_s']:.1f} s for {timing['trials']} trials "
-              f"({timing['trials_per_s']:.2f} trials/s); {timing['trials_run']} trials computed, "
-              f"{timing['trials_cached']} read from the cache, {timing['trials_shared']} shared between conditions "
-              "(DQN ignores feedback, so its trials are the same in every Maze MDP condition). CPU seconds per "
-              "worker: " + ", ".join(f"{v:.0f}" for v in timing.get("cpu_s_per_worker", {}).values())
+    lines += ["## Timing", "", f"Total wall {timing['total_s']:.1f} s for {timing['trials']} trial results "
+              f"({timing['trials_per_s']:.2f} per second): {timing['trials_computed']} trials simulated, "
+              f"{timing['trials_shared']} results shared between conditions (DQN ignores feedback, so its trials "
+              f"are the same in every Maze MDP condition), {timing['trials_cached']} read from the cache. "
+              "CPU seconds per worker: " + ", ".join(f"{v:.0f}" for v in timing.get("cpu_s_per_worker", {}).values())
               + f"; load average at the end {timing.get('load_average_at_end', [0])[0]:.1f}. See timing.json.", ""]
     with open(path, "w") as fh:
         fh.write("\n".join(lines))
