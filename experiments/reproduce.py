@@ -380,7 +380,9 @@ def write_report(path: str, evaluation: dict, conds: list[Condition], timing: di
               f"{timing['trials_shared']} results shared between conditions (DQN ignores feedback, so its trials "
               f"are the same in every Maze MDP condition), {timing['trials_cached']} read from the cache. "
               "CPU seconds per worker: " + ", ".join(f"{v:.0f}" for v in timing.get("cpu_s_per_worker", {}).values())
-              + f"; load average at the end {timing.get('load_average_at_end', [0])[0]:.1f}. See timing.json.", ""]
+              + f"; load average at the end {timing.get('load_average_at_end', [0])[0]:.1f}. Conditions share "
+              "batches, so the wall time per condition in timing.json is each batch's wall time shared out in "
+              "proportion to the environment steps of the condition's trials.", ""]
     with open(path, "w") as fh:
         fh.write("\n".join(lines))
 
