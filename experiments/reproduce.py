@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 
 from experiments import claims as claims_mod
-from experiments.conditions import ALGOS, CONDITIONS, Condition, trial_spec
+from experiments.conditions import ALGOS, Condition, trial_spec
 from experiments.runner import TrialResult, TrialSpec, run_trials
 
 RESULTS_VERSION = 1
