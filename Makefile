@@ -24,5 +24,13 @@ run: setup
 test: setup
 	$(PY) -m pytest -q
 
+reproduce: setup
+	$(PY) -m experiments reproduce --out docs/results
+
+bench: setup
+	$(PY) -m experiments bench
+	$(PY) -m services bench
+	$(PY) -m services.perception bench
+
 clean:
 	rm -rf $(VENV) .cache runs
