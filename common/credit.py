@@ -1,100 +1,69 @@
-"""Credit assignment by timestamp (Deep TAMER's rule), one function for virtual and real time.
+"""Credit assignment by timestamp (Deep TAMER's rule): the one function both runners and the console use.
 
-A feedback stamped t_f may refer to any recent step. Step k, whose action was taken at tau_k, occupied
-the interval until the next action tau_{k+1}; it receives the assumed-delay probability mass that falls
-in that interval:  w_k = P(t_f - tau_{k+1} < delay <= t_f - tau_k).  The newest step's interval is open
-(tau_{k+1} = +inf). Mass that falls before the oldest step still held is lost: the feedback refers to
-steps we no longer have, and the caller counts it.
+Each step k was shown during an interval [start_k, end_k) on some clock (the runner's virtual step clock,
+the live learner's step clock, or seconds on a person's screen). A feedback stamped t_f was caused by what
+was shown at t_f - d, where d is the person's delay, distributed as the assumed delay D. Step k therefore
+receives the probability mass of t_f - D that falls in its interval, integrated over it:
+
+    w_k = P(start_k <= t_f - D < end_k) = P(t_f - end_k < D <= t_f - start_k).
+
+D may be any distribution with a CDF: a scipy.stats frozen distribution (Deep TAMER's uniform 0.2-4 s,
+`uniform(loc=0.2, scale=3.8)`, or a gamma fitted to reaction times) or the paper's step-counted model, a
+`DelayModel` of point masses at 0, 1, 2, ... steps (on the step clock, where step k is [k, k+1), this is
+exactly "lag i refers to step k - i"). Steps may last unequal times.
+
+A feedback is never credited across an episode boundary: its episode is that of the newest step shown at or
+before t_f, and the mass that falls on other episodes' steps, before the oldest step still held, or
+between intervals is lost (returned, so the caller can count it). Weights and lost mass sum to 1.
 """
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass, field
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 
-from common.delay import DelayModel
+
+class DelayDistribution(Protocol):
+    """What credit needs of a delay distribution: its CDF P(D <= x), vectorised (scipy.stats has it)."""
+
+    def cdf(self, x): ...
 
 
-def credit_weights(t_feedback: float, step_times, assumed: DelayModel) -> tuple[np.ndarray, float]:
-    """Weights of each held step (oldest first) for a feedback at `t_feedback`, and the lost mass.
+def interval_mass(delay, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """P(low < D <= high), elementwise. Uses the distribution's own `mass_between` where it has one
+    (exact sums of point masses for `DelayModel`), else the difference of its CDF."""
+    low, high = np.asarray(low, np.float64), np.asarray(high, np.float64)
+    if hasattr(delay, "mass_between"):
+        return delay.mass_between(low, high)
+    return np.clip(np.asarray(delay.cdf(high), np.float64) - np.asarray(delay.cdf(low), np.float64), 0.0, 1.0)
 
-    `step_times` are the action times of the held steps, ascending; durations may be unequal. Weights
-    and lost mass sum to 1. Steps taken after t_feedback get 0: a reaction cannot precede its cause.
+
+def credit_weights(t_feedback, starts, delay, ends=None, episodes=None) -> tuple[np.ndarray, np.ndarray]:
+    """Weights of each held step for a feedback at `t_feedback`, and the mass lost.
+
+    Batched over leading axes: t_feedback [...], starts [..., K] ascending along K (held steps, oldest first;
+    +inf pads rows with fewer steps). `ends` defaults to the next step's start (the newest step is still
+    shown: +inf). `episodes` [..., K] are the steps' episode ids; None means one episode. Returns
+    (weights [..., K], lost [...]); a scalar t_feedback with 1-d starts gives a 1-d weights and a float lost.
     """
-    times = np.asarray(step_times, dtype=np.float64)
-    n = len(times)
-    weights = np.zeros(n, dtype=np.float64)
-    if n == 0:
-        return weights, 1.0
-    if np.any(np.diff(times) < 0):
-        raise ValueError("step_times must be ascending")
-    lags = assumed.lags
-    probs = np.asarray(assumed.probs, dtype=np.float64)
-    # Each lag belongs to the newest step taken at or before t_f - lag.
-    for lag, p in zip(lags, probs):
-        if p == 0.0:
-            continue
-        cause_time = t_feedback - lag
-        k = int(np.searchsorted(times, cause_time, side="right")) - 1
-        if k >= 0:
-            weights[k] += p
-    lost = max(0.0, 1.0 - float(weights.sum()))
-    return weights, lost
-
-
-@dataclass
-class CreditResult:
-    """What one feedback was assigned to: (payload, weight) pairs with weight > 0, and the lost mass."""
-
-    entries: list[tuple[Any, float]]
-    lost_mass: float
-
-    @property
-    def credited(self) -> bool:
-        return bool(self.entries)
-
-
-@dataclass
-class StepHistory:
-    """The recent steps a feedback may still refer to: (action time, payload), oldest first.
-
-    Holds `capacity` steps; older ones are forgotten, and feedback pointing only at them is stale.
-    """
-
-    capacity: int = 32
-    _times: deque = field(default_factory=deque)
-    _payloads: deque = field(default_factory=deque)
-
-    def push(self, t_action: float, payload: Any) -> None:
-        if self._times and t_action < self._times[-1]:
-            raise ValueError(f"step time {t_action} is older than the previous step {self._times[-1]}")
-        self._times.append(t_action)
-        self._payloads.append(payload)
-        if len(self._times) > self.capacity:
-            self._times.popleft()
-            self._payloads.popleft()
-
-    def clear(self) -> None:
-        self._times.clear()
-        self._payloads.clear()
-
-    def __len__(self) -> int:
-        return len(self._times)
-
-    @property
-    def newest_time(self) -> float | None:
-        return self._times[-1] if self._times else None
-
-    def latest_at(self, t: float) -> Any | None:
-        """The payload of the newest step taken at or before t (naive reward shaping's target)."""
-        for time, payload in zip(reversed(self._times), reversed(self._payloads)):
-            if time <= t:
-                return payload
-        return None
-
-    def credit(self, t_feedback: float, assumed: DelayModel) -> CreditResult:
-        weights, lost = credit_weights(t_feedback, self._times, assumed)
-        entries = [(payload, float(w)) for payload, w in zip(self._payloads, weights) if w > 0]
-        return CreditResult(entries, lost)
+    t_f = np.asarray(t_feedback, np.float64)
+    starts = np.asarray(starts, np.float64)
+    if starts.shape[-1] == 0:
+        return np.zeros(starts.shape), np.ones(t_f.shape) if t_f.ndim else 1.0
+    if np.any(starts[..., 1:] < starts[..., :-1]):
+        raise ValueError("step start times must be ascending")
+    if ends is None:
+        ends = np.concatenate([starts[..., 1:], np.full(starts.shape[:-1] + (1,), np.inf)], axis=-1)
+    ends = np.asarray(ends, np.float64)
+    if np.any(ends < starts):
+        raise ValueError("a step cannot end before it starts")
+    t = t_f[..., None]
+    shown_before = starts <= t  # steps already on screen at t_f (a reaction cannot precede its cause)
+    if episodes is not None:
+        episodes = np.asarray(episodes)
+        newest = shown_before.sum(axis=-1) - 1
+        current = np.take_along_axis(episodes, np.maximum(newest, 0)[..., None], axis=-1)
+        shown_before &= (episodes == current) & (newest >= 0)[..., None]
+    weights = np.where(shown_before, interval_mass(delay, t - ends, t - starts), 0.0)
+    lost = np.maximum(0.0, 1.0 - weights.sum(axis=-1))
+    return weights, (float(lost) if lost.ndim == 0 else lost)

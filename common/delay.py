@@ -1,7 +1,9 @@
 """Delay distributions: the observer's true lag and the learner's assumption about it.
 
-A `DelayModel` is a discrete distribution over lags of i * unit (i = 0, 1, ...). In virtual time the
-unit is one step; in the live system it is the actor's nominal step period in seconds.
+A `DelayModel` is a discrete distribution over lags of i * unit (i = 0, 1, ...): the paper's step-counted
+model (unit one step on the step clock). `delay_from_spec` also builds continuous ones from scipy.stats
+(seconds on a person's screen: Deep TAMER's uniform 0.2-4 s is `uniform:0.2,4`). The credit function
+(`common.credit`) needs only a distribution's CDF, so either kind serves.
 """
 from __future__ import annotations
 
@@ -61,11 +63,48 @@ class DelayModel:
                 return i
         return len(self.probs) - 1
 
-    def mass_between(self, low: float, high: float) -> float:
-        """P(low < lag <= high)."""
-        lags = self.lags
-        return float(sum(p for lag, p in zip(lags, self.probs) if low < lag <= high))
+    def mass_between(self, low, high):
+        """P(low < lag <= high), elementwise over arrays (the point masses inside, summed in lag order)."""
+        low, high = np.asarray(low, np.float64)[..., None], np.asarray(high, np.float64)[..., None]
+        inside = (low < self.lags) & (self.lags <= high)
+        out = np.where(inside, np.asarray(self.probs, np.float64), 0.0).sum(axis=-1)
+        return float(out) if out.ndim == 0 else out
+
+    def cdf(self, x):
+        """P(lag <= x), elementwise."""
+        return self.mass_between(np.full(np.shape(x), -np.inf), x)
 
     @classmethod
     def uniform(cls, n: int, unit: float = 1.0) -> "DelayModel":
         return cls(tuple([1.0 / n] * n), unit)
+
+
+def delay_from_spec(spec: str, unit: float = 1.0):
+    """A delay distribution from text: ``steps:0.3,0.6,0.1`` (point masses at 0, 1, 2 units), ``uniform:LOW,HIGH``
+    (seconds; Deep TAMER's default is ``uniform:0.2,4``) or ``NAME:ARG,...`` for any scipy.stats distribution
+    (``gamma:2.0,0,0.4`` = shape 2, loc 0, scale 0.4). Errors are one-line ValueErrors."""
+    import scipy.stats
+
+    name, _, args = spec.partition(":")
+    name = name.strip()
+    if name == "steps":
+        return DelayModel(parse_probs(args, "delay steps"), unit)
+    try:
+        values = [float(a) for a in args.split(",") if a.strip()]
+    except ValueError:
+        raise ValueError(f"delay {spec!r}: arguments must be numbers") from None
+    if name == "uniform":
+        if len(values) != 2 or not 0 <= values[0] < values[1]:
+            raise ValueError(f"delay {spec!r}: uniform needs 0 <= LOW < HIGH")
+        return scipy.stats.uniform(loc=values[0], scale=values[1] - values[0])
+    dist = getattr(scipy.stats, name, None)
+    if not isinstance(dist, scipy.stats.rv_continuous):
+        raise ValueError(f"delay {spec!r}: unknown distribution {name!r} (steps, uniform or a scipy.stats name)")
+    try:
+        frozen = dist(*values)
+        ok = np.isfinite(frozen.cdf(1.0))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"delay {spec!r}: {e}") from None
+    if not ok:
+        raise ValueError(f"delay {spec!r}: invalid parameters for {name}")
+    return frozen

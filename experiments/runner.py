@@ -206,7 +206,7 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
         a = actions[rows]
         step = agent.steps[rows].copy()  # this action's virtual time, in steps
         nxt, rew, term, trunc, intended = world.step(rows, a)
-        agent.record_steps(rows, st["obs"][rows], a, rew, nxt, term, step.astype(np.float64))
+        agent.record_steps(rows, st["obs"][rows], a, rew, nxt, term, step.astype(np.float64), st["episode"][rows])
         give, value, lag = watchers.react(rows, step, intended, st["episode"][rows])
         g = _nz(give)
         st["inbox"][rows[g], (step[g] + lag[g]) % R, R - 1 - lag[g]] = value[g]

@@ -37,6 +37,7 @@ from common.agents.schedules import AlphaSchedule, EpsilonSchedule
 from common.agents.streams import UniformBlocks, to_integers
 from common.delay import DelayModel
 from common.seeding import derive_seed
+from common.util import nz
 
 # Structural settings must agree across a batch; the rest may differ per trial.
 SHARED_FIELDS = ("hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
@@ -50,11 +51,6 @@ MERGE_ROWS = 16
 # Status codes of `feedback_round` (the strings of FeedbackOutcome.status, in this order).
 IGNORED, CREDITED, STALE = 0, 1, 2
 STATUS_NAMES = ("ignored", "credited", "stale")
-
-
-def _nz(mask: np.ndarray) -> np.ndarray:
-    """Indices of the true entries of a 1-d mask (np.flatnonzero without its overhead)."""
-    return mask.nonzero()[0]
 
 
 @dataclass
@@ -96,8 +92,6 @@ class TrialBatchAgent:
         self.obs_dim, self.n_actions = obs_dim, n_actions
         self.seeds = [int(s) for s in seeds]
         self.assumed_delay = DelayModel(base.assumed_delay_probs, step_unit)
-        self._lags = np.asarray(self.assumed_delay.lags, np.float64)
-        self._lag_probs = np.asarray(self.assumed_delay.probs, np.float64)
         B = len(configs)
 
         self.q = StackedMLP(obs_dim, base.hidden, n_actions, [derive_seed(s, "q-init") for s in seeds])
@@ -186,7 +180,7 @@ class TrialBatchAgent:
 
         Step t of trial i explores when u(i, 2t) < epsilon(t), with action floor(u(i, 2t + 1) * n_actions).
         """
-        rows = np.arange(self.B) if active is None else _nz(active)
+        rows = np.arange(self.B) if active is None else nz(active)
         actions = np.full(self.B, -1, dtype=np.int64)
         if len(rows) == 0:
             return actions
@@ -200,8 +194,10 @@ class TrialBatchAgent:
 
     # ---------------------------------------------------------------------------------- observing
     def record_steps(self, rows: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-                     next_obs: np.ndarray, terminated: np.ndarray, t_actions: np.ndarray) -> None:
-        """Trials `rows` (distinct) took `actions` at times `t_actions`: store transitions, remember steps."""
+                     next_obs: np.ndarray, terminated: np.ndarray, t_actions: np.ndarray,
+                     episodes: np.ndarray) -> None:
+        """Trials `rows` (distinct) took `actions` at times `t_actions` in episodes `episodes`: store
+        transitions, remember steps (credit never crosses an episode boundary)."""
         rows = np.asarray(rows, np.int64)
         obs = np.asarray(obs, np.float32).reshape(len(rows), self.obs_dim)
         actions = np.asarray(actions, np.int64)
@@ -209,14 +205,14 @@ class TrialBatchAgent:
                                      reward=np.asarray(rewards, np.float32),
                                      next_obs=np.asarray(next_obs, np.float32).reshape(len(rows), self.obs_dim),
                                      terminated=np.asarray(terminated, np.float32))
-        self.history.push(rows, np.asarray(t_actions, np.float64), obs, actions, slots)
+        self.history.push(rows, np.asarray(t_actions, np.float64), obs, actions, slots, np.asarray(episodes, np.int64))
         self.steps[rows] += 1
 
     def record_step(self, i: int, obs, action: int, reward: float, next_obs, terminated: bool,
-                    t_action: float) -> None:
+                    t_action: float, episode: int = 0) -> None:
         """Trial i took `action` at time t_action: store the transition and remember the step."""
         self.record_steps(np.array([i]), obs, np.array([action]), np.array([reward]), next_obs,
-                          np.array([float(terminated)]), np.array([t_action]))
+                          np.array([float(terminated)]), np.array([t_action]), np.array([episode]))
 
     def forget_history(self, i: int) -> None:
         """Drop trial i's held steps (e.g. the actor restarted: nothing before may be credited)."""
@@ -260,7 +256,7 @@ class TrialBatchAgent:
         lost = np.zeros(n, np.float64)
         shaping = self.shaping[rows]
         if shaping.any():
-            k = _nz(shaping)
+            k = nz(shaping)
             r = rows[k]
             pos = self.history.latest_at(r, t_feedback[k])
             hit = pos >= 0
@@ -272,9 +268,9 @@ class TrialBatchAgent:
                 self.replay.add_reward(r[g], self.history.slot[r[g], pos[g]], values[k[g], rnd].astype(np.float32))
         learn = self.train_h[rows] & ~shaping
         if learn.any():
-            k = _nz(learn)
+            k = nz(learn)
             r = rows[k]
-            credit = self.history.credit(r, t_feedback[k], self._lags, self._lag_probs)
+            credit = self.history.credit(r, t_feedback[k], self.assumed_delay, self.local_width)
             ok = credit.counts > 0
             status[k] = np.where(ok, CREDITED, STALE)
             steps[k] = credit.counts
@@ -285,7 +281,7 @@ class TrialBatchAgent:
                 act = self.history.action[r[:, None], pos]
                 w32 = w.astype(np.float32)
                 for rnd in range(values.shape[1]):
-                    g = _nz(counts[k] > rnd)
+                    g = nz(counts[k] > rnd)
                     if not len(g):
                         break
                     fb = np.repeat(values[k[g], rnd].astype(np.float32)[:, None], pos.shape[1], axis=1)
@@ -303,8 +299,8 @@ class TrialBatchAgent:
         active = np.ones(self.B, bool) if active is None else active
         c = self.base
         due = active & (self.steps > 0) & (self.steps % c.update_interval == 0)
-        q_rows = _nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
-        h_rows = _nz(due & self.train_h & (self.feedback_memory.size > 0))
+        q_rows = nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
+        h_rows = nz(due & self.train_h & (self.feedback_memory.size > 0))
         if c.batch_size == c.h_batch_size and len(q_rows) + len(h_rows) <= MERGE_ROWS:
             if len(q_rows) or len(h_rows):
                 self._minibatch_step(q_rows, h_rows)
@@ -313,7 +309,7 @@ class TrialBatchAgent:
                 self._minibatch_step(q_rows, h_rows[:0])
             if len(h_rows):
                 self._minibatch_step(q_rows[:0], h_rows)
-        sync = _nz(active & self.train_q & (self.steps % c.target_update_interval == 0) & (self.steps > 0))
+        sync = nz(active & self.train_q & (self.steps % c.target_update_interval == 0) & (self.steps > 0))
         if len(sync):
             self.q_target_flat[sync] = self.q.flat[sync]
 

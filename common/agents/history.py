@@ -1,10 +1,9 @@
-"""The recent steps of every trial in a batch, and credit assignment by timestamp over them, vectorised.
+"""The recent steps of every trial in a batch (ring buffers of time, episode, obs, action, replay slot of the
+last `capacity` steps), and credit by timestamp over them for one feedback per trial at once.
 
-Same rule as `common.credit.credit_weights` (Deep TAMER's): a feedback stamped t_f gives held step k the
-assumed-delay mass of the lags l for which step k is the newest step taken at or before t_f - l; mass that
-falls before the oldest held step is lost. Here the rule runs for one feedback per trial of a batch at
-once, over ring buffers (time, obs, action, replay slot) of the last `capacity` steps of each trial. The
-weights are accumulated lag by lag in float64 exactly as `credit_weights` does; tests check the two agree.
+The weights come from `common.credit.credit_weights`, the one credit function: step k is shown from its
+action time to the next one, and a feedback is credited only within the episode of the newest step shown
+at or before its stamp.
 """
 from __future__ import annotations
 
@@ -12,11 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-def _nz(mask: np.ndarray) -> np.ndarray:
-    """Indices of the true entries of a 1-d mask (np.flatnonzero without its overhead)."""
-    return mask.nonzero()[0]
-
+from common.credit import credit_weights
+from common.util import nz
 
 @dataclass
 class BatchCredit:
@@ -32,6 +28,7 @@ class BatchStepHistory:
     def __init__(self, trials: int, capacity: int, obs_dim: int):
         self.capacity = capacity
         self.times = np.zeros((trials, capacity), np.float64)
+        self.episode = np.zeros((trials, capacity), np.int64)
         self.obs = np.zeros((trials, capacity, obs_dim), np.float32)
         self.action = np.zeros((trials, capacity), np.int64)
         self.slot = np.zeros((trials, capacity), np.int64)
@@ -39,15 +36,16 @@ class BatchStepHistory:
         self.head = np.zeros(trials, np.int64)  # next write position
 
     def push(self, trials: np.ndarray, t: np.ndarray, obs: np.ndarray, action: np.ndarray,
-             slot: np.ndarray) -> None:
-        """Trial trials[k] took action[k] at time t[k] (trials distinct)."""
+             slot: np.ndarray, episode: np.ndarray) -> None:
+        """Trial trials[k] took action[k] at time t[k] in its episode episode[k] (trials distinct)."""
         held = self.count[trials] > 0
         newest = self.times[trials, (self.head[trials] - 1) % self.capacity]
         if np.any(held & (t < newest)):
-            k = int(_nz(held & (t < newest))[0])
+            k = int(nz(held & (t < newest))[0])
             raise ValueError(f"step time {t[k]} is older than the previous step {newest[k]}")
         pos = self.head[trials]
         self.times[trials, pos] = t
+        self.episode[trials, pos] = episode
         self.obs[trials, pos] = obs
         self.action[trials, pos] = action
         self.slot[trials, pos] = slot
@@ -71,34 +69,28 @@ class BatchStepHistory:
         k = (times <= t[:, None]).sum(axis=1) - 1
         return np.where(k >= 0, pos[np.arange(len(trials)), np.maximum(k, 0)], -1)
 
-    def credit(self, trials: np.ndarray, t_feedback: np.ndarray, lags: np.ndarray,
-               probs: np.ndarray) -> BatchCredit:
-        n, L = len(trials), len(probs)
+    def credit(self, trials: np.ndarray, t_feedback: np.ndarray, delay, width: int) -> BatchCredit:
+        """Credit one feedback per trial; at most `width` steps can get weight (the assumed delay's point
+        masses, or the capacity for a continuous delay)."""
+        n = len(trials)
         pos, times = self._chronological(trials)
-        rows = np.arange(n)
-        w = np.zeros((n, self.capacity), np.float64)
-        for lag, p in zip(lags, probs):
-            if p == 0.0:
-                continue
-            k = (times <= (t_feedback - lag)[:, None]).sum(axis=1) - 1
-            ok = k >= 0
-            w[rows[ok], k[ok]] += p
-        lost = np.maximum(0.0, 1.0 - w.sum(axis=1))
+        episodes = self.episode[trials[:, None], pos]
+        w, lost = credit_weights(t_feedback, times, delay, episodes=episodes)
         credited = w > 0
         counts = credited.sum(axis=1)
-        order = np.argsort(~credited, axis=1, kind="stable")[:, :L]
-        valid = np.arange(L)[None, :] < counts[:, None]
+        order = np.argsort(~credited, axis=1, kind="stable")[:, :width]
+        valid = np.arange(width)[None, :] < counts[:, None]
         picked = (np.arange(n)[:, None], order)
         weights = np.where(valid, w[picked], 0.0)
         positions = np.where(valid, pos[picked], 0)
         return BatchCredit(counts, lost, positions, weights)
 
     def select(self, trials: np.ndarray) -> None:
-        for name in ("times", "obs", "action", "slot", "count", "head"):
+        for name in ("times", "episode", "obs", "action", "slot", "count", "head"):
             setattr(self, name, getattr(self, name)[trials])
 
     def state_dict(self) -> dict:
-        return {name: getattr(self, name).copy() for name in ("times", "obs", "action", "slot", "count", "head")}
+        return {name: getattr(self, name).copy() for name in ("times", "episode", "obs", "action", "slot", "count", "head")}
 
     def load_state_dict(self, state: dict) -> None:
         for name, value in state.items():

@@ -147,7 +147,7 @@ class LearnerCore:
             results.append(self._credit(fb, pos, t))
         a = self.agent
         a.record_step(0, np.asarray(step.obs, np.float32), int(step.action), float(step.reward),
-                      np.asarray(step.next_obs, np.float32), bool(step.terminated), float(index))
+                      np.asarray(step.next_obs, np.float32), bool(step.terminated), float(index), int(step.episode))
         a.update()
         self.counters["steps_learned"] += 1
 

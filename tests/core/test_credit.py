@@ -1,8 +1,10 @@
 import numpy as np
 import pytest
 
-from common.credit import StepHistory, credit_weights
-from common.delay import DelayModel, parse_probs
+import scipy.stats
+
+from common.credit import credit_weights
+from common.delay import DelayModel, delay_from_spec, parse_probs
 
 UNIFORM3 = DelayModel.uniform(3)
 
@@ -49,33 +51,86 @@ def test_stale_feedback_is_lost_not_misassigned():
     assert lost == pytest.approx(1 / 3)
 
 
-def test_history_forgets_old_steps_and_reports_stale():
-    h = StepHistory(capacity=3)
-    for k in range(10):
-        h.push(float(k), f"step{k}")
-    assert len(h) == 3
-    result = h.credit(9.5, UNIFORM3)
-    assert [p for p, _ in result.entries] == ["step7", "step8", "step9"]
-    stale = h.credit(5.5, UNIFORM3)
-    assert not stale.credited and stale.lost_mass == pytest.approx(1.0)
-
-
 def test_several_feedbacks_in_flight_are_independent():
-    h = StepHistory(capacity=16)
-    for k in range(6):
-        h.push(float(k), k)
-    a = h.credit(3.5, UNIFORM3)
-    b = h.credit(5.5, UNIFORM3)
-    assert [p for p, _ in a.entries] == [1, 2, 3]
-    assert [p for p, _ in b.entries] == [3, 4, 5]
-    assert h.latest_at(4.2) == 4
+    times = np.arange(6.0)
+    a, _ = credit_weights(3.5, times, UNIFORM3)
+    b, _ = credit_weights(5.5, times, UNIFORM3)
+    assert np.flatnonzero(a).tolist() == [1, 2, 3] and np.flatnonzero(b).tolist() == [3, 4, 5]
 
 
-def test_history_rejects_time_going_backwards():
-    h = StepHistory()
-    h.push(2.0, "a")
-    with pytest.raises(ValueError, match="older"):
-        h.push(1.0, "b")
+def test_time_going_backwards_is_refused():
+    with pytest.raises(ValueError, match="ascending"):
+        credit_weights(3.0, [2.0, 1.0], UNIFORM3)
+
+
+def test_never_credited_across_an_episode_boundary():
+    # Steps 0..5, episode 0 is steps 0..3, episode 1 starts at step 4 (action at t=4).
+    times, episodes = np.arange(6.0), [0, 0, 0, 0, 1, 1]
+    # At 4.5 the newest step shown is step 4 (episode 1): lags 0 -> step 4; lags 1, 2 -> steps 3, 2 of
+    # episode 0: lost, not credited to the old episode.
+    w, lost = credit_weights(4.5, times, UNIFORM3, episodes=episodes)
+    np.testing.assert_allclose(w, [0, 0, 0, 0, 1 / 3, 0])
+    assert lost == pytest.approx(2 / 3)
+    # At 3.5 the newest shown step is the old episode's last: credited there in full.
+    w, lost = credit_weights(3.5, times, UNIFORM3, episodes=episodes)
+    np.testing.assert_allclose(w, [0, 1 / 3, 1 / 3, 1 / 3, 0, 0])
+    assert lost == pytest.approx(0.0)
+
+
+def test_the_step_model_on_the_step_clock_is_the_papers_lag_counting():
+    probs = (0.3, 0.6, 0.1)
+    for t_f in (5.5, 5.0, 5.999):
+        w, _ = credit_weights(t_f, np.arange(10.0), DelayModel(probs))
+        for lag, p in enumerate(probs):
+            assert w[5 - lag] == pytest.approx(p)  # lag i steps refers to step k - i
+
+
+def test_uniform_seconds_integrated_over_unequal_intervals():
+    delay = delay_from_spec("uniform:0.2,4")  # Deep TAMER's default
+    starts = np.array([10.0, 10.5, 12.0, 13.0])  # shown 0.5 s, 1.5 s, 1 s, still shown
+    w, lost = credit_weights(14.0, starts, delay)
+    # t_f - D is uniform on [10.0, 13.8): 3.8 s of mass spread over the intervals by their overlap.
+    np.testing.assert_allclose(w, np.array([0.5, 1.5, 1.0, 0.8]) / 3.8)
+    assert lost == pytest.approx(0.0, abs=1e-12)
+    # Explicit ends (a blank screen between steps 1 and 2): the mass in the gap is lost.
+    ends = np.array([10.5, 11.0, 13.0, np.inf])
+    w, lost = credit_weights(14.0, starts, delay, ends=ends)
+    np.testing.assert_allclose(w, np.array([0.5, 0.5, 1.0, 0.8]) / 3.8)
+    assert lost == pytest.approx(1.0 / 3.8)
+
+
+def test_gamma_delay_weights_are_its_cdf_differences():
+    delay = scipy.stats.gamma(2.0, scale=0.4)
+    starts = np.array([0.0, 0.3, 0.9, 1.0, 2.2])
+    t_f = 2.5
+    w, lost = credit_weights(t_f, starts, delay)
+    ends = np.append(starts[1:], np.inf)
+    expected = delay.cdf(t_f - starts) - delay.cdf(t_f - ends)
+    np.testing.assert_allclose(w, expected, rtol=1e-12)
+    assert w.sum() + lost == pytest.approx(1.0)
+    assert lost == pytest.approx(1 - delay.cdf(t_f - starts[0]))
+    assert delay_from_spec("gamma:2.0,0,0.4").cdf(1.0) == pytest.approx(delay.cdf(1.0))
+
+
+def test_batched_rows_equal_one_at_a_time():
+    rng = np.random.default_rng(0)
+    delay = DelayModel((0.2, 0.5, 0.3), unit=0.7)
+    starts = np.sort(rng.uniform(0, 10, (5, 8)), axis=1)
+    starts[1, 5:] = np.inf  # a row holding fewer steps
+    episodes = rng.integers(0, 2, (5, 8)).cumsum(axis=1) // 3
+    t_f = rng.uniform(2, 12, 5)
+    w, lost = credit_weights(t_f, starts, delay, episodes=episodes)
+    for i in range(5):
+        k = np.isfinite(starts[i])
+        wi, li = credit_weights(t_f[i], starts[i, k], delay, episodes=episodes[i, k])
+        np.testing.assert_array_equal(w[i, k], wi)
+        assert lost[i] == li
+
+
+@pytest.mark.parametrize("spec", ["uniform:4,0.2", "gamma:-1", "nosuch:1", "uniform:a,b", "steps:0.5"])
+def test_bad_delay_specs_are_one_line_errors(spec):
+    with pytest.raises(ValueError, match="delay"):
+        delay_from_spec(spec)
 
 
 @pytest.mark.parametrize("bad", ["0.3,0.3", "a,b", "", "-0.5,1.5", "nan,1"])

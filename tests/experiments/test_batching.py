@@ -67,23 +67,25 @@ def test_observer_batch_matches_simulated_observer_event_for_event():
                 assert (value[k], lag[k]) == (ev.value, ev.lag_steps)
 
 
-def test_vectorised_credit_matches_credit_weights():
+def test_agent_history_credits_with_the_credit_function():
     rng = np.random.default_rng(3)
     model = DelayModel((0.2, 0.5, 0.0, 0.3), unit=0.7)
     agent = TrialBatchAgent([agent_config("dqn-tamer", assumed_delay_probs=model.probs, history_steps=6)] * 4,
                             2, 4, [0, 1, 2, 3], step_unit=0.7)
     times = [[] for _ in range(4)]
+    episodes = [[] for _ in range(4)]
     for k in range(40):
         rows = np.flatnonzero(rng.random(4) < 0.8)
         t = np.array([(times[i][-1] if times[i] else 0.0) + rng.exponential(0.6) for i in rows])
         agent.record_steps(rows, rng.random((len(rows), 2)), rng.integers(0, 4, len(rows)), np.zeros(len(rows)),
-                           rng.random((len(rows), 2)), np.zeros(len(rows)), t)
+                           rng.random((len(rows), 2)), np.zeros(len(rows)), t, np.full(len(rows), k // 10))
         for i, ti in zip(rows, t):
             times[i].append(ti)
+            episodes[i].append(k // 10)
         t_f = np.array([(times[i][-1] if times[i] else 0.0) + rng.uniform(-1, 3) for i in range(4)])
-        got = agent.history.credit(np.arange(4), t_f, agent._lags, agent._lag_probs)
+        got = agent.history.credit(np.arange(4), t_f, agent.assumed_delay, agent.local_width)
         for i in range(4):
-            w, lost = credit_weights(t_f[i], times[i][-6:], model)
+            w, lost = credit_weights(t_f[i], times[i][-6:], model, episodes=episodes[i][-6:])
             nz = w[w > 0]
             assert got.counts[i] == len(nz)
             np.testing.assert_array_equal(got.weights[i, :len(nz)], nz)
@@ -99,7 +101,8 @@ def test_state_dict_round_trip_continues_the_same_trial():
         for k in range(start, start + steps):
             obs = rng_obs[k]
             a = agent.act(obs)
-            agent.record_steps(np.arange(2), obs, a, np.full(2, -0.01), rng_obs[k + 1], np.zeros(2), np.full(2, float(k)))
+            agent.record_steps(np.arange(2), obs, a, np.full(2, -0.01), rng_obs[k + 1], np.zeros(2), np.full(2, float(k)),
+                               np.zeros(2))
             agent.feedback_round(np.arange(2), np.full(2, k + 0.5), np.where(a % 2 == 0, 1, -1))
             agent.update()
             acts.append(a.copy())
