@@ -15,13 +15,14 @@ No zenoh or mcap import here: the pure core may use these types too.
 """
 
 from ._base import PROTOCOL_VERSION, Message
+from ._console import CONTROL_COMMANDS, MAX_RATE, Control, Credit, CreditedStep, Shown
 from ._keys import (KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, config_key, decode, episode_key,
-                    feedback_key, feedback_wildcard, ingest_key, log_key, message_type, parse_key, perception_key, reaction_key,
+                    control_key, credit_key, feedback_key, feedback_wildcard, shown_key, ingest_key, log_key, message_type, parse_key, perception_key, reaction_key,
                     run_prefix,
                     status_key, step_key, validate_name, weights_key)
 from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary,
-                        ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, ObserverReaction, RunConfig, ServiceStatus, Step,
-                        Time)
+                        ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, MAX_SHOWN, ObserverReaction, RunConfig,
+                        ServiceStatus, ShownStep, Step, Time)
 from ._spec import REASONS, ProtocolError
 from ._weights import Weights, check_spec
 
@@ -34,4 +35,6 @@ __all__ = [
     "run_prefix", "step_key", "feedback_key", "feedback_wildcard", "weights_key", "episode_key", "ingest_key",
     "status_key",
     "camera_key", "perception_key", "config_key", "ObserverReaction", "reaction_key",
+    "Shown", "ShownStep", "MAX_SHOWN", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit", "CreditedStep",
+    "shown_key", "control_key", "credit_key",
 ]

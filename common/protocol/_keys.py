@@ -13,6 +13,7 @@ from typing import Any
 from ._messages import (NAME_PATTERN, CompressedImage, EpisodeSummary, ExpressionPrediction, Feedback, Ingest,
                         ObserverReaction,
                         Log, RunConfig, ServiceStatus, Step)
+from ._console import Control, Credit, Shown
 from ._spec import ProtocolError
 from ._weights import Weights
 
@@ -68,6 +69,11 @@ KEYS: dict[str, KeySpec] = {k.kind: k for k in [
     KeySpec("perception", ExpressionPrediction, "camera", "drop", "drop_oldest", "Expression read from each frame."),
     KeySpec("reaction", ObserverReaction, "teacher_id", "block", "block",
             "Diagnostics of a video-backed observer: each reaction it showed the camera (never learned from)."),
+    KeySpec("shown", Shown, "screen", "block", "block",
+            "A step painted on a person's console page, with its screen time (from the console)."),
+    KeySpec("control", Control, None, "block", "block", "Pause, resume, pace, end: a person's run controls."),
+    KeySpec("credit", Credit, "teacher_id", "block", "block",
+            "What the learner did with each feedback: the steps credited and their weights."),
 ]}
 
 MESSAGE_TYPES: tuple[type, ...] = tuple(k.message for k in KEYS.values())
@@ -129,6 +135,18 @@ def reaction_key(run: str, teacher_id: str) -> str:
     return KEYS["reaction"].key(run, teacher_id)
 
 
+def shown_key(run: str, screen: str) -> str:
+    return KEYS["shown"].key(run, screen)
+
+
+def control_key(run: str) -> str:
+    return KEYS["control"].key(run)
+
+
+def credit_key(run: str, teacher_id: str) -> str:
+    return KEYS["credit"].key(run, teacher_id)
+
+
 def ingest_key(run: str) -> str:
     return KEYS["ingest"].key(run)
 
@@ -175,8 +193,10 @@ def decode(key: str, data: bytes) -> Any:
     run = getattr(msg, "run", None)
     if run is not None and run != parsed.run:
         raise ProtocolError("bad_value", f"run {run!r} does not match key {key[:120]}")
-    if isinstance(msg, (Feedback, ObserverReaction)) and msg.teacher_id != parsed.name:
+    if isinstance(msg, (Feedback, ObserverReaction, Credit)) and msg.teacher_id != parsed.name:
         raise ProtocolError("bad_value", f"teacher_id {msg.teacher_id!r} does not match key")
+    if isinstance(msg, Shown) and msg.screen != parsed.name:
+        raise ProtocolError("bad_value", f"screen {msg.screen!r} does not match key")
     if isinstance(msg, ServiceStatus) and msg.service != parsed.name:
         raise ProtocolError("bad_value", f"service {msg.service!r} does not match key")
     if isinstance(msg, Log) and msg.name != parsed.name:

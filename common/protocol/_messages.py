@@ -71,6 +71,21 @@ class Step(Message):
 
 
 @dataclasses.dataclass(frozen=True)
+class ShownStep:
+    """One step as a person's screen showed it: the actor's Step.seq and the system time it appeared."""
+
+    seq: int
+    t: float
+
+
+MAX_SHOWN = 64  # steps a feedback may list: 4 s of assumed delay at 16 steps/s
+
+SHOWN_STEP_SPEC = Obj({"seq": Int(0, description="Step.seq of the step shown."),
+                       "t": Float(0.0, description="System time (s) at which it appeared on the screen.")},
+                      cls=ShownStep, description="A step on a person's screen.")
+
+
+@dataclasses.dataclass(frozen=True)
 class Feedback(Message):
     """One binary feedback signal from a teacher (a simulated oracle or a perceived face).
 
@@ -80,7 +95,9 @@ class Feedback(Message):
     """
 
     TYPE_NAME: ClassVar[str] = "hitl.Feedback"
-    MAX_BYTES: ClassVar[int] = 4096
+    MAX_BYTES: ClassVar[int] = 8192
+    CROSS_RULES: ClassVar[tuple[str, ...]] = (
+        "`shown` needs `actor`, and is ascending in `seq` (strictly) and `t`, else `bad_value`",)
 
     run: str = fld(Name(RUN))
     teacher_id: str = fld(Name("Teacher name; also the last chunk of the key."))
@@ -92,6 +109,22 @@ class Feedback(Message):
                               optional=True)
     intended: int | None = fld(Nullable(Int(enum=(-1, 1), description=(
         "Diagnostics: the value before a simulated misread; null if unknown."))), optional=True)
+    t_page: float | None = fld(Nullable(Float(0.0, description=(
+        "A person's action on the console page: its time on the page's clock (s); `t_reaction` is this time "
+        "mapped to the system clock with the page's estimated offset."))), optional=True)
+    actor: str | None = fld(Nullable(Token("The actor incarnation whose steps `shown` lists.")), optional=True)
+    shown: list | None = fld(Nullable(List(SHOWN_STEP_SPEC, max_items=MAX_SHOWN, description=(
+        "The steps on the person's screen before `t_reaction`, oldest first, each with the system time it "
+        "appeared; the learner credits the feedback in seconds over these on-screen intervals. Null: credit "
+        "by the actor's step times (simulated teachers)."))), optional=True)
+
+    def _cross_check(self) -> None:
+        if self.shown is not None:
+            if self.actor is None:
+                raise ProtocolError("bad_value", "shown needs actor")
+            for a, b in zip(self.shown, self.shown[1:]):
+                if not (b.seq > a.seq and b.t >= a.t):
+                    raise ProtocolError("bad_value", "shown must be ascending in seq and time")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -7,8 +7,9 @@ import dataclasses
 import numpy as np
 from hypothesis import strategies as st
 
-from common.protocol import (NAME_PATTERN, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary, ExpressionPrediction,
-                             Feedback, Ingest, IngestEntry, RunConfig, ServiceStatus, Step, Time, Weights)
+from common.protocol import (NAME_PATTERN, TOKEN_PATTERN, Box, CompressedImage, Control, Credit, CreditedStep,
+                             EpisodeSummary, ExpressionPrediction, Feedback, Ingest, IngestEntry, RunConfig,
+                             ServiceStatus, Shown, ShownStep, Step, Time, Weights)
 from common.protocol._spec import AnyJSON, Bool, Bytes64, Float, Int, List, Map, Nullable, Obj, Spec, Str
 
 TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)
@@ -55,11 +56,31 @@ def _fix_step(step: Step) -> Step:
     return dataclasses.replace(step, next_obs=(step.next_obs * n)[:n])
 
 
+def _fix_feedback(fb: Feedback) -> Feedback:
+    if fb.shown is None:
+        return fb
+    shown = [ShownStep(i, float(i)) for i in range(len(fb.shown))]  # ascending, as the cross rule wants
+    return dataclasses.replace(fb, shown=shown, actor=fb.actor or "actor-1")
+
+
+def _fix_shown(msg: Shown) -> Shown:
+    return dataclasses.replace(msg, t_shown=max(msg.t_shown, msg.t_action))
+
+
+def _fix_control(msg: Control) -> Control:
+    if msg.command == "pace":
+        return dataclasses.replace(msg, rate=msg.rate if msg.rate is not None else 2.0)
+    return dataclasses.replace(msg, rate=None)
+
+
+FIXERS = {Step: _fix_step, Feedback: _fix_feedback, Shown: _fix_shown, Control: _fix_control}
+
+
 def messages(cls: type) -> st.SearchStrategy:
     if cls is Weights:
         return weights()
     s = st.builds(cls, **{wf.attr: for_spec(wf.spec) for wf in cls.wire_fields()})
-    return s.map(_fix_step) if cls is Step else s
+    return s.map(FIXERS[cls]) if cls in FIXERS else s
 
 
 def weights() -> st.SearchStrategy:
@@ -77,7 +98,8 @@ def weights() -> st.SearchStrategy:
     )
 
 
-JSON_TYPES = (Step, Feedback, EpisodeSummary, ServiceStatus, CompressedImage, ExpressionPrediction, RunConfig, Ingest)
+JSON_TYPES = (Step, Feedback, EpisodeSummary, ServiceStatus, CompressedImage, ExpressionPrediction, RunConfig, Ingest,
+              Shown, Control, Credit)
 ALL_TYPES = JSON_TYPES + (Weights,)
 
 
@@ -103,6 +125,12 @@ def example(cls: type, **changes):
                               IngestEntry("feedback", "oracle", 0, "", 1700000000.4),
                               IngestEntry("outcome", "oracle", 0, "credited", 1700000000.4)]),
         RunConfig: dict(run="r1", t_created=1700000000.0, protocol=1, config={"env": "maze", "lr": 0.001}),
+        Shown: dict(run="r1", screen="alice", actor="actor-1", seq=3, t_action=1700000000.25, t_shown=1700000000.3,
+                    t_page=1700000000.29, offset=0.01, rtt=0.002),
+        Control: dict(run="r1", source="alice", seq=0, t=1700000000.0, command="pace", rate=2.0),
+        Credit: dict(run="r1", teacher_id="alice", seq=0, value=1, status="credited", t_reaction=1700000000.5,
+                     t_credited=1700000000.51, actor="actor-1", steps=[CreditedStep(2, 0.3), CreditedStep(3, 0.1)],
+                     lost_mass=0.6),
         Weights: dict(run="r1", incarnation="learner-1", version=5, t_published=1700000002.0,
                       tensors={"q.0.weight": np.ones((4, 2), np.float32), "q.0.bias": np.zeros(4, np.float32)}),
     }[cls]

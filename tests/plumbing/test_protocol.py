@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from common.protocol import (KEYS, MESSAGE_TYPES, REASONS, EpisodeSummary, Feedback, ProtocolError, RunConfig, ServiceStatus, Step,
                              Weights, camera_key, config_key, decode, episode_key, feedback_key, feedback_wildcard,
                              ingest_key, message_type, parse_key, perception_key, run_prefix, status_key, step_key,
-                             validate_name, weights_key)
+                             validate_name, weights_key, shown_key, control_key, credit_key)
 from common.protocol._weights import header_json
 
 from .strategies import ALL_TYPES, ANY_JSON, JSON_TYPES, example, messages
@@ -88,7 +88,8 @@ def test_examples_round_trip_by_key():
     for cls in ALL_TYPES:
         key = keys.get(cls) or {"EpisodeSummary": episode_key("r1"), "CompressedImage": camera_key("r1", "cam0"),
                                 "ExpressionPrediction": perception_key("r1", "cam0"),
-                                "Ingest": ingest_key("r1")}[cls.__name__]
+                                "Ingest": ingest_key("r1"), "Shown": shown_key("r1", "alice"),
+                                "Control": control_key("r1"), "Credit": credit_key("r1", "alice")}[cls.__name__]
         msg = example(cls)
         back = decode(key, msg.encode())
         assert type(back) is cls
