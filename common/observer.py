@@ -15,6 +15,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from common.config import option
 from common.delay import DelayModel, parse_probs
 
 # A reaction lands half a step after its lag: between two actions, never on one.
@@ -23,16 +24,14 @@ REACTION_OFFSET = 0.5
 
 @dataclass(frozen=True)
 class ObserverConfig:
-    p_feedback: float = 0.5
-    """Probability that a step gets any feedback (stochasticity)."""
-    delay_probs: tuple[float, ...] = (0.3, 0.6, 0.1)
-    """True lag distribution over 0, 1, 2, ... steps (delay)."""
-    p_flip: float = 0.0
-    """Probability that the polarity is flipped (natural reaction, a misread face)."""
-    stop_episode: int | None = None
-    """No feedback for steps of this episode (0-based) and later (unsustainability)."""
-    stop_step: int | None = None
-    """No feedback for this global step (0-based) and later."""
+    """The simulated observer: how often, how late and how reliably it gives feedback."""
+
+    p_feedback: float = option(0.5, "probability that a step gets any feedback (stochasticity)")
+    delay_probs: tuple[float, ...] = option((0.3, 0.6, 0.1), "true lag distribution over 0, 1, 2, ... steps (delay)")
+    p_flip: float = option(0.0, "probability that the polarity is flipped (natural reaction, a misread face)")
+    stop_episode: int | None = option(None, "no feedback for steps of this episode (0-based) and later "
+                                            "(unsustainability); none = never")
+    stop_step: int | None = option(None, "no feedback for this global step (0-based) and later; none = never")
 
     def __post_init__(self):
         object.__setattr__(self, "delay_probs", parse_probs(self.delay_probs, "delay-probs"))

@@ -1,14 +1,13 @@
 """python -m experiments {run, reproduce, bench}: experiments on the in-process runner (virtual clock)."""
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import os
 import sys
 import time
 
-from common.config import add_config_arguments, config_from_namespace, config_record
+from common.config import ConfigParser, add_config_arguments, config_from_namespace, config_record
 from experiments.run_config import RunConfig
 
 
@@ -19,11 +18,12 @@ def cmd_run(config: RunConfig) -> int:
     from experiments.runner import EPISODE_FIELDS, TrialSpec, run_trials
 
     os.makedirs(config.out, exist_ok=True)
-    spec = TrialSpec(config.env, config.agent(), config.observer(), config.seed, config.layout, config.episodes)
+    task = config.task
+    spec = TrialSpec(task.env, config.agent, config.observer, task.seed, task.layout, config.episodes,
+                     task.teacher_rule)
     with open(os.path.join(config.out, "config.json"), "w") as fh:
-        json.dump({"run": config_record(config), "agent": config_record(spec.agent),
-                   "observer": config_record(spec.observer)}, fh, indent=2)
-    bar = tqdm(total=config.episodes, desc=f"{config.algo} on {config.env}", unit="ep", file=sys.stderr)
+        json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
+    bar = tqdm(total=config.episodes, desc=f"{config.algo} on {task.env}", unit="ep", file=sys.stderr)
 
     def on_episode(_trial: int, rec: dict) -> None:
         bar.update(1)
@@ -38,8 +38,8 @@ def cmd_run(config: RunConfig) -> int:
         writer.writeheader()
         writer.writerows(result.episodes)
     plot_curves({config.algo: result.returns}, os.path.join(config.out, "curve.png"),
-                f"{config.algo} on {config.env} layout {config.layout}, seed {config.seed}",
-                stop_episode=config.stop_episode)
+                f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
+                stop_episode=config.observer.stop_episode)
     print(f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
           f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, curve.png")
     return 0
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     from experiments.conditions import BY_NAME
 
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = argparse.ArgumentParser(prog="python -m experiments", description=__doc__)
+    parser = ConfigParser(prog="python -m experiments", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help=RunConfig.__doc__, description=RunConfig.__doc__)
     add_config_arguments(p_run, RunConfig)

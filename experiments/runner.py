@@ -46,6 +46,7 @@ class TrialSpec:
     seed: int = 0
     layout: int = 0
     episodes: int = 100
+    teacher_rule: str | None = None  # None: the env's own rule (common/envs/rules.py)
 
 
 @dataclass
@@ -63,7 +64,7 @@ class TrialResult:
 def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 100) -> int | None:
     """Steps the greedy policy of trial (row) i needs to finish an episode on a fresh copy of its env
     (None if it does not within `limit`). Learning and random streams are untouched."""
-    env, _ = make_env(spec.env, spec.layout)
+    env, _ = make_env(spec.env, spec.layout, spec.teacher_rule)
     obs = env.reset(seed=derive_seed(spec.seed, "greedy-eval") % (2**31))[0]
     for k in range(1, limit + 1):
         obs, _, term, trunc, _ = env.step(agent.greedy_action(i, obs))
@@ -161,10 +162,10 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     for s in rows_specs:
         if s.episodes < 0:
             raise ValueError(f"episodes must be >= 0, got {s.episodes}")
-        env, rule = make_env(s.env, s.layout)
+        env, rule = make_env(s.env, s.layout, s.teacher_rule)
         envs.append(env)
         rules.append(rule)
-        keys.append((s.env, s.layout))
+        keys.append((s.env, s.layout, s.teacher_rule))
         observers.append(SimulatedObserver(s.observer, rule, derive_seed(s.seed, "observer")))
     obs_dim = envs[0].observation_space.shape[0]
     n_actions = envs[0].action_space.n

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
+from common.config import option
 from common.delay import parse_probs
 
 
@@ -12,42 +13,43 @@ from common.delay import parse_probs
 class AgentConfig:
     """Everything an agent of this project is made of. The four algorithms are presets of it."""
 
-    algo: str = "dqn-tamer"
+    algo: str = option("dqn-tamer", "which of the four agents (dqn, dqn-rs, deep-tamer, dqn-tamer); a preset of "
+                                    "the fields below", cli=False)
     # Networks and optimiser (paper): one hidden layer of 100 tanh units, RMSProp, lr 1e-3.
-    hidden: int = 100
-    lr: float = 1e-3
-    rmsprop_alpha: float = 0.99
-    rmsprop_eps: float = 1e-8
+    network: str = option("auto", "Q and H networks: mlp (the paper's, fast numpy path), cnn (images), "
+                                  "module:factory (any torch nn.Module), or auto (cnn for image observations, "
+                                  "else mlp)")
+    device: str = option("cpu", "torch device of a non-mlp network (cpu, cuda, cuda:1, ...)")
+    hidden: int = option(100, "hidden units of the mlp (and of the cnn's dense layer)")
+    lr: float = option(1e-3, "RMSProp learning rate of Q and H")
+    rmsprop_alpha: float = option(0.99, "RMSProp smoothing constant")
+    rmsprop_eps: float = option(1e-8, "RMSProp epsilon")
     # Exploration (paper): epsilon-greedy 0.3, minus 0.001 per step, floor 0.1.
-    epsilon_start: float = 0.3
-    epsilon_decay: float = 0.001
-    epsilon_floor: float = 0.1
+    epsilon_start: float = option(0.3, "epsilon-greedy: epsilon at step 0")
+    epsilon_decay: float = option(0.001, "epsilon-greedy: epsilon lost per step")
+    epsilon_floor: float = option(0.1, "epsilon-greedy: lowest epsilon")
     # Mixture (paper): argmax(alpha_q Q + alpha_h H), alpha_h *= alpha_h_decay every step.
-    alpha_q: float = 1.0
-    alpha_h: float = 1.0
-    alpha_h_decay: float = 0.9999
-    # Which parts learn.
-    train_q: bool = True
-    """Learn Q from the environment's reward (DQN part)."""
-    train_h: bool = True
-    """Learn H from feedback (Deep TAMER part)."""
-    reward_shaping: bool = False
-    """Naive shaping: add a feedback to the reward of the newest step at its arrival (DQN+RS)."""
+    alpha_q: float = option(1.0, "weight of Q in argmax(alpha_q Q + alpha_h H)")
+    alpha_h: float = option(1.0, "weight of H at step 0 (dqn, dqn-rs: 0)")
+    alpha_h_decay: float = option(0.9999, "alpha_h is multiplied by this every step (deep-tamer: 1)")
+    train_q: bool = option(True, "learn Q from the environment's reward (DQN part; deep-tamer: false)")
+    train_h: bool = option(True, "learn H from feedback (Deep TAMER part; dqn, dqn-rs: false)")
+    reward_shaping: bool = option(False, "naive shaping: add a feedback to the reward of the newest step at its "
+                                         "arrival (dqn-rs: true)")
     # DQN (ours).
-    gamma: float = 0.9
-    batch_size: int = 32
-    replay_size: int = 10_000
-    replay_start: int = 32
-    target_update_interval: int = 100
-    update_interval: int = 1
-    """b: Q update and D_global minibatch every b steps (Algorithm 2)."""
+    gamma: float = option(0.9, "discount of the Q target")
+    batch_size: int = option(32, "Q minibatch size")
+    replay_size: int = option(10_000, "transitions kept for Q's replay")
+    replay_start: int = option(32, "transitions stored before Q learns")
+    target_update_interval: int = option(100, "steps between copies of Q into its target network")
+    update_interval: int = option(1, "b: a Q and a D_global minibatch update every b steps (Algorithm 2)")
     # Deep TAMER (ours).
-    h_batch_size: int = 32
-    feedback_memory_size: int = 20_000
-    assumed_delay_probs: tuple[float, ...] = (1 / 3, 1 / 3, 1 / 3)
-    """The learner's assumption about the observer's lag over 0, 1, 2, ... steps (uniform by default)."""
-    history_steps: int = 32
-    """Recent steps a feedback may still be credited to; older targets are stale."""
+    h_batch_size: int = option(32, "H minibatch size (from D_global)")
+    feedback_memory_size: int = option(20_000, "credited (step, feedback, weight) rows kept in D_global")
+    assumed_delay_probs: tuple[float, ...] = option((1 / 3, 1 / 3, 1 / 3),
+                                                    "the learner's assumption about the observer's lag over 0, 1, "
+                                                    "2, ... steps (for credit)")
+    history_steps: int = option(32, "recent steps a feedback may still be credited to; older targets are stale")
 
     def __post_init__(self):
         object.__setattr__(self, "assumed_delay_probs",
@@ -65,6 +67,10 @@ class AgentConfig:
             raise ValueError(f"gamma must be in [0, 1], got {self.gamma}")
         if self.lr <= 0:
             raise ValueError(f"lr must be positive, got {self.lr}")
+        if self.algo not in AGENT_CONFIGS:
+            raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(AGENT_CONFIGS)}")
+        if not self.network:
+            raise ValueError("network must be mlp, cnn, auto or module:factory")
 
     def with_(self, **changes) -> "AgentConfig":
         return replace(self, **changes)
@@ -111,7 +117,11 @@ AGENT_CONFIGS: dict[str, type[AgentConfig]] = {
 ALGOS = tuple(AGENT_CONFIGS)
 
 
-def agent_config(algo: str, **overrides) -> AgentConfig:
+def agent_config(algo: str, /, **overrides) -> AgentConfig:
+    """The preset of `algo` with `overrides` (a settings dict's `algo`, if any, must agree)."""
     if algo not in AGENT_CONFIGS:
         raise ValueError(f"unknown algo {algo!r}; choose one of {', '.join(ALGOS)}")
+    if overrides.get("algo", algo) != algo:
+        raise ValueError(f"agent.algo {overrides['algo']!r} differs from algo {algo!r}")
+    overrides.pop("algo", None)
     return AGENT_CONFIGS[algo](**overrides)

@@ -9,11 +9,18 @@ from experiments.__main__ import main
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["--delay-probs", "0.3,0.3"], "delay-probs must sum to 1"),
-    (["--assumed-delay-probs", "0.5,0.6"], "assumed-delay-probs must sum to 1"),
-    (["--env", "pong"], "invalid choice: 'pong'"),
+    (["--observer.delay-probs", "0.3,0.3"], "delay-probs must sum to 1"),
+    (["--agent.assumed-delay-probs", "0.5,0.6"], "assumed-delay-probs must sum to 1"),
+    (["--env", "pong"], "unknown env 'pong'"),
+    (["--env", "NoSuchWorld-v3"], "unknown env 'NoSuchWorld-v3'"),
+    (["--env", "no_such_module:make"], "env factory 'no_such_module:make': cannot import 'no_such_module'"),
+    (["--env", "json:no_such_factory"], "env factory 'json:no_such_factory': 'json' has no 'no_such_factory'"),
+    (["--teacher-rule", "json:nope"], "teacher rule 'json:nope'"),
+    (["--agent.no-such-field", "1"], "unknown setting --agent.no-such-field"),
+    (["--p-feedback", "0.2"], "unknown setting --p-feedback"),
+    (["--agent.lr", "-1"], "agent: lr must be positive"),
     (["--episodes", "-3"], "episodes must be >= 0"),
-    (["--p-feedback", "2"], "p-feedback must be in [0, 1]"),
+    (["--observer.p-feedback", "2"], "p-feedback must be in [0, 1]"),
     (["--layout", "12"], "layout must be in 0..9"),
     (["--seed", "x"], "--seed expects int"),
 ])
@@ -21,20 +28,22 @@ def test_bad_arguments_give_one_line_error_naming_them(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["run", *argv, "--out", "/nonexistent/never-written"])
     assert exc.value.code == 2
-    err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert message in err
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
 
 
 def test_run_writes_config_and_episodes(tmp_path):
     out = tmp_path / "r"
     proc = subprocess.run([sys.executable, "-m", "experiments", "run", "--env", "maze", "--algo", "dqn-tamer",
-                           "--layout", "1", "--seed", "2", "--episodes", "3", "--p-feedback", "0.5",
-                           "--delay-probs", "0.3,0.6,0.1", "--assumed-delay-probs", "0.3333,0.3333,0.3334",
-                           "--stop-episode", "2", "--flip", "0.1", "--out", str(out)],
+                           "--layout", "1", "--seed", "2", "--episodes", "3", "--observer.p-feedback", "0.5",
+                           "--observer.delay-probs", "0.3,0.6,0.1", "--agent.assumed-delay-probs",
+                           "0.3333,0.3333,0.3334", "--observer.stop-episode", "2", "--observer.p-flip", "0.1",
+                           "--agent.lr", "5e-4", "--out", str(out)],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     config = json.loads((out / "config.json").read_text())
-    assert config["run"]["layout"] == 1 and config["observer"]["p_flip"] == 0.1
+    assert config["task"]["layout"] == 1 and config["observer"]["p_flip"] == 0.1
+    assert config["agent"]["lr"] == 5e-4 and config["agent"]["algo"] == "dqn-tamer"
     rows = list(csv.DictReader((out / "episodes.csv").open()))
     assert [r["episode"] for r in rows] == ["0", "1", "2"]
     assert {"episode", "return", "steps", "feedback_given", "feedback_credited"} <= set(rows[0])
