@@ -56,33 +56,81 @@ class FeedbackEvent:
     lag_steps: int
 
 
+class ObserverBatch:
+    """The simulated observer of many trials at once: the one implementation of the observer's rule.
+
+    Each trial's observer draws three uniforms per step it watches (give, lag, flip) from its own
+    generator; here they are drawn `block` steps at a time from that generator (numpy gives the same numbers
+    either way, so a trial reacts the same alone, batched, or through `SimulatedObserver`), and the rule is
+    applied to arrays: silent after the stop, feedback with probability p_feedback, the lag by inverse CDF
+    over `delay_probs` (a running sum, as `DelayModel.sample_steps`), polarity flipped with probability p_flip.
+    """
+
+    def __init__(self, configs: list[ObserverConfig], seeds: list[int], block: int = 1024):
+        self.rngs = [np.random.default_rng(s) for s in seeds]
+        self.block = block
+        big = np.iinfo(np.int64).max
+        self.p_feedback = np.array([c.p_feedback for c in configs], np.float64)
+        self.p_flip = np.array([c.p_flip for c in configs], np.float64)
+        self.stop_episode = np.array([big if c.stop_episode is None else c.stop_episode for c in configs], np.int64)
+        self.stop_step = np.array([big if c.stop_step is None else c.stop_step for c in configs], np.int64)
+        self.n_lags = np.array([len(c.delay_probs) for c in configs], np.int64)
+        self.max_lag = int(self.n_lags.max()) - 1
+        self.cum = np.zeros((len(configs), self.max_lag + 1), np.float64)
+        for k, c in enumerate(configs):
+            cum = np.cumsum(np.asarray(c.delay_probs, np.float64))
+            self.cum[k, :len(cum)] = cum
+            self.cum[k, len(cum):] = cum[-1]
+        self.u = np.zeros((len(configs), block, 3), np.float64)
+        self.watched = np.zeros(len(configs), np.int64)  # steps watched so far (draws used)
+        self.drawn = np.zeros(len(configs), np.int64)  # steps' worth of uniforms drawn so far
+
+    def react(self, rows: np.ndarray, intended: np.ndarray, episode: np.ndarray, global_step: np.ndarray):
+        """Trials `rows` (distinct) each watched one step whose rule says `intended`: (gives feedback, value,
+        lag in steps)."""
+        n = self.watched[rows]
+        for k in rows[n >= self.drawn[rows]]:
+            self.u[k] = self.rngs[k].random((self.block, 3))
+            self.drawn[k] += self.block
+        u = self.u[rows, n % self.block]
+        self.watched[rows] = n + 1
+        silent = (episode >= self.stop_episode[rows]) | (global_step >= self.stop_step[rows])
+        give = ~silent & (u[:, 0] < self.p_feedback[rows])
+        lag = np.minimum((u[:, 1:2] >= self.cum[rows]).sum(axis=1), self.n_lags[rows] - 1)
+        value = np.where(u[:, 2] < self.p_flip[rows], -intended, intended)
+        return give, value, lag
+
+    def select(self, rows: np.ndarray) -> None:
+        """Keep only trials `rows` (in that order)."""
+        for name in ("p_feedback", "p_flip", "stop_episode", "stop_step", "n_lags", "cum", "u", "watched", "drawn"):
+            setattr(self, name, getattr(self, name)[rows])
+        self.rngs = [self.rngs[k] for k in rows]
+
+
 class SimulatedObserver:
+    """One observer watching steps one at a time (the live teachers): an `ObserverBatch` of one."""
+
     def __init__(self, config: ObserverConfig, rule: Callable[[Mapping[str, float]], int], seed: int,
                  step_unit: float = 1.0):
         self.config = config
         self.rule = rule
         self.delay = DelayModel(config.delay_probs, step_unit)
         self.step_unit = step_unit
-        self.rng = np.random.default_rng(seed)
+        self._batch = ObserverBatch([config], [seed], block=1)
+        self._row = np.zeros(1, np.int64)
         self.emitted = 0
         self.flipped = 0
-
-    def silent(self, episode: int, global_step: int) -> bool:
-        c = self.config
-        return ((c.stop_episode is not None and episode >= c.stop_episode)
-                or (c.stop_step is not None and global_step >= c.stop_step))
 
     def react(self, t_action: float, info: Mapping[str, float], episode: int, global_step: int,
               step_ref: int | None = None) -> FeedbackEvent | None:
         """The observer watches the step whose action was taken at t_action; maybe reacts later."""
-        give, u_delay, u_flip = self.rng.random(3)
-        if self.silent(episode, global_step) or give >= self.config.p_feedback:
+        intended = int(self.rule(info))
+        give, value, lag = self._batch.react(self._row, np.array([intended]), np.array([episode]),
+                                             np.array([global_step]))
+        if not give[0]:
             return None
-        intended = self.rule(info)
-        lag = self.delay.sample_steps(u_delay)
-        value = -intended if u_flip < self.config.p_flip else intended
+        value, lag = int(value[0]), int(lag[0])
         self.emitted += 1
         self.flipped += value != intended
         t_reaction = t_action + (lag + REACTION_OFFSET) * self.step_unit
-        return FeedbackEvent(t_reaction, int(value), int(intended),
-                             global_step if step_ref is None else step_ref, lag)
+        return FeedbackEvent(t_reaction, value, intended, global_step if step_ref is None else step_ref, lag)

@@ -26,13 +26,16 @@ from typing import Any
 import numpy as np
 
 from common.agents import TrialBatchAgent, agent_config
+from common.agents.agent import STATUS_NAMES
 from common.config import config_record
 from common.envs import make_env
 from common.protocol import Feedback, IngestEntry, Step
+from common.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
 
 REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
+ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
 
 
 @dataclasses.dataclass
@@ -67,6 +70,7 @@ class LearnerCore:
         self.agent_config = agent_config(config.algo, assumed_delay_probs=config.assumed_delay_probs,
                                          update_interval=config.update_interval)
         self.agent = TrialBatchAgent([self.agent_config], self.obs_dim, self.n_actions, [config.seed])
+        self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
         self.actor: str | None = None
         self.next_seq = 0
@@ -145,10 +149,9 @@ class LearnerCore:
         while self._held and self.clock.placeable(self._held[0][0]):
             _, _, fb, pos = heapq.heappop(self._held)
             results.append(self._credit(fb, pos, t))
-        a = self.agent
-        a.record_step(0, np.asarray(step.obs, np.float32), int(step.action), float(step.reward),
-                      np.asarray(step.next_obs, np.float32), bool(step.terminated), float(index), int(step.episode))
-        a.update()
+        self.loop.step(ROW, np.asarray(step.obs, np.float32)[None], np.array([step.action]), np.array([step.reward]),
+                       np.asarray(step.next_obs, np.float32)[None], np.array([float(step.terminated)]),
+                       np.array([float(index)]), np.array([step.episode]))
         self.counters["steps_learned"] += 1
 
         ep = self._ep
@@ -238,8 +241,8 @@ class LearnerCore:
     # -- internals ---------------------------------------------------------------------------------------------
     def _credit(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
         tau = self.clock.to_steps(fb.t_reaction)
-        out = self.agent.give_feedback([(0, tau, int(fb.value))])[0]
-        return self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
+        out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]))
+        return self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:
         results = []

@@ -9,7 +9,8 @@ from common.credit import credit_weights
 from common.delay import DelayModel
 from common.envs import progress_rule
 from common.observer import ObserverConfig, SimulatedObserver
-from experiments.runner import ObserverBatch, TrialSpec, run_trials
+from common.observer import ObserverBatch
+from experiments.runner import TrialSpec, run_trials
 
 ALGOS = ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer")
 DELAYED = ObserverConfig(p_feedback=0.5, delay_probs=(0.3, 0.6, 0.1))
@@ -48,17 +49,17 @@ def test_compiled_tables_step_exactly_like_the_real_environments(env):
         assert a.episodes == b.episodes
 
 
-def test_observer_batch_matches_simulated_observer_event_for_event():
+def test_observer_batch_reacts_as_single_observers_do_event_for_event():
     cfgs = [ObserverConfig(0.5, (0.3, 0.6, 0.1), 0.15, None, None), ObserverConfig(0.1, (1.0,)),
             ObserverConfig(1.0, (0.2, 0.2, 0.2, 0.4), 0.5, stop_episode=3), ObserverConfig(0.7, stop_step=2500)]
     ref = [SimulatedObserver(c, progress_rule, seed=11 + k) for k, c in enumerate(cfgs)]
-    batch = ObserverBatch([SimulatedObserver(c, progress_rule, seed=11 + k) for k, c in enumerate(cfgs)], block=64)
+    batch = ObserverBatch(cfgs, [11 + k for k in range(len(cfgs))], block=64)
     rng = np.random.default_rng(0)
     rows = np.arange(len(cfgs))
     for step in range(3000):
         intended = rng.choice([-1, 1], size=len(cfgs))
         episode = np.full(len(cfgs), step // 500)
-        give, value, lag = batch.react(rows, np.full(len(cfgs), step), intended, episode)
+        give, value, lag = batch.react(rows, intended, episode, np.full(len(cfgs), step))
         for k, o in enumerate(ref):
             info = {"target_distance_before": 2.0, "target_distance_after": 1.0 if intended[k] > 0 else 3.0}
             ev = o.react(float(step), info, int(episode[k]), step)
