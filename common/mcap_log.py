@@ -1,48 +1,42 @@
-"""MCAP logs of a run: one writer that a recorder (or any service) feeds with (key, bytes), and a reader
-that gives the records back in file order, also from files cut short by a crash and from several
-segment files (``session.mcap``, ``session.1.mcap``, ...).
+"""MCAP logs of a run: one writer that a recorder (or any service) feeds with (key, bytes); the reader
+(``read_log``, in ``common/mcap_read.py``) gives the records back in file order, also from files cut short
+by a crash or with damaged chunks, and from several segment files (``session.mcap``, ``session.1.mcap``, ...).
 
 Layout of every segment file:
 
 - MCAP metadata ``hitl.run``: ``run``, ``protocol``, ``segment``, ``run_config`` (the RunConfig message as
   JSON);
-- the first message: the RunConfig on ``hitl/<run>/config``;
-- then one channel per key expression (topic = the key), one schema per message type (name = the type's
-  ``TYPE_NAME``, encoding ``jsonschema``, data = its JSON Schema; Weights: the schema of its safetensors
-  header, message encoding ``safetensors``), messages in arrival order, zstd chunks.
+- the first message: the RunConfig on topic ``/config``;
+- then one channel per key expression, its topic the key without ``hitl/<run>`` (``/step``,
+  ``/feedback/<teacher>``: the same in every run, so a Foxglove layout fits any log; docs/logs.md), one
+  schema per message type (name = the type's ``TYPE_NAME``; JSON types: encoding ``jsonschema``, data = its
+  JSON Schema; Foxglove's scene types: encoding ``protobuf``, data = their FileDescriptorSet), messages in
+  arrival order, zstd chunks.
 
 The writer finishes its chunk and flushes the file at least every ``flush_interval`` (1 s) while data
 is pending (a background thread does it when no new message arrives), so a SIGKILL loses at most about
-that much. A crashed file has no summary; ``read_log`` reads it sequentially up to its last complete
-chunk, warns with counts (``LogRecoveryWarning``) and reports in ``reader.status``.
+that much.
 """
 
 from __future__ import annotations
 
 import collections
-import dataclasses
 import json
 import os
 import re
 import threading
 import time
-import warnings
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
-from mcap.records import Channel, Chunk, DataEnd, Footer, Message as McapMessage, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from common.protocol import PROTOCOL_VERSION, ProtocolError, RunConfig, config_key, decode, parse_key
+from common.mcap_read import (CHANNEL_METADATA, METADATA_NAME, FileStatus, LogReader, LogRecord, LogRecoveryWarning,  # noqa: F401
+                              NotMcapError, ReadStatus, identity, load_log, read_log)
+from common.protocol import PROTOCOL_VERSION, RunConfig, config_key, log_topic, parse_key
 
-METADATA_NAME = "hitl.run"
 PROFILE = "hitl"
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
-
-
-class LogRecoveryWarning(UserWarning):
-    """A log file was incomplete (crash or still being written); only its complete chunks were read."""
 
 
 # -- segment files -----------------------------------------------------------------------------------------------
@@ -76,6 +70,14 @@ def next_segment_path(base: str | os.PathLike) -> tuple[int, Path]:
     existing = segment_paths(base)
     index = 0 if not existing else _segment_index(base, existing[-1]) + 1
     return index, segment_path(base, index)
+
+
+def schema_record(cls: type) -> tuple[str, bytes]:
+    """(schema encoding, schema data) of a message type: its JSON Schema, or what the type says it has
+    (Foxglove's protobuf types carry their FileDescriptorSet)."""
+    if hasattr(cls, "schema_data"):
+        return cls.SCHEMA_ENCODING, cls.schema_data()
+    return "jsonschema", json.dumps(cls.json_schema(), indent=None).encode()
 
 
 # -- writer -------------------------------------------------------------------------------------------------------------
@@ -140,11 +142,15 @@ class LogWriter:
             cls = parse_key(key).spec.message
             sid = self._schemas.get(cls)
             if sid is None:
-                sid = self._writer.register_schema(cls.TYPE_NAME, "jsonschema",
-                                                   json.dumps(cls.json_schema(), indent=None).encode())
+                sid = self._writer.register_schema(cls.TYPE_NAME, *schema_record(cls))
                 self._schemas[cls] = sid
-            cid = self._writer.register_channel(key, cls.MESSAGE_ENCODING, sid,
+            topic = log_topic(key)
+            cid = self._writer.register_channel(topic, cls.MESSAGE_ENCODING, sid,
                                                 {"message_type": cls.__name__, "content_type": cls.CONTENT_TYPE})
+            # Also outside the chunks: a reader of a crashed file whose chunk with this definition is damaged
+            # still knows the channel's topic.
+            self._writer.add_metadata(CHANNEL_METADATA, {"id": str(cid), "topic": topic, "schema": cls.TYPE_NAME,
+                                                         "message_encoding": cls.MESSAGE_ENCODING})
             self._channels[key] = cid
         return cid
 
@@ -221,202 +227,3 @@ class LogWriter:
     def __exit__(self, *exc: Any) -> None:
         self.finish()
 
-
-# -- reader -------------------------------------------------------------------------------------------------------------
-
-@dataclasses.dataclass(frozen=True)
-class LogRecord:
-    key: str
-    log_time: int  # ns since the epoch
-    data: bytes  # the payload as received
-    message: Any  # the decoded message (None when decode=False or when it failed to decode)
-    publish_time: int = 0
-    segment: int = 0
-    error: ProtocolError | None = None
-
-
-@dataclasses.dataclass
-class FileStatus:
-    path: str
-    size: int
-    bytes_read: int = 0  # end of the last record read completely
-    messages: int = 0
-    chunks: int = 0
-    data_complete: bool = False  # the DataEnd record was read: no message lost
-    complete: bool = False  # the footer was read: a properly finished file
-    error: str | None = None  # what stopped the reading, for an incomplete file
-
-
-@dataclasses.dataclass
-class ReadStatus:
-    files: list[FileStatus] = dataclasses.field(default_factory=list)
-    messages: int = 0
-    undecodable: collections.Counter = dataclasses.field(default_factory=collections.Counter)
-    duplicate_configs_skipped: int = 0
-    duplicates_skipped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # by kind
-
-    @property
-    def complete(self) -> bool:
-        return all(f.complete for f in self.files)
-
-    @property
-    def truncated(self) -> list[str]:
-        """Files whose data section was cut short (messages after the last complete chunk are lost)."""
-        return [f.path for f in self.files if not f.data_complete]
-
-    def summary(self) -> str:
-        parts = [f"{self.messages} messages from {len(self.files)} file(s)"]
-        for f in self.files:
-            if not f.data_complete:
-                parts.append(f"{f.path}: truncated, recovered {f.messages} messages in {f.chunks} complete chunks "
-                             f"({f.bytes_read} of {f.size} bytes; {f.error})")
-            elif not f.complete:
-                parts.append(f"{f.path}: all data read, summary missing ({f.error})")
-        if self.undecodable:
-            parts.append(f"undecodable: {dict(self.undecodable)}")
-        if self.duplicates_skipped:
-            parts.append(f"duplicates skipped: {dict(self.duplicates_skipped)}")
-        return "; ".join(parts)
-
-
-class LogReader:
-    """Iterate to get :class:`LogRecord` in file order; ``status``, ``metadata`` and ``run_config`` fill in
-    as files are read (complete after the iteration ends). Iterable once."""
-
-    def __init__(self, paths: list[Path], *, decode_messages: bool = True, dedup: bool = True):
-        self.paths = paths
-        self.decode_messages = decode_messages
-        self.dedup = dedup and decode_messages
-        self._seen: set[tuple] = set()
-        self.status = ReadStatus()
-        self.metadata: list[tuple[str, dict[str, str]]] = []
-        self.run_config: RunConfig | None = None
-        self.schemas: dict[str, Schema] = {}  # by schema name
-        self._used = False
-
-    def __iter__(self) -> Iterator[LogRecord]:
-        if self._used:
-            raise RuntimeError("a LogReader can be iterated once; call read_log again")
-        self._used = True
-        for segment, path in enumerate(self.paths):
-            yield from self._read_file(segment, path)
-
-    def _read_file(self, segment: int, path: Path) -> Iterator[LogRecord]:
-        fs = FileStatus(str(path), path.stat().st_size)
-        self.status.files.append(fs)
-        schemas: dict[int, Schema] = {}
-        channels: dict[int, Channel] = {}
-        with open(path, "rb") as f:
-            records = StreamReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=1 << 30).records
-            while True:
-                try:
-                    record = next(records)
-                    # A chunk is read whole or not at all; its records are checked against its CRC.
-                    inner = breakup_chunk(record, validate_crc=True) if isinstance(record, Chunk) else [record]
-                except StopIteration:
-                    break
-                except Exception as e:  # EndOfFile, struct.error, CRC, zstd: the tail is cut or damaged
-                    fs.error = f"{type(e).__name__}: {str(e)[:120]}"
-                    break
-                fs.bytes_read = f.tell()
-                if isinstance(record, Chunk):
-                    fs.chunks += 1
-                for r in inner:
-                    if isinstance(r, Schema):
-                        schemas[r.id] = r
-                        self.schemas[r.name] = r
-                    elif isinstance(r, Channel):
-                        channels[r.id] = r
-                    elif isinstance(r, Metadata):
-                        self.metadata.append((r.name, dict(r.metadata)))
-                    elif isinstance(r, DataEnd):
-                        fs.data_complete = True
-                    elif isinstance(r, Footer):
-                        fs.complete = True
-                    elif isinstance(r, McapMessage):
-                        out = self._record(segment, r, channels)
-                        if out is not None:
-                            fs.messages += 1
-                            self.status.messages += 1
-                            yield out
-        if not fs.data_complete:
-            warnings.warn(f"{path}: incomplete log, recovered {fs.messages} messages in {fs.chunks} complete "
-                          f"chunks ({fs.bytes_read} of {fs.size} bytes); the rest is lost ({fs.error})",
-                          LogRecoveryWarning, stacklevel=3)
-
-    def _record(self, segment: int, m: McapMessage, channels: dict[int, Channel]) -> LogRecord | None:
-        channel = channels.get(m.channel_id)
-        key = channel.topic if channel is not None else f"<channel {m.channel_id}>"
-        message, error = None, None
-        if self.decode_messages:
-            try:
-                message = decode(key, m.data)
-            except ProtocolError as e:
-                error = e
-                self.status.undecodable[e.reason] += 1
-        if self.decode_messages and isinstance(message, RunConfig):
-            if self.run_config is None:
-                self.run_config = message
-            elif (message.run, message.config) == (self.run_config.run, self.run_config.config):
-                self.status.duplicate_configs_skipped += 1
-                return None  # the same run config repeated at the top of a later segment
-            else:
-                warnings.warn(f"segment {segment} has a different run config", LogRecoveryWarning, stacklevel=4)
-        if self.dedup and message is not None:
-            ident = identity(message)
-            if ident is not None:
-                if ident in self._seen:
-                    self.status.duplicates_skipped[ident[0]] += 1
-                    return None
-                self._seen.add(ident)
-        return LogRecord(key, m.log_time, bytes(m.data), message, m.publish_time, segment, error)
-
-
-def identity(message: Any) -> tuple | None:
-    """What makes a message unique within a run, for messages that may be published twice (re-sent to a
-    restarted recorder or learner; docs/faults.md); None for the others (statuses, frames, ...)."""
-    from common.protocol import EpisodeSummary, Feedback, Ingest, Log, Step, Weights
-
-    if isinstance(message, Step):
-        return ("step", message.incarnation, message.seq)
-    if isinstance(message, Feedback):
-        return ("feedback", message.teacher_id, message.seq)
-    if isinstance(message, Ingest):
-        return ("ingest", message.learner, message.seq)
-    if isinstance(message, EpisodeSummary):
-        return ("episode", message.incarnation, message.episode)
-    if isinstance(message, Weights):
-        return ("weights", message.incarnation, message.version)
-    if isinstance(message, Log):
-        return ("log", message.name, message.timestamp.sec, message.timestamp.nsec, message.message)
-    return None
-
-
-def read_log(path: str | os.PathLike | Iterable[str | os.PathLike], *, decode: bool = True,
-             segments: bool = True, dedup: bool = True) -> LogReader:
-    """Records of a log in file order.
-
-    ``path``: a file (with ``segments=True``, also its later segments ``<stem>.1<suffix>``, ... as one log),
-    a directory (its ``session.mcap`` segments), or a list of files read in the given order.
-    ``decode``: decode each payload by its key (failures are counted in ``status.undecodable`` and the record
-    is still yielded with ``error`` set). Later segments' copies of the same run config are skipped.
-    ``dedup`` (with ``decode``): a message published twice (the same :func:`identity`: re-sent to a restarted
-    recorder) is yielded once, the first time; ``status.duplicates_skipped`` counts the others by kind.
-    """
-    if isinstance(path, (str, os.PathLike)):
-        p = Path(path)
-        if p.is_dir():
-            p = p / "session.mcap"
-        paths = segment_paths(p) if segments else [p]
-        if not paths:
-            raise FileNotFoundError(p)
-    else:
-        paths = [Path(x) for x in path]
-    return LogReader(paths, decode_messages=decode, dedup=dedup)
-
-
-def load_log(path: Any, **kwargs: Any) -> tuple[list[LogRecord], ReadStatus]:
-    """All records and the read status at once."""
-    reader = read_log(path, **kwargs)
-    records = list(reader)
-    return records, reader.status

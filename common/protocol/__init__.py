@@ -24,6 +24,7 @@ from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, Compre
                         ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, MAX_SHOWN, ObserverReaction, RunConfig,
                         ServiceStatus, ShownStep, Step, Time)
 from ._spec import REASONS, ProtocolError
+from ._topics import key_from_topic, log_topic
 from ._weights import Weights, check_spec
 
 __all__ = [
@@ -36,5 +37,5 @@ __all__ = [
     "status_key",
     "camera_key", "perception_key", "config_key", "ObserverReaction", "reaction_key",
     "Shown", "ShownStep", "MAX_SHOWN", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit", "CreditedStep",
-    "shown_key", "control_key", "credit_key",
+    "shown_key", "control_key", "credit_key", "log_topic", "key_from_topic",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from ._base import PROTOCOL_VERSION
+from ._topics import topics_table
 from ._keys import KEYS, ROOT
 from ._messages import NAME_PATTERN, TOKEN_PATTERN
 from ._spec import REASONS, SAFE_INT
@@ -96,9 +97,16 @@ def markdown() -> str:
     w("```")
     w("")
     w("A log segment starts with MCAP metadata `hitl.run` (`run`, `protocol`, `segment`, `run_config`) and the "
-      "RunConfig message on `hitl/<run>/config`; each key is one channel (topic = key), each type one schema "
-      "(name = the type's schema name below, encoding `jsonschema`). Segments are `session.mcap`, "
-      "`session.1.mcap`, ...; a restarted recorder opens the next one and never overwrites.")
+      "RunConfig message on `/config`; each key is one channel whose topic is the key without `hitl/<run>` "
+      "(the same in every run, so one Foxglove layout fits every log; readers put the run back from the "
+      "metadata), each type one schema (name = the type's schema name below). Segments are `session.mcap`, "
+      "`session.1.mcap`, ...; a restarted recorder opens the next one and never overwrites. More in "
+      "docs/logs.md.")
+    w("")
+    w("### Log topics")
+    w("")
+    for row in topics_table():
+        w(row)
     w("")
     w("## Message types")
     for spec in KEYS.values():

@@ -110,7 +110,13 @@ def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = _warn_to_stderr
     if not Path(args.log).exists():
         parser.error(f"{args.log}: no such file or directory")
-    return {"summary": cmd_summary, "play": cmd_play, "retrain": cmd_retrain}[args.command](args)
+    from common.mcap_log import NotMcapError
+
+    try:
+        return {"summary": cmd_summary, "play": cmd_play, "retrain": cmd_retrain}[args.command](args)
+    except NotMcapError as e:  # a video, a random file: say so in one line
+        print(f"error: {e}", file=sys.stderr)
+        return 2
 
 
 def cli(argv: list[str] | None = None) -> int:

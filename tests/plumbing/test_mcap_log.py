@@ -66,8 +66,9 @@ def test_write_then_read_with_schemas_and_metadata(tmp_path):
     assert json.loads(schemas["hitl.Step"].data) == Step.json_schema()
     assert json.loads(schemas["hitl.Weights"].data)["x-message-encoding"] == "safetensors"
     channels = {c.topic: c for c in summary.channels.values()}
-    assert channels[weights_key(RUN)].message_encoding == "safetensors"
-    assert channels[step_key(RUN)].message_encoding == "json"
+    assert set(channels) == {"/config", "/step", "/feedback/oracle", "/weights", "/camera/cam0", "/status/learner"}
+    assert channels["/weights"].message_encoding == "safetensors"
+    assert channels["/step"].message_encoding == "json"
     assert summary.statistics.message_count == 10
     assert summary.statistics.chunk_count >= 1
 

@@ -71,15 +71,15 @@ def test_face_video_log_holds_frames_predictions_and_reactions_with_schemas(face
     with open(face_run.rundir / "session.mcap", "rb") as f:
         summary = make_reader(f).get_summary()
     schema_of = {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
-    assert schema_of["hitl/face/camera/face"] == "foxglove.CompressedImage"  # Foxglove shows it as an image
-    assert schema_of["hitl/face/perception/face"] == "hitl.ExpressionPrediction"
-    assert schema_of["hitl/face/reaction/face"] == "hitl.ObserverReaction"
-    assert schema_of["hitl/face/feedback/face"] == "hitl.Feedback"
+    assert schema_of["/camera/face"] == "foxglove.CompressedImage"  # Foxglove shows it as an image
+    assert schema_of["/perception/face"] == "hitl.ExpressionPrediction"
+    assert schema_of["/reaction/face"] == "hitl.ObserverReaction"
+    assert schema_of["/feedback/face"] == "hitl.Feedback"
     counts = {ch.topic: summary.statistics.channel_message_counts[cid] for cid, ch in summary.channels.items()}
     s = face_run.summary()
     frames = s["services"]["observer.face"]["counters"]["frames_published"]
-    assert counts["hitl/face/camera/face"] >= 0.95 * frames
-    assert counts["hitl/face/perception/face"] >= 0.95 * frames
+    assert counts["/camera/face"] >= 0.95 * frames
+    assert counts["/perception/face"] >= 0.95 * frames
 
 
 def _collect(session, key_expr: str, sink: list):
