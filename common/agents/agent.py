@@ -35,6 +35,7 @@ from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.schedules import AlphaSchedule, EpsilonSchedule
 from common.agents.streams import UniformBlocks, to_integers
+from common.credit import credit_weights
 from common.delay import DelayModel
 from common.seeding import derive_seed
 from common.util import nz
@@ -175,6 +176,15 @@ class TrialBatchAgent:
         """Trial i's greedy action for one observation, touching no random stream (for evaluation)."""
         return int(self._scores(np.array([i]), np.asarray(obs, np.float32).reshape(1, -1))[0].argmax())
 
+    def preferences(self, i: int, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Trial i's Q and H per action for one observation, with alpha_q and alpha_h now (what the console
+        shows a person)."""
+        x = np.asarray(obs, np.float32).reshape(1, 1, self.obs_dim)
+        r = np.array([i])
+        q = mlp_forward(self.q.rows(r), x)[1][0, 0]
+        h = mlp_forward(self.h.rows(r), x)[1][0, 0]
+        return q.copy(), h.copy(), float(self.alpha_q[i]), float(self.alpha_h(r)[0])
+
     def act(self, obs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Epsilon-greedy actions for the active trials (-1 for the others). obs: [B, obs_dim].
 
@@ -288,6 +298,46 @@ class TrialBatchAgent:
                     self.feedback_memory.add_many(r[g], cnt[g], obs=obs[g], action=act[g], feedback=fb, weight=w32[g])
                     self._h_step(r[g], obs[g], act[g], fb, w32[g], reduce="sum")
         return status, steps, lost
+
+    def give_screen_feedback(self, i: int, t_feedback: float, value: int, step_times, starts, ends,
+                             delay) -> tuple[FeedbackOutcome, np.ndarray]:
+        """Feedback from a person who watched the steps on a screen (the console): the held steps recorded at
+        `step_times` were on screen during [starts, ends) seconds, oldest first; credit them in seconds with
+        `delay` (any distribution with a CDF), by the same credit function. Mass on steps no longer held is
+        lost. Returns the outcome and the weight given to each listed step."""
+        if value not in (-1, 1):
+            raise ValueError(f"feedback must be -1 or +1, got {value!r}")
+        step_times = np.asarray(step_times, np.float64)
+        weights = np.zeros(len(step_times), np.float64)
+        row = np.array([i], np.int64)
+        pos, times = self.history._chronological(row)
+        held = {float(t): int(p) for t, p in zip(times[0], pos[0]) if np.isfinite(t)}
+        at = np.array([held.get(float(t), -1) for t in step_times], np.int64)
+        if self.shaping[i]:  # naive shaping: the newest step shown at or before the feedback, if still held
+            on = np.flatnonzero((np.asarray(starts) <= t_feedback) & (at >= 0))
+            if not len(on):
+                return FeedbackOutcome("stale", 0, 1.0), weights
+            weights[on[-1]] = 1.0
+            self.replay.add_reward(row, self.history.slot[row, at[on[-1:]]], np.array([value], np.float32))
+            return FeedbackOutcome("credited", 1, 0.0), weights
+        if not self.train_h[i]:
+            return FeedbackOutcome("ignored"), weights
+        if not len(step_times):
+            return FeedbackOutcome("stale", 0, 1.0), weights
+        episodes = np.where(at >= 0, self.history.episode[i, np.maximum(at, 0)], -1)
+        w, _ = credit_weights(t_feedback, starts, delay, ends=ends, episodes=episodes)
+        weights = np.where(at >= 0, w, 0.0)
+        k = np.flatnonzero(weights > 0)
+        lost = max(0.0, 1.0 - float(weights.sum()))
+        if not len(k):
+            return FeedbackOutcome("stale", 0, lost), weights
+        p = at[k][None, :]
+        obs, act = self.history.obs[row[:, None], p], self.history.action[row[:, None], p]
+        w32 = weights[k][None, :].astype(np.float32)
+        fb = np.full((1, len(k)), value, np.float32)
+        self.feedback_memory.add_many(row, np.array([len(k)]), obs=obs, action=act, feedback=fb, weight=w32)
+        self._h_step(row, obs, act, fb, w32, reduce="sum")
+        return FeedbackOutcome("credited", int(len(k)), lost), weights
 
     # ---------------------------------------------------------------------------------- learning
     def update(self, active: np.ndarray | None = None) -> None:

@@ -30,7 +30,9 @@ import numpy as np
 
 from common.agents import TrialBatchAgent, agent_config
 from common.envs import make_env
-from common.protocol import ProtocolError, ServiceStatus, Step, Weights, status_key, step_key, weights_key
+from common.protocol import (ProtocolError, ServiceStatus, Step, Weights, control_key, status_key, step_key,
+                             weights_key)
+from services.actor.control import RunControl
 from common.seeding import derive_seed
 from services.common.config import ActorConfig
 from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, atomic_write_json, first_time_logger, publish_kept, read_json
@@ -140,6 +142,7 @@ def main(config: ActorConfig) -> int:
         with subscription(session, weights_key(config.run), maxsize=64, policy="drop_oldest") as weights_in, \
                 subscription(session, status_key(config.run, "learner"), maxsize=16,
                              policy="drop_oldest") as learner_status, \
+                subscription(session, control_key(config.run), maxsize=64, policy="drop_oldest") as control_in, \
                 MessagePublisher(session, step_key(config.run)) as pub:
             watch = AliveWatch(session, config.run, ("learner", "recorder"))
             slot.watch = IncarnationWatch(session, config.run, "learner")
@@ -165,7 +168,7 @@ def main(config: ActorConfig) -> int:
                          f"learner's weights version {base}", 3)
             env_seed = derive_seed(config.seed, "env" if not restart else f"env-restart-{restarts}")
             obs = env.reset(seed=env_seed % (2**31))[0]
-            period = 1.0 / config.rate if config.rate > 0 else 0.0
+            control = RunControl(config.rate, rt.counters, rt.log)
             next_tick = time.perf_counter()
             t_prev = 0.0
             episode, t_in_episode = episodes_done, 0
@@ -190,11 +193,22 @@ def main(config: ActorConfig) -> int:
                 if rt.stop.is_set():
                     break
                 rt.counters["weights_wait_us"] += int((time.monotonic() - waited) * 1e6)
-                if period:
+                if pace(control, control_in, slot, weights_in, learner_status, rt):
+                    next_tick = time.perf_counter()  # paused, resumed or re-paced: the tick starts afresh
+                if control.end or rt.stop.is_set():
+                    break
+                if control.period:
+                    period = control.period
                     next_tick += period
                     # Wait for the next tick on the weights inbox: weights are adopted as they arrive.
                     while (delay := next_tick - time.perf_counter()) > 0 and not rt.stop.is_set():
-                        slot.adopt(weights_in, timeout=delay, status=learner_status)
+                        slot.adopt(weights_in, timeout=min(delay, 0.05), status=learner_status)
+                        if control.take(control_in):
+                            if control.paused or control.end:
+                                break
+                            next_tick = time.perf_counter() + control.period
+                    if control.paused or control.end:
+                        continue  # back to the top: wait there while paused, or end
                     if delay < -period:
                         next_tick = time.perf_counter()  # fell behind: do not try to catch up with a burst
                 agent.steps[0] = base + seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
@@ -225,6 +239,16 @@ def main(config: ActorConfig) -> int:
     rt.write_stats()
     rt.log(f"stopped after {seq} steps, {episode} episodes")
     return code
+
+
+def pace(control: RunControl, control_in, slot: WeightsSlot, weights_in, learner_status, rt: ServiceRuntime) -> bool:
+    """Apply the person's controls; while paused, wait here (adopting weights). True if anything changed."""
+    changed = control.take(control_in)
+    while control.paused and not control.end and not rt.stop.is_set():
+        slot.adopt(weights_in, timeout=0.05, status=learner_status)
+        control.take(control_in)
+        rt.tick()
+    return changed
 
 
 def cli(argv: list[str] | None = None) -> int:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from common.agents import ALGOS
 from common.config import option
-from common.delay import parse_probs
+from common.delay import delay_from_spec, parse_probs
 from common.envs import ENV_NAMES
 from common.envs.maze import LAYOUT_COUNT
 from common.protocol import validate_name
@@ -160,6 +160,10 @@ class LearnerConfig(TaskConfig):
     algo: str = option("dqn-tamer", "agent", choices=ALGOS)
     assumed_delay_probs: tuple[float, ...] = option((0.3333, 0.3333, 0.3334),
                                                     "lag distribution over 0,1,2.. steps the learner assumes for credit")
+    screen_delay: str = option("uniform:0.2,4", "delay in seconds the learner assumes for feedback from a person's "
+                                                "screen (the console): uniform:LOW,HIGH (Deep TAMER's 0.2-4 s) or any "
+                                                "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, "
+                                                "loc, scale)")
     update_interval: int = option(1, "b: a Q and a D_global minibatch update every b steps (Algorithm 2; the paper's "
                                      "setting is 1; larger trades learning per step for throughput)")
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
@@ -182,6 +186,7 @@ class LearnerConfig(TaskConfig):
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         object.__setattr__(self, "assumed_delay_probs", parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        delay_from_spec(self.screen_delay)  # a one-line ValueError if malformed
         if self.update_interval < 1:
             raise ValueError(f"update-interval must be >= 1, got {self.update_interval}")
         if self.weights_every < 1:

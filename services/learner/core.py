@@ -33,6 +33,7 @@ from common.protocol import Feedback, IngestEntry, Step
 from common.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
+from services.learner.screen import ScreenCredit
 
 REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
 ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
@@ -46,6 +47,8 @@ class FeedbackResult:
     steps: int = 0
     lost_mass: float = 0.0
     received_at: int = 0  # position of the feedback in the ingest record (for latency bookkeeping)
+    feedback: Feedback | None = None  # the feedback itself when it came from a person's screen (console)
+    credited: list = dataclasses.field(default_factory=list)  # screen feedback: [(Step.seq, weight)]
 
 
 @dataclasses.dataclass
@@ -72,6 +75,7 @@ class LearnerCore:
         self.agent = TrialBatchAgent([self.agent_config], self.obs_dim, self.n_actions, [config.seed])
         self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
+        self.screen = ScreenCredit(config.screen_delay, self.agent_config.history_steps)
         self.actor: str | None = None
         self.next_seq = 0
         self.teacher_next: dict[str, int] = {}
@@ -126,6 +130,7 @@ class LearnerCore:
                 results += self._reject_held("actor_restarted", t)
                 self.agent.forget_history(0)
                 self.clock.reset()
+                self.screen.reset(retired_actor=self.actor)
                 self._ep = self._new_episode_accumulator()
             elif step.seq > 0:
                 self.counters["steps_missed_at_start"] += step.seq
@@ -141,6 +146,7 @@ class LearnerCore:
             status = "gap"
             self.agent.forget_history(0)  # the steps in between are unknown: no credit across the gap
             self.clock.reset()
+            self.screen.reset()
         self.next_seq = step.seq + 1
         self._entry("step", step.incarnation, step.seq, status, t)
 
@@ -152,6 +158,9 @@ class LearnerCore:
         self.loop.step(ROW, np.asarray(step.obs, np.float32)[None], np.array([step.action]), np.array([step.reward]),
                        np.asarray(step.next_obs, np.float32)[None], np.array([float(step.terminated)]),
                        np.array([float(index)]), np.array([step.episode]))
+        self.screen.learned(step.seq, index)
+        for fb, pos in self.screen.release(self.actor, self.next_seq):  # a person's feedback that waited for it
+            results.append(self._credit(fb, pos, t))
         self.counters["steps_learned"] += 1
 
         ep = self._ep
@@ -182,6 +191,12 @@ class LearnerCore:
         self.teacher_next[fb.teacher_id] = max(expected, fb.seq + 1)
         if self.ended:
             return [self._outcome(fb, pos, "after_end", t)]
+        if fb.shown is not None:
+            if self.screen.must_wait(fb, self.actor, self.next_seq):
+                self.screen.held.append((fb, pos))
+                self.counters["feedback_held"] += 1
+                return []
+            return [self._credit(fb, pos, t)]
         if self.clock.placeable(fb.t_reaction):
             return [self._credit(fb, pos, t)]
         self._arrivals += 1
@@ -200,7 +215,7 @@ class LearnerCore:
 
     @property
     def held(self) -> int:
-        return len(self._held)
+        return len(self._held) + len(self.screen.held)
 
     # -- checkpoint ------------------------------------------------------------------------------------------
     def snapshot(self) -> tuple[dict[str, Any], dict[str, Any]]:
@@ -216,7 +231,7 @@ class LearnerCore:
             "steps_learned": self.steps_learned, "actor": self.actor, "next_seq": self.next_seq,
             "teacher_next": dict(self.teacher_next), "held": held, "arrivals": self._arrivals,
             "position": self.position, "counters": dict(self.counters), "ended": self.ended, "episode": dict(self._ep),
-            "clock": [list(self.clock._index), list(self.clock._time)],
+            "clock": [list(self.clock._index), list(self.clock._time)], "screen": self.screen.state(),
         }
         return self.agent.state_dict(), meta
 
@@ -236,16 +251,26 @@ class LearnerCore:
         self.clock.reset()
         for i, t in zip(*meta["clock"]):
             self.clock.push(int(i), float(t))
+        self.screen.load(meta["screen"])
         self.entries = []
 
     # -- internals ---------------------------------------------------------------------------------------------
     def _credit(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
+        if fb.shown is not None:  # a person's screen: seconds over the on-screen intervals
+            out, credited = self.screen.credit(self.loop, fb, self.actor)
+            result = self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
+            result.feedback, result.credited = fb, credited
+            return result
         tau = self.clock.to_steps(fb.t_reaction)
         out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]))
         return self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:
         results = []
+        for fb, pos in self.screen.held:
+            results.append(self._outcome(fb, pos, reason, t))
+            results[-1].feedback = fb
+        self.screen.held = []
         while self._held:
             _, _, fb, pos = heapq.heappop(self._held)
             results.append(self._outcome(fb, pos, reason, t))

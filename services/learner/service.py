@@ -96,6 +96,7 @@ def main(config: LearnerConfig) -> int:
                         ingest_seq += 1
 
                 last_version = {"v": 0 if resumed is None else -1, "data": None}
+                credit_pubs: dict[str, MessagePublisher] = {}
 
                 def publish_weights(version: int) -> None:
                     t0 = time.perf_counter()
@@ -124,6 +125,8 @@ def main(config: LearnerConfig) -> int:
                     """Latency samples: send -> H updated, and how much of it was the wait for a newer step."""
                     done = time.time()
                     for r in results:
+                        if r.feedback is not None:  # a person's feedback: tell their console what became of it
+                            publish_credit(session, config.run, credit_pubs, r, core.actor, done)
                         t0, t_held = t_sent, None
                         if r.received_at in sent_at:
                             t0, t_held = sent_at.pop(r.received_at)
@@ -261,6 +264,8 @@ def main(config: LearnerConfig) -> int:
                 publish_weights(core.steps_learned + 1)
                 ring.add(wpub, last_version["data"])  # the final weights too, if the recorder must get them again
                 watch.before_exit(ring, 20.0, rt.log)
+                for pub in credit_pubs.values():
+                    pub.close()
                 rt.counters.update({f"inbox_{k}": v for k, v in inbox.snapshot().items()})
                 rt.counters["resent"] = ring.resent
         finally:
@@ -272,6 +277,21 @@ def main(config: LearnerConfig) -> int:
     rt.write_stats(final_version=last_version["v"], resumed=resumed)
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0
+
+
+def publish_credit(session, run: str, pubs: dict, result, actor: str | None, t_done: float) -> None:
+    """A `Credit` for one person's feedback (console): the steps it was credited to, with their weights."""
+    from common.protocol import Credit, CreditedStep, credit_key
+    from common.transport import MessagePublisher
+
+    fb = result.feedback
+    pub = pubs.get(fb.teacher_id)
+    if pub is None:
+        pub = pubs[fb.teacher_id] = MessagePublisher(session, credit_key(run, fb.teacher_id))
+    pub.put(Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
+                   t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
+                   steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
+                   lost_mass=min(1.0, max(0.0, float(result.lost_mass)))))
 
 
 def catch_up(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, consume, on_status,

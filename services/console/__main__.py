@@ -1,0 +1,5 @@
+import sys
+
+from services.console.service import cli
+
+sys.exit(cli())

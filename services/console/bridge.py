@@ -1,0 +1,263 @@
+"""The bridge between the run (Zenoh) and the pages (WebSocket), living on the console's asyncio loop.
+
+From the run to every page: each Step as a scene (where the agent is), the agent's current Q and H per
+action and alpha_h (computed here from the learner's newest Weights, as the actor would), each episode's
+return (the learning curve), each Credit (which steps a feedback was credited to), the face read from a
+person's webcam and the feedback it became, and whether the run is paused or over.
+
+From a page to the run: its person's feedback (stamped with the system time of the press and listing the
+steps their screen showed), the paint time of each step (`Shown`), run controls (`Control`) and webcam frames
+(`foxglove.CompressedImage`, frame_id = the person's teacher id, for the perception service). Each person
+is a teacher: their ServiceStatus (`teacher.<id>`) announces them to the learner and carries their count of
+feedback at the end.
+"""
+from __future__ import annotations
+
+import asyncio
+import collections
+import os
+import time
+from typing import Any
+
+import numpy as np
+
+from common.agents import TrialBatchAgent, agent_config
+from common.envs import make_env
+from common.envs.scene import SceneTracker, static_scene
+from common.protocol import (KEYS, CompressedImage, Control, Credit, EpisodeSummary, ExpressionPrediction, Feedback,
+                             ProtocolError, ServiceStatus, Shown, Step, Time, Weights, camera_key, control_key,
+                             credit_key, decode, episode_key, feedback_key, perception_key, shown_key, status_key,
+                             step_key, weights_key)
+from services.console.config import ConsoleConfig
+from services.console.people import Person, RateLimit
+
+TEACHER = "teacher."
+
+
+class Hub:
+    """Run state for the pages, and the publishers that carry the people's input into the run."""
+
+    def __init__(self, config: ConsoleConfig, rt: Any, session: Any, loop: asyncio.AbstractEventLoop):
+        from common.transport import MessagePublisher
+
+        self.config, self.rt, self.session, self.loop = config, rt, session, loop
+        env, _ = make_env(config.env, config.layout)
+        self.obs_dim, self.n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
+        env.close()
+        self.agent = TrialBatchAgent([agent_config(config.algo)], self.obs_dim, self.n_actions, [config.seed])
+        self.spec = {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
+        self.scene_static = static_scene(config.env, config.layout)
+        self.tracker = SceneTracker(config.env, config.layout)
+        self.people: dict[str, Person] = {}
+        self.joined = 0
+        self.last_step: dict | None = None
+        self.recent: collections.OrderedDict[tuple[str, int], float] = collections.OrderedDict()  # -> t_action
+        self.obs: np.ndarray | None = None
+        self.curve: list[dict] = []
+        self.trail: collections.deque = collections.deque(maxlen=64)
+        self.paused, self.rate = False, config.rate
+        self.actor_stopped = self.learner_stopped = False
+        self.weights_version = 0
+        self.control_seq = 0
+        self.pub = lambda key: MessagePublisher(session, key)  # noqa: E731
+        self.control_pub = MessagePublisher(session, control_key(config.run))
+        self.camera_pub = MessagePublisher(session, camera_key(config.run, config.camera)) if config.camera else None
+        self.pubs: dict[str, Any] = {}
+        self.subs: list[Any] = []
+
+    # -- Zenoh -> loop ---------------------------------------------------------------------------------------------
+    def subscribe(self) -> None:
+        run = self.config.run
+        keys = [step_key(run), episode_key(run), weights_key(run), KEYS["credit"].wildcard(run),
+                KEYS["status"].wildcard(run), KEYS["feedback"].wildcard(run), KEYS["control"].wildcard(run)]
+        if self.config.camera:
+            keys.append(perception_key(run, self.config.camera))
+        for key in keys:
+            self.subs.append(self.session.declare_subscriber(key, self._on_sample))
+
+    def _on_sample(self, sample: Any) -> None:  # a zenoh thread: hand the bytes to the loop
+        item = (str(sample.key_expr), sample.payload.to_bytes(), time.time())
+        self.loop.call_soon_threadsafe(self.on_message, *item)
+
+    def on_message(self, key: str, data: bytes, t_recv: float) -> None:
+        try:
+            msg = Weights.decode(data, expected=self.spec) if key.endswith("/weights") else decode(key, data)
+        except ProtocolError as e:
+            self.rt.counters[f"run_rejected_{e.reason}"] += 1
+            return
+        handler = {Step: self._step, EpisodeSummary: self._episode, Weights: self._weights, Credit: self._credit,
+                   ServiceStatus: self._status, Feedback: self._feedback, ExpressionPrediction: self._face,
+                   Control: self._control}.get(type(msg))
+        if handler is not None and getattr(msg, "run", self.config.run) == self.config.run:
+            handler(msg, t_recv)
+
+    def broadcast(self, payload: dict) -> None:
+        for person in list(self.people.values()):
+            person.send(payload)
+
+    def _step(self, step: Step, t_recv: float) -> None:
+        scene = self.tracker.after(step.t_in_episode, step.action, step.next_obs)
+        self.obs = np.asarray(step.next_obs, np.float32)
+        self.recent[(step.incarnation, step.seq)] = step.t_action
+        while len(self.recent) > 256:
+            self.recent.popitem(last=False)
+        self.agent.steps[0] = step.seq + 1  # alpha_h's schedule at the next action
+        self.last_step = {"type": "step", "actor": step.incarnation, "seq": step.seq, "episode": step.episode,
+                          "t_in_episode": step.t_in_episode, "action": step.action, "reward": step.reward,
+                          "terminated": step.terminated, "truncated": step.truncated, "t_action": step.t_action,
+                          "t_recv": t_recv, "next_obs": [round(float(x), 4) for x in step.next_obs[:32]],
+                          "scene": scene, "weights_version": step.weights_version, "info": dict(step.info)}
+        self.broadcast(self.last_step)
+        self.broadcast(self.preferences())
+
+    def preferences(self) -> dict:
+        if self.obs is None:
+            return {"type": "prefs", "q": None, "h": None}
+        q, h, aq, ah = self.agent.preferences(0, self.obs)
+        return {"type": "prefs", "q": [round(float(x), 4) for x in q], "h": [round(float(x), 4) for x in h],
+                "alpha_q": aq, "alpha_h": round(ah, 5), "weights_version": self.weights_version}
+
+    def _weights(self, w: Weights, t_recv: float) -> None:
+        import torch
+
+        if w.version <= self.weights_version and w.version != 0:
+            return
+        self.agent.load_policy_weights({k: torch.from_numpy(np.array(v)) for k, v in w.tensors.items()}, 0)
+        self.weights_version = int(w.version)
+        self.broadcast(self.preferences())
+
+    def _episode(self, ep: EpisodeSummary, t_recv: float) -> None:
+        point = {"episode": ep.episode, "return": ep.return_, "steps": ep.steps,
+                 "feedback_received": ep.feedback_received, "feedback_credited": ep.feedback_credited}
+        self.curve.append(point)
+        self.broadcast({"type": "episode", **point})
+
+    def _credit(self, c: Credit, t_recv: float) -> None:
+        item = {"type": "credit", "teacher_id": c.teacher_id, "seq": c.seq, "value": c.value, "status": c.status,
+                "t_reaction": c.t_reaction, "t_credited": c.t_credited, "t_recv": t_recv, "actor": c.actor,
+                "steps": [{"seq": s.seq, "weight": s.weight} for s in c.steps], "lost_mass": c.lost_mass}
+        self.trail.append(item)
+        self.rt.samples["press_to_credited_s"].append(c.t_credited - c.t_reaction)
+        self.broadcast(item)
+
+    def _feedback(self, fb: Feedback, t_recv: float) -> None:
+        if fb.source == "face":  # a webcam's feedback (from the perception service): show whose and when
+            self.broadcast({"type": "face_feedback", "teacher_id": fb.teacher_id, "seq": fb.seq, "value": fb.value,
+                            "t_reaction": fb.t_reaction, "t_recv": t_recv})
+
+    def _face(self, p: ExpressionPrediction, t_recv: float) -> None:
+        self.rt.samples["frame_to_expression_s"].append(t_recv - p.t_capture)
+        self.broadcast({"type": "face", "label": p.label, "confidence": round(p.confidence, 3),
+                        "box": None if p.box is None else [p.box.x, p.box.y, p.box.w, p.box.h],
+                        "t_capture": p.t_capture, "t_recv": t_recv})
+
+    def _control(self, c: Control, t_recv: float) -> None:
+        if c.command in ("pause", "resume"):
+            self.paused = c.command == "pause"
+        elif c.command == "pace":
+            self.rate = float(c.rate)
+        self.broadcast(self.control_state(by=c.source))
+
+    def control_state(self, by: str | None = None) -> dict:
+        return {"type": "control", "paused": self.paused, "rate": self.rate, "ended": self.actor_stopped, "by": by}
+
+    def _status(self, st: ServiceStatus, t_recv: float) -> None:
+        if st.state != "stopped":
+            return
+        if st.service == "actor" and not self.actor_stopped:
+            self.actor_stopped = True
+            self.broadcast(self.control_state())
+            for person in self.people.values():  # their counts are final: the learner may end
+                self.person_status(person, "stopped")
+            self.rt.publish_status("stopped")  # the console's own identity never sends feedback
+        elif st.service == "learner":
+            self.learner_stopped = True
+
+    # -- pages -> run ------------------------------------------------------------------------------------------
+    def join(self, name: str | None, send) -> Person:
+        self.joined += 1
+        base = f"{self.config.teacher_prefix}-{name or self.joined}"
+        tid = base if base not in self.people else f"{base}-{self.joined}"
+        c = self.config
+        person = Person(tid, RateLimit(c.max_press_rate, 2 * c.max_press_rate), RateLimit(c.max_frame_rate),
+                        incarnation=f"{TEACHER}{tid}-{os.getpid()}-{self.joined}", send=send)
+        self.people[tid] = person
+        self.person_status(person, "ready")
+        self.rt.counters["people_joined"] += 1
+        return person
+
+    def announce(self) -> None:
+        """Each person's status again (a learner that started late, or restarted, learns who teaches)."""
+        state = "stopped" if self.actor_stopped else "ready"
+        for person in list(self.people.values()):
+            self.person_status(person, state)
+
+    def leave(self, person: Person) -> None:
+        self.people.pop(person.teacher_id, None)
+        self.person_status(person, "stopped")
+
+    def _publisher(self, key: str) -> Any:
+        if key not in self.pubs:
+            self.pubs[key] = self.pub(key)
+        return self.pubs[key]
+
+    def person_status(self, person: Person, state: str) -> None:
+        service = f"{TEACHER}{person.teacher_id}"
+        self._publisher(status_key(self.config.run, service)).put(ServiceStatus(
+            run=self.config.run, service=service, pid=os.getpid(), state=state, t=time.time(),
+            counters={"feedback_published": person.feedback_seq, "frames_published": person.frames_sent},
+            incarnation=person.incarnation))
+
+    def shown(self, person: Person, m: dict) -> None:
+        t_action = self.recent.get((m["actor"], m["seq"]))
+        if t_action is None:
+            self.rt.counters["page_rejected_unknown_step"] += 1
+            return
+        if m["t_sys"] < t_action:  # painted before the action on the estimated clock: the estimate is off
+            self.rt.counters["shown_before_action"] += 1
+        t_shown = max(m["t_sys"], t_action)
+        if not person.timeline.add(m["actor"], m["seq"], t_shown):
+            self.rt.counters["page_rejected_out_of_order"] += 1
+            return
+        self._publisher(shown_key(self.config.run, person.teacher_id)).put(Shown(
+            run=self.config.run, screen=person.teacher_id, actor=m["actor"], seq=m["seq"], t_action=t_action,
+            t_shown=t_shown, t_page=max(0.0, m["t_page"]), offset=person.offset, rtt=min(60.0, person.rtt)))
+        self.rt.samples["action_to_shown_s"].append(t_shown - t_action)
+
+    def feedback(self, person: Person, m: dict) -> dict:
+        actor, shown = person.timeline.window(m["t_sys"], self.config.span)
+        fb = Feedback(run=self.config.run, teacher_id=person.teacher_id, seq=person.feedback_seq,
+                      t_reaction=m["t_sys"], value=m["value"], source=m["source"], t_page=max(0.0, m["t_page"]),
+                      actor=actor, shown=shown if actor is not None else None)
+        self._publisher(feedback_key(self.config.run, person.teacher_id)).put(fb)
+        person.feedback_seq += 1
+        self.rt.counters["feedback_published_all"] += 1
+        return {"type": "sent", "seq": fb.seq, "value": fb.value, "t_reaction": fb.t_reaction,
+                "steps_listed": len(shown)}
+
+    def control(self, person: Person, m: dict) -> None:
+        self.control_pub.put(Control(run=self.config.run, source=person.teacher_id, seq=self.control_seq,
+                                     t=time.time(), command=m["command"], rate=m["rate"]))
+        self.control_seq += 1
+
+    def frame(self, person: Person, t_capture: float, jpeg: bytes) -> None:
+        if self.camera_pub is None:
+            self.rt.counters["page_rejected_no_camera"] += 1
+            return
+        self.camera_pub.put(CompressedImage(timestamp=Time.from_seconds(t_capture), frame_id=person.teacher_id,
+                                            data=jpeg, format="jpeg"))
+        person.frames_sent += 1
+        self.rt.counters["frames_published"] += 1
+
+    def hello(self, person: Person) -> dict:
+        return {"type": "hello", "teacher_id": person.teacher_id, "run": self.config.run, "env": self.config.env,
+                "layout": self.config.layout, "algo": self.config.algo, "scene": self.scene_static,
+                "n_actions": self.n_actions, "rate": self.rate, "paused": self.paused, "episodes": self.config.episodes,
+                "camera": self.config.camera is not None, "span": self.config.span, "curve": self.curve,
+                "trail": list(self.trail), "ended": self.actor_stopped, "screen_delay": self.config.screen_delay}
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+        for pub in [self.control_pub, *self.pubs.values()] + ([self.camera_pub] if self.camera_pub else []):
+            pub.close()

@@ -1,0 +1,63 @@
+"""The console's config: where it listens, who may teach through it, and what it accepts from a page."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from common.agents import ALGOS
+from common.config import option
+from common.delay import delay_from_spec
+from common.protocol import MAX_RATE
+from services.common.config import TaskConfig, _check_name
+
+
+@dataclass(frozen=True)
+class ConsoleConfig(TaskConfig):
+    """The console: one web page per person, bridged to the run over a WebSocket. A person watches the agent
+    (environment picture, learning curve, Q and H per action), teaches it with keys, buttons or their webcam,
+    and paces, pauses or ends the run. Each open page is its own teacher (`<teacher-prefix>-<n>`); its feedback
+    is stamped with the person's action time on the system clock and lists the steps their screen showed."""
+
+    algo: str = option("dqn-tamer", "agent (for Q, H and alpha_h shown on the page)", choices=ALGOS)
+    host: str = option("127.0.0.1", "address the web server listens on (anything but loopback needs --security)")
+    port: int = option(8765, "web server port (the launcher picks a free one)")
+    teacher_prefix: str = option("web", "people are teachers <prefix>-1, <prefix>-2, ... in the order they open "
+                                        "the page (or <prefix>-<name> with ?name=NAME)")
+    rate: float = option(2.0, "the actor's pace at start (steps per second), shown on the page")
+    episodes: int = option(50, "episodes of the run (the learning curve's width)")
+    screen_delay: str = option("uniform:0.2,4", "the learner's assumed delay in seconds (its longest lag sets how "
+                                                "far back a feedback lists the steps shown)")
+    camera: str | None = option(None, "camera id to publish webcam frames on (hitl/<run>/camera/<camera>) for the "
+                                      "perception service; none = no webcam panel")
+    max_people: int = option(8, "pages that may be open at once")
+    max_frame_bytes: int = option(400_000, "largest webcam frame accepted (JPEG bytes)")
+    max_frame_rate: float = option(15.0, "webcam frames per second accepted per person (more are dropped)")
+    max_press_rate: float = option(8.0, "feedback presses per second accepted per person (a flood is dropped)")
+    max_clock_skew: float = option(5.0, "reject a page time that maps more than this many seconds from the server's "
+                                        "clock (absurd timestamps)")
+    stop_after: float = option(3.0, "seconds to keep serving after the learner stopped (the page shows the end)")
+
+    def __post_init__(self):
+        super().__post_init__()
+        _check_name(self.teacher_prefix, "teacher-prefix")
+        if self.camera is not None:
+            _check_name(self.camera, "camera")
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port must be in 0..65535, got {self.port}")
+        if not (math.isfinite(self.rate) and 0 < self.rate <= MAX_RATE):
+            raise ValueError(f"rate must be in (0, {MAX_RATE}], got {self.rate}")
+        for name in ("max_frame_rate", "max_press_rate", "max_clock_skew", "stop_after"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
+        if self.max_people < 1 or self.max_frame_bytes < 1:
+            raise ValueError("max-people and max-frame-bytes must be >= 1")
+        delay_from_spec(self.screen_delay)
+
+    @property
+    def span(self) -> float:
+        """How far back (s) a feedback may reach: the assumed delay's largest value (its 99.9th percentile if
+        unbounded)."""
+        d = delay_from_spec(self.screen_delay)
+        top = float(d.ppf(1.0)) if hasattr(d, "ppf") else float(getattr(d, "max_lag", 4.0))
+        return top if math.isfinite(top) else float(d.ppf(0.999))

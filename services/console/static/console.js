@@ -1,0 +1,262 @@
+// The console page: draws the run, sends the person's feedback, paint times and controls over one WebSocket.
+// Times: the page's clock is performance.timeOrigin + performance.now() (monotonic, in seconds); its offset to
+// the console's system clock is estimated as NTP does, from the ping with the smallest round trip.
+"use strict";
+
+const COLORS = { wall: "#333333", free: "#ffffff", grid: "#dddddd", goal: "#f1c40f", start: "#cfe3f5",
+  agent: "#2980b9", taxi: "#e67e22", full: "#8e44ad", good: "46,139,87", bad: "192,57,43" };
+const pageNow = () => (performance.timeOrigin + performance.now()) / 1000;
+const pageTime = (ts) => (performance.timeOrigin + ts) / 1000;  // an event's or a frame's DOMHighResTimeStamp
+
+const hitl = window.hitl = {
+  ws: null, hello: null, me: null, clock: { offset: 0, rtt: Infinity, ready: false, samples: [] },
+  step: null, prefs: null, curve: [], positions: new Map(), trail: [], mine: new Map(),
+  shownLog: [], pressLog: [], paused: false, ended: false, rate: null, pending: null, rejected: {},
+  face: null, faceFeedback: [],
+};
+
+function send(obj) { if (hitl.ws && hitl.ws.readyState === 1) hitl.ws.send(JSON.stringify(obj)); }
+
+// ---------------------------------------------------------------- clock
+function ping() { send({ type: "ping", t0: pageNow() }); }
+function onPong(m) {
+  const t3 = pageNow();
+  const rtt = (t3 - m.t0) - (m.t2 - m.t1);
+  const offset = ((m.t1 - m.t0) + (m.t2 - t3)) / 2;
+  const c = hitl.clock;
+  c.samples.push({ offset, rtt });
+  if (c.samples.length > 16) c.samples.shift();
+  const best = c.samples.reduce((a, b) => (b.rtt < a.rtt ? b : a));
+  c.offset = best.offset; c.rtt = Math.max(0, best.rtt); c.ready = true;
+  document.getElementById("clock").textContent =
+    `clock offset ${(c.offset * 1000).toFixed(1)} ms (round trip ${(c.rtt * 1000).toFixed(1)} ms)`;
+}
+function stamp(tPage) { return { t_page: tPage, offset: hitl.clock.offset, rtt: Math.min(hitl.clock.rtt, 60) }; }
+
+// ---------------------------------------------------------------- drawing
+function cellSize() { const s = hitl.hello && hitl.hello.scene; return s ? 480 / s.size : 60; }
+
+function drawScene() {
+  const cv = document.getElementById("scene"), g = cv.getContext("2d");
+  const s = hitl.hello && hitl.hello.scene, st = hitl.step;
+  g.fillStyle = COLORS.free; g.fillRect(0, 0, cv.width, cv.height);
+  if (!s) { g.fillStyle = "#222"; g.font = "14px monospace";
+    g.fillText(st ? `obs ${JSON.stringify(st.next_obs)}` : "waiting for the first step", 10, 20); return; }
+  const c = cellSize();
+  if (s.kind === "maze") {
+    for (let r = 0; r < s.size; r++) for (let q = 0; q < s.size; q++) {
+      g.fillStyle = s.walls[r][q] ? COLORS.wall : (r === s.start[0] && q === s.start[1] ? COLORS.start : COLORS.free);
+      g.fillRect(q * c, r * c, c, c);
+    }
+    g.fillStyle = COLORS.goal; g.fillRect(s.goal[1] * c + 4, s.goal[0] * c + 4, c - 8, c - 8);
+  } else if (s.kind === "taxi") {
+    s.stands.forEach(([r, q], i) => { g.fillStyle = "#ecf0f1"; g.fillRect(q * c + 2, r * c + 2, c - 4, c - 4);
+      g.fillStyle = "#555"; g.font = `${c / 3}px sans-serif`; g.fillText(s.stand_names[i], q * c + 6, r * c + c / 3 + 4); });
+  }
+  drawTrail(g, c);
+  g.strokeStyle = COLORS.grid; g.lineWidth = 1;
+  for (let i = 0; i <= s.size; i++) { g.beginPath(); g.moveTo(i * c, 0); g.lineTo(i * c, s.size * c); g.stroke();
+    g.beginPath(); g.moveTo(0, i * c); g.lineTo(s.size * c, i * c); g.stroke(); }
+  if (s.kind === "taxi") {
+    g.strokeStyle = "#222"; g.lineWidth = 5;
+    s.walls_east.forEach(([r, q]) => { g.beginPath(); g.moveTo((q + 1) * c, r * c); g.lineTo((q + 1) * c, (r + 1) * c); g.stroke(); });
+  }
+  const sc = st && st.scene;
+  if (!sc) return;
+  if (sc.agent) { disc(g, sc.agent, c, COLORS.agent); }
+  if (sc.taxi) {
+    const dest = s.stands[sc.dest];
+    g.strokeStyle = COLORS.goal; g.lineWidth = 6; g.strokeRect(dest[1] * c + 3, dest[0] * c + 3, c - 6, c - 6);
+    disc(g, sc.taxi, c, sc.passenger === 4 ? COLORS.full : COLORS.taxi);
+    if (sc.passenger < 4) { const p = s.stands[sc.passenger]; disc(g, p, c, COLORS.full, 0.18); }
+  }
+}
+
+function disc(g, [r, q], c, color, scale = 0.32) {
+  g.fillStyle = color; g.beginPath(); g.arc(q * c + c / 2, r * c + c / 2, c * scale, 0, 2 * Math.PI); g.fill();
+}
+
+function cellOf(seq) { const sc = hitl.positions.get(seq); return sc && (sc.agent || sc.taxi); }
+
+function drawTrail(g, c) {
+  // The newest credits of this person: each credited step's cell tinted by the weight it got.
+  const recent = hitl.trail.filter((t) => t.teacher_id === hitl.me).slice(-3);
+  recent.forEach((t, age) => {
+    const rgb = t.value > 0 ? COLORS.good : COLORS.bad;
+    t.steps.forEach(({ seq, weight }) => {
+      const cell = cellOf(seq);
+      if (!cell) return;
+      const alpha = Math.min(0.55, 0.15 + 2 * weight) * (age + 1) / recent.length;
+      g.fillStyle = `rgba(${rgb},${alpha})`; g.fillRect(cell[1] * c + 1, cell[0] * c + 1, c - 2, c - 2);
+    });
+  });
+}
+
+function drawCurve() {
+  const cv = document.getElementById("curve"), g = cv.getContext("2d");
+  g.clearRect(0, 0, cv.width, cv.height);
+  const pts = hitl.curve; if (!pts.length) return;
+  const n = Math.max(hitl.hello ? hitl.hello.episodes : 1, pts.length);
+  const ys = pts.map((p) => p.return), lo = Math.min(...ys, 0), hi = Math.max(...ys, 1);
+  g.strokeStyle = "#2d3142"; g.lineWidth = 2; g.beginPath();
+  pts.forEach((p, i) => { const x = 5 + (cv.width - 10) * i / Math.max(1, n - 1);
+    const y = cv.height - 5 - (cv.height - 10) * (p.return - lo) / (hi - lo);
+    i ? g.lineTo(x, y) : g.moveTo(x, y); });
+  g.stroke();
+  g.fillStyle = "#555"; g.font = "11px sans-serif"; g.fillText(`return (${lo.toFixed(1)}..${hi.toFixed(1)}) per episode`, 6, 12);
+}
+
+function showPrefs() {
+  const p = hitl.prefs, tb = document.querySelector("#prefs tbody");
+  if (!p || !p.q) return;
+  const names = (hitl.hello.scene && hitl.hello.scene.actions) || p.q.map((_, i) => `a${i}`);
+  const score = p.q.map((q, i) => p.alpha_q * q + p.alpha_h * p.h[i]);
+  const best = score.indexOf(Math.max(...score));
+  tb.innerHTML = p.q.map((q, i) => `<tr class="${i === best ? "best" : ""}"><td>${names[i]}</td><td>${q.toFixed(3)}</td>` +
+    `<td>${p.h[i].toFixed(3)}</td><td>${score[i].toFixed(3)}</td></tr>`).join("");
+  document.getElementById("alpha").textContent = `alpha_q ${p.alpha_q}  alpha_h ${p.alpha_h.toFixed(4)}  (weights v${p.weights_version})`;
+}
+
+function showStatus() {
+  const st = hitl.step;
+  if (st) {
+    document.getElementById("episode").textContent = `episode ${st.episode}`;
+    document.getElementById("step").textContent = `step ${st.t_in_episode}`;
+    document.getElementById("return").textContent = `return ${(hitl.episodeReturn || 0).toFixed(2)}`;
+  }
+  document.getElementById("runstate").textContent = hitl.ended ? "run over" : hitl.paused ? "paused" : `${hitl.rate} steps/s`;
+  document.getElementById("pause").textContent = hitl.paused ? "resume" : "pause";
+}
+
+function showTrail() {
+  const ol = document.getElementById("trail");
+  const mine = [...hitl.mine.values()].slice(-30).reverse();
+  ol.innerHTML = mine.map((f) => {
+    const where = f.credit ? (f.credit.status === "credited"
+      ? "steps " + f.credit.steps.map((s) => `${s.seq} (${s.weight.toFixed(2)})`).join(", ") : f.credit.status) : "...";
+    return `<li class="${f.value > 0 ? "pos" : "neg"}">${f.value > 0 ? "+1" : "-1"} #${f.seq} -> ${where}</li>`;
+  }).join("");
+}
+
+// ---------------------------------------------------------------- painting a step, and saying when
+function onStep(m) {
+  if (m.t_in_episode === 0) hitl.episodeReturn = 0;
+  hitl.episodeReturn = (hitl.episodeReturn || 0) + m.reward;
+  hitl.positions.set(m.seq, m.scene || {});
+  if (hitl.positions.size > 400) hitl.positions.delete(hitl.positions.keys().next().value);
+  hitl.pending = m;
+  requestAnimationFrame(paint);
+}
+
+function paint(ts) {
+  const m = hitl.pending;
+  if (!m) return;
+  hitl.pending = null;
+  hitl.step = m;
+  drawScene(); showStatus();
+  // The frame painted now appears at the next display refresh; the callback's time is the frame's start.
+  const tPage = pageTime(ts);
+  if (hitl.clock.ready) {
+    send({ type: "shown", seq: m.seq, actor: m.actor, ...stamp(tPage) });
+    hitl.shownLog.push({ seq: m.seq, actor: m.actor, t_page: tPage, t_sys: tPage + hitl.clock.offset, info: m.info,
+      t_action: m.t_action });
+    if (hitl.shownLog.length > 2000) hitl.shownLog.shift();
+    for (const fn of hitl.onShown || []) fn(m, tPage);
+  }
+}
+
+// ---------------------------------------------------------------- teaching
+function give(value, tPage, source) {
+  if (!hitl.clock.ready || hitl.ended) return;
+  send({ type: "feedback", value, source, ...stamp(tPage) });
+  hitl.pressLog.push({ value, t_page: tPage, t_sys: tPage + hitl.clock.offset, source });
+  const b = document.getElementById(value > 0 ? "good" : "bad");
+  b.classList.add("flash"); setTimeout(() => b.classList.remove("flash"), 120);
+}
+hitl.give = give;
+
+document.addEventListener("keydown", (ev) => {
+  const good = ["+", "=", "ArrowUp", "Add"].includes(ev.key) || ev.code === "NumpadAdd";
+  const bad = ["-", "_", "ArrowDown", "Subtract"].includes(ev.key) || ev.code === "NumpadSubtract";
+  if (!good && !bad) return;
+  ev.preventDefault();
+  if (ev.repeat) return;
+  give(good ? 1 : -1, pageTime(ev.timeStamp), "key");
+});
+document.getElementById("good").addEventListener("pointerdown", (ev) => give(1, pageTime(ev.timeStamp), "button"));
+document.getElementById("bad").addEventListener("pointerdown", (ev) => give(-1, pageTime(ev.timeStamp), "button"));
+document.getElementById("pause").addEventListener("click", () => send({ type: "control", command: hitl.paused ? "resume" : "pause" }));
+document.getElementById("end").addEventListener("click", () => {
+  if (confirm("End the run for everyone?")) send({ type: "control", command: "end" }); });
+document.getElementById("pace").addEventListener("change", (ev) => send({ type: "control", command: "pace", rate: Number(ev.target.value) }));
+
+// ---------------------------------------------------------------- webcam
+async function startCamera() {
+  const video = document.getElementById("video");
+  const stream = await navigator.mediaDevices.getUserMedia({ video: { width: 320, height: 240 }, audio: false });
+  video.srcObject = stream; await video.play();
+  const grab = document.createElement("canvas"); grab.width = 320; grab.height = 240;
+  const g = grab.getContext("2d");
+  hitl.cameraOn = true;
+  const every = 1000 / Math.min(10, (hitl.hello && hitl.hello.max_frame_rate) || 10);
+  const tick = () => {
+    if (!hitl.cameraOn || !hitl.clock.ready || hitl.ws.readyState !== 1) return;
+    const tPage = pageNow();
+    g.drawImage(video, 0, 0, grab.width, grab.height);
+    grab.toBlob(async (blob) => {
+      if (!blob) return;
+      const jpeg = new Uint8Array(await blob.arrayBuffer());
+      const buf = new Uint8Array(8 + jpeg.length);
+      new DataView(buf.buffer).setFloat64(0, tPage, true);
+      buf.set(jpeg, 8);
+      hitl.ws.send(buf);
+      hitl.framesSent = (hitl.framesSent || 0) + 1;
+    }, "image/jpeg", 0.8);
+  };
+  hitl.cameraTimer = setInterval(tick, every);
+  document.getElementById("camera").textContent = "webcam on";
+}
+hitl.startCamera = startCamera;
+document.getElementById("camera").addEventListener("click", () => startCamera().catch((e) => {
+  document.getElementById("face").textContent = `webcam: ${e.message}`; }));
+
+// ---------------------------------------------------------------- the socket
+function onMessage(m) {
+  switch (m.type) {
+    case "hello":
+      hitl.hello = m; hitl.me = m.teacher_id; hitl.rate = m.rate; hitl.paused = m.paused; hitl.ended = m.ended;
+      hitl.curve = m.curve.slice(); hitl.trail = m.trail.slice();
+      document.getElementById("who").textContent = `you are teacher ${m.teacher_id} - run ${m.run}, ${m.algo} on ${m.env}`;
+      document.getElementById("webcam").hidden = !m.camera;
+      document.getElementById("pace").value = String(m.rate);
+      drawScene(); drawCurve(); showStatus(); break;
+    case "pong": onPong(m); break;
+    case "step": onStep(m); break;
+    case "prefs": hitl.prefs = m; showPrefs(); break;
+    case "episode": hitl.curve.push(m); drawCurve(); break;
+    case "sent": hitl.mine.set(m.seq, { seq: m.seq, value: m.value, t_reaction: m.t_reaction, credit: null }); showTrail(); break;
+    case "credit":
+      hitl.trail.push(m); if (hitl.trail.length > 200) hitl.trail.shift();
+      if (m.teacher_id === hitl.me && hitl.mine.has(m.seq)) { hitl.mine.get(m.seq).credit = m; showTrail(); }
+      drawScene(); break;
+    case "control": hitl.paused = m.paused; hitl.rate = m.rate; hitl.ended = m.ended; showStatus(); break;
+    case "face": hitl.face = m; document.getElementById("face").textContent =
+      m.label ? `expression: ${m.label} (${m.confidence.toFixed(2)})` : "expression: no face"; break;
+    case "face_feedback": hitl.faceFeedback.push(m);
+      document.getElementById("facefb").textContent = `face feedback ${m.value > 0 ? "+1" : "-1"} (${m.teacher_id} #${m.seq})`; break;
+    case "rejected": hitl.rejected[m.reason] = (hitl.rejected[m.reason] || 0) + 1; break;
+  }
+}
+
+function connect() {
+  const q = new URLSearchParams(location.search);
+  const params = new URLSearchParams();
+  for (const k of ["name", "teacher", "password"]) if (q.get(k)) params.set(k, q.get(k));
+  const ws = hitl.ws = new WebSocket(`ws://${location.host}/ws?${params}`);
+  ws.binaryType = "arraybuffer";
+  ws.onopen = () => { for (let i = 0; i < 8; i++) setTimeout(ping, 60 * i); hitl.pinger = setInterval(ping, 2000); };
+  ws.onmessage = (ev) => onMessage(JSON.parse(ev.data));
+  ws.onclose = () => { clearInterval(hitl.pinger); hitl.closed = true;
+    document.getElementById("who").textContent += " (disconnected)"; };
+}
+connect();

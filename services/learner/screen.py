@@ -1,0 +1,76 @@
+"""Feedback from a person's screen (the console): credit in seconds over the intervals each step was shown.
+
+A console Feedback lists the steps its person saw (`shown`: Step.seq and the system time each appeared) and is
+stamped with the time of the key press or camera frame. The learner credits it with the assumed delay in
+seconds (`LearnerConfig.screen_delay`, Deep TAMER's uniform 0.2-4 s by default) integrated over each step's
+on-screen interval [appeared, next appeared), through the one credit function (`common.credit`).
+
+Such a feedback is held until the learner has learned the newest step it lists (the person cannot have
+seen a step the actor had not taken, so it comes). Like the step clock, everything here depends only on the
+order of the inputs, so `replay retrain` repeats it bit for bit.
+"""
+from __future__ import annotations
+
+import collections
+from typing import Any
+
+import numpy as np
+
+from common.delay import delay_from_spec
+from common.protocol import Feedback
+
+
+class ScreenCredit:
+    """The learner's map from the actor's Step.seq to its step index, and the screen feedback waiting for a step."""
+
+    def __init__(self, delay_spec: str, capacity: int):
+        self.delay = delay_from_spec(delay_spec)
+        self.capacity = capacity
+        self.index: collections.OrderedDict[int, int] = collections.OrderedDict()  # seq -> step-clock index
+        self.held: list[tuple[Feedback, int]] = []  # (feedback, ingest position), arrival order
+        self.past_actors: list[str] = []  # incarnations replaced by a restart (their feedback cannot be placed)
+
+    def reset(self, retired_actor: str | None = None) -> None:
+        self.index.clear()
+        if retired_actor is not None:
+            self.past_actors = (self.past_actors + [retired_actor])[-16:]
+
+    def learned(self, seq: int, index: int) -> None:
+        self.index[int(seq)] = int(index)
+        while len(self.index) > self.capacity:
+            self.index.popitem(last=False)
+
+    def must_wait(self, fb: Feedback, actor: str | None, next_seq: int) -> bool:
+        """True while the newest step the person saw is not learned yet (or its actor not yet seen)."""
+        if fb.actor != actor:
+            return fb.actor not in self.past_actors
+        return fb.shown[-1].seq >= next_seq if fb.shown else False
+
+    def release(self, actor: str | None, next_seq: int) -> list[tuple[Feedback, int]]:
+        """Held feedback that can be credited now, in arrival order."""
+        ready = [h for h in self.held if not self.must_wait(h[0], actor, next_seq)]
+        if ready:
+            self.held = [h for h in self.held if self.must_wait(h[0], actor, next_seq)]
+        return ready
+
+    def credit(self, loop: Any, fb: Feedback, actor: str | None):
+        """Credit `fb` on trial 0 through the step loop. Returns (outcome, [(seq, weight), ...] credited)."""
+        from common.agents.agent import FeedbackOutcome
+
+        if fb.actor != actor:
+            return FeedbackOutcome("actor_restarted", 0, 1.0), []
+        seqs = [s.seq for s in fb.shown]
+        starts = np.array([s.t for s in fb.shown], np.float64)
+        ends = np.append(starts[1:], np.inf)
+        times = np.array([self.index.get(q, np.nan) for q in seqs], np.float64)  # NaN: no longer held
+        out, weights = loop.credit_screen(0, float(fb.t_reaction), int(fb.value), times, starts, ends, self.delay)
+        return out, [(q, float(w)) for q, w in zip(seqs, weights) if w > 0]
+
+    def state(self) -> dict:
+        return {"index": [[k, v] for k, v in self.index.items()], "past_actors": list(self.past_actors),
+                "held": [[fb.encode().decode(), pos] for fb, pos in self.held]}
+
+    def load(self, state: dict) -> None:
+        self.index = collections.OrderedDict((int(k), int(v)) for k, v in state["index"])
+        self.past_actors = [str(a) for a in state["past_actors"]]
+        self.held = [(Feedback.decode(fb.encode()), int(pos)) for fb, pos in state["held"]]
