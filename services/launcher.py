@@ -91,6 +91,11 @@ class UpConfig:
     max_lag: int = option(2048, "the actor never runs more than this many steps ahead of the learner's newest weights "
                                 "(whatever max-ahead says): a bound on everything in flight")
     debug_update_sleep: float = option(0.0, "TEST ONLY: the learner sleeps this long after each step (slow learner)")
+    screen_delay: str = option("uniform:0.2,4", "--teacher web: delay in seconds the learner assumes between a step "
+                                                "appearing on a person's screen and their feedback: uniform:LOW,HIGH "
+                                                "or a scipy.stats NAME:ARGS (e.g. gamma:2,0.2,0.4)")
+    console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
+    webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
 
     def __post_init__(self):
         if self.teacher not in TEACHERS:
@@ -151,7 +156,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             wait_teachers=tuple(n.split(".", 1)[1] for n in teacher_names if n.startswith("teacher.")),
                             checkpoint=launch.state_path("learner", ".ckpt"), checkpoint_period=c.checkpoint_period,
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
-                            debug_update_sleep=c.debug_update_sleep)
+                            debug_update_sleep=c.debug_update_sleep, screen_delay=c.screen_delay)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), env=c.env, layout=c.layout, seed=c.seed, algo=c.algo,
                         episodes=c.episodes, max_steps=c.max_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
@@ -439,6 +444,8 @@ def up(cfg: UpConfig) -> int:
     print(f"zenoh endpoint: {endpoint}  (run {run}; join with --connect {endpoint} --run {run})",
           file=sys.stderr, flush=True)
     print(f"run directory: {rundir}", file=sys.stderr, flush=True)
+    for line in getattr(launch, "banners", []):  # e.g. the console's address (--teacher web)
+        print(line, file=sys.stderr, flush=True)
     progress = Progress(cfg.episodes, cfg.progress, f"{cfg.algo} on {cfg.env}")
     sup = Supervisor(cfg, run, session)
     try:

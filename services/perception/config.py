@@ -123,6 +123,10 @@ class PerceptionLiveConfig(ServiceConfig):
     stop_with: tuple[str, ...] = option((), "zenoh: sources: stop once these services have reported 'stopped' and "
                                             "no frame has come for idle-stop s (empty: run until SIGTERM)")
     idle_stop: float = option(0.5, "see stop-with (s)")
+    screens: bool = option(False, "zenoh: sources from the console: a frame's frame_id names the person's screen; "
+                                  "each Feedback lists the steps that screen showed (hitl/<run>/shown/<screen>) in "
+                                  "the screen-span s before the frame, so the learner credits it in seconds")
+    screen_span: float = option(4.0, "see screens (s): the longest delay the learner assumes")
     wait_for: tuple[str, ...] = option((), "services that must be alive before the first frame (e.g. recorder)")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     state_file: str | None = option(None, "progress file (the next Feedback seq), rewritten before each Feedback, so "

@@ -55,9 +55,14 @@ def prediction_message(pred: FramePrediction) -> ExpressionPrediction:
                                 probabilities=probs)
 
 
-def feedback_message(run: str, teacher_id: str, seq: int, event: FeedbackEvent) -> Feedback:
-    return Feedback(run=run, teacher_id=teacher_id, seq=seq, t_reaction=max(0.0, float(event.t_capture)),
-                    value=int(event.value), source=FEEDBACK_SOURCE)
+def feedback_message(run: str, teacher_id: str, seq: int, event: FeedbackEvent, screen=None,
+                     span: float = 4.0) -> Feedback:
+    """The Feedback of one reaction; with the `screen` (a ScreenTimeline) the person watched, the steps it
+    showed in the `span` s before the triggering frame."""
+    t = max(0.0, float(event.t_capture))
+    actor, shown = screen.window(t, span) if screen is not None else (None, [])
+    return Feedback(run=run, teacher_id=teacher_id, seq=seq, t_reaction=t, value=int(event.value),
+                    source=FEEDBACK_SOURCE, actor=actor, shown=shown if actor is not None else None)
 
 
 def encode_jpeg(image: np.ndarray, quality: int) -> bytes:
@@ -90,6 +95,8 @@ class PerceptionService:
             if state:
                 self.feedback_seq = int(state["next_seq"])
                 rt.counters["feedback_published"] = self.feedback_seq
+        self.screens: dict[str, Any] = {}  # screen (person) -> ScreenTimeline, from the console's Shown messages
+        self.screen: str | None = None  # the screen of the frame being processed (its frame_id)
         self.t_first: float | None = None  # monotonic time of the first and last processed frame
         self.t_last = 0.0
         self.cpu_first = 0.0
@@ -128,7 +135,8 @@ class PerceptionService:
                 from services.common.faults import atomic_write_json
 
                 atomic_write_json(self.config.state_file, {"next_seq": seq + 1})
-            self.feedback.put(feedback_message(self.config.run, self.config.teacher_id, seq, event))
+            self.feedback.put(feedback_message(self.config.run, self.config.teacher_id, seq, event,
+                                               self.screens.get(self.screen), self.config.screen_span))
             self.feedback_seq = seq + 1
             c["feedback_published"] = self.feedback_seq
             c["feedback_positive" if event.value > 0 else "feedback_negative"] += 1
@@ -149,6 +157,18 @@ class PerceptionService:
                               f"dropped (counted as frames_undecodable)", level=3)
             return None
         return self.process(image, frame.index, frame.t_capture, frame.camera, live_clock)
+
+    def on_shown(self, items) -> None:
+        """Paint reports of the people's screens (console `Shown` messages)."""
+        from common.screen import ScreenTimeline
+
+        for item in items:
+            try:
+                msg = item.decode()
+            except ProtocolError as e:
+                self.rt.counters[f"shown_dropped_{e.reason}"] += 1
+                continue
+            self.screens.setdefault(msg.screen, ScreenTimeline()).add(msg.actor, msg.seq, msg.t_shown)
 
     def throughput(self) -> dict[str, float]:
         """Frames processed per wall second and CPU ms per frame (the whole process: decode, pipeline,
@@ -206,9 +226,12 @@ def main(config: PerceptionLiveConfig) -> int:
                 with subscription(session, camera_key(config.run, spec.target), maxsize=config.queue,
                                   policy="drop_oldest") as frames, \
                         subscription(session, KEYS["status"].wildcard(config.run), maxsize=256,
-                                     policy="drop_oldest") as status:
+                                     policy="drop_oldest") as status, \
+                        subscription(session, KEYS["shown"].wildcard(config.run), maxsize=1024,
+                                     policy="drop_oldest") as shown:
                     rt.ready()
-                    processed = _run_zenoh(config, rt, svc, frames, status, spec.target)
+                    processed = _run_zenoh(config, rt, svc, frames, status, spec.target,
+                                           shown if config.screens else None)
                     rt.counters.update({f"inbox_{k}": v for k, v in frames.snapshot().items()})
             else:
                 rt.ready()
@@ -260,7 +283,7 @@ def _run_iterator(config: PerceptionLiveConfig, rt: ServiceRuntime, svc: Percept
 
 
 def _run_zenoh(config: PerceptionLiveConfig, rt: ServiceRuntime, svc: PerceptionService, frames, status,
-               camera: str) -> int:
+               camera: str, shown=None) -> int:
     stopped: set[str] = set()
     waiting = set(config.stop_with)
     index = processed = 0
@@ -275,6 +298,9 @@ def _run_zenoh(config: PerceptionLiveConfig, rt: ServiceRuntime, svc: Perception
                 ef = EncodedFrame(index, 0.0, None, camera, e.reason)
             else:
                 ef = EncodedFrame(index, msg.timestamp.to_seconds(), msg.data, camera)
+                svc.screen = msg.frame_id
+            if shown is not None:
+                svc.on_shown(shown.drain())
             index += 1
             rt.counters["frames_received"] += 1
             if ef.index % config.every == 0:

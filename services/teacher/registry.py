@@ -86,3 +86,19 @@ def _face_video(up: Any, teacher_id: str) -> list[ProcessSpec]:
 register(TeacherKind("face-video", "the simulated observer's reactions shown as clips of a real face to a camera "
                                    "(services.teacher.face_video), read by the perception service (teacher.<id>)",
                      _face_video, _face_video_unavailable, _face_video_defaults))
+
+
+def _web(up: Any, teacher_id: str) -> list[ProcessSpec]:
+    from services.console.launch import console_processes
+
+    return [ProcessSpec(*p) for p in console_processes(up, teacher_id)]
+
+
+def _web_defaults(up: Any) -> dict:
+    from services.console.launch import console_defaults
+
+    return console_defaults(up)
+
+
+register(TeacherKind("web", "people in a browser: the console (services.console) serves a page on which each person "
+                            "watches the agent and teaches it by key, button or webcam", _web, defaults=_web_defaults))

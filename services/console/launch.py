@@ -1,0 +1,40 @@
+"""How `python -m services up --teacher web` starts the console (and, with `--webcam`, the perception
+service that reads the people's webcams), for the launcher's teacher registry."""
+from __future__ import annotations
+
+from typing import Any
+
+WEBCAM = "webcam"  # camera id of the people's webcam frames
+
+
+def console_defaults(up: Any) -> dict:
+    """A person watches: pace 2 steps/s unless the user chose one, and time for the last presses to land."""
+    out = {}
+    if up.rate == 0:
+        out["rate"] = 2.0
+    if up.end_grace == 3.0:
+        out["end_grace"] = 6.0
+    return out
+
+
+def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]:
+    from common.transport import free_port
+    from services.console.config import ConsoleConfig
+
+    port = up.console_port or free_port(up.host if up.security else "127.0.0.1")
+    host = up.host if up.security else "127.0.0.1"
+    prefix = "web" if teacher_id == "oracle" else teacher_id  # the launcher's default id is the oracle's
+    common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
+    console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), env=up.env, layout=up.layout,
+                            seed=up.seed, algo=up.algo, host=host, port=port, teacher_prefix=prefix, rate=up.rate,
+                            episodes=up.episodes, screen_delay=up.screen_delay, camera=WEBCAM if up.webcam else None)
+    up.banners = getattr(up, "banners", []) + [f"console: http://{'127.0.0.1' if host == '127.0.0.1' else host}:{port}/"]
+    procs = [(f"teacher.{prefix}", "services.console", console)]
+    if up.webcam:
+        from services.perception.config import PerceptionLiveConfig
+
+        face = f"{prefix}-face"
+        procs.append((f"teacher.{face}", "services.perception", PerceptionLiveConfig(
+            **common, stats_out=up.stats_path(f"teacher.{face}"), source=f"zenoh:{WEBCAM}", teacher_id=face,
+            camera=WEBCAM, stop_with=("actor",), screens=True, screen_span=console.span)))
+    return procs
