@@ -165,7 +165,7 @@ def evaluate_contrast(con: Contrast, sweep: Sweep, returns: dict[int, np.ndarray
         se = float(np.std(diff[1:], ddof=1))
         mde = (Z_ALPHA + Z_POWER) * se
         effect = margin if verdict == "no meaningful difference" else abs(iv["estimate"])
-        needed = math.inf if effect <= 0 else math.ceil(n * (mde / effect) ** 2)
+        needed = math.inf if effect <= 0 else max(2, math.ceil(n * (mde / effect) ** 2))
         rows.append({"contrast": con.text, "metric": con.metric, "where": group_title(rest),
                      "left": a.label, "right": b.label, **iv, "margin": margin, "verdict": verdict,
                      "trials": n, "mde": mde, "trials_needed": needed if math.isfinite(needed) else None,

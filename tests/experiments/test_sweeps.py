@@ -1,6 +1,7 @@
 """Sweeps: a grid from the command line and from YAML, the tidy table, cache resume, named contrasts."""
 import csv
 import json
+import os
 
 import numpy as np
 import pyarrow.parquet as pq
@@ -8,7 +9,7 @@ import pytest
 
 from experiments import claims
 from experiments.__main__ import main
-from experiments.sweeps import execute, report
+from experiments.sweeps import analysis, execute, report
 from experiments.sweeps.grid import Sweep, load_yaml
 from experiments.sweeps.report import run_sweep
 
@@ -161,3 +162,12 @@ def test_any_agent_observer_and_env_field_reaches_the_trial():
     assert (spec.agent.algo, spec.agent.lr, spec.agent.update_interval) == ("deep-tamer", 0.01, 4)  # taxi's default
     assert spec.observer.delay_probs == (1.0, 0.0, 0.0) and spec.observer.stop_episode == 5
     assert (spec.env, spec.episodes, spec.layout, spec.seed) == ("taxi", 4, 0, 1)
+
+
+def test_the_sweep_file_in_the_docs_is_valid(tmp_path):
+    doc = open(os.path.join(os.path.dirname(__file__), "..", "..", "docs", "sweeps.md")).read()
+    text = doc.split("```yaml\n", 1)[1].split("```", 1)[0]
+    sweep = Sweep(**load_yaml_text(tmp_path, text))
+    assert len(sweep.cells()) == 8 and sweep.legend == "observer.p_flip"
+    cons = [analysis.parse_contrast(c, sweep) for c in sweep.contrasts]
+    assert [c.metric for c in cons] == ["auc", "final"] and cons[1].left == {"observer.p_flip": 0.0}
