@@ -19,7 +19,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="swept fields, e.g. observer.p_feedback=0.1,0.5 agent.algo=dqn,dqn-tamer "
                         "(tuples in brackets: observer.delay_probs=[1,0,0],[0.3,0.6,0.1])")
     p.add_argument("--set", nargs="+", default=[], metavar="FIELD=V",
-                   help="fixed settings for every cell, e.g. env.name=maze-pomdp agent.lr=0.003")
+                   help="fixed settings for every cell, e.g. env=maze-pomdp agent.lr=0.003")
     p.add_argument("--trials", type=int, default=None, help="trials per cell (default: 10, or the file's)")
     p.add_argument("--layouts", default=None, metavar="L1,L2",
                    help="maze layouts the trials cycle over (default: all 10)")
@@ -57,7 +57,7 @@ def build_sweep(args) -> Sweep:
     if args.trials is not None:
         kw["trials"] = args.trials
     if args.layouts is not None:
-        kw["layouts"] = tuple(coerce("env.layout", x.strip()) for x in split_top(args.layouts))
+        kw["layouts"] = tuple(coerce("layout", x.strip()) for x in split_top(args.layouts))
     kw["contrasts"] = list(kw.get("contrasts", [])) + list(args.contrast)
     for key in ("legend", "name"):
         if getattr(args, key) is not None:

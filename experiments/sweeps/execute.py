@@ -2,8 +2,9 @@
 
 Cache: one JSON file per distinct trial, `cache/<key[:2]>/<key>.json`, where the key hashes everything
 that determines the result (`experiments.reproduce.trial_key`: environment, layout, seed, episodes, agent,
-observer unless the agent ignores feedback). Cells whose trials are identical (DQN under two observers)
-share them, an interrupted sweep resumes with only the missing trials, and a repeated one only re-plots.
+observer unless the agent ignores feedback; `sweep_key` adds a teacher rule). Cells whose trials are
+identical (DQN under two observers) share them, an interrupted sweep resumes with only the missing
+trials, and a repeated one only re-plots.
 
 The workers (processes here, or Ray tasks) only compute: each finished trial's record is sent back to
 this process, which writes it to the cache at once. So a Ray cluster needs no shared file system.
@@ -13,6 +14,7 @@ Batching: missing trials are grouped into lockstep batches by environment, split
 """
 from __future__ import annotations
 
+import hashlib
 import multiprocessing as mp
 import os
 import queue
@@ -28,6 +30,14 @@ from experiments.runner import TrialSpec, run_trials
 from experiments.sweeps.grid import Sweep
 
 Emit = Callable[[tuple], None]
+
+
+def sweep_key(spec: TrialSpec) -> str:
+    """The reproduction's key (so both can share trials), extended by a non-default teacher rule."""
+    key = trial_key(spec)
+    if spec.teacher_rule is None:
+        return key
+    return hashlib.sha1(f"{key}|rule={spec.teacher_rule}".encode()).hexdigest()[:16]
 
 
 def cache_path(cache_dir: str, key: str) -> str:
@@ -54,7 +64,7 @@ def plan(sweep: Sweep, cache_dir: str) -> Plan:
     for cell in sweep.cells():
         for k in range(sweep.trials):
             spec = sweep.spec(cell, k)
-            key = trial_key(spec)
+            key = sweep_key(spec)
             if key not in seen:
                 seen[key] = read_cached(cache_path(cache_dir, key), key)
             if seen[key] is not None:

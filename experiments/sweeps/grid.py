@@ -6,9 +6,9 @@ a YAML file (same keys, see `docs/sweeps.md`), or both (the command line wins). 
 layout `layouts[k % L]` with seed `k // L`, so with the default layouts (all ten) trial k is the
 reproduction's trial k, and every comparison between cells is paired by trial (same layout and seed).
 
-Field paths (`FIELDS`) name the nested config: `agent.*`, `observer.*`, `env.name`, `env.layout`,
-`env.episodes`; values are checked against the field's type and the config's own validation before
-anything runs.
+Field paths (`FIELDS`) are those of `experiments run`'s config tree (`RunConfig`): `env`, `layout`,
+`teacher_rule`, `episodes`, `agent.<field>` (with `agent.algo`), `observer.<field>`; values are checked
+against the field's type and the config's own validation before anything runs.
 """
 from __future__ import annotations
 
@@ -24,11 +24,13 @@ from typing import Any
 
 import yaml
 
-from common.agents import ALGOS, AgentConfig, agent_config
-from common.envs import ENV_NAMES, LAYOUT_COUNT
-from common.envs.registry import ENVS
+from common.agents import ALGOS, agent_config
+from common.envs import LAYOUT_COUNT
+from common.envs.registry import resolve_env
 from common.observer import ObserverConfig
+from common.task import Task
 from experiments.conditions import AGENT_OVERRIDES, MAZE_EPISODES, TAXI_EPISODES
+from experiments.run_config import RunConfig
 from experiments.runner import TrialSpec
 
 
@@ -40,24 +42,45 @@ class FieldInfo:
     choices: tuple = ()
 
 
-def _section(prefix: str, cls: type) -> dict[str, FieldInfo]:
+TRIAL_FIELDS = ("seed",)  # set per trial, not per cell
+NOT_SWEPT = ("out",)
+
+
+def _unwrap(tp) -> tuple[Any, bool]:
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        return args[0], True
+    return tp, False
+
+
+def _tree_fields(cls: type = RunConfig) -> dict[str, FieldInfo]:
+    """The paths of `experiments run`'s config tree, as its flags spell them: `env`, `layout`,
+    `teacher_rule` (the task, flattened), `episodes`, `agent.<field>`, `observer.<field>`; the agent's
+    algorithm is `agent.algo`."""
+    out: dict[str, FieldInfo] = {}
     hints = typing.get_type_hints(cls)
-    return {f"{prefix}.{f.name}": FieldInfo(f"{prefix}.{f.name}", hints[f.name],
-                                            ALGOS if f.name == "algo" and prefix == "agent" else ())
-            for f in dataclasses.fields(cls) if f.init}
+    for f in dataclasses.fields(cls):
+        if f.name in NOT_SWEPT:
+            continue
+        base, _ = _unwrap(hints[f.name])
+        if not dataclasses.is_dataclass(base):
+            out[f.name] = FieldInfo(f.name, hints[f.name], tuple(f.metadata.get("choices", ())))
+            continue
+        prefix = "" if f.metadata.get("flatten") else f"{f.name}."
+        sub = typing.get_type_hints(base)
+        for g in dataclasses.fields(base):
+            if g.init and g.name not in TRIAL_FIELDS:
+                out[prefix + g.name] = FieldInfo(prefix + g.name, sub[g.name], tuple(g.metadata.get("choices", ())))
+    out["agent.algo"] = FieldInfo("agent.algo", str, ALGOS)
+    out.pop("algo", None)
+    return out
 
 
-FIELDS: dict[str, FieldInfo] = {
-    "env.name": FieldInfo("env.name", str, ENV_NAMES),
-    "env.layout": FieldInfo("env.layout", int | None),
-    "env.episodes": FieldInfo("env.episodes", int | None),
-    **_section("agent", AgentConfig),
-    **_section("observer", ObserverConfig),
-}
-"""Every field a sweep can set (the mapping from paths to the config the runner takes)."""
+FIELDS: dict[str, FieldInfo] = _tree_fields()
+"""Every field a sweep can set: the paths of `RunConfig`'s tree (the same names as `experiments run`'s flags)."""
 
-ALIASES = {"env": "env.name", "layout": "env.layout", "episodes": "env.episodes", "algo": "agent.algo",
-           "observer.flip": "observer.p_flip"}
+ALIASES = {"env.name": "env", "env.layout": "layout", "env.episodes": "episodes", "algo": "agent.algo",
+           "observer.flip": "observer.p_flip", "rule": "teacher_rule"}
 DEFAULT_EPISODES = {"taxi": TAXI_EPISODES}
 
 
@@ -70,13 +93,6 @@ def field_path(text: str) -> str:
         hint = f"; did you mean {', '.join(close)}?" if close else f"; fields: {', '.join(FIELDS)}"
         raise ValueError(f"unknown sweep field {text!r}{hint}")
     return path
-
-
-def _unwrap(tp) -> tuple[Any, bool]:
-    if typing.get_origin(tp) in (typing.Union, types.UnionType):
-        args = [a for a in typing.get_args(tp) if a is not type(None)]
-        return args[0], True
-    return tp, False
 
 
 def coerce(path: str, value: Any) -> Any:
@@ -188,6 +204,8 @@ class Sweep:
     legend: str | None = None
 
     def __post_init__(self):
+        self.grid = {field_path(p): [coerce(field_path(p), v) for v in vs] for p, vs in self.grid.items()}
+        self.fixed = {field_path(p): coerce(field_path(p), v) for p, v in self.fixed.items()}
         if self.trials < 2:
             raise ValueError(f"trials must be at least 2 (intervals need resampling), got {self.trials}")
         overlap = set(self.grid) & set(self.fixed)
@@ -218,32 +236,33 @@ class Sweep:
                 for i, combo in enumerate(itertools.product(*(self.grid[p] for p in paths)))]
 
     def settings(self, cell: Cell) -> dict[str, Any]:
-        return {"env.name": "maze", **self.fixed, **cell.values}
+        return {"env": "maze", **self.fixed, **cell.values}
 
     def layout_seed(self, settings: dict, k: int) -> tuple[int, int]:
-        """(layout, seed) of trial k: a fixed layout gives seed k; else trials cycle over the layouts."""
-        if settings.get("env.layout") is not None:
-            return settings["env.layout"], k
-        if not ENVS[settings["env.name"]].uses_layout:
+        """(layout, seed) of trial k: a fixed layout gives seed k; else trials cycle over the layouts
+        (environments without layouts: layout 0, seed k)."""
+        if settings.get("layout") is not None:
+            return settings["layout"], k
+        if not resolve_env(settings["env"]).uses_layout:
             return 0, k
         layouts = self.layouts or tuple(range(LAYOUT_COUNT))
         return layouts[k % len(layouts)], k // len(layouts)
 
     def spec(self, cell: Cell, k: int) -> TrialSpec:
         s = self.settings(cell)
-        env = s["env.name"]
+        env = s["env"]
+        layout, seed = self.layout_seed(s, k)
+        task = Task(env=env, layout=layout, seed=seed, teacher_rule=s.get("teacher_rule"))  # validates them
         agent_kw = {p.split(".", 1)[1]: v for p, v in s.items() if p.startswith("agent.")}
         algo = agent_kw.pop("algo", "dqn-tamer")
         agent = agent_config(algo, **{**AGENT_OVERRIDES.get(env, {}), **agent_kw})
         observer = ObserverConfig(**{p.split(".", 1)[1]: v for p, v in s.items() if p.startswith("observer.")})
-        episodes = s.get("env.episodes")
+        episodes = s.get("episodes")
         episodes = DEFAULT_EPISODES.get(env, MAZE_EPISODES) if episodes is None else episodes
         if episodes < 1:
-            raise ValueError(f"env.episodes must be positive, got {episodes}")
-        layout, seed = self.layout_seed(s, k)
-        if not 0 <= layout < LAYOUT_COUNT:
-            raise ValueError(f"env.layout must be in 0..{LAYOUT_COUNT - 1}, got {layout}")
-        return TrialSpec(env, agent, observer, seed=seed, layout=layout, episodes=episodes)
+            raise ValueError(f"episodes must be positive, got {episodes}")
+        return TrialSpec(task.env, agent, observer, seed=task.seed, layout=task.layout, episodes=episodes,
+                         teacher_rule=task.teacher_rule)
 
     def record(self) -> dict:
         """The sweep as YAML/JSON-able data (what `from_mapping` reads back)."""
@@ -268,7 +287,7 @@ def from_mapping(data: dict, source: str = "sweep file") -> dict:
         raise ValueError(f"{source}: unknown keys {', '.join(unknown)} (known: {', '.join(sorted(known))})")
     kw: dict[str, Any] = {k: data[k] for k in ("name", "trials", "legend") if data.get(k) is not None}
     if data.get("layouts") is not None:
-        kw["layouts"] = tuple(coerce("env.layout", x) for x in _as_list(data["layouts"], "layouts"))
+        kw["layouts"] = tuple(coerce("layout", x) for x in _as_list(data["layouts"], "layouts"))
     grid = data.get("grid") or {}
     fixed = data.get("set") or {}
     if not isinstance(grid, dict) or not isinstance(fixed, dict):

@@ -116,7 +116,7 @@ def test_interrupted_sweep_resumes_and_a_repeated_one_only_replots(tmp_path, mon
     real = execute.run_trials
     monkeypatch.setattr(execute, "run_trials", lambda specs, **kw: ran.extend(specs) or real(specs, **kw))
     resumed = run_sweep(sweep, out, workers=1, progress=False, n_boot=50)
-    assert sorted(execute.trial_key(s) for s in ran) == sorted(t.key for t in left.todo)
+    assert sorted(execute.sweep_key(s) for s in ran) == sorted(t.key for t in left.todo)
     assert resumed.run.computed == len(left.todo) and resumed.run.cached == len(left.records)
     assert (tmp_path / "out" / "trials.csv").read_text() == (tmp_path / "ref" / "trials.csv").read_text()
     ran.clear()
@@ -144,7 +144,8 @@ def load_yaml_text(tmp_path, text):
     (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=dqn-tamer-agent.algo=dqn"], "a minus"),
     (["--grid", "agent.lr=fast"], "agent.lr expects float"),
     (["--set", "observer.delay_probs=[0.5,0.6]"], "must sum to 1"),
-    (["--grid", "env.layout=3,12"], "env.layout must be in 0..9"),
+    (["--grid", "env.layout=3,12"], "layout must be in 0..9"),
+    (["--set", "env=NoSuchEnv-v0"], "unknown env"),
 ])
 def test_bad_sweeps_fail_with_one_line_before_running(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exc:
