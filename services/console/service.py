@@ -82,6 +82,7 @@ def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Applica
             name = None
         ws = web.WebSocketResponse(max_msg_size=config.max_frame_bytes + 64, heartbeat=10.0)
         await ws.prepare(request)
+        request.app["sockets"].add(ws)
         page = Page(ws, rt)
         person = hub.join(name[:32] if name else None, page.send)
         writer = asyncio.create_task(page.writer())
@@ -95,6 +96,7 @@ def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Applica
         finally:
             writer.cancel()
             hub.leave(person)
+            request.app["sockets"].discard(ws)
         return ws
 
     def handle(msg, person: Person, page: Page) -> None:
@@ -120,6 +122,7 @@ def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Applica
             hub.control(person, m)
 
     app = web.Application(client_max_size=1 << 20)
+    app["sockets"] = set()
     app.router.add_get("/", index)
     app.router.add_get("/ws", socket)
     app.router.add_static("/static/", STATIC)
@@ -130,7 +133,8 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     loop = asyncio.get_running_loop()
     hub = Hub(config, rt, session, loop)
     hub.subscribe()
-    runner = web.AppRunner(make_app(config, rt, hub), access_log=None)
+    app = make_app(config, rt, hub)
+    runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
     await runner.setup()
     site = web.TCPSite(runner, config.host, config.port)
     await site.start()
@@ -153,6 +157,8 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     finally:
         for person in list(hub.people.values()):
             hub.person_status(person, "stopped")
+        for ws in list(app["sockets"]):  # the pages see the run end (and cleanup does not wait for them)
+            await ws.close(code=1001, message=b"run over")
         await runner.cleanup()
         hub.close()
 

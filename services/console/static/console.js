@@ -158,7 +158,7 @@ function paint(ts) {
   const tPage = pageTime(ts);
   if (hitl.clock.ready) {
     send({ type: "shown", seq: m.seq, actor: m.actor, ...stamp(tPage) });
-    hitl.shownLog.push({ seq: m.seq, actor: m.actor, t_page: tPage, t_sys: tPage + hitl.clock.offset, info: m.info,
+    hitl.shownLog.push({ seq: m.seq, actor: m.actor, episode: m.episode, t_page: tPage, t_sys: tPage + hitl.clock.offset, info: m.info,
       t_action: m.t_action });
     if (hitl.shownLog.length > 2000) hitl.shownLog.shift();
     for (const fn of hitl.onShown || []) fn(m, tPage);

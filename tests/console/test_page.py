@@ -1,0 +1,116 @@
+"""The console page in a real headless Chromium, against a real live run (`services up --teacher web`):
+the page draws the maze, key presses become feedback credited to the steps shown 0.2-4 s before each press,
+pause stops the actor, and the run's log holds every press with its page time and its system time."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from common.envs.maze import SIZE, make_layout
+from common.mcap_read import read_log
+from common.protocol import Credit, Feedback, Shown, Step
+
+from .harness import WebRun, browser, canvas_pixels, open_console, uniform_weights
+
+pytestmark = [pytest.mark.live, pytest.mark.browser]
+
+LAYOUT = 3
+WALL_BGR = np.array([0x33, 0x33, 0x33])
+
+
+def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    run = WebRun(tmp_path, "page", "--env", "maze", "--layout", str(LAYOUT), "--algo", "dqn-tamer",
+                 "--episodes", "200", "--rate", "4", "--seed", "1")
+    try:
+        url = run.url()
+        with sync_playwright() as pw:
+            ctx = browser(pw, tmp_path / "profile")
+            page = open_console(ctx, url)
+
+            # 1. The maze as drawn: each cell's colour (away from the agent and goal marks) against the layout.
+            pixels = canvas_pixels(page)
+            assert pixels.shape[:2] == (480, 480)
+            cell = 480 // SIZE
+            walls = make_layout(LAYOUT).walls
+            for r in range(SIZE):
+                for c in range(SIZE):
+                    bgr = pixels[r * cell + 6, c * cell + 6].astype(int)
+                    is_wall = np.abs(bgr - WALL_BGR).max() <= 12
+                    assert is_wall == walls[r][c], f"cell {r},{c}: pixel {bgr}, layout wall {walls[r][c]}"
+
+            # 2. Key presses, as a person would: + - ArrowUp ArrowDown, about a second apart, once 4 s were shown.
+            page.wait_for_function("hitl.shownLog.length >= 18", timeout=30_000)
+            keys = ["+", "-", "ArrowUp", "ArrowDown", "+", "ArrowDown"]
+            for key in keys:
+                page.keyboard.press(key)
+                time.sleep(0.9)
+            page.wait_for_function(f"[...hitl.mine.values()].filter(f => f.credit).length >= {len(keys)}",
+                                   timeout=30_000)
+            presses = page.evaluate("hitl.pressLog")
+            mine = page.evaluate("[...hitl.mine.values()]")
+            shown = page.evaluate("hitl.shownLog")
+            assert [p["value"] for p in presses] == [1, -1, 1, -1, 1, -1]
+            for s in shown:  # the console never places a paint before the action (its clock check)
+                s["t_sys"] = max(s["t_sys"], s["t_action"])
+            for press, fb in zip(presses, mine):
+                credit = fb["credit"]
+                assert credit["status"] == "credited", credit
+                got = {s["seq"]: s["weight"] for s in credit["steps"]}
+                want = uniform_weights(press["t_sys"], shown)
+                assert set(got) == set(want), (got, want)
+                for seq, w in want.items():
+                    assert got[seq] == pytest.approx(w, abs=1e-6)
+                    start = next(s["t_sys"] for s in shown if s["seq"] == seq)
+                    assert start <= press["t_sys"] - 0.2  # shown at least 0.2 s before the press...
+                    nxt = [s["t_sys"] for s in shown if s["seq"] > seq]
+                    assert not nxt or nxt[0] >= press["t_sys"] - 4.0  # ...and still on screen 4 s before it
+                assert sum(got.values()) + credit["lost_mass"] == pytest.approx(1.0, abs=1e-6)
+
+            # 3. Pause stops the actor; resume starts it again.
+            page.click("#pause")
+            page.wait_for_function("hitl.paused === true", timeout=10_000)
+            time.sleep(0.6)  # a step already in flight may still land
+            seq_paused = page.evaluate("hitl.step.seq")
+            t_paused = time.time()
+            time.sleep(2.5)
+            assert page.evaluate("hitl.step.seq") == seq_paused
+            t_resumed = time.time()
+            page.click("#pause")
+            page.wait_for_function(f"hitl.step.seq > {seq_paused} + 2", timeout=10_000)
+
+            # 4. End the run from the page.
+            page.click("#end")
+            assert run.wait(90) == 0, run.out[-3000:]
+            assert page.errors == []
+            ctx.close()
+    finally:
+        run.close()
+
+    # 5. The log: every press with its page time and system time; the paints; the credits; no step while paused.
+    feedback = {}
+    credits, shown_log, steps = [], [], []
+    for rec in read_log(run.rundir / "session.mcap"):
+        m = rec.message
+        if isinstance(m, Feedback) and m.teacher_id == "web-1":
+            feedback[m.seq] = m
+        elif isinstance(m, Credit):
+            credits.append(m)
+        elif isinstance(m, Shown):
+            shown_log.append(m)
+        elif isinstance(m, Step):
+            steps.append(m)
+    assert sorted(feedback) == list(range(len(presses)))
+    for press, seq in zip(presses, sorted(feedback)):
+        fb = feedback[seq]
+        assert fb.source == "key" and fb.value == press["value"]
+        assert fb.t_page == pytest.approx(press["t_page"], abs=1e-6)
+        assert fb.t_reaction == pytest.approx(press["t_sys"], abs=1e-6)
+        assert fb.shown and fb.actor
+    assert {c.seq for c in credits if c.teacher_id == "web-1"} >= set(feedback)
+    assert len(shown_log) >= 18 and all(s.screen == "web-1" for s in shown_log)
+    paused = [s.seq for s in steps if t_paused < s.t_action < t_resumed]
+    assert paused == [], f"steps taken while paused: {paused}"
