@@ -195,6 +195,9 @@ def execute(sweep: Sweep, cache_dir: str, workers: int = 2, ray_address: str | N
     total = len(sweep.cells()) * sweep.trials
     done0 = len(p.records)
     items = {t.key: (t.key, t.spec, len(p.slots[t.key])) for t in p.todo}
+    if ray_address and p.todo:
+        from experiments.sweeps.ray_backend import cluster_cpus
+        workers = cluster_cpus(ray_address)  # one batch per CPU of the cluster
     jobs = [[items[t.key] for t in job] for job in make_jobs(p.todo, workers)]
     bar = _bar(total, done0) if progress and jobs else None
     done, partial = [done0], [0.0]

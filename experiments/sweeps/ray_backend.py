@@ -56,9 +56,25 @@ def connect(address: str):
     return ray
 
 
+def cluster_cpus(address: str) -> int:
+    """Connect (once) and return the cluster's CPUs: the sweep makes one batch per CPU."""
+    import ray as _ray
+    ray = _ray if _ray_ready() else connect(address)
+    return max(1, int(ray.cluster_resources().get("CPU", 1)))
+
+
+def _ray_ready() -> bool:
+    try:
+        import ray
+    except ImportError:
+        return False
+    return ray.is_initialized()
+
+
 def run_ray(jobs: list[list], address: str, on_message: Callable[[tuple], None]) -> list[dict]:
     """Run every job as a Ray task (one CPU each); messages go to `on_message` as they arrive."""
-    ray = connect(address)
+    import ray as _ray
+    ray = _ray if _ray_ready() else connect(address)
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(job_messages)
         gens = {task.options(num_returns="streaming").remote(j, items): j for j, items in enumerate(jobs)}
