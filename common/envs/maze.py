@@ -145,7 +145,8 @@ class MazeEnv(gym.Env):
         truncated = not terminated and self.steps >= self.max_steps
         after = manhattan(self.pos, self.layout.goal)
         info = {"target_distance_before": float(before), "target_distance_after": float(after),
-                "subgoal_reached": 1.0 if terminated else 0.0}
+                "subgoal_reached": 1.0 if terminated else 0.0,
+                "row": float(self.pos[0]), "col": float(self.pos[1])}  # where the agent is (for pictures)
         return self._obs(), reward, terminated, truncated, info
 
     def render(self):

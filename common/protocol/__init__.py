@@ -24,6 +24,8 @@ from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, Compre
                         ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, MAX_SHOWN, ObserverReaction, RunConfig,
                         ServiceStatus, ShownStep, Step, Time)
 from ._spec import REASONS, ProtocolError
+from ._foxglove import FoxgloveProto, SceneUpdate
+from ._observe import Request, TensorSummary, WeightsSnapshot
 from ._topics import key_from_topic, log_topic
 from ._weights import Weights, check_spec
 
@@ -38,4 +40,5 @@ __all__ = [
     "camera_key", "perception_key", "config_key", "ObserverReaction", "reaction_key",
     "Shown", "ShownStep", "MAX_SHOWN", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit", "CreditedStep",
     "shown_key", "control_key", "credit_key", "log_topic", "key_from_topic",
+    "FoxgloveProto", "SceneUpdate", "Request", "TensorSummary", "WeightsSnapshot",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 from ._base import PROTOCOL_VERSION
+from ._foxglove import FoxgloveProto
 from ._topics import topics_table
 from ._keys import KEYS, ROOT
 from ._messages import NAME_PATTERN, TOKEN_PATTERN
@@ -121,6 +122,12 @@ def markdown() -> str:
         w("")
         if cls is Weights:
             _weights_section(w)
+            continue
+        if isinstance(cls, type) and issubclass(cls, FoxgloveProto):
+            w(f"Foxglove's own `{cls.TYPE_NAME}` ([reference](https://docs.foxglove.dev/docs/visualization/"
+              f"message-schemas/{cls.SDK_NAME.lower()})), built and protobuf-encoded with the `foxglove-sdk` "
+              "package; the MCAP schema is the FileDescriptorSet that package publishes (schema encoding "
+              "`protobuf`). Decoding parses it with that descriptor (`malformed` if it does not parse).")
             continue
         w("| field | type | description |")
         w("|---|---|---|")

@@ -14,6 +14,8 @@ from ._messages import (NAME_PATTERN, CompressedImage, EpisodeSummary, Expressio
                         ObserverReaction,
                         Log, RunConfig, ServiceStatus, Step)
 from ._console import Control, Credit, Shown
+from ._foxglove import SceneUpdate
+from ._observe import Request, WeightsSnapshot
 from ._spec import ProtocolError
 from ._weights import Weights
 
@@ -31,6 +33,7 @@ class KeySpec:
     congestion: str  # "block" (never dropped by Zenoh under load) or "drop"
     queue_policy: str  # default receive policy: "block" or "drop_oldest"
     doc: str
+    logged: bool = True  # False: the recorder leaves it out of the log (counted), e.g. the actor's every-step weights
 
     def pattern(self) -> str:
         tail = f"/<{self.param}>" if self.param else ""
@@ -58,7 +61,15 @@ KEYS: dict[str, KeySpec] = {k.kind: k for k in [
     KeySpec("step", Step, None, "block", "block", "Every environment step, from the actor."),
     KeySpec("feedback", Feedback, "teacher_id", "block", "block", "Binary feedback, one key per teacher."),
     KeySpec("weights", Weights, None, "block", "block",
-            "Network weights, from the learner. An actor wants only the newest: receive with drop_oldest, maxsize 1."),
+            "Network weights for the actor, from the learner (after almost every step in lockstep). An actor wants "
+            "only the newest: receive with drop_oldest, maxsize 1. Not logged: the log has `snapshot`.", logged=False),
+    KeySpec("snapshot", WeightsSnapshot, None, "block", "block",
+            "The learner's weights at a bounded rate, for logs and viewers: per-tensor numbers and the raw weights."),
+    KeySpec("request", Request, None, "drop", "drop_oldest", "Ask a service for something now (a weights snapshot)."),
+    KeySpec("scene", SceneUpdate, "part", "block", "block",
+            "The environment drawn for Foxglove's 3D panel (foxglove.SceneUpdate, protobuf): `layout` once per "
+            "episode, `agent` per step, `feedback` per resolved feedback. Made by the recorder and the Foxglove "
+            "bridge from steps and credits (common/scene.py)."),
     KeySpec("episode", EpisodeSummary, None, "block", "block", "End-of-episode summary, from the learner."),
     KeySpec("ingest", Ingest, None, "block", "block",
             "The learner's input order (what `replay retrain` feeds a fresh learner), from the learner."),

@@ -38,7 +38,7 @@ from services.common.config import ActorConfig
 from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, atomic_write_json, first_time_logger, publish_kept, read_json
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main, wait_alive
 
-INFO_KEYS = ("target_distance_before", "target_distance_after", "subgoal_reached")
+INFO_KEYS = ("target_distance_before", "target_distance_after", "subgoal_reached", "row", "col")
 RECORDER_WAIT = 20.0  # s to wait at the end for a recorder that is restarting (it must get what it missed)
 
 

@@ -168,6 +168,8 @@ class LearnerConfig(TaskConfig):
                                      "setting is 1; larger trades learning per step for throughput)")
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
                                     "learned steps while it is behind")
+    snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
+                                      "each episode end (numbers only), on request and the final ones")
     ingest_batch: int = option(256, "at most this many entries per Ingest message")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
     wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
@@ -191,6 +193,8 @@ class LearnerConfig(TaskConfig):
             raise ValueError(f"update-interval must be >= 1, got {self.update_interval}")
         if self.weights_every < 1:
             raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
+        if self.snapshot_every < 1:
+            raise ValueError(f"snapshot-every must be >= 1, got {self.snapshot_every}")
         if not 1 <= self.ingest_batch <= 2048:
             raise ValueError(f"ingest-batch must be in 1..2048, got {self.ingest_batch}")
         if not (math.isfinite(self.end_grace) and self.end_grace >= 0):

@@ -38,6 +38,7 @@ from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, 
                                     first_time_logger, publish_kept)
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
 from services.learner import checkpoint
+from services.learner.snapshots import Snapshots
 from services.learner.core import LearnerCore
 
 TEACHER_PREFIX = "teacher."
@@ -79,7 +80,12 @@ def main(config: LearnerConfig) -> int:
                               policy="drop_oldest") as status, \
                     MessagePublisher(session, weights_key(config.run)) as wpub, \
                     MessagePublisher(session, episode_key(config.run)) as epub, \
-                    MessagePublisher(session, ingest_key(config.run)) as ipub:
+                    MessagePublisher(session, ingest_key(config.run)) as ipub, \
+                    MessagePublisher(session, KEYS["snapshot"].key(config.run)) as spub, \
+                    subscription(session, KEYS["request"].key(config.run), maxsize=4,
+                                 policy="drop_oldest") as requests:
+                snaps = Snapshots(config.run, rt.incarnation, config.snapshot_every,
+                                  lambda m: publish_kept(spub, m, ring))
 
                 def flush_ingest() -> None:
                     nonlocal ingest_seq
@@ -98,12 +104,18 @@ def main(config: LearnerConfig) -> int:
                 last_version = {"v": 0 if resumed is None else -1, "data": None}
                 credit_pubs: dict[str, MessagePublisher] = {}
 
-                def publish_weights(version: int) -> None:
+                def current_weights(version: int) -> tuple[dict, bytes]:
+                    tensors = core.policy_weights()
+                    return tensors, Weights(run=config.run, incarnation=rt.incarnation, version=version,
+                                            t_published=time.time(), tensors=tensors).encode()
+
+                def publish_weights(version: int, final: bool = False) -> None:
                     t0 = time.perf_counter()
-                    data = Weights(run=config.run, incarnation=rt.incarnation, version=version,
-                                   t_published=time.time(), tensors=core.policy_weights()).encode()
+                    tensors, data = current_weights(version)
                     wpub.put(data)
                     last_version.update(v=version, data=data)
+                    # The log gets snapshots at a bounded rate, not every version (docs/logs.md).
+                    (snaps.final if final else snaps.on_weights)(version, tensors, data)
                     rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
 
                 last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
@@ -163,6 +175,7 @@ def main(config: LearnerConfig) -> int:
                                 steps=ep.steps, feedback_received=ep.feedback_received,
                                 feedback_credited=ep.feedback_credited, weights_version=ep.weights_version,
                                 t_end=ep.t_end), ring)
+                            snaps.on_episode(core.steps_learned, core.policy_weights())
                         if config.debug_update_sleep:
                             time.sleep(config.debug_update_sleep)
                         return True
@@ -235,6 +248,9 @@ def main(config: LearnerConfig) -> int:
                         if idle or len(core.entries) >= config.ingest_batch:
                             flush_ingest()
                     drain_status()
+                    if len(requests):
+                        snaps.on_requests(requests.drain(), core.steps_learned,
+                                          lambda: current_weights(core.steps_learned))
                     for name in watch.take():
                         if name == "recorder" and len(ring):
                             rt.event(f"recorder (re)started: re-sending {len(ring)} recent ingest/episode messages")
@@ -261,7 +277,7 @@ def main(config: LearnerConfig) -> int:
                     rt.tick()
                 handle(core.end(time.time()))
                 flush_ingest()
-                publish_weights(core.steps_learned + 1)
+                publish_weights(core.steps_learned + 1, final=True)
                 ring.add(wpub, last_version["data"])  # the final weights too, if the recorder must get them again
                 watch.before_exit(ring, 20.0, rt.log)
                 for pub in credit_pubs.values():

@@ -21,7 +21,8 @@ import sys
 import time
 
 from common.config import config_record
-from common.protocol import ProtocolError, RunConfig, ServiceStatus, decode, run_prefix, status_key
+from common.protocol import ProtocolError, RunConfig, ServiceStatus, decode, parse_key, run_prefix, status_key
+from common.scene import SceneBuilder
 from services.common.config import RecorderConfig
 from services.common.faults import AliveWatch, first_time_logger
 from services.common.runtime import ServiceRuntime, service_main
@@ -45,6 +46,7 @@ def main(config: RecorderConfig) -> int:
     rt = ServiceRuntime("recorder", config)
     run_config = load_run_config(config)
     writer = LogWriter(config.out, run_config, flush_interval=config.flush_interval)
+    scene = SceneBuilder.from_run_config(run_config.config)  # the environment drawn for Foxglove (docs/logs.md)
     rt.set_counters_source(lambda: {"messages_written": writer.counters["messages"],
                                     "bytes_written": writer.counters["bytes"]})
     stopped: set[str] = set()
@@ -70,12 +72,18 @@ def main(config: RecorderConfig) -> int:
                     if item is not None:
                         try:
                             st = decode(item.key, item.data)
-                            writer.write(item.key, item.data, log_time=int(item.t_recv * 1e9),
+                            if not parse_key(item.key).spec.logged:
+                                rt.counters[f"not_logged_{item.key.split('/')[2]}"] += 1
+                                continue
+                            t_log = int(item.t_recv * 1e9)
+                            writer.write(item.key, item.data, log_time=t_log,
                                          publish_time=int((item.t_zenoh or item.t_recv) * 1e9))
                         except ProtocolError as e:
                             rt.counters[f"rejected_{e.reason}"] += 1
                             note_rejected(e.reason, item.key[:80])
                             continue
+                        for key, data in scene.feed(config.run, st) if scene is not None else ():
+                            writer.write(key, data, log_time=t_log)
                         if config.stop_when and "/status/" in item.key:
                             if isinstance(st, ServiceStatus) and st.state == "stopped":
                                 stopped.add(st.service)

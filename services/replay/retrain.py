@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from common.mcap_log import LogRecoveryWarning, read_log
-from common.protocol import Feedback, Ingest, Step, Weights
+from common.protocol import Feedback, Ingest, Step, Weights, WeightsSnapshot
 
 
 @dataclasses.dataclass
@@ -78,6 +78,8 @@ def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResul
                 ingest.setdefault(m.learner, []).append(m)
             elif isinstance(m, Weights):
                 weights.setdefault(m.incarnation, []).append(m)
+            elif isinstance(m, WeightsSnapshot) and m.weights is not None:  # logs keep snapshots, not every version
+                weights.setdefault(m.incarnation, []).append(Weights.decode(m.weights))
     if not ingest:
         raise ValueError(f"{path}: no Ingest messages (no learner recorded)")
     if learner is None:

@@ -10,7 +10,8 @@ import warnings
 from typing import Any
 
 from common.mcap_log import LogRecoveryWarning, read_log
-from common.protocol import EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights
+from common.protocol import (EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
+                             WeightsSnapshot)
 
 
 def _contiguous(seqs: list[int]) -> bool:
@@ -49,7 +50,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             elif isinstance(m, ServiceStatus):
                 statuses[m.service] = m
                 by_pid[(m.service, m.pid)] = m
-            elif isinstance(m, Weights):
+            elif isinstance(m, (Weights, WeightsSnapshot)):  # logs since the snapshots: snapshots only
                 weights[m.incarnation].append(m.version)
     for w in caught:
         warnings.warn(w.message, w.category, stacklevel=2)
@@ -181,7 +182,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "feedback_negative": feedback_values.get(-1, 0),
         "feedback_credited": by_status.get("credited", 0),
         "feedback_rejected": rejected,
-        "weights_published": sum(len(v) for v in weights.values()),
+        "weights_logged": sum(len(v) for v in weights.values()),  # snapshots (Weights in older logs)
         "learners": learners,
         "episodes": ep_rows,
         "returns": [r["return"] for r in ep_rows if not r["aborted"]],
@@ -261,7 +262,7 @@ def format_summary(s: dict[str, Any]) -> str:
         k = min(5, len(rets))
         lines.append(f"  episodes: {len(rets)}; mean return first {k}: {sum(rets[:k]) / k:.3f}, "
                      f"last {k}: {sum(rets[-k:]) / k:.3f}")
-    lines.append(f"  weights published: {s['weights_published']}")
+    lines.append(f"  weights snapshots logged: {s['weights_logged']}")
     if s.get("steps_not_ingested") or s.get("feedback_not_ingested") or len(s.get("learner_chain", [])) > 1:
         lines.append(f"  learner record across {len(s['learner_chain'])} learner process(es): steps not ingested "
                      f"{s['steps_not_ingested']}, feedback not ingested {s['feedback_not_ingested']}, seqs contiguous "

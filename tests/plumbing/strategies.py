@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 from common.protocol import (NAME_PATTERN, TOKEN_PATTERN, Box, CompressedImage, Control, Credit, CreditedStep,
                              EpisodeSummary, ExpressionPrediction, Feedback, Ingest, IngestEntry, RunConfig,
-                             ServiceStatus, Shown, ShownStep, Step, Time, Weights)
+                             Request, ServiceStatus, Shown, ShownStep, Step, TensorSummary, Time, Weights,
+                             WeightsSnapshot)
 from common.protocol._spec import AnyJSON, Bool, Bytes64, Float, Int, List, Map, Nullable, Obj, Spec, Str
 
 TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)
@@ -99,7 +100,7 @@ def weights() -> st.SearchStrategy:
 
 
 JSON_TYPES = (Step, Feedback, EpisodeSummary, ServiceStatus, CompressedImage, ExpressionPrediction, RunConfig, Ingest,
-              Shown, Control, Credit)
+              Shown, Control, Credit, WeightsSnapshot, Request)
 ALL_TYPES = JSON_TYPES + (Weights,)
 
 
@@ -131,6 +132,9 @@ def example(cls: type, **changes):
         Credit: dict(run="r1", teacher_id="alice", seq=0, value=1, status="credited", t_reaction=1700000000.5,
                      t_credited=1700000000.51, actor="actor-1", steps=[CreditedStep(2, 0.3), CreditedStep(3, 0.1)],
                      lost_mass=0.6),
+        WeightsSnapshot: dict(run="r1", incarnation="learner-1", version=5, reason="every", t_published=1700000002.0,
+                              tensors=[TensorSummary("q.0.bias", [4], 0.0, 0.0, 0.0, 0.0, 0.0)], weights=b"\x08raw"),
+        Request: dict(run="r1", what="snapshot", by="alice", t=1700000002.0),
         Weights: dict(run="r1", incarnation="learner-1", version=5, t_published=1700000002.0,
                       tensors={"q.0.weight": np.ones((4, 2), np.float32), "q.0.bias": np.zeros(4, np.float32)}),
     }[cls]

@@ -89,7 +89,8 @@ def test_examples_round_trip_by_key():
         key = keys.get(cls) or {"EpisodeSummary": episode_key("r1"), "CompressedImage": camera_key("r1", "cam0"),
                                 "ExpressionPrediction": perception_key("r1", "cam0"),
                                 "Ingest": ingest_key("r1"), "Shown": shown_key("r1", "alice"),
-                                "Control": control_key("r1"), "Credit": credit_key("r1", "alice")}[cls.__name__]
+                                "Control": control_key("r1"), "Credit": credit_key("r1", "alice"),
+                                "WeightsSnapshot": "hitl/r1/snapshot", "Request": "hitl/r1/request"}[cls.__name__]
         msg = example(cls)
         back = decode(key, msg.encode())
         assert type(back) is cls
