@@ -215,7 +215,7 @@ class LogReader:
 def identity(message: Any) -> tuple | None:
     """What makes a message unique within a run, for messages that may be published twice (re-sent to a
     restarted recorder or learner; docs/faults.md); None for the others (statuses, frames, ...)."""
-    from common.protocol import EpisodeSummary, Feedback, Ingest, Log, Step, Weights, WeightsSnapshot
+    from common.protocol import Credit, EpisodeSummary, Feedback, Ingest, Log, Step, Weights, WeightsSnapshot
 
     if isinstance(message, Step):
         return ("step", message.incarnation, message.seq)
@@ -227,6 +227,8 @@ def identity(message: Any) -> tuple | None:
         return ("episode", message.incarnation, message.episode)
     if isinstance(message, Weights):
         return ("weights", message.incarnation, message.version)
+    if isinstance(message, Credit):
+        return ("credit", message.teacher_id, message.seq)
     if isinstance(message, WeightsSnapshot):
         return ("snapshot", message.incarnation, message.version, message.reason)
     if isinstance(message, Log):

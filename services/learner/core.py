@@ -47,8 +47,8 @@ class FeedbackResult:
     steps: int = 0
     lost_mass: float = 0.0
     received_at: int = 0  # position of the feedback in the ingest record (for latency bookkeeping)
-    feedback: Feedback | None = None  # the feedback itself when it came from a person's screen (console)
-    credited: list = dataclasses.field(default_factory=list)  # screen feedback: [(Step.seq, weight)]
+    feedback: Feedback | None = None  # the feedback itself, once resolved by credit (Credit messages)
+    credited: list = dataclasses.field(default_factory=list)  # [(Step.seq, weight)] when credited
 
 
 @dataclasses.dataclass
@@ -262,8 +262,22 @@ class LearnerCore:
             result.feedback, result.credited = fb, credited
             return result
         tau = self.clock.to_steps(fb.t_reaction)
+        credited = self._steps_credited(tau)  # before the update (which leaves the held steps as they are)
         out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]))
-        return self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
+        result = self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
+        # What became of it, for people and viewers (a Credit message; the log's scene draws it).
+        result.feedback, result.credited = fb, credited if result.status == "credited" else []
+        return result
+
+    def _steps_credited(self, tau: float) -> list[tuple[int, float]]:
+        """[(Step.seq, weight)] of the held steps a feedback at step-clock time tau is credited to (the agent's
+        own credit of its history; read only)."""
+        agent = self.loop.agent
+        c = agent.history.credit(ROW, np.array([tau]), agent.assumed_delay, agent.local_width)
+        n = int(c.counts[0])
+        seq_of = {i: q for q, i in self.screen.index.items()}  # step-clock index -> Step.seq (recent steps)
+        times = agent.history.times[0, c.positions[0, :n]]
+        return [(seq_of[int(i)], float(w)) for i, w in zip(times, c.weights[0, :n]) if int(i) in seq_of]
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:
         results = []

@@ -137,7 +137,7 @@ def main(config: LearnerConfig) -> int:
                     """Latency samples: send -> H updated, and how much of it was the wait for a newer step."""
                     done = time.time()
                     for r in results:
-                        if r.feedback is not None:  # a person's feedback: tell their console what became of it
+                        if r.feedback is not None:  # what became of it: consoles and the log's scene show it
                             publish_credit(session, config.run, credit_pubs, r, core.actor, done)
                         t0, t_held = t_sent, None
                         if r.received_at in sent_at:
@@ -296,7 +296,7 @@ def main(config: LearnerConfig) -> int:
 
 
 def publish_credit(session, run: str, pubs: dict, result, actor: str | None, t_done: float) -> None:
-    """A `Credit` for one person's feedback (console): the steps it was credited to, with their weights."""
+    """A `Credit` for one resolved feedback: the steps it was credited to, with their weights."""
     from common.protocol import Credit, CreditedStep, credit_key
     from common.transport import MessagePublisher
 
