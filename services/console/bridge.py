@@ -244,6 +244,9 @@ class Hub:
         if self.camera_pub is None:
             self.rt.counters["page_rejected_no_camera"] += 1
             return
+        if self.actor_stopped:  # the run is over: the perception service may finish
+            self.rt.counters["frames_after_end"] += 1
+            return
         self.camera_pub.put(CompressedImage(timestamp=Time.from_seconds(t_capture), frame_id=person.teacher_id,
                                             data=jpeg, format="jpeg"))
         person.frames_sent += 1

@@ -216,6 +216,13 @@ async function startCamera() {
   hitl.cameraTimer = setInterval(tick, every);
   document.getElementById("camera").textContent = "webcam on";
 }
+function stopCamera() {
+  if (!hitl.cameraOn) return;
+  hitl.cameraOn = false; clearInterval(hitl.cameraTimer);
+  const video = document.getElementById("video");
+  if (video.srcObject) video.srcObject.getTracks().forEach((t) => t.stop());
+  document.getElementById("camera").textContent = "webcam off (run over)";
+}
 hitl.startCamera = startCamera;
 document.getElementById("camera").addEventListener("click", () => startCamera().catch((e) => {
   document.getElementById("face").textContent = `webcam: ${e.message}`; }));
@@ -239,7 +246,8 @@ function onMessage(m) {
       hitl.trail.push(m); if (hitl.trail.length > 200) hitl.trail.shift();
       if (m.teacher_id === hitl.me && hitl.mine.has(m.seq)) { hitl.mine.get(m.seq).credit = m; showTrail(); }
       drawScene(); break;
-    case "control": hitl.paused = m.paused; hitl.rate = m.rate; hitl.ended = m.ended; showStatus(); break;
+    case "control": hitl.paused = m.paused; hitl.rate = m.rate; hitl.ended = m.ended; showStatus();
+      if (m.ended) stopCamera(); break;
     case "face": hitl.face = m; document.getElementById("face").textContent =
       m.label ? `expression: ${m.label} (${m.confidence.toFixed(2)})` : "expression: no face"; break;
     case "face_feedback": hitl.faceFeedback.push(m);
