@@ -216,7 +216,7 @@ class _Batch:
         self.st["active"][row] = False
         self.st["inbox"][row] = 0
         self.results[i].total_steps = int(self.agent.steps[row])
-        self.results[i].weights = {k: v.numpy().copy() for k, v in self.agent.policy_weights(row).items()}
+        self.results[i].weights = self.agent.policy_weights(row)
         self.finished_rows += 1
         if self.on_trial_done is not None:
             self.on_trial_done(i, self.results[i])

@@ -1,9 +1,16 @@
-"""A stack of independent one-hidden-layer MLPs, one per trial, evaluated as one batched computation.
+"""Value networks (Q or H) as a component of the agent, and the fast path: a stack of independent
+one-hidden-layer MLPs, one per trial, evaluated as one batched numpy computation.
 
-Trial i's weights are W1[i], b1[i], W2[i], b2[i]. Each trial is initialised from its own torch
-generator with PyTorch's nn.Linear default (so a trial gets the same weights alone or among others, and
-the same as a torch model of the paper's network), then kept as float32 numpy arrays: all of a trial's
-weights live in one row of a flat [B, P] array (`flat`), and `params` are views into it, so selecting
+The component's interface (`ValueNetworks`) is what the agent uses and all a network must provide: values of
+observations for some trial rows, one optimiser step on a minibatch (observations, actions taken, targets,
+weights, a loss), target syncs, row selection, state and per-trial policy weights as named numpy arrays. A
+torch nn.Module can implement it (values: a forward pass; fit: loss.backward and its optimiser's step); Q and
+H need not have the same shape.
+
+The numpy MLP (`StackedMLP`): trial i's weights are W1[i], b1[i], W2[i], b2[i]. Each trial is initialised from
+its own torch generator with PyTorch's nn.Linear default (so a trial gets the same weights alone or among
+others, and the same as a torch model of the paper's network), then kept as float32 numpy arrays: all of a
+trial's weights live in one row of a flat [B, P] array (`flat`), and `params` are views into it, so selecting
 trials, an optimiser step or a target-network copy is one operation.
 
 The arithmetic is numpy, written out by hand: forward is one batched product per layer (the first with
@@ -17,6 +24,8 @@ numbers do not depend on which or how many trials share its batch (tests/experim
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -97,55 +106,187 @@ def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: 
     return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1)
 
 
-class StackedMLP:
-    """B MLPs in -> hidden (tanh) -> out, parameters stacked on a leading trial axis."""
+@dataclass(frozen=True)
+class Loss:
+    """A minibatch loss on the values of the actions taken: "huber" (DQN's TD loss, error clipped to [-1, 1]
+    in the gradient) or "squared" (weight * (value - target)^2, Deep TAMER's), averaged over the N rows of
+    each trial's minibatch ("mean") or summed ("sum")."""
 
-    def __init__(self, in_dim: int, hidden: int, out_dim: int, seeds: list[int]):
+    kind: str
+    reduce: str = "mean"
+
+    def grad(self, pred: np.ndarray, target: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+        """d loss / d pred, float32 [n, N]."""
+        if self.kind == "huber":
+            d = np.clip(pred - target, -1.0, 1.0)
+        else:
+            d = np.float32(2) * weights * (pred - target)
+        if self.reduce == "mean":
+            d /= np.float32(pred.shape[1])
+        return d
+
+
+HUBER_MEAN = Loss("huber")
+SQUARED_MEAN = Loss("squared")
+SQUARED_SUM = Loss("squared", "sum")
+
+
+@dataclass
+class FitJob:
+    """One optimiser step of `net` on trial rows `rows`: minibatch x [n, N, ...], actions [n, N], targets and
+    weights [n, N] (weights None for an unweighted loss)."""
+
+    net: "ValueNetworks"
+    rows: np.ndarray
+    x: np.ndarray
+    actions: np.ndarray
+    targets: np.ndarray
+    weights: np.ndarray | None
+    loss: Loss
+
+
+class ValueNetworks(Protocol):
+    """Per-trial value networks of a batch (row r is trial r's); rows are ascending index arrays."""
+
+    n_actions: int
+
+    def values(self, rows: np.ndarray | None, x: np.ndarray) -> np.ndarray:
+        """x [n, N, ...] (n = len(rows), all trials when rows is None) -> float32 [n, N, n_actions]."""
+
+    def fit(self, job: FitJob) -> None:
+        """One gradient step of its optimiser on `job`."""
+
+    def sync_from(self, other: "ValueNetworks", rows: np.ndarray) -> None:
+        """Copy other's weights into rows `rows` (a target network's sync)."""
+
+    def select(self, rows: np.ndarray) -> None: ...
+
+    def state_dict(self) -> dict: ...
+
+    def load_state_dict(self, state: dict) -> None: ...
+
+    def policy_state(self, row: int) -> dict[str, np.ndarray]: ...
+
+    def load_policy_state(self, row: int, state: dict) -> None: ...
+
+
+def pick(values: np.ndarray, actions: np.ndarray) -> np.ndarray:
+    """values[i, j, actions[i, j]] for values [n, N, A]: [n, N]."""
+    n, N, A = values.shape
+    return values.reshape(n * N, A)[np.arange(n * N), actions.reshape(-1)].reshape(n, N)
+
+
+def row_index(rows: np.ndarray | None, total: int):
+    """How to address rows (ascending) of `total`: None for all of them, a slice when they are consecutive
+    (numpy views, no copies), else the index array."""
+    if rows is None or len(rows) == total:
+        return None
+    if len(rows) and rows[-1] - rows[0] + 1 == len(rows):
+        return slice(int(rows[0]), int(rows[-1]) + 1)
+    return rows
+
+
+class StackedMLP:
+    """B MLPs in -> hidden (tanh) -> out, parameters stacked on a leading trial axis (`ValueNetworks`)."""
+
+    def __init__(self, in_dim: int, hidden: int, out_dim: int, seeds: list[int], optimiser=None):
         self.in_dim, self.hidden, self.out_dim = in_dim, hidden, out_dim
+        self.n_actions = out_dim
         self.shapes = param_shapes(in_dim, hidden, out_dim)
         per_trial = [init_mlp(in_dim, hidden, out_dim, s) for s in seeds]
         flat = torch.stack([torch.cat([p[k].reshape(-1) for k in PARAM_NAMES]) for p in per_trial])
         self.set_flat(np.ascontiguousarray(flat.numpy(), np.float32))
+        self.opt = optimiser
+        if optimiser is not None:
+            optimiser.attach(self.flat.shape)
 
     @property
     def trials(self) -> int:
         return self.flat.shape[0]
 
-    def forward(self, x, params: dict[str, np.ndarray] | None = None):
-        """x: [B, N, in] -> [B, N, out] (numpy in, numpy out; a torch tensor in gives a tensor out)."""
-        as_torch = isinstance(x, torch.Tensor)
-        xn = x.detach().numpy() if as_torch else x
-        out = mlp_forward(self.params if params is None else params, np.asarray(xn, np.float32))[1]
-        return torch.from_numpy(out) if as_torch else out
-
-    __call__ = forward
-
-    def rows(self, idx: np.ndarray | None) -> dict[str, np.ndarray]:
-        """Views of the weights of trials `idx` (of all trials, without copying, when idx is None)."""
+    def rows(self, idx) -> dict[str, np.ndarray]:
+        """Views of the weights of trials `idx` (None, a slice or an index array; None without copying)."""
         return self.params if idx is None else views(self.flat[idx], self.shapes)
 
     def set_flat(self, flat: np.ndarray) -> None:
         self.flat = flat
         self.params = views(flat, self.shapes, names=True)
 
+    def values(self, rows: np.ndarray | None, x: np.ndarray) -> np.ndarray:
+        return mlp_forward(self.rows(row_index(rows, self.trials)), np.asarray(x, np.float32))[1]
+
+    def fit(self, job: FitJob) -> None:
+        fit_together([job])
+
+    def sync_from(self, other: "StackedMLP", rows: np.ndarray) -> None:
+        self.flat[rows] = other.flat[rows]
+
     def select(self, idx: np.ndarray) -> None:
         """Keep only the trials `idx` (in that order)."""
         self.set_flat(self.flat[idx])
+        if self.opt is not None:
+            self.opt.select(idx)
 
-    def detached_copy(self) -> dict[str, np.ndarray]:
-        return {k: self.params[k].copy() for k in PARAM_NAMES}
+    def state_dict(self) -> dict:
+        out = {"flat": self.flat.copy()}
+        if self.opt is not None:
+            out["opt"] = self.opt.state_dict()
+        return out
 
-    def trial_state(self, i: int) -> dict[str, torch.Tensor]:
-        """Trial i's weights as torch tensors (what the learner publishes)."""
-        return {k: torch.from_numpy(self.params[k][i].copy()) for k in PARAM_NAMES}
+    def load_state_dict(self, state: dict) -> None:
+        self.flat[...] = state["flat"]
+        if self.opt is not None and "opt" in state:
+            self.opt.load_state_dict(state["opt"])
 
-    def load_trial_state(self, i: int, state: dict) -> None:
+    def policy_state(self, i: int) -> dict[str, np.ndarray]:
+        """Trial i's weights as named float32 arrays (what the learner publishes)."""
+        return {k: self.params[k][i].copy() for k in PARAM_NAMES}
+
+    def load_policy_state(self, i: int, state: dict) -> None:
         arrays = {}
         for k in PARAM_NAMES:
-            v = state[k]
-            a = v.detach().cpu().numpy() if isinstance(v, torch.Tensor) else np.asarray(v)
+            a = np.asarray(state[k])
             if tuple(a.shape) != tuple(self.params[k][i].shape):
                 raise ValueError(f"weights {k}: expected shape {tuple(self.params[k][i].shape)}, got {tuple(a.shape)}")
             arrays[k] = a
         for k, a in arrays.items():
             self.params[k][i] = a
+
+
+def _stackable(jobs: list[FitJob]) -> bool:
+    first = jobs[0]
+    return all(isinstance(j.net, StackedMLP) and j.net.shapes == first.net.shapes
+               and j.x.shape[1:] == first.x.shape[1:] for j in jobs)
+
+
+def fit_together(jobs: list[FitJob]) -> None:
+    """Run several fits; those on numpy MLPs of one shape (Q and H of the paper) as one stacked computation
+    (one forward, one backward: at a few rows, the per-call overhead is what costs). Each row's arithmetic is
+    its own either way, so stacking changes speed only."""
+    jobs = [j for j in jobs if len(j.rows)]
+    if not jobs:
+        return
+    if not _stackable(jobs):
+        for j in jobs:
+            j.net.fit(j)
+        return
+    idx = [row_index(j.rows, j.net.trials) for j in jobs]
+    flats = [j.net.flat if r is None else j.net.flat[r] for j, r in zip(jobs, idx)]
+    x = jobs[0].x if len(jobs) == 1 else np.concatenate([j.x for j in jobs])
+    params = views(flats[0] if len(flats) == 1 else np.concatenate(flats), jobs[0].net.shapes)
+    hidden, out = mlp_forward(params, x)
+    d_out = np.empty_like(out)
+    arange_a = np.arange(out.shape[-1])
+    start = 0
+    for j in jobs:
+        n = len(j.rows)
+        a = j.actions.reshape(n, -1, 1)
+        d_pred = j.loss.grad(pick(out[start:start + n], a), j.targets, j.weights)
+        d_out[start:start + n] = np.where(a == arange_a, d_pred[:, :, None], np.float32(0))
+        start += n
+    grad = mlp_backward(params, x, hidden, d_out)
+    start = 0
+    for j, r in zip(jobs, idx):
+        n = len(j.rows)
+        j.net.opt.step_rows(j.net.flat, r, grad[start:start + n])
+        start += n

@@ -73,8 +73,6 @@ class WeightsSlot:
 
     def adopt(self, inbox, timeout: float | None = None, status=None) -> bool:
         """Take the newest queued weights (waiting up to `timeout` s for one if given). True if adopted."""
-        import torch
-
         item = inbox.get(timeout) if timeout is not None else None
         items = ([item] if item is not None else []) + inbox.drain()
         adopted = False
@@ -104,7 +102,7 @@ class WeightsSlot:
                 continue
             if w.incarnation != self.learner and self.learner is not None:
                 self.rt.counters["learner_restarts"] += 1
-            self.agent.load_policy_weights({k: torch.from_numpy(np.array(v)) for k, v in w.tensors.items()}, 0)
+            self.agent.load_policy_weights(w.tensors, 0)
             now = time.time()
             self.learner, self.version = w.incarnation, int(w.version)
             self.rt.counters["weights_adopted"] += 1

@@ -99,8 +99,7 @@ class LearnerCore:
         return int(self.agent.steps[0])
 
     def policy_weights(self) -> dict[str, np.ndarray]:
-        return {k: v.detach().cpu().numpy().astype(np.float32, copy=True)
-                for k, v in self.agent.policy_weights(0).items()}
+        return self.agent.policy_weights(0)
 
     def weights_spec(self) -> dict[str, tuple[int, ...]]:
         return {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}

@@ -38,10 +38,263 @@ from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, 
                                     first_time_logger, publish_kept)
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
 from services.learner import checkpoint
-from services.learner.snapshots import Snapshots
 from services.learner.core import LearnerCore
+from services.learner.snapshots import Snapshots
 
 TEACHER_PREFIX = "teacher."
+
+
+def restore(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: InputGate) -> dict | None:
+    """Restore the core, the gate and the service counters from `config.checkpoint` if there is one;
+    returns what the new Ingest record says it resumed from (None when starting afresh)."""
+    ck = checkpoint.load(config.checkpoint) if config.checkpoint else None
+    if ck is None:
+        return None
+    tensors, meta = ck
+    core.restore(tensors, meta["core"])
+    gate.load(meta["gate"])
+    rt.counters.update(meta["service"]["counters"])
+    return {"learner": meta["service"]["incarnation"], "position": core.position,
+            "steps_learned": core.steps_learned, "t_saved": meta["service"]["t_saved"]}
+
+
+class Learner:
+    """The service around `LearnerCore`: inputs through the gate into the core, Ingest / Weights / EpisodeSummary
+    out, checkpoints, and the end rule. Wall-clock decisions here never touch the learner's state."""
+
+    def __init__(self, config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: InputGate,
+                 resumed: dict | None, session, inbox, status, publishers: dict, watch, actors, requests):
+        self.config, self.rt, self.core, self.gate, self.resumed = config, rt, core, gate, resumed
+        self.session = session
+        self.credit_pubs: dict = {}  # per person (console teacher): where their Credit messages go
+        self.inbox, self.status, self.watch, self.actors, self.requests = inbox, status, watch, actors, requests
+        self.wpub, self.epub, self.ipub = publishers["weights"], publishers["episode"], publishers["ingest"]
+        self.ingest_seq = 0
+        self.sent_at: dict[int, tuple] = {}  # ingest position of a held feedback -> (when sent, when it arrived)
+        self.ring = ResendRing(config.resend_window)
+        spub = publishers["snapshot"]
+        self.snaps = Snapshots(config.run, rt.incarnation, config.snapshot_every,
+                               lambda m: publish_kept(spub, m, self.ring))
+        self.note_rejected = first_time_logger(rt.event, "input")
+        self.last_weights = {"v": 0 if resumed is None else -1, "data": None}
+        self.last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
+        self.actor_final: int | None = None
+        self.teachers_final: dict[str, int] = {}
+        self.teachers_known: set[str] = set(config.wait_teachers)
+        self.caught_up_at: float | None = None
+
+    # -- outputs ---------------------------------------------------------------------------------------------
+    def flush_ingest(self) -> None:
+        core = self.core
+        while core.entries:
+            index = core.position - len(core.entries)
+            entries = core.take_entries(self.config.ingest_batch)
+            cfg = None
+            if self.ingest_seq == 0:
+                cfg = core.config_record()
+                if self.resumed is not None:
+                    cfg["resumed_from"] = {"learner": self.resumed["learner"], "position": self.resumed["position"]}
+            publish_kept(self.ipub, Ingest(run=self.config.run, learner=self.rt.incarnation, seq=self.ingest_seq,
+                                           index=index, entries=entries, config=cfg), self.ring)
+            self.ingest_seq += 1
+
+    def current_weights(self, version: int) -> tuple[dict, bytes]:
+        tensors = self.core.policy_weights()
+        return tensors, Weights(run=self.config.run, incarnation=self.rt.incarnation, version=version,
+                                t_published=time.time(), tensors=tensors).encode()
+
+    def publish_weights(self, version: int, final: bool = False) -> None:
+        t0 = time.perf_counter()
+        tensors, data = self.current_weights(version)
+        self.wpub.put(data)
+        self.last_weights.update(v=version, data=data)
+        # The log gets snapshots at a bounded rate, not every version (docs/logs.md).
+        (self.snaps.final if final else self.snaps.on_weights)(version, tensors, data)
+        self.rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
+
+    def save_checkpoint(self) -> None:
+        self.flush_ingest()  # position = entries handed out
+        t0 = time.perf_counter()
+        tensors, meta = self.core.snapshot()
+        meta = {"core": meta, "gate": self.gate.state(),
+                "service": {"counters": dict(self.rt.counters), "incarnation": self.rt.incarnation,
+                            "t_saved": time.time()},
+                "config": self.core.config_record()}
+        checkpoint.save(self.config.checkpoint, tensors, meta)
+        self.rt.counters["checkpoints"] += 1
+        self.rt.samples["checkpoint_cost_s"].append(time.perf_counter() - t0)
+        self.last_ckpt.update(t=time.monotonic(), steps=self.core.steps_learned)
+
+    def note_latency(self, results, t_sent: float | None = None) -> None:
+        """Latency samples: send -> H updated, and how much of it was the wait for a newer step."""
+        done = time.time()
+        for r in results:
+            if r.feedback is not None:  # what became of it: consoles and the log's scene show it
+                publish_credit(self.session, self.config.run, self.credit_pubs, r, self.core.actor, done)
+            t0, t_held = t_sent, None
+            if r.received_at in self.sent_at:
+                t0, t_held = self.sent_at.pop(r.received_at)
+            if r.status == "credited" and t0 is not None:
+                self.rt.samples["feedback_to_h_s"].append(done - t0)
+                self.rt.samples["feedback_hold_s"].append(0.0 if t_held is None else done - t_held)
+
+    # -- inputs ----------------------------------------------------------------------------------------------
+    def reject(self, reason: str, what: str, count: bool = True) -> None:
+        if not count:  # catching up: counted by the learner that saw it live (or its checkpoint)
+            return
+        if reason == DEDUP_REASON:
+            self.rt.counters[f"duplicates_{what}"] += 1
+        else:
+            self.rt.counters[f"rejected_{reason}"] += 1
+            self.note_rejected(reason, what)
+
+    def consume(self, msg, now: float, t_recv: float, t_sent: float | None, live: bool = True) -> bool:
+        """One decoded input through the gate into the core. True if consumed."""
+        if isinstance(msg, Step):
+            return self.consume_step(msg, now, t_recv, live)
+        if isinstance(msg, Feedback):
+            return self.consume_feedback(msg, now, t_recv, t_sent, live)
+        return False
+
+    def consume_step(self, msg: Step, now: float, t_recv: float, live: bool) -> bool:
+        for inc in self.actors.take():
+            self.gate.announce(inc)
+        reason = self.gate.admit_step(msg, t_recv)
+        if reason == "unknown_incarnation" and live:
+            self.drain_status()  # its announcement may be waiting in the other queue
+            reason = self.gate.admit_step(msg, t_recv)
+        if reason:
+            self.reject(reason, "step", count=live)
+            return False
+        results, ep = self.core.on_step(msg, now)
+        self.note_latency(results)
+        if ep is not None:
+            publish_kept(self.epub, EpisodeSummary(
+                run=self.config.run, incarnation=ep.incarnation, episode=ep.episode, return_=ep.return_,
+                steps=ep.steps, feedback_received=ep.feedback_received, feedback_credited=ep.feedback_credited,
+                weights_version=ep.weights_version, t_end=ep.t_end), self.ring)
+            self.snaps.on_episode(self.core.steps_learned, self.core.policy_weights())
+        if self.config.debug_update_sleep:
+            time.sleep(self.config.debug_update_sleep)
+        return True
+
+    def consume_feedback(self, msg: Feedback, now: float, t_recv: float, t_sent: float | None, live: bool) -> bool:
+        reason = self.gate.admit_feedback(msg, t_recv)
+        if reason == "unknown_teacher" and live:
+            self.drain_status()
+            reason = self.gate.admit_feedback(msg, t_recv)
+        if reason:
+            self.reject(reason, "feedback", count=live)
+            return False
+        self.teachers_known.add(msg.teacher_id)
+        results = self.core.on_feedback(msg, now)
+        if not results:  # held: remember when it was sent and when it arrived
+            self.sent_at[self.core.position - 1] = (t_sent, now)
+        self.note_latency(results, t_sent=t_sent)
+        return True
+
+    def on_status(self, st: ServiceStatus) -> None:
+        self.gate.on_status(st)
+        teacher = st.service[len(TEACHER_PREFIX):] if st.service.startswith(TEACHER_PREFIX) else None
+        if teacher is not None:
+            self.teachers_known.add(teacher)
+        if st.state != "stopped":
+            return
+        if st.service == "actor" and (st.incarnation is None or st.incarnation == self.gate.actor):
+            self.actor_final = int(st.counters.get("steps_published", 0))
+        elif teacher is not None:
+            self.teachers_final[teacher] = int(st.counters.get("feedback_published", 0))
+
+    def drain_status(self) -> None:
+        for item in self.status.drain():
+            try:
+                st = item.decode()
+            except ProtocolError as e:
+                self.rt.counters[f"rejected_status_{e.reason}"] += 1
+                continue
+            self.on_status(st)
+
+    # -- the loop --------------------------------------------------------------------------------------------
+    def take_input(self) -> None:
+        """One input from the inbox (if any) into the core; publish weights and flush Ingest when due."""
+        got = self.inbox.get(timeout=0.05)
+        if got is None:
+            return
+        now = time.time()
+        t_sent = got.t_zenoh if got.t_zenoh is not None else got.t_recv
+        try:
+            msg = got.decode()
+        except ProtocolError as e:
+            self.reject(e.reason, got.key.split("/")[2])
+        else:
+            self.consume(msg, now, got.t_recv, t_sent)
+        idle = len(self.inbox) == 0
+        v = self.core.steps_learned
+        if v != self.last_weights["v"] and (idle or v - self.last_weights["v"] >= self.config.weights_every):
+            self.publish_weights(v)
+        if idle or len(self.core.entries) >= self.config.ingest_batch:
+            self.flush_ingest()
+
+    def on_restarts(self) -> None:
+        """A (re)started recorder gets the recent outputs again; a restarted actor gets the current policy."""
+        for name in self.watch.take():
+            if name == "recorder" and len(self.ring):
+                self.rt.event(f"recorder (re)started: re-sending {len(self.ring)} recent ingest/episode messages")
+                self.ring.resend()
+                if self.last_weights["data"] is not None:
+                    self.wpub.put(self.last_weights["data"])
+            elif name == "actor" and (self.core.steps_learned > 0 or self.resumed is not None):
+                self.publish_weights(self.core.steps_learned)
+
+    def finished(self) -> bool:
+        """The actor stopped and all its steps are learned, and every known teacher's feedback has arrived
+        (or `end_grace` s have passed waiting for it)."""
+        core, config = self.core, self.config
+        if self.actor_final is None or len(self.inbox) or core.next_seq < self.actor_final or core.actor != self.gate.actor:
+            return False
+        if self.caught_up_at is None:
+            self.caught_up_at = time.monotonic()
+        waiting = [t for t in sorted(self.teachers_known)
+                   if t not in self.teachers_final or core.teacher_next.get(t, 0) < self.teachers_final[t]]
+        if not waiting:
+            return True
+        if time.monotonic() - self.caught_up_at > config.end_grace:
+            self.rt.log(f"end: stopped waiting for teacher(s) {waiting} after {config.end_grace} s")
+            self.rt.counters["end_grace_expired"] += 1
+            return True
+        return False
+
+    def run(self) -> None:
+        """Catch up (after a restart), then consume live inputs until the end rule or SIGTERM; then end."""
+        config, core = self.config, self.core
+        self.rt.ready()  # subscribed: actor and teachers re-send their recent messages to a restarted learner
+        if self.resumed is not None or config.catchup_log:
+            catch_up(config, self.rt, core, self.consume, self.on_status, self.resumed)
+        if self.resumed is not None:
+            self.flush_ingest()
+            self.publish_weights(core.steps_learned)
+        while not self.rt.stop.is_set():
+            self.take_input()
+            self.drain_status()
+            if len(self.requests):
+                self.snaps.on_requests(self.requests.drain(), core.steps_learned,
+                                       lambda: self.current_weights(core.steps_learned))
+            self.on_restarts()
+            if (config.checkpoint and core.steps_learned != self.last_ckpt["steps"]
+                    and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period):
+                self.save_checkpoint()
+            if self.finished():
+                break
+            self.rt.tick()
+        self.note_latency(core.end(time.time()))
+        self.flush_ingest()
+        self.publish_weights(core.steps_learned + 1, final=True)
+        self.ring.add(self.wpub, self.last_weights["data"])  # the final weights too, if the recorder must get them again
+        self.watch.before_exit(self.ring, 20.0, self.rt.log)
+        for pub in self.credit_pubs.values():
+            pub.close()
+        self.rt.counters.update({f"inbox_{k}": v for k, v in self.inbox.snapshot().items()})
+        self.rt.counters["resent"] = self.ring.resent
 
 
 def main(config: LearnerConfig) -> int:
@@ -52,24 +305,11 @@ def main(config: LearnerConfig) -> int:
     core = LearnerCore(config)
     gate = InputGate(core.obs_dim, core.n_actions, teachers=config.wait_teachers, max_future=config.max_future,
                      max_past=config.max_past)
-    resumed: dict | None = None
-    if config.checkpoint:
-        ck = checkpoint.load(config.checkpoint)
-        if ck is not None:
-            tensors, meta = ck
-            core.restore(tensors, meta["core"])
-            gate.load(meta["gate"])
-            rt.counters.update(meta["service"]["counters"])
-            resumed = {"learner": meta["service"]["incarnation"], "position": core.position,
-                       "steps_learned": core.steps_learned, "t_saved": meta["service"]["t_saved"]}
+    resumed = restore(config, rt, core, gate)
+    inbox = Inbox(config.inbox_size, "block", block_timeout=3600)
     rt.set_counters_source(lambda: {**core.counters, "steps_learned": core.steps_learned,
                                     "feedback_held_now": core.held, "inbox_now": len(inbox)})
-    ingest_seq = 0
-    sent_at: dict[int, tuple] = {}  # ingest position of a held feedback -> (when sent, when it arrived)
-    ring = ResendRing(config.resend_window)
-    note_rejected = first_time_logger(rt.event, "input")
-    inbox = Inbox(config.inbox_size, "block", block_timeout=3600)
-
+    learner = None
     with rt.session() as session:
         subs = [session.declare_subscriber(step_key(config.run), inbox.handler()),
                 session.declare_subscriber(feedback_wildcard(config.run), inbox.handler())]
@@ -84,213 +324,17 @@ def main(config: LearnerConfig) -> int:
                     MessagePublisher(session, KEYS["snapshot"].key(config.run)) as spub, \
                     subscription(session, KEYS["request"].key(config.run), maxsize=4,
                                  policy="drop_oldest") as requests:
-                snaps = Snapshots(config.run, rt.incarnation, config.snapshot_every,
-                                  lambda m: publish_kept(spub, m, ring))
-
-                def flush_ingest() -> None:
-                    nonlocal ingest_seq
-                    while core.entries:
-                        index = core.position - len(core.entries)
-                        entries = core.take_entries(config.ingest_batch)
-                        cfg = None
-                        if ingest_seq == 0:
-                            cfg = core.config_record()
-                            if resumed is not None:
-                                cfg["resumed_from"] = {"learner": resumed["learner"], "position": resumed["position"]}
-                        publish_kept(ipub, Ingest(run=config.run, learner=rt.incarnation, seq=ingest_seq, index=index,
-                                                  entries=entries, config=cfg), ring)
-                        ingest_seq += 1
-
-                last_version = {"v": 0 if resumed is None else -1, "data": None}
-                credit_pubs: dict[str, MessagePublisher] = {}
-
-                def current_weights(version: int) -> tuple[dict, bytes]:
-                    tensors = core.policy_weights()
-                    return tensors, Weights(run=config.run, incarnation=rt.incarnation, version=version,
-                                            t_published=time.time(), tensors=tensors).encode()
-
-                def publish_weights(version: int, final: bool = False) -> None:
-                    t0 = time.perf_counter()
-                    tensors, data = current_weights(version)
-                    wpub.put(data)
-                    last_version.update(v=version, data=data)
-                    # The log gets snapshots at a bounded rate, not every version (docs/logs.md).
-                    (snaps.final if final else snaps.on_weights)(version, tensors, data)
-                    rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
-
-                last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
-
-                def save_checkpoint() -> None:
-                    flush_ingest()  # position = entries handed out
-                    t0 = time.perf_counter()
-                    tensors, meta = core.snapshot()
-                    meta = {"core": meta, "gate": gate.state(),
-                            "service": {"counters": dict(rt.counters), "incarnation": rt.incarnation,
-                                        "t_saved": time.time()},
-                            "config": core.config_record()}
-                    checkpoint.save(config.checkpoint, tensors, meta)
-                    rt.counters["checkpoints"] += 1
-                    rt.samples["checkpoint_cost_s"].append(time.perf_counter() - t0)
-                    last_ckpt.update(t=time.monotonic(), steps=core.steps_learned)
-
-                def handle(results, t_sent: float | None = None) -> None:
-                    """Latency samples: send -> H updated, and how much of it was the wait for a newer step."""
-                    done = time.time()
-                    for r in results:
-                        if r.feedback is not None:  # what became of it: consoles and the log's scene show it
-                            publish_credit(session, config.run, credit_pubs, r, core.actor, done)
-                        t0, t_held = t_sent, None
-                        if r.received_at in sent_at:
-                            t0, t_held = sent_at.pop(r.received_at)
-                        if r.status == "credited" and t0 is not None:
-                            rt.samples["feedback_to_h_s"].append(done - t0)
-                            rt.samples["feedback_hold_s"].append(0.0 if t_held is None else done - t_held)
-
-                def reject(reason: str, what: str, count: bool = True) -> None:
-                    if not count:  # catching up: counted by the learner that saw it live (or its checkpoint)
-                        return
-                    if reason == DEDUP_REASON:
-                        rt.counters[f"duplicates_{what}"] += 1
-                    else:
-                        rt.counters[f"rejected_{reason}"] += 1
-                        note_rejected(reason, what)
-
-                def consume(msg, now: float, t_recv: float, t_sent: float | None, live: bool = True) -> bool:
-                    """One decoded input through the gate into the core. True if consumed."""
-                    if isinstance(msg, Step):
-                        for inc in actors.take():
-                            gate.announce(inc)
-                        reason = gate.admit_step(msg, t_recv)
-                        if reason == "unknown_incarnation" and live:
-                            drain_status()  # its announcement may be waiting in the other queue
-                            reason = gate.admit_step(msg, t_recv)
-                        if reason:
-                            reject(reason, "step", count=live)
-                            return False
-                        results, ep = core.on_step(msg, now)
-                        handle(results)
-                        if ep is not None:
-                            publish_kept(epub, EpisodeSummary(
-                                run=config.run, incarnation=ep.incarnation, episode=ep.episode, return_=ep.return_,
-                                steps=ep.steps, feedback_received=ep.feedback_received,
-                                feedback_credited=ep.feedback_credited, weights_version=ep.weights_version,
-                                t_end=ep.t_end), ring)
-                            snaps.on_episode(core.steps_learned, core.policy_weights())
-                        if config.debug_update_sleep:
-                            time.sleep(config.debug_update_sleep)
-                        return True
-                    if isinstance(msg, Feedback):
-                        reason = gate.admit_feedback(msg, t_recv)
-                        if reason == "unknown_teacher" and live:
-                            drain_status()
-                            reason = gate.admit_feedback(msg, t_recv)
-                        if reason:
-                            reject(reason, "feedback", count=live)
-                            return False
-                        teachers_known.add(msg.teacher_id)
-                        results = core.on_feedback(msg, now)
-                        if not results:  # held: remember when it was sent and when it arrived
-                            sent_at[core.position - 1] = (t_sent, now)
-                        handle(results, t_sent=t_sent)
-                        return True
-                    return False
-
-                actor_final: int | None = None
-                teachers_final: dict[str, int] = {}
-                teachers_known: set[str] = set(config.wait_teachers)
-
-                def on_status(st: ServiceStatus) -> None:
-                    nonlocal actor_final
-                    gate.on_status(st)
-                    if st.state != "stopped":
-                        if st.service.startswith(TEACHER_PREFIX):
-                            teachers_known.add(st.service[len(TEACHER_PREFIX):])
-                        return
-                    if st.service == "actor" and (st.incarnation is None or st.incarnation == gate.actor):
-                        actor_final = int(st.counters.get("steps_published", 0))
-                    elif st.service.startswith(TEACHER_PREFIX):
-                        tid = st.service[len(TEACHER_PREFIX):]
-                        teachers_known.add(tid)
-                        teachers_final[tid] = int(st.counters.get("feedback_published", 0))
-
-                def drain_status() -> None:
-                    for item in status.drain():
-                        try:
-                            st = item.decode()
-                        except ProtocolError as e:
-                            rt.counters[f"rejected_status_{e.reason}"] += 1
-                            continue
-                        on_status(st)
-
-                # Subscribed: announce (actor and teachers re-send their recent messages to a restarted learner).
-                rt.ready()
-                if resumed is not None or config.catchup_log:
-                    catch_up(config, rt, core, consume, on_status, resumed)
-                if resumed is not None:
-                    flush_ingest()
-                    publish_weights(core.steps_learned)
-                caught_up_at: float | None = None
-                while not rt.stop.is_set():
-                    got = inbox.get(timeout=0.05)
-                    now = time.time()
-                    if got is not None:
-                        t_sent = got.t_zenoh if got.t_zenoh is not None else got.t_recv
-                        try:
-                            msg = got.decode()
-                        except ProtocolError as e:
-                            reject(e.reason, got.key.split("/")[2])
-                        else:
-                            consume(msg, now, got.t_recv, t_sent)
-                        idle = len(inbox) == 0
-                        v = core.steps_learned
-                        if v != last_version["v"] and (idle or v - last_version["v"] >= config.weights_every):
-                            publish_weights(v)
-                        if idle or len(core.entries) >= config.ingest_batch:
-                            flush_ingest()
-                    drain_status()
-                    if len(requests):
-                        snaps.on_requests(requests.drain(), core.steps_learned,
-                                          lambda: current_weights(core.steps_learned))
-                    for name in watch.take():
-                        if name == "recorder" and len(ring):
-                            rt.event(f"recorder (re)started: re-sending {len(ring)} recent ingest/episode messages")
-                            ring.resend()
-                            if last_version["data"] is not None:
-                                wpub.put(last_version["data"])
-                        elif name == "actor" and (core.steps_learned > 0 or resumed is not None):
-                            publish_weights(core.steps_learned)  # a restarted actor needs the current policy
-                    if (config.checkpoint and core.steps_learned != last_ckpt["steps"]
-                            and time.monotonic() - last_ckpt["t"] >= config.checkpoint_period):
-                        save_checkpoint()
-                    if actor_final is not None and len(inbox) == 0 and core.next_seq >= actor_final \
-                            and core.actor == gate.actor:
-                        if caught_up_at is None:
-                            caught_up_at = time.monotonic()
-                        waiting = [t for t in sorted(teachers_known)
-                                   if t not in teachers_final or core.teacher_next.get(t, 0) < teachers_final[t]]
-                        if not waiting:
-                            break
-                        if time.monotonic() - caught_up_at > config.end_grace:
-                            rt.log(f"end: stopped waiting for teacher(s) {waiting} after {config.end_grace} s")
-                            rt.counters["end_grace_expired"] += 1
-                            break
-                    rt.tick()
-                handle(core.end(time.time()))
-                flush_ingest()
-                publish_weights(core.steps_learned + 1, final=True)
-                ring.add(wpub, last_version["data"])  # the final weights too, if the recorder must get them again
-                watch.before_exit(ring, 20.0, rt.log)
-                for pub in credit_pubs.values():
-                    pub.close()
-                rt.counters.update({f"inbox_{k}": v for k, v in inbox.snapshot().items()})
-                rt.counters["resent"] = ring.resent
+                learner = Learner(config, rt, core, gate, resumed, session, inbox, status,
+                                  {"weights": wpub, "episode": epub, "ingest": ipub, "snapshot": spub}, watch, actors,
+                                  requests)
+                learner.run()
         finally:
             inbox.close()
             watch.close()
             actors.close()
             for s in subs:
                 s.undeclare()
-    rt.write_stats(final_version=last_version["v"], resumed=resumed)
+    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed)
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0
 

@@ -4,7 +4,7 @@ import torch
 
 from common.agents import (AgentConfig, DeepTamerConfig, DQNConfig, DQNTamerConfig, TrialBatchAgent,
                            agent_config)
-from common.agents.optim import MaskedRMSProp
+from common.agents.optim import FlatRMSProp
 from common.observer import ObserverConfig
 from experiments.runner import TrialSpec, run_trials
 
@@ -47,23 +47,23 @@ def test_one_trial_batched_acts_as_it_does_alone():
         np.testing.assert_array_equal(res.returns, alone.returns)
 
 
-def test_masked_rmsprop_matches_torch_and_leaves_masked_trials_alone():
-    torch.manual_seed(0)
-    w = torch.randn(2, 3, 4, requires_grad=True)
-    ref = w.detach()[0].clone().requires_grad_(True)
-    opt = MaskedRMSProp({"w": w}, lr=1e-2)
+def test_rmsprop_matches_torch_and_leaves_unselected_trials_alone():
+    rng = np.random.default_rng(0)
+    flat = rng.standard_normal((3, 7)).astype(np.float32)
+    ref = torch.tensor(flat[1].copy(), requires_grad=True)
     ref_opt = torch.optim.RMSprop([ref], lr=1e-2, alpha=0.99, eps=1e-8)
-    frozen = w.detach()[1].clone()
-    for _ in range(5):
-        x = torch.randn(3)
-        opt.zero_grad(); ref_opt.zero_grad()
-        (w[0].T @ x).pow(2).sum().backward()
-        (w[1].T @ x).pow(2).sum().backward()  # a gradient the mask must ignore
-        (ref.T @ x).pow(2).sum().backward()
-        opt.step(torch.tensor([True, False]))
+    opt = FlatRMSProp(1e-2, 0.99, 1e-8)
+    opt.attach(flat.shape)
+    frozen = flat[[0, 2]].copy()
+    for _ in range(20):
+        grad = rng.standard_normal((1, 7)).astype(np.float32)
+        opt.step_rows(flat, np.array([1]), grad)  # an index array: gathered, stepped, scattered back
+        ref.grad = torch.from_numpy(grad[0].copy())
         ref_opt.step()
-    torch.testing.assert_close(w.detach()[0], ref.detach(), rtol=1e-5, atol=1e-6)
-    assert torch.equal(w.detach()[1], frozen)
+    np.testing.assert_allclose(flat[1], ref.detach().numpy(), rtol=1e-6, atol=1e-7)
+    assert np.array_equal(flat[[0, 2]], frozen) and not opt.square_avg[[0, 2]].any()
+    opt.step_rows(flat, slice(0, 2), np.ones((2, 7), np.float32))  # a slice: stepped in place
+    assert np.array_equal(flat[2], frozen[1]) and not np.array_equal(flat[0], frozen[0])
 
 
 def test_feedback_credit_and_shaping_paths():
@@ -87,10 +87,11 @@ def test_policy_weights_round_trip_and_shape_check():
     a = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [0])
     b = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [99])
     b.load_policy_weights(a.policy_weights())
-    obs = np.array([[0.1, 0.7]], np.float32)
-    assert torch.equal(a.scores(obs), b.scores(obs))
+    obs = np.array([[[0.1, 0.7]]], np.float32)
+    assert np.array_equal(a.q.values(None, obs), b.q.values(None, obs))
+    assert np.array_equal(a.h.values(None, obs), b.h.values(None, obs))
     bad = a.policy_weights()
-    bad["q.w1"] = torch.zeros(3, 100)
+    bad["q.w1"] = np.zeros((3, 100), np.float32)
     with pytest.raises(ValueError, match="shape"):
         b.load_policy_weights(bad)
 

@@ -104,7 +104,8 @@ def test_state_dict_round_trip_continues_the_same_trial():
             a = agent.act(obs)
             agent.record_steps(np.arange(2), obs, a, np.full(2, -0.01), rng_obs[k + 1], np.zeros(2), np.full(2, float(k)),
                                np.zeros(2))
-            agent.feedback_round(np.arange(2), np.full(2, k + 0.5), np.where(a % 2 == 0, 1, -1))
+            agent.feedback_rounds(np.arange(2), np.full(2, k + 0.5), np.where(a % 2 == 0, 1, -1)[:, None],
+                                  np.ones(2, np.int64))
             agent.update()
             acts.append(a.copy())
         return acts

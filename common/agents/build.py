@@ -1,0 +1,86 @@
+"""Assembling an agent: the parts of `TrialBatchAgent` built from its configs (or passed in instead).
+
+`build_parts` is the one place that decides what each part is; a caller may build its own `AgentParts`
+(another network, replay or explorer) and hand it to the agent. Every part keeps one row per trial and
+can drop rows (`select`), so the agent can shrink its batch.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from common.agents.config import AgentConfig
+from common.agents.explorer import EpsilonGreedy, Mixture
+from common.agents.history import BatchStepHistory
+from common.agents.networks import StackedMLP, ValueNetworks
+from common.agents.optim import FlatRMSProp
+from common.agents.replay import FeedbackMemory, TransitionReplay
+from common.agents.streams import UniformBlocks
+from common.delay import DelayModel
+from common.seeding import derive_seed
+
+# Structural settings must agree across a batch; the rest may differ per trial.
+SHARED_FIELDS = ("hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
+                 "replay_start", "target_update_interval", "update_interval", "h_batch_size",
+                 "feedback_memory_size", "assumed_delay_probs", "history_steps")
+
+
+@dataclass
+class AgentParts:
+    q: ValueNetworks
+    q_target: ValueNetworks
+    h: ValueNetworks
+    replay: TransitionReplay
+    feedback_memory: FeedbackMemory
+    history: BatchStepHistory
+    explorer: EpsilonGreedy
+    mixture: Mixture
+    assumed_delay: object  # anything with a CDF (`common.credit.DelayDistribution`)
+    q_draws: UniformBlocks  # Q's replay minibatch draws (counter-based, per trial)
+    h_draws: UniformBlocks  # H's D_global minibatch draws
+
+    _ROWS = ("q", "q_target", "h", "replay", "feedback_memory", "history", "explorer", "mixture", "q_draws",
+             "h_draws")
+    _STATE = ("q", "q_target", "h", "replay", "feedback_memory", "history")
+
+    def select(self, rows: np.ndarray) -> None:
+        for name in self._ROWS:
+            getattr(self, name).select(rows)
+
+    def state_dict(self) -> dict:
+        return {name: getattr(self, name).state_dict() for name in self._STATE}
+
+    def load_state_dict(self, state: dict) -> None:
+        for name in self._STATE:
+            getattr(self, name).load_state_dict(state[name])
+
+
+def _keys(seeds: list[int], purpose: str) -> np.ndarray:
+    return np.array([derive_seed(s, purpose) for s in seeds], dtype=np.uint64)
+
+
+def mlp(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int], purpose: str,
+        trained: bool = True) -> StackedMLP:
+    """The paper's network (one hidden layer of `hidden` tanh units) per trial, with RMSProp if trained."""
+    c = configs[0]
+    opt = FlatRMSProp(c.lr, c.rmsprop_alpha, c.rmsprop_eps) if trained else None
+    return StackedMLP(obs_dim, c.hidden, n_actions, [derive_seed(s, purpose) for s in seeds], opt)
+
+
+def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
+                step_unit: float = 1.0) -> AgentParts:
+    c, B = configs[0], len(configs)
+    q = mlp(configs, obs_dim, n_actions, seeds, "q-init")
+    q_target = mlp(configs, obs_dim, n_actions, seeds, "q-init", trained=False)  # starts as a copy of q
+    return AgentParts(
+        q=q, q_target=q_target, h=mlp(configs, obs_dim, n_actions, seeds, "h-init"),
+        replay=TransitionReplay(B, c.replay_size, obs_dim),
+        feedback_memory=FeedbackMemory(B, c.feedback_memory_size, obs_dim),
+        history=BatchStepHistory(B, c.history_steps, obs_dim),
+        explorer=EpsilonGreedy(configs, _keys(seeds, "explore"), n_actions),
+        mixture=Mixture(configs),
+        assumed_delay=DelayModel(c.assumed_delay_probs, step_unit),
+        q_draws=UniformBlocks(_keys(seeds, "q-replay"), c.batch_size),
+        h_draws=UniformBlocks(_keys(seeds, "h-replay"), c.h_batch_size),
+    )

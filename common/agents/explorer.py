@@ -1,0 +1,64 @@
+"""The agent's policy parts: the mixture argmax(alpha_q Q + alpha_h H) and epsilon-greedy exploration.
+
+Both are functions of each trial's step count (not running products), so the actor and the learner, and a
+restarted process, agree on their value at any step without sharing state. Exploration draws are
+counter-based (`streams`): step t of trial i explores when u(i, 2t) < epsilon(t), with action
+floor(u(i, 2t + 1) * n_actions), whatever else runs in the batch.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from common.agents.streams import UniformBlocks
+
+
+class Mixture:
+    """alpha_q, and alpha_h(t) = alpha_h * alpha_h_decay^t per trial (paper: 1, 1, 0.9999)."""
+
+    _ROWS = ("alpha_q", "alpha_h0", "alpha_h_decay")
+
+    def __init__(self, configs):
+        self.alpha_q = np.array([c.alpha_q for c in configs], np.float64)
+        self.alpha_h0 = np.array([c.alpha_h for c in configs], np.float64)
+        self.alpha_h_decay = np.array([c.alpha_h_decay for c in configs], np.float64)
+
+    def alpha_h(self, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        return self.alpha_h0[rows] * self.alpha_h_decay[rows] ** steps.astype(np.float64)
+
+    def weights(self, rows: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(alpha_q, alpha_h) as float32 [n, 1, 1], to weigh values [n, N, A]."""
+        aq = self.alpha_q[rows].astype(np.float32).reshape(-1, 1, 1)
+        ah = self.alpha_h(rows, steps).astype(np.float32).reshape(-1, 1, 1)
+        return aq, ah
+
+    def select(self, rows: np.ndarray) -> None:
+        for name in self._ROWS:
+            setattr(self, name, getattr(self, name)[rows])
+
+
+class EpsilonGreedy:
+    """epsilon(t) = max(floor, start - decay * t) per trial (paper: 0.3, 0.001, 0.1)."""
+
+    _ROWS = ("start", "decay", "floor")
+
+    def __init__(self, configs, keys: np.ndarray, n_actions: int):
+        self.start = np.array([c.epsilon_start for c in configs], np.float64)
+        self.decay = np.array([c.epsilon_decay for c in configs], np.float64)
+        self.floor = np.array([c.epsilon_floor for c in configs], np.float64)
+        self.n_actions = n_actions
+        self._u = UniformBlocks(keys, 2)
+
+    def epsilons(self, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        return np.maximum(self.floor[rows], self.start[rows] - self.decay[rows] * steps)
+
+    def choose(self, rows: np.ndarray, steps: np.ndarray, greedy: np.ndarray) -> np.ndarray:
+        """The actions of trials `rows` at their step `steps`, given their greedy actions."""
+        u = self._u.get(rows, steps)
+        explore = u[:, 0] < self.epsilons(rows, steps)
+        random_action = np.minimum((u[:, 1] * self.n_actions).astype(np.int64), self.n_actions - 1)
+        return np.where(explore, random_action, greedy)
+
+    def select(self, rows: np.ndarray) -> None:
+        for name in self._ROWS:
+            setattr(self, name, getattr(self, name)[rows])
+        self._u.select(rows)
