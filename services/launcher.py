@@ -38,7 +38,7 @@ from common.agents import ALGOS
 from common.config import config_record, option
 from common.delay import parse_probs
 from common.envs import ENV_NAMES
-from services.common.config import (ActorConfig, LearnerConfig, RecorderConfig, ServiceConfig,
+from services.common.config import (ActorConfig, FoxgloveConfig, LearnerConfig, RecorderConfig, ServiceConfig,
                                     teacher_service_name)
 from services.teacher.registry import TEACHERS, ProcessSpec
 
@@ -96,6 +96,9 @@ class UpConfig:
                                                 "or a scipy.stats NAME:ARGS (e.g. gamma:2,0.2,0.4)")
     console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
+    foxglove: int | None = option(None, "also serve the run's channels (as in the log) over Foxglove's WebSocket "
+                                        "protocol on this port (services/foxglove; docs/logs.md)")
+    foxglove_host: str = option("127.0.0.1", "address the Foxglove bridge serves on")
 
     def __post_init__(self):
         if self.teacher not in TEACHERS:
@@ -169,6 +172,12 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     procs = [ProcessSpec("recorder", "services.recorder", recorder),
              ProcessSpec("learner", "services.learner", learner), *teachers,
              ProcessSpec("actor", "services.actor", actor)]
+    if c.foxglove:
+        procs.insert(1, ProcessSpec("foxglove", "services.foxglove", FoxgloveConfig(
+            **launch.common("foxglove"), port=c.foxglove, host=c.foxglove_host, run_config=recorder.run_config,
+            stop_when=recorder.stop_when)))
+        launch.banners = [*getattr(launch, "banners", []), f"foxglove: ws://{c.foxglove_host}:{c.foxglove} "
+                                                           "(Foxglove: open connection, Foxglove WebSocket)"]
     # Whatever a teacher kind built: the run's security file, and a progress file where the service keeps one.
     fields = lambda cfg: {f.name for f in dataclasses.fields(cfg)}  # noqa: E731
     for i, p in enumerate(procs):

@@ -225,3 +225,24 @@ class RecorderConfig(ServiceConfig):
             _check_name(name, "stop-when")
         if not (math.isfinite(self.flush_interval) and self.flush_interval > 0):
             raise ValueError(f"flush-interval must be positive, got {self.flush_interval}")
+
+
+@dataclass(frozen=True)
+class FoxgloveConfig(ServiceConfig):
+    """The Foxglove bridge: the run's channels, as the log has them, over Foxglove's WebSocket protocol."""
+
+    port: int = option(8765, "WebSocket port Foxglove connects to (ws://HOST:PORT)")
+    host: str = option("127.0.0.1", "address to serve on (127.0.0.1: this machine only)")
+    run_config: str | None = option(None, "the run's run.json (the environment to draw); none: no scene")
+    stop_when: tuple[str, ...] = option((), "stop once all these services have reported 'stopped' (empty: on "
+                                            "SIGTERM / Ctrl-C only)")
+    linger: float = option(1.0, "seconds to keep serving after the last awaited service stopped")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if not 0 < self.port < 65536:
+            raise ValueError(f"port must be in 1..65535, got {self.port}")
+        for name in self.stop_when:
+            _check_name(name, "stop-when")
+        if not (math.isfinite(self.linger) and self.linger >= 0):
+            raise ValueError(f"linger must be >= 0, got {self.linger}")

@@ -1,0 +1,5 @@
+import sys
+
+from services.foxglove.service import cli
+
+sys.exit(cli())
