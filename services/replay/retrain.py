@@ -58,85 +58,110 @@ def _bit_equal(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
-def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResult:
-    from services.common.runtime import apply_torch_threads
-    from services.learner.core import LearnerCore, learner_config_from_record
+@dataclasses.dataclass
+class _Log:
+    """What retrain needs from a log: inputs by identity, Ingest batches and Weights per learner."""
 
-    steps: dict[tuple[str, int], Step] = {}
-    feedback: dict[tuple[str, int], Feedback] = {}
-    ingest: dict[str, list[Ingest]] = {}
-    weights: dict[str, list[Weights]] = {}
+    steps: dict
+    feedback: dict
+    ingest: dict
+    weights: dict
+    warnings: list
+
+
+def _read(path) -> _Log:
+    log = _Log({}, {}, {}, {}, [])
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LogRecoveryWarning)
         for rec in read_log(path):
             m = rec.message
             if isinstance(m, Step):
-                steps[(m.incarnation, m.seq)] = m
+                log.steps[(m.incarnation, m.seq)] = m
             elif isinstance(m, Feedback):
-                feedback[(m.teacher_id, m.seq)] = m
+                log.feedback[(m.teacher_id, m.seq)] = m
             elif isinstance(m, Ingest):
-                ingest.setdefault(m.learner, []).append(m)
+                log.ingest.setdefault(m.learner, []).append(m)
             elif isinstance(m, Weights):
-                weights.setdefault(m.incarnation, []).append(m)
+                log.weights.setdefault(m.incarnation, []).append(m)
             elif isinstance(m, WeightsSnapshot) and m.weights is not None:  # logs keep snapshots, not every version
-                weights.setdefault(m.incarnation, []).append(Weights.decode(m.weights))
-    if not ingest:
+                log.weights.setdefault(m.incarnation, []).append(Weights.decode(m.weights))
+    log.warnings = [str(w.message) for w in caught]
+    return log
+
+
+def _entries(path, log: _Log, learner: str | None) -> tuple[str, list, dict]:
+    """(the learner whose final weights to compare, its consumption order, its config record)."""
+    if not log.ingest:
         raise ValueError(f"{path}: no Ingest messages (no learner recorded)")
     if learner is None:
         # The whole record: a learner restored from a checkpoint continues its predecessor's (resumed_from).
         from services.replay.summary import effective_ingest
 
-        merged, chain, _ = effective_ingest(ingest)
+        merged, chain, _ = effective_ingest(log.ingest)
         learner, origin = chain[-1], chain[0]
     else:
-        if learner not in ingest:
-            raise ValueError(f"{path}: no learner {learner!r}; found {', '.join(ingest)}")
+        if learner not in log.ingest:
+            raise ValueError(f"{path}: no learner {learner!r}; found {', '.join(log.ingest)}")
         merged, origin = None, learner
-    batches = sorted(ingest[origin], key=lambda b: b.seq)
+    batches = sorted(log.ingest[origin], key=lambda b: b.seq)
     if batches[0].seq != 0 or batches[0].config is None or batches[0].index != 0:
         raise ValueError(f"{path}: the first Ingest message of {origin} (with its config) is missing")
+    if merged is not None:
+        return learner, merged, batches[0].config
     entries = []
-    if merged is None:
-        for b in batches:
-            if b.index != len(entries):
-                break  # a batch lost (truncated log): replay up to the gap
-            entries.extend(b.entries)
-    else:
-        entries = merged
+    for b in batches:
+        if b.index != len(entries):
+            break  # a batch lost (truncated log): replay up to the gap
+        entries.extend(b.entries)
+    return learner, entries, batches[0].config
 
-    apply_torch_threads()
-    core = LearnerCore(learner_config_from_record(batches[0].config["learner"]))
+
+def _replay(core, log: _Log, entries: list) -> tuple[int, int, int, bool]:
+    """Feed the core the recorded inputs in the recorded order: (steps, feedback, missing, ended)."""
     n_steps = n_fb = missing = 0
     ended = False
     for e in entries:
-        if e.kind == "step":
-            msg = steps.get((e.source, e.seq))
-            if msg is None:
-                missing += 1
-                continue
-            core.on_step(msg)
-            n_steps += 1
-        elif e.kind == "feedback":
-            msg = feedback.get((e.source, e.seq))
-            if msg is None:
-                missing += 1
-                continue
-            core.on_feedback(msg)
-            n_fb += 1
-        elif e.kind == "end":
+        if e.kind == "end":
             core.end()
             ended = True
-    mine = core.take_entries()
+            continue
+        store = log.steps if e.kind == "step" else log.feedback if e.kind == "feedback" else None
+        if store is None:
+            continue
+        msg = store.get((e.source, e.seq))
+        if msg is None:
+            missing += 1
+        elif e.kind == "step":
+            core.on_step(msg)
+            n_steps += 1
+        else:
+            core.on_feedback(msg)
+            n_fb += 1
+    return n_steps, n_fb, missing, ended
+
+
+def _first_mismatch(mine: list, entries: list) -> str | None:
     key = lambda e: (e.kind, e.source, e.seq, e.status)  # noqa: E731
-    mismatch = None
     for i, (a, b) in enumerate(zip(mine, entries)):
         if key(a) != key(b):
-            mismatch = f"entry {i}: recorded {key(b)}, retrained {key(a)}"
-            break
-    if mismatch is None and len(mine) != len(entries):
-        mismatch = f"recorded {len(entries)} entries, retrained {len(mine)}"
+            return f"entry {i}: recorded {key(b)}, retrained {key(a)}"
+    if len(mine) != len(entries):
+        return f"recorded {len(entries)} entries, retrained {len(mine)}"
+    return None
+
+
+def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResult:
+    from services.common.runtime import apply_torch_threads
+    from services.learner.core import LearnerCore, learner_config_from_record
+
+    log = _read(path)
+    learner, entries, config = _entries(path, log, learner)
+    apply_torch_threads()
+    core = LearnerCore(learner_config_from_record(config["learner"]))
+    n_steps, n_fb, missing, ended = _replay(core, log, entries)
+    mismatch = _first_mismatch(core.take_entries(), entries)
     final = core.policy_weights()
-    live = weights.get(learner, [])
+    live = log.weights.get(learner, [])
     compared = ended and bool(live) and live[-1].version == core.steps_learned + 1
     identical, diff, version = False, None, None
     if compared:
@@ -147,4 +172,4 @@ def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResul
             diff = max(float(np.max(np.abs(np.asarray(w.tensors[k], np.float64) - final[k]))) if final[k].size else 0.0
                        for k in final)
     return RetrainResult(learner, n_steps + n_fb, n_steps, n_fb, ended, mismatch is None, mismatch, compared,
-                         identical, diff, version, final, missing, [str(w.message) for w in caught])
+                         identical, diff, version, final, missing, log.warnings)
