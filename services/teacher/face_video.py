@@ -43,6 +43,7 @@ from common.seeding import derive_seed
 from services.common.config import TaskConfig, _check_name
 from services.common.faults import atomic_write_json, read_json
 from services.common.runtime import ServiceRuntime, service_main
+from services.teacher.follow import StepFollower
 
 STEPS_AFTER_STOP_TIMEOUT = 5.0  # s to wait for steps still in flight once the actor reported 'stopped'
 
@@ -192,27 +193,20 @@ class FaceVideoCore:
                 raise ValueError(f"clip of {self.clip_frames} frames is longer than the {v:+d} segment ({len(seg)})")
         self._pending: list[tuple[float, int, object, int]] = []  # (due, counter, observer event, step seq)
         self._counter = 0
-        self.actor: str | None = None
-        self.next_seq = 0
         self.counters: collections.Counter[str] = collections.Counter()
+        self.follower = StepFollower(self.counters)
         self.shown = 0
         self._clip: dict | None = None  # the reaction on screen
         self.busy_until = -math.inf  # no new clip before this time (clip end + gap)
 
     # steps -> reactions
     def on_step(self, step: Step) -> None:
-        if step.incarnation != self.actor:
-            if self.actor is not None:
-                self.counters["actor_restarts"] += 1
-                self.counters["reactions_dropped"] += len(self._pending)
-                self._pending.clear()
-            self.actor = step.incarnation
-            self.next_seq = step.seq
-        if step.seq != self.next_seq:
-            self.counters["steps_lost" if step.seq > self.next_seq else "steps_old"] += 1
-            if step.seq < self.next_seq:
-                return
-        self.next_seq = step.seq + 1
+        restarted, news = self.follower.follow(step)
+        if restarted:
+            self.counters["reactions_dropped"] += len(self._pending)
+            self._pending.clear()
+        if not news:
+            return
         self.counters["steps_seen"] += 1
         event = self.observer.react(step.t_action, step.info, step.episode, step.seq, step_ref=step.seq)
         if event is not None:

@@ -26,6 +26,7 @@ from common.protocol import Step
 from common.seeding import derive_seed
 from services.common.config import TeacherConfig
 from services.common.stepclock import StepClock
+from services.teacher.follow import StepFollower
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,25 +49,26 @@ class OracleTeacher:
         self.clock = StepClock(len(config.delay_probs) + 8)
         self._pending: list[tuple[float, int, object, int]] = []  # (due key, counter, event, ref_seq)
         self._counter = 0
-        self.actor: str | None = None
-        self.next_seq = 0
         self.counters: collections.Counter[str] = collections.Counter()
+        self.follower = StepFollower(self.counters)
+
+    @property
+    def actor(self) -> str | None:
+        return self.follower.actor
+
+    @property
+    def next_seq(self) -> int:
+        return self.follower.next_seq
 
     def on_step(self, step: Step) -> list[Reaction]:
         """See one step; returns reactions due now on the step clock (always empty for the wall clock)."""
-        if step.incarnation != self.actor:
-            if self.actor is not None:
-                self.counters["actor_restarts"] += 1
-                self.counters["reactions_dropped"] += len(self._pending)
-                self._pending.clear()
-            self.actor = step.incarnation
-            self.next_seq = step.seq
+        restarted, news = self.follower.follow(step)
+        if restarted:
+            self.counters["reactions_dropped"] += len(self._pending)
+            self._pending.clear()
             self.clock.reset()
-        if step.seq != self.next_seq:
-            self.counters["steps_lost" if step.seq > self.next_seq else "steps_old"] += 1
-            if step.seq < self.next_seq:
-                return []
-        self.next_seq = step.seq + 1
+        if not news:
+            return []
         self.counters["steps_seen"] += 1
         self.clock.push(step.seq, step.t_action)
         t = float(step.seq) if self.config.clock == "steps" else step.t_action
