@@ -4,6 +4,9 @@
   play      re-publish the session over Zenoh at the recorded pace (or faster)
   retrain   feed a fresh learner the recorded inputs in the recorded order; says whether its final weights
             equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)
+  size      bytes per 1,000 steps, and per topic
+
+A file that is not MCAP (a video, random bytes) gets a one-line error and exit code 2.
 
 A log cut short by a crash is read up to its last complete chunk, with a warning saying how much was
 recovered. LOG may be a run directory (its session.mcap).
@@ -88,6 +91,14 @@ def cmd_retrain(args) -> int:
     return 0 if result.identical and result.outcomes_match and not result.missing_inputs else 1
 
 
+def cmd_size(args) -> int:
+    from services.replay.size import format_size, log_size
+
+    s = log_size(args.log)
+    print(json.dumps(s, indent=2) if args.json else format_size(s))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m services.replay", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -106,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("retrain", help="fresh learner on the recorded inputs; compare final weights")
     p.add_argument("--learner", help="learner incarnation (default: the last one in the log)")
     p.add_argument("--save", help="write the retrained final weights to this safetensors file")
+    p = sub.add_parser("size", help="bytes per 1,000 steps and per topic")
+    p.add_argument("--json", action="store_true", help="as JSON")
     args = parser.parse_args(argv)
     warnings.showwarning = _warn_to_stderr
     if not Path(args.log).exists():
@@ -113,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     from common.mcap_log import NotMcapError
 
     try:
-        return {"summary": cmd_summary, "play": cmd_play, "retrain": cmd_retrain}[args.command](args)
+        return {"summary": cmd_summary, "play": cmd_play, "retrain": cmd_retrain,
+                "size": cmd_size}[args.command](args)
     except NotMcapError as e:  # a video, a random file: say so in one line
         print(f"error: {e}", file=sys.stderr)
         return 2
