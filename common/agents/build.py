@@ -21,7 +21,7 @@ from common.delay import DelayModel
 from common.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
-SHARED_FIELDS = ("hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
+SHARED_FIELDS = ("network", "device", "hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
                  "replay_start", "target_update_interval", "update_interval", "h_batch_size",
                  "feedback_memory_size", "assumed_delay_probs", "history_steps")
 
@@ -69,12 +69,14 @@ def mlp(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[in
 
 
 def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
-                step_unit: float = 1.0) -> AgentParts:
+                step_unit: float = 1.0, make_network=mlp) -> AgentParts:
+    """The parts of an agent for these configs. `make_network(configs, obs_dim, n_actions, seeds, purpose,
+    trained)` builds each value network (Q, its target, H; the purpose names its initialisation stream)."""
     c, B = configs[0], len(configs)
-    q = mlp(configs, obs_dim, n_actions, seeds, "q-init")
-    q_target = mlp(configs, obs_dim, n_actions, seeds, "q-init", trained=False)  # starts as a copy of q
+    q = make_network(configs, obs_dim, n_actions, seeds, "q-init")
+    q_target = make_network(configs, obs_dim, n_actions, seeds, "q-init", trained=False)  # starts as q
     return AgentParts(
-        q=q, q_target=q_target, h=mlp(configs, obs_dim, n_actions, seeds, "h-init"),
+        q=q, q_target=q_target, h=make_network(configs, obs_dim, n_actions, seeds, "h-init"),
         replay=TransitionReplay(B, c.replay_size, obs_dim),
         feedback_memory=FeedbackMemory(B, c.feedback_memory_size, obs_dim),
         history=BatchStepHistory(B, c.history_steps, obs_dim),

@@ -1,0 +1,128 @@
+"""The agent's parts, each alone: value networks (gradients against torch autograd, stacked fits, shapes that
+differ), replay, explorer and mixture, and an agent assembled from parts passed in."""
+import numpy as np
+import pytest
+import torch
+
+from common.agents import AgentParts, TrialBatchAgent, agent_config, build_parts
+from common.agents.explorer import EpsilonGreedy, Mixture
+from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, StackedMLP, fit_together,
+                                    mlp_backward, mlp_forward)
+from common.agents.optim import FlatRMSProp
+from common.agents.replay import TransitionReplay
+
+
+def test_mlp_gradient_is_autograds():
+    net = StackedMLP(3, 5, 4, [1, 2])
+    rng = np.random.default_rng(0)
+    x = rng.standard_normal((2, 6, 3)).astype(np.float32)
+    d_out = rng.standard_normal((2, 6, 4)).astype(np.float32)
+    hidden, out = mlp_forward(net.params, x)
+    grad = mlp_backward(net.params, x, hidden, d_out)
+    for i in range(2):
+        p = {k: torch.tensor(net.params[k][i], requires_grad=True) for k in ("w1", "b1", "w2", "b2")}
+        y = torch.tanh(torch.from_numpy(x[i]) @ p["w1"] + p["b1"]) @ p["w2"] + p["b2"]
+        np.testing.assert_allclose(y.detach().numpy(), out[i], rtol=1e-5, atol=1e-6)
+        (y * torch.from_numpy(d_out[i])).sum().backward()
+        expected = torch.cat([p[k].grad.reshape(-1) for k in ("w1", "b1", "w2", "b2")]).numpy()
+        np.testing.assert_allclose(grad[i], expected, rtol=1e-4, atol=1e-5)
+
+
+def fresh_pair(shape_h=(3, 5, 4)):
+    q = StackedMLP(3, 5, 4, [1, 2, 3], FlatRMSProp(1e-2))
+    h = StackedMLP(*shape_h, [4, 5, 6], FlatRMSProp(1e-2))
+    return q, h
+
+
+def jobs_for(q, h, rng):
+    x = rng.standard_normal((2, 8, 3)).astype(np.float32)
+    a = rng.integers(0, 4, (2, 8))
+    t = rng.standard_normal((2, 8)).astype(np.float32)
+    w = rng.random((2, 8)).astype(np.float32)
+    return [FitJob(q, np.array([0, 2]), x, a, t, None, HUBER_MEAN), FitJob(h, np.array([1, 2]), x, a, t, w, SQUARED_MEAN)]
+
+
+def test_fitting_q_and_h_together_equals_fitting_them_apart():
+    rng = np.random.default_rng(1)
+    q1, h1 = fresh_pair()
+    q2, h2 = fresh_pair()
+    for _ in range(3):
+        state = rng.bit_generator.state
+        fit_together(jobs_for(q1, h1, rng))
+        rng.bit_generator.state = state
+        for job in jobs_for(q2, h2, rng):
+            job.net.fit(job)
+    assert np.array_equal(q1.flat, q2.flat) and np.array_equal(h1.flat, h2.flat)
+    untouched = StackedMLP(3, 5, 4, [1, 2, 3])
+    assert np.array_equal(q1.flat[1], untouched.flat[1])  # row 1 of Q was never asked to step
+
+
+def test_q_and_h_of_different_shapes_fit_side_by_side():
+    rng = np.random.default_rng(2)
+    q, h = fresh_pair(shape_h=(3, 7, 4))
+    before = q.flat.copy(), h.flat.copy()
+    fit_together(jobs_for(q, h, rng))
+    assert not np.array_equal(q.flat, before[0]) and not np.array_equal(h.flat, before[1])
+    assert h.values(None, np.zeros((3, 1, 3), np.float32)).shape == (3, 1, 4)
+
+
+def test_squared_sum_loss_is_the_weighted_sum():
+    net = StackedMLP(2, 4, 3, [7], FlatRMSProp(1e-2))
+    x = np.array([[[0.5, -1.0], [1.0, 0.0]]], np.float32)
+    a, f, w = np.array([[1, 2]]), np.array([[1.0, -1.0]], np.float32), np.array([[0.25, 0.75]], np.float32)
+    pred = net.values(None, x)[0, [0, 1], [1, 2]]
+    d = SQUARED_SUM.grad(pred[None].astype(np.float32), f, w)
+    np.testing.assert_allclose(d[0], 2 * w[0] * (pred - f[0]), rtol=1e-6)
+    np.testing.assert_allclose(SQUARED_MEAN.grad(pred[None].astype(np.float32), f, w), d / 2, rtol=1e-6)
+    assert np.all(np.abs(HUBER_MEAN.grad(np.array([[5.0, -5.0]], np.float32), np.zeros((1, 2), np.float32), None))
+                  == 0.5)
+
+
+def test_replay_rows_are_independent_and_sample_their_own_stream():
+    r = TransitionReplay(2, 4, 1)
+    for k in range(6):
+        r.add_rows(np.array([0]), obs=[[k]], action=[k % 2], reward=[k], next_obs=[[k + 1]], terminated=[0.0])
+    assert r.size.tolist() == [4, 0] and sorted(r.data["reward"][0].tolist()) == [2.0, 3.0, 4.0, 5.0]
+    keys = np.array([11, 12], np.uint64)
+    a = r.sample_indices(keys[:1], np.array([3]), np.array([0]), 5)
+    b = r.sample_indices(keys[:1], np.array([3]), np.array([0]), 5)
+    assert np.array_equal(a, b) and a.max() < 4
+
+
+def test_explorer_and_mixture_are_functions_of_the_step():
+    cfgs = [agent_config("dqn-tamer"), agent_config("deep-tamer")]
+    e = EpsilonGreedy(cfgs, np.array([5, 6], np.uint64), 4)
+    rows = np.arange(2)
+    np.testing.assert_allclose(e.epsilons(rows, np.array([0, 150])), [0.3, 0.15])
+    np.testing.assert_allclose(e.epsilons(rows, np.array([10_000, 10_000])), [0.1, 0.1])
+    greedy = np.array([2, 3])
+    a1 = [e.choose(rows, np.array([t, t]), greedy) for t in range(200)]
+    e2 = EpsilonGreedy(cfgs, np.array([5, 6], np.uint64), 4)
+    a2 = [e2.choose(rows, np.array([t, t]), greedy) for t in range(200)]
+    assert all(np.array_equal(x, y) for x, y in zip(a1, a2))
+    explored = np.mean([x[0] != 2 for x in a1])
+    assert 0.1 < explored < 0.4  # epsilon near 0.3 -> 0.1, three actions of four differ from the greedy one
+    m = Mixture(cfgs)
+    aq, ah = m.weights(rows, np.array([100, 100]))
+    assert aq.ravel().tolist() == [1.0, 0.0]
+    np.testing.assert_allclose(ah.ravel(), [0.9999 ** 100, 1.0], rtol=1e-6)
+
+
+def test_an_agent_takes_the_parts_it_is_given():
+    cfg = [agent_config("dqn-tamer")]
+    parts = build_parts(cfg, 2, 4, [0])
+    parts.h = StackedMLP(2, 9, 4, [123], FlatRMSProp(1e-3))  # an H of another shape
+    agent = TrialBatchAgent(cfg, 2, 4, [0], parts=parts)
+    assert isinstance(agent.parts, AgentParts) and agent.h is parts.h
+    for k in range(40):
+        agent.record_step(0, np.array([k % 3, 1], np.float32), k % 4, -0.1, np.array([k % 3, 0], np.float32),
+                          False, float(k))
+        agent.give_feedback([(0, k + 0.5, 1)])
+        agent.update()
+    assert agent.h_updates[0] > 40 and agent.q_updates[0] > 0
+    assert agent.policy_weights(0)["h.w1"].shape == (2, 9)
+
+
+def test_batched_trials_must_share_structure():
+    with pytest.raises(ValueError, match="share hidden"):
+        TrialBatchAgent([agent_config("dqn"), agent_config("dqn", hidden=50)], 2, 4, [0, 1])
