@@ -154,8 +154,13 @@ function paint(ts) {
   hitl.pending = null;
   hitl.step = m;
   drawScene(); showStatus();
-  // The frame painted now appears at the next display refresh; the callback's time is the frame's start.
-  const tPage = pageTime(ts);
+  const drawn = performance.now();
+  // What was drawn appears with the frame this callback produces; the next frame's callback time is when
+  // that frame was presented (never earlier than the drawing itself).
+  requestAnimationFrame((next) => reportShown(m, pageTime(Math.max(next, drawn))));
+}
+
+function reportShown(m, tPage) {
   if (hitl.clock.ready) {
     send({ type: "shown", seq: m.seq, actor: m.actor, ...stamp(tPage) });
     hitl.shownLog.push({ seq: m.seq, actor: m.actor, episode: m.episode, t_page: tPage, t_sys: tPage + hitl.clock.offset, info: m.info,

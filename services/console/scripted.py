@@ -1,0 +1,138 @@
+"""`python -m services.console.scripted`: a scripted person teaches through the console, in headless Chromium.
+
+Starts `python -m services up --teacher web` with the given task, opens the console page in Debian's Chromium
+(Playwright, `/usr/bin/chromium`), and injects `static/scripted_person.js`: on each step painted, with
+probability `p` the person presses + or - by the paper's rule after a lag drawn from [lag-min, lag-max] s.
+With `--compare ALGO` the same person then teaches a second run (same seed and layout) of another agent, and
+both are reported side by side. Per run it prints the steps of each episode and the first episode that reached
+the goal within `good-factor` times the shortest path (the measure of "learned to reach the goal").
+
+Needs the dev extras (Playwright) and Debian's chromium, which `make setup` installs.
+"""
+from __future__ import annotations
+
+import json
+import re
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from common.config import option, parse_config
+
+ROOT = Path(__file__).resolve().parents[2]
+STATIC = Path(__file__).resolve().parent / "static"
+CHROMIUM = "/usr/bin/chromium"
+FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync")
+
+
+@dataclass(frozen=True)
+class ScriptedConfig:
+    """A scripted person (the paper's rule, a human-like lag) teaching through the console page in Chromium."""
+
+    algo: str = option("dqn-tamer", "agent")
+    compare: str | None = option(None, "then the same with this agent (e.g. dqn), reported side by side")
+    env: str = option("maze", "environment")
+    layout: int = option(0, "maze layout")
+    seed: int = option(0, "trial seed")
+    episodes: int = option(15, "episodes per run")
+    rate: float = option(2.0, "steps per second")
+    p: float = option(0.5, "probability that the person presses on a step they saw")
+    lag_min: float = option(0.3, "shortest lag (s) from a step's paint to the press")
+    lag_max: float = option(1.5, "longest lag (s)")
+    screen_delay: str = option("uniform:0.2,4", "the delay in seconds the learner assumes")
+    good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
+    out: str = option("runs/scripted", "parent directory of the runs")
+    timeout: float = option(3600.0, "seconds a run may take")
+
+
+def _listening(port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(0.5)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def run_once(cfg: ScriptedConfig, algo: str) -> dict:
+    """One run taught by the scripted person; returns its summary and the person's numbers."""
+    from playwright.sync_api import sync_playwright
+
+    name = f"{algo}-{cfg.env}-l{cfg.layout}-s{cfg.seed}-{time.strftime('%H%M%S')}"
+    cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
+           "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
+           "--screen-delay", cfg.screen_delay, "--out", cfg.out, "--run", name, "--progress", "false"]
+    up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    threading.Thread(target=lambda: lines.extend(up.stdout), daemon=True).start()
+    t0 = time.monotonic()
+    try:
+        url = None
+        while url is None and up.poll() is None and time.monotonic() - t0 < 120:
+            m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/)", "".join(lines))
+            url = m.group(1) if m and _listening(int(m.group(2))) else None
+            time.sleep(0.1)
+        if url is None:
+            raise RuntimeError("services up printed no console address:\n" + "".join(lines)[-2000:])
+        with sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
+            ctx = pw.chromium.launch_persistent_context(profile, executable_path=CHROMIUM, headless=True,
+                                                        args=list(FLAGS))
+            page = ctx.new_page()
+            page.goto(url)
+            page.wait_for_function("window.hitl && hitl.hello && hitl.clock.ready", timeout=60_000)
+            page.add_script_tag(path=str(STATIC / "scripted_person.js"))
+            page.evaluate("o => hitlScriptedPerson(o)",
+                          {"p": cfg.p, "lagMin": cfg.lag_min, "lagMax": cfg.lag_max, "seed": cfg.seed + 1})
+            while up.poll() is None and time.monotonic() - t0 < cfg.timeout:
+                time.sleep(0.5)
+            ctx.close()
+        rc = up.wait(60)
+    finally:
+        if up.poll() is None:
+            up.terminate()
+            up.wait(30)
+    rundir = Path(cfg.out) / name
+    summary = json.loads((rundir / "summary.json").read_text())
+    return {"algo": algo, "run": str(rundir), "exit": rc, "summary": summary}
+
+
+def report(cfg: ScriptedConfig, result: dict) -> dict:
+    from common.envs.maze import make_layout
+
+    s = result["summary"]
+    steps = [e["steps"] for e in s.get("episodes", []) if not e.get("aborted")]
+    shortest = make_layout(cfg.layout).shortest_path() if cfg.env.startswith("maze") else None
+    good = None
+    if shortest is not None:
+        good = next((i + 1 for i, n in enumerate(steps) if n <= cfg.good_factor * shortest), None)
+    fb = s.get("feedback_credited", 0)
+    return {"algo": result["algo"], "run": result["run"], "episodes": len(steps), "steps_per_episode": steps,
+            "total_steps": sum(steps), "first_good_episode": good, "shortest_path": shortest,
+            "feedback_credited": fb, "wall_s": s.get("wall_s")}
+
+
+def main(cfg: ScriptedConfig) -> int:
+    rows = []
+    for algo in [cfg.algo] + ([cfg.compare] if cfg.compare else []):
+        print(f"[scripted] {algo}: {cfg.episodes} episodes at {cfg.rate} steps/s ...", file=sys.stderr, flush=True)
+        rows.append(report(cfg, run_once(cfg, algo)))
+    Path(cfg.out).mkdir(parents=True, exist_ok=True)
+    out = Path(cfg.out) / f"scripted-{time.strftime('%Y%m%d-%H%M%S')}.json"
+    out.write_text(json.dumps({"config": asdict(cfg), "runs": rows}, indent=2))
+    for r in rows:
+        print(f"{r['algo']:>10}: first episode within {cfg.good_factor:g}x the shortest path ({r['shortest_path']} "
+              f"steps): {r['first_good_episode'] or 'never'}; steps per episode {r['steps_per_episode']}; "
+              f"{r['total_steps']} steps, {r['feedback_credited']} feedback credited, {r['wall_s']} s")
+    print(f"wrote {out}")
+    return 0
+
+
+def cli(argv: list[str] | None = None) -> int:
+    return main(parse_config(ScriptedConfig, argv, prog="python -m services.console.scripted"))
+
+
+if __name__ == "__main__":
+    sys.exit(cli())

@@ -1,0 +1,61 @@
+"""A scripted person in the browser (the paper's rule, a lag of 0.3-1.5 s after each paint) teaches DQN-TAMER on a
+maze through the console at a test-friendly pace: every press is credited, and always to (among others) the step
+the person was reacting to, since its on-screen interval lies inside the assumed 0.2-4 s window."""
+from __future__ import annotations
+
+import pytest
+
+from common.mcap_read import read_log
+from common.protocol import Credit, Feedback, Step
+
+from .harness import SCRIPTED, WebRun, browser, open_console
+
+pytestmark = [pytest.mark.live, pytest.mark.browser]
+
+
+def test_scripted_person_teaches_dqn_tamer(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    run = WebRun(tmp_path, "scripted", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "50",
+                 "--max-steps", "160", "--rate", "8", "--seed", "2")
+    try:
+        url = run.url()
+        with sync_playwright() as pw:
+            ctx = browser(pw, tmp_path / "profile")
+            page = open_console(ctx, url)
+            page.add_script_tag(path=str(SCRIPTED))
+            page.evaluate("hitlScriptedPerson({p: 0.6, lagMin: 0.3, lagMax: 1.5, seed: 7})")
+            assert run.wait(180) == 0, run.out[-3000:]
+            plan = page.evaluate("hitlScriptedPlan")
+            presses = page.evaluate("hitl.pressLog")
+            assert page.errors == []
+            ctx.close()
+    finally:
+        run.close()
+
+    summary = run.rundir / "summary.json"
+    assert summary.exists()
+    feedback, credits, episode_of = {}, {}, {}
+    for rec in read_log(run.rundir / "session.mcap"):
+        m = rec.message
+        if isinstance(m, Step):
+            episode_of[m.seq] = m.episode
+        elif isinstance(m, Feedback) and m.teacher_id == "web-1":
+            feedback[m.seq] = m
+        elif isinstance(m, Credit) and m.teacher_id == "web-1":
+            credits[m.seq] = m
+    assert len(presses) >= 40 and len(feedback) == len(presses)
+    # A press planned after the actor's last step may land after the end (`after_end`); all others are credited.
+    credited = [c for c in credits.values() if c.status == "credited"]
+    assert len(credited) >= len(feedback) - 3, sorted({c.status for c in credits.values()})
+    checked = 0
+    for c in credited:
+        fb = feedback[c.seq]
+        reacted = [p for p in plan if abs(p["due"] - fb.t_page) < 0.05 and p["value"] == fb.value]
+        assert reacted, f"press {fb.seq} matches no planned reaction"
+        if all(episode_of[p["seq"]] != episode_of[fb.shown[-1].seq] for p in reacted):
+            continue  # reacting to an episode's last step after the next began: credit never crosses episodes
+        seqs = {s.seq for s in c.steps}
+        assert any(p["seq"] in seqs for p in reacted), (fb.seq, [p["seq"] for p in reacted], sorted(seqs))
+        checked += 1
+    assert checked >= 35
