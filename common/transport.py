@@ -149,15 +149,34 @@ def wait_for_matching(publisher: zenoh.Publisher, timeout: float = 5.0) -> bool:
     return False
 
 
+# -- authentication (common/auth.py): the process's own credential, used by default by every publisher and inbox --
+
+_DEFAULT_AUTH: list[Any] = [None]
+
+
+def set_default_auth(auth: Any) -> None:
+    """Sign everything this process publishes and check everything it receives with ``auth``
+    (a :class:`common.auth.Auth`; None: neither). A service sets it once, from its credential file."""
+    _DEFAULT_AUTH[0] = auth
+
+
+def default_auth() -> Any:
+    return _DEFAULT_AUTH[0]
+
+
 class MessagePublisher:
-    """Publishes protocol messages on one key: encodes (which validates), counts, and closes cleanly.
+    """Publishes protocol messages on one key: encodes (which validates), signs (with ``auth``, default the
+    process's: :func:`set_default_auth`), counts, and closes cleanly.
 
     ``put`` accepts a message object or already-encoded bytes."""
 
-    def __init__(self, session: zenoh.Session, key: str, *, congestion: str | None = None, express: bool = False):
+    def __init__(self, session: zenoh.Session, key: str, *, congestion: str | None = None, express: bool = False,
+                 auth: Any = None):
         self.key = key
         self.message_type = parse_key(key).spec.message
         self.publisher = declare_publisher(session, key, congestion=congestion, express=express)
+        self.auth = auth if auth is not None else default_auth()
+        self._lock = threading.Lock()  # counters go out in the order they were drawn
         self.sent = 0
 
     def put(self, message: Any) -> None:
@@ -167,7 +186,11 @@ class MessagePublisher:
             if not isinstance(message, self.message_type):
                 raise TypeError(f"{self.key} carries {self.message_type.__name__}, not {type(message).__name__}")
             data = message.encode()
-        self.publisher.put(data)
+        if self.auth is None:
+            self.publisher.put(data)
+        else:
+            with self._lock:
+                self.publisher.put(data, attachment=self.auth.sign(self.key, data))
         self.sent += 1
 
     def wait_for_subscribers(self, timeout: float = 5.0) -> bool:
@@ -227,7 +250,7 @@ class Inbox:
     ``decoded``, and ``dropped_<reason>`` for each ProtocolError reason seen by :meth:`get_message`.
     """
 
-    def __init__(self, maxsize: int = 1024, policy: str = "block", *, block_timeout: float = 5.0):
+    def __init__(self, maxsize: int = 1024, policy: str = "block", *, block_timeout: float = 5.0, auth: Any = None):
         if policy not in QUEUE_POLICIES:
             raise ValueError(f"policy must be one of {QUEUE_POLICIES}")
         if maxsize < 1:
@@ -237,6 +260,8 @@ class Inbox:
         self._cond = threading.Condition()
         self._closed = False
         self.counters: collections.Counter[str] = collections.Counter()
+        # Checked in zenoh's callback, before the sample is queued: a forgery never takes a real sample's place.
+        self.auth = auth if auth is not None else default_auth()
 
     # producer side (zenoh's callback thread)
     def handler(self) -> "zenoh.handlers.Callback":
@@ -250,6 +275,14 @@ class Inbox:
 
     def callback(self, sample: zenoh.Sample) -> None:
         item = Received(str(sample.key_expr), sample.payload.to_bytes(), time.time(), _zenoh_seconds(sample.timestamp))
+        if self.auth is not None:
+            att = sample.attachment
+            reason = self.auth.check(item.key, item.data, None if att is None else att.to_bytes(), item.t_recv)
+            if reason is not None:
+                with self._cond:
+                    self.counters["received"] += 1
+                    self.counters[f"dropped_{reason}"] += 1
+                return
         self.put(item)
 
     def put(self, item: Received) -> bool:
@@ -348,23 +381,23 @@ def default_policy(key_expr: str) -> str:
 
 
 def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None, *, maxsize: int = 1024,
-              policy: str | None = None, block_timeout: float = 5.0) -> tuple[zenoh.Subscriber, Inbox]:
+              policy: str | None = None, block_timeout: float = 5.0, auth: Any = None) -> tuple[zenoh.Subscriber, Inbox]:
     """Declare a callback subscriber feeding an :class:`Inbox` (a new one unless given).
 
     Undeclare the subscriber (or close the session) and ``inbox.close()`` when done."""
     if inbox is None:
-        inbox = Inbox(maxsize, policy or default_policy(key_expr), block_timeout=block_timeout)
+        inbox = Inbox(maxsize, policy or default_policy(key_expr), block_timeout=block_timeout, auth=auth)
     sub = session.declare_subscriber(key_expr, inbox.handler())
     return sub, inbox
 
 
 @contextlib.contextmanager
 def subscription(session: zenoh.Session, key_expr: str, *, maxsize: int = 1024, policy: str | None = None,
-                 block_timeout: float = 5.0) -> Iterator[Inbox]:
+                 block_timeout: float = 5.0, auth: Any = None) -> Iterator[Inbox]:
     """``with subscription(session, run_prefix(run)) as inbox: ...``: a callback subscriber feeding an Inbox;
     on exit the inbox is closed first (releasing a callback blocked on a full queue), then the subscriber
     is undeclared."""
-    sub, inbox = subscribe(session, key_expr, maxsize=maxsize, policy=policy, block_timeout=block_timeout)
+    sub, inbox = subscribe(session, key_expr, maxsize=maxsize, policy=policy, block_timeout=block_timeout, auth=auth)
     try:
         yield inbox
     finally:

@@ -23,6 +23,9 @@ from ._keys import (KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, c
 from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary,
                         ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, MAX_SHOWN, ObserverReaction, RunConfig,
                         ServiceStatus, ShownStep, Step, Time)
+from ._roles import (ALIVE, NAMED_ROLES, OBSERVER_PREFIX, OWN_KINDS, PUBLISHES, ROLES, SERVICE_ROLES, TEACHER_PREFIX,
+                     alive_key, incarnation_alive_key, may_publish, observer_service_name, publish_patterns,
+                     split_identity, teacher_id_of, teacher_service_name)
 from ._spec import REASONS, ProtocolError
 from ._foxglove import FoxgloveProto, SceneUpdate
 from ._observe import Request, TensorSummary, WeightsSnapshot
@@ -41,4 +44,7 @@ __all__ = [
     "Shown", "ShownStep", "MAX_SHOWN", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit", "CreditedStep",
     "shown_key", "control_key", "credit_key", "log_topic", "key_from_topic",
     "FoxgloveProto", "SceneUpdate", "Request", "TensorSummary", "WeightsSnapshot",
+    "ALIVE", "NAMED_ROLES", "OBSERVER_PREFIX", "OWN_KINDS", "PUBLISHES", "ROLES", "SERVICE_ROLES", "TEACHER_PREFIX",
+    "alive_key", "incarnation_alive_key", "may_publish", "observer_service_name", "publish_patterns",
+    "split_identity", "teacher_id_of", "teacher_service_name",
 ]

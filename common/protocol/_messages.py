@@ -230,7 +230,9 @@ class Ingest(Message):
         "The learner's config (first batch only): everything retrain needs to rebuild it."))), optional=True)
 
 
-SERVICE_STATES = ("starting", "ready", "stopping", "stopped")
+#: `stopped`: done with its part of the run (receivers waiting on it may end); `failed`: ended without
+#: finishing (an error, or it gave up): receivers keep waiting, the launcher restarts it.
+SERVICE_STATES = ("starting", "ready", "stopping", "stopped", "failed")
 
 
 @dataclasses.dataclass(frozen=True)

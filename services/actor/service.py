@@ -48,6 +48,7 @@ class WeightsSlot:
     def __init__(self, agent: TrialBatchAgent, spec: dict, rt: ServiceRuntime):
         self.agent, self.spec, self.rt = agent, spec, rt
         self.version = 0
+        self.limit: int | None = None  # no version above this (steps published + 1); None: any (a restart's wait)
         self.learner: str | None = None
         self.announced: list[str] = []  # learner incarnations announced by their ServiceStatus (newest last)
         self.watch = None  # an IncarnationWatch of the learner (liveliness), set once the session is open
@@ -96,6 +97,9 @@ class WeightsSlot:
                 self.on_status(status)  # its announcement may be waiting in the status queue
             if not self.known(w.incarnation):
                 self._reject("unknown_incarnation")
+                continue
+            if self.limit is not None and w.version > self.limit:
+                self._reject("version_ahead")  # a learner cannot have learned steps this actor never sent
                 continue
             if w.incarnation == self.learner and w.version <= self.version:
                 self.rt.counters["weights_not_newer"] += 1
@@ -172,6 +176,7 @@ def main(config: ActorConfig) -> int:
             episode, t_in_episode = episodes_done, 0
             limit = config.max_steps if config.max_steps is not None else float("inf")
             while episode < config.episodes and base + seq < limit and not rt.stop.is_set():
+                slot.limit = base + seq + 1
                 slot.on_status(learner_status)
                 slot.adopt(weights_in, status=learner_status)
                 if watch.take() and len(ring):
@@ -231,6 +236,7 @@ def main(config: ActorConfig) -> int:
                     obs = env.reset()[0]
                 rt.tick()
             rt.counters["episodes"] = episode
+            rt.failed = code != 0  # gave up: not the end of the run (the launcher restarts it)
             watch.before_exit(ring, RECORDER_WAIT, rt.log)
             watch.close()
             slot.watch.close()

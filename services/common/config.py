@@ -15,7 +15,7 @@ from common.config import option
 from common.delay import delay_from_spec, parse_probs
 from common.envs import ENV_NAMES
 from common.envs.maze import LAYOUT_COUNT
-from common.protocol import validate_name
+from common.protocol import teacher_service_name, validate_name
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 CLOCKS = ("steps", "wall")
@@ -40,6 +40,9 @@ class ServiceConfig:
     connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
     security: str | None = option(None, "security.json of this machine (common/security.py: TLS, user/password, "
                                         "access control); connect to the secured router as this service's identity")
+    credentials: str | None = option(None, "this service's credential file (common/auth.py): signs what it publishes, "
+                                           "checks what it receives; the launcher writes one per service, "
+                                           "`python -m services credentials` for services started by hand")
 
     def __post_init__(self):
         _check_name(self.run, "run")
@@ -148,9 +151,6 @@ class TeacherConfig(TaskConfig):
         return teacher_service_name(self.teacher_id)
 
 
-def teacher_service_name(teacher_id: str) -> str:
-    """The service name (status key, liveliness token) of teacher `teacher_id`."""
-    return f"teacher.{teacher_id}"
 
 
 @dataclass(frozen=True)

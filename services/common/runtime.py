@@ -17,9 +17,8 @@ import uuid
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from common.protocol import ServiceStatus, status_key, validate_name
+from common.protocol import ServiceStatus, alive_key, incarnation_alive_key, status_key, validate_name
 
-ALIVE = "alive"
 HARD_EXIT_AFTER = 5.0  # s a service gets to stop cleanly once its launcher is gone
 MAX_SAMPLES = 200_000  # latency samples kept per kind
 
@@ -28,12 +27,6 @@ def set_from_handler(event: threading.Event) -> None:
     """Set `event` from a signal handler. Not directly: a handler that interrupted `event.wait()` in the same
     thread would deadlock on the Event's internal lock; a helper thread takes it once the waiter lets go."""
     threading.Thread(target=event.set, name="signal-set", daemon=True).start()
-
-
-def alive_key(run: str, service: str = "*") -> str:
-    """Liveliness token of a ready service (`*`: every service of the run)."""
-    validate_name(run, "run")
-    return f"hitl/{run}/{ALIVE}/{service}"
 
 
 def new_incarnation(service: str) -> str:
@@ -63,6 +56,12 @@ class ServiceRuntime:
             lambda: collections.deque(maxlen=MAX_SAMPLES))
         self.state = "starting"
         self.incarnation = new_incarnation(name)
+        self.failed = False  # set by a service that ends without finishing its part of the run
+        self.signalled = False
+        self.final_state: str | None = None
+        self._run_end = None  # inbox of the launcher's status: 'stopping' means the run is ending
+        _CURRENT[0] = self
+        self.auth = load_auth(name, config, self.incarnation)
         self._session = None
         self._status_pub = None
         self._log_pub = None
@@ -81,6 +80,7 @@ class ServiceRuntime:
     # -- stopping ----------------------------------------------------------------------------------------------
     def _on_signal(self, signum, _frame) -> None:
         self.counters[f"signal_{signal.Signals(signum).name}"] += 1
+        self.signalled = True
         set_from_handler(self.stop)
 
     def _watch_parent(self, pid: int) -> None:
@@ -110,18 +110,24 @@ class ServiceRuntime:
     def session(self) -> Iterator[Any]:
         """A client session to the configured router(s); on exit: final status 'stopped', token dropped,
         a short linger so BLOCK publishers' queues drain, then close."""
-        from common.transport import MessagePublisher, client_config, open_session
+        from common.transport import MessagePublisher, open_session, subscribe
 
         cfg = self.config
         with open_session(self.zenoh_config()) as session:
             self._session = session
             self._status_pub = MessagePublisher(session, status_key(cfg.run, self.name), congestion="block")
+            run_end_sub, self._run_end = subscribe(session, status_key(cfg.run, "launcher"), maxsize=4)
+            ok = False
             try:
                 self.publish_status("starting")
                 yield session
+                ok = True
             finally:
+                self.final_state = "stopped" if ok and self._finished_its_part() else "failed"
                 with contextlib.suppress(Exception):
-                    self.publish_status("stopped")
+                    self.publish_status(self.final_state)
+                with contextlib.suppress(Exception):
+                    run_end_sub.undeclare()
                 for token in (self._token, self._inc_token):
                     if token is not None:
                         with contextlib.suppress(Exception):
@@ -132,6 +138,34 @@ class ServiceRuntime:
                     self._log_pub.close()
                     self._log_pub = None
                 self._session = None
+
+    def _finished_its_part(self) -> bool:
+        """'stopped' ends the run for whoever waits on this service; 'failed' does not (the launcher restarts it).
+        Stopped by a signal while a launcher supervises it: stopped only if the launcher said the run is ending
+        (its authenticated status 'stopping'); anybody else's SIGTERM is a death like any other."""
+        if self.failed:
+            return False
+        if not self.signalled or not getattr(self.config, "parent_pid", None) or self.counters["parent_gone"]:
+            return True
+        deadline = time.monotonic() + 1.0  # the launcher says so just before it signals
+        while time.monotonic() < deadline:
+            if self.run_is_ending():
+                return True
+            time.sleep(0.02)
+        return False
+
+    def run_is_ending(self) -> bool:
+        """True once the launcher has announced (authenticated status 'stopping' or 'stopped') the end of the run."""
+        if self._run_end is None:
+            return False
+        for item in self._run_end.drain():
+            try:
+                st = item.decode()
+            except Exception:
+                continue
+            if st.state in ("stopping", "stopped"):
+                self._run_ending = True
+        return getattr(self, "_run_ending", False)
 
     def zenoh_config(self) -> Any:
         """A plain loopback client of `connect`, or with `security` the secured client of this service's
@@ -173,7 +207,7 @@ class ServiceRuntime:
         self._token = self._session.liveliness().declare_token(alive_key(self.config.run, self.name))
         # Announces this incarnation to receivers that accept inputs only from announced ones (faults.py).
         self._inc_token = self._session.liveliness().declare_token(
-            f"{alive_key(self.config.run, self.name)}/{self.incarnation}")
+            incarnation_alive_key(self.config.run, self.name, self.incarnation))
         self._cpu_at_ready = time.process_time()
         self.publish_status("ready")
 
@@ -216,6 +250,26 @@ class ServiceRuntime:
         tmp = Path(f"{path}.tmp")
         tmp.write_text(json.dumps(data))
         tmp.replace(path)
+
+
+_CURRENT: list["ServiceRuntime | None"] = [None]  # this process's runtime (its final state sets the exit code)
+
+
+def load_auth(name: str, config: Any, incarnation: str) -> Any:
+    """This service's signer and checker from its credential file (common/auth.py), installed as the process's
+    default for every publisher and inbox. Raises AuthError (one line) without one."""
+    from common.auth import Auth, AuthError, load_credential
+    from common.transport import set_default_auth
+
+    path = getattr(config, "credentials", None)
+    if not path:
+        raise AuthError(f"{name}: no --credentials file; the launcher makes them, or `python -m services credentials "
+                        f"--run {config.run} --out DIR` for services started by hand (docs/security.md)")
+    cred = load_credential(path, run=config.run, identity=name)
+    auth = Auth(cred, incarnation, max_past=getattr(config, "max_past", 600.0),
+                max_future=getattr(config, "max_future", 10.0))
+    set_default_auth(auth)
+    return auth
 
 
 def wait_alive(session: Any, run: str, names: tuple[str, ...] | list[str], timeout: float,
@@ -261,7 +315,16 @@ def apply_torch_threads() -> None:
 
 def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, prog: str) -> int:
     """Parse `cls` from the command line (or --config FILE) and run `main(config)`."""
+    from common.auth import AuthError
     from common.config import parse_config
 
     config = parse_config(cls, argv, prog=prog)
-    return main(config)
+    try:
+        code = main(config)
+    except AuthError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    rt = _CURRENT[0]
+    if code == 0 and rt is not None and rt.final_state == "failed":
+        return 1  # ended without finishing its part: the launcher restarts it
+    return code

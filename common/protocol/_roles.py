@@ -1,0 +1,102 @@
+"""Who is who on the wire: service names, liveliness keys, and which identity may publish on which key.
+
+An identity is a service name: `actor`, `learner`, `recorder`, `launcher`, `teacher.<id>` (a teacher, whose
+feedback key is `feedback/<id>`), `observer.<id>` (the face-video observer showing reactions to camera `<id>`),
+`perception` (a perception service that is not a teacher). Its role is the part before the first `.`.
+
+:data:`PUBLISHES` is the one table of who may publish what. The authentication gate (`common.auth`, checked
+by every receiver) and the secured router's access rules (`common.security`) are both built from it.
+"""
+from __future__ import annotations
+
+from ._keys import ROOT, parse_key, validate_name
+from ._spec import ProtocolError
+
+TEACHER_PREFIX = "teacher."
+OBSERVER_PREFIX = "observer."
+ALIVE = "alive"  # liveliness tokens: hitl/<run>/alive/<service>[/<incarnation>]
+
+#: Single-instance services (their identity is the role name).
+SERVICE_ROLES = ("actor", "learner", "recorder", "launcher", "perception")
+#: Roles whose identity carries a name: `teacher.<id>`, `observer.<id>`.
+NAMED_ROLES = ("teacher", "observer")
+ROLES = SERVICE_ROLES + NAMED_ROLES
+
+#: Key kinds (`hitl/<run>/<kind>[/<name>]`) each role may publish. `{id}` is the identity's own name
+#: (`alice` for `teacher.alice`); `*` any name. Every identity may also publish its own status and log
+#: (:data:`OWN_KINDS`). `config` is written by the recorder into its log, never published.
+PUBLISHES: dict[str, tuple[str, ...]] = {
+    "actor": ("step",),
+    "learner": ("weights", "episode", "ingest"),
+    "recorder": (),
+    "launcher": (),
+    "perception": ("camera/*", "perception/*"),
+    # a teacher is a simulated observer, a web console or the perception service reading a face for it
+    "teacher": ("feedback/{id}", "camera/{id}", "perception/{id}"),
+    "observer": ("camera/{id}", "reaction/{id}"),
+}
+OWN_KINDS = ("status", "log")
+
+
+def teacher_service_name(teacher_id: str) -> str:
+    """The identity (service name, status key, liveliness token) of teacher `teacher_id`."""
+    validate_name(teacher_id, "teacher_id")
+    return f"{TEACHER_PREFIX}{teacher_id}"
+
+
+def observer_service_name(teacher_id: str) -> str:
+    validate_name(teacher_id, "teacher_id")
+    return f"{OBSERVER_PREFIX}{teacher_id}"
+
+
+def teacher_id_of(service: str) -> str | None:
+    """`alice` for `teacher.alice`; None for any other service."""
+    return service[len(TEACHER_PREFIX):] if service.startswith(TEACHER_PREFIX) else None
+
+
+def split_identity(identity: str) -> tuple[str, str | None]:
+    """`teacher.alice` -> (`teacher`, `alice`); `actor` -> (`actor`, None). Raises ProtocolError if unknown."""
+    validate_name(identity, "identity")
+    role, _, name = identity.partition(".")
+    if role in NAMED_ROLES and name:
+        return role, name
+    if role in SERVICE_ROLES and not name:
+        return role, None
+    raise ProtocolError("bad_value", f"identity {identity[:64]!r}: one of {SERVICE_ROLES} or teacher.<id> / "
+                                     f"observer.<id>")
+
+
+def publish_patterns(identity: str) -> tuple[str, ...]:
+    """The key tails (`kind` or `kind/name`, `*` for any name) `identity` may publish."""
+    role, name = split_identity(identity)
+    own = tuple(f"{k}/{identity}" for k in OWN_KINDS)
+    return tuple(p.replace("{id}", name or "") for p in PUBLISHES[role]) + own
+
+
+def may_publish(identity: str, key: str) -> bool:
+    """True if `identity` may publish on the concrete key `key` (the run is not checked here)."""
+    try:
+        parsed = parse_key(key)
+        patterns = publish_patterns(identity)
+    except ProtocolError:
+        return False
+    for p in patterns:
+        kind, _, name = p.partition("/")
+        if kind != parsed.spec.kind:
+            continue
+        if not name and parsed.name is None:
+            return True
+        if name and (name == "*" or name == parsed.name):
+            return True
+    return False
+
+
+def alive_key(run: str, service: str = "*") -> str:
+    """Liveliness token of a ready service (`*`: every service of the run)."""
+    validate_name(run, "run")
+    return f"{ROOT}/{run}/{ALIVE}/{service}"
+
+
+def incarnation_alive_key(run: str, service: str, incarnation: str = "*") -> str:
+    """Liveliness token of one incarnation of a service (`*`: every incarnation)."""
+    return f"{alive_key(run, service)}/{incarnation}"
