@@ -23,7 +23,6 @@ authenticated restart), never an older one. No zenoh import: the pure core may u
 """
 from __future__ import annotations
 
-import collections
 import dataclasses
 import hashlib
 import hmac
@@ -36,8 +35,8 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from common.protocol import parse_key
-from common.protocol._roles import SERVICE_ROLES, may_publish, split_identity, teacher_service_name
+from common.protocol import (SERVICE_ROLES, may_publish, observer_service_name, split_identity,
+                             teacher_service_name)
 
 VERSION = b"H1"
 TAG_BYTES = 32
@@ -171,8 +170,10 @@ def service_credential(secret: bytes, run: str, identity: str) -> Credential:
 
 def teacher_credential(secret: bytes, run: str, teacher_id: str) -> Credential:
     identity = teacher_service_name(teacher_id)
+    # what a teacher hears: the services, and the face-video observer showing its reactions to the camera
+    heard = TEACHER_VERIFIES + (observer_service_name(teacher_id),)
     return Credential(identity, run, derive_key(secret, run, identity),
-                      verify={i: derive_key(secret, run, i) for i in TEACHER_VERIFIES})
+                      verify={i: derive_key(secret, run, i) for i in heard})
 
 
 def make_run_credentials(folder: str | os.PathLike, run: str, services: Iterable[str] = SERVICE_ROLES,
@@ -215,7 +216,7 @@ class Auth:
         self._lock = threading.Lock()
         self._keys: dict[str, bytes | None] = {}
         self._last: dict[tuple[str, str], tuple[str, int, float]] = {}  # (identity, key) -> (inc, counter, t)
-        self.counters: collections.Counter[str] = collections.Counter()
+        self.rejected: dict[str, int] = {}  # "<reason>_<key kind>" -> count (a service's `auth_*` counters)
         head = cred.identity.encode()
         self._ident = VERSION + bytes([len(head)]) + head
         self._inc = self.incarnation.encode()
@@ -237,7 +238,16 @@ class Auth:
         return self._keys[identity]
 
     def check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None = None) -> str | None:
-        """None if authentic and new, else the reason to drop it (:data:`AUTH_REASONS`)."""
+        """None if authentic and new, else the reason to drop it (:data:`AUTH_REASONS`), counted."""
+        reason = self._check(key_expr, payload, attachment, t_recv)
+        if reason is not None:
+            parts = key_expr.split("/", 3)
+            name = f"{reason}_{parts[2] if len(parts) > 2 and parts[2].isidentifier() else 'other'}"
+            with self._lock:
+                self.rejected[name] = self.rejected.get(name, 0) + 1
+        return reason
+
+    def _check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None) -> str | None:
         parsed = _parse(attachment)
         if parsed is None:
             return "unauthenticated"
@@ -261,12 +271,6 @@ class Auth:
                     return "replayed"
             self._last[(identity, key_expr)] = (inc, n, t)
         return None
-
-    def note(self, reason: str | None) -> str | None:
-        if reason is not None:
-            with self._lock:
-                self.counters[f"auth_{reason}"] += 1
-        return reason
 
 
 def _parse(att: bytes | None) -> tuple[str, int, float, str, bytes, bytes] | None:
@@ -296,8 +300,3 @@ def signer_identity(attachment: bytes | None) -> str | None:
     return parsed[0] if parsed else None
 
 
-def check_key_run(key_expr: str, run: str) -> bool:
-    try:
-        return parse_key(key_expr).run == run
-    except Exception:
-        return False

@@ -9,6 +9,7 @@ from ._foxglove import FoxgloveProto
 from ._topics import topics_table
 from ._keys import KEYS, ROOT
 from ._messages import NAME_PATTERN, TOKEN_PATTERN
+from ._roles import NAMED_ROLES, PUBLISHES
 from ._spec import REASONS, SAFE_INT
 from ._weights import MAX_NDIM, MAX_TENSORS, METADATA_FIELDS, TENSOR_NAME_PATTERN, Weights
 
@@ -76,6 +77,19 @@ def markdown() -> str:
     for spec in KEYS.values():
         w(f"| `{spec.pattern()}` | `{spec.message.__name__}` | {spec.congestion} | {spec.queue_policy} | "
           f"{_cell(spec.doc)} |")
+    w("")
+    w("## Who may publish what")
+    w("")
+    w("An identity is a service name; its role is the part before the first `.`. Every receiver checks a message's "
+      "authentication envelope (`common/auth.py`, docs/security.md) against this table before anything else, and "
+      "the secured router's access rules are built from it. `{id}` is the identity's own name (`alice` for "
+      "`teacher.alice`); every identity may also publish `status/<identity>` and `log/<identity>`.")
+    w("")
+    w("| role | identity | may publish |")
+    w("|---|---|---|")
+    for role, kinds in PUBLISHES.items():
+        ident = f"`{role}.<id>`" if role in NAMED_ROLES else f"`{role}`"
+        w(f"| {role} | {ident} | {', '.join(f'`{k}`' for k in kinds) or '(only its own status and log)'} |")
     w("")
     w("## Publishing, receiving, logging")
     w("")

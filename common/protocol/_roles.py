@@ -27,12 +27,13 @@ ROLES = SERVICE_ROLES + NAMED_ROLES
 #: (:data:`OWN_KINDS`). `config` is written by the recorder into its log, never published.
 PUBLISHES: dict[str, tuple[str, ...]] = {
     "actor": ("step",),
-    "learner": ("weights", "episode", "ingest"),
+    "learner": ("weights", "episode", "ingest", "credit/*"),
     "recorder": (),
     "launcher": (),
     "perception": ("camera/*", "perception/*"),
-    # a teacher is a simulated observer, a web console or the perception service reading a face for it
-    "teacher": ("feedback/{id}", "camera/{id}", "perception/{id}"),
+    # a teacher is a simulated observer, a web console (its screen's steps, the run controls) or the
+    # perception service reading a face for it
+    "teacher": ("feedback/{id}", "shown/{id}", "control", "camera/{id}", "perception/{id}"),
     "observer": ("camera/{id}", "reaction/{id}"),
 }
 OWN_KINDS = ("status", "log")

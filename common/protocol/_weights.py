@@ -188,7 +188,7 @@ class Weights:
         meta_props = {k: {"type": "string", "description": d} for k, d in METADATA_FIELDS.items()}
         meta_props["format"]["const"] = FORMAT_TAG
         meta_props["protocol"]["const"] = str(PROTOCOL_VERSION)
-        meta_props["version"]["pattern"] = r"^(0|[1-9][0-9]{0,15})$"
+        meta_props["version"]["pattern"] = f"^{VERSION_PATTERN}$"
         return {
             "$schema": "https://json-schema.org/draft/2020-12/schema",
             "$id": f"urn:hitl-tamer:protocol:{PROTOCOL_VERSION}:{cls.TYPE_NAME}",
@@ -242,13 +242,31 @@ def _check_meta_str(key: str, value: Any, pattern: re.Pattern) -> None:
         raise ProtocolError("bad_value", f"{key}: {value[:40]!r}")
 
 
+def decimal_at_most(n: int) -> str:
+    """A regular expression of the decimal integers 0..n (no leading zeros): the schema states the bound the
+    decoder checks, so both accept exactly the same strings."""
+    d = str(n)
+    k = len(d)
+    if k == 1:
+        return f"[0-{n}]"
+    alts = ["[0-9]"] + ([f"[1-9][0-9]{{1,{k - 2}}}"] if k > 2 else [])  # every shorter number
+    for i in range(k):  # same length: equal up to digit i, smaller there, anything after
+        low, top = (1 if i == 0 else 0), int(d[i]) - 1
+        if top >= low:
+            rest = k - i - 1
+            alts.append(d[:i] + f"[{low}-{top}]" + (f"[0-9]{{{rest}}}" if rest else ""))
+    alts.append(d)
+    return "(" + "|".join(alts) + ")"
+
+
+VERSION_PATTERN = decimal_at_most(SAFE_INT)
+_VERSION_RE = re.compile(VERSION_PATTERN + r"\Z")
+
+
 def _parse_int(s: str, key: str) -> int:
-    if not re.fullmatch(r"0|[1-9][0-9]{0,15}", s):
-        raise ProtocolError("bad_value", f"{key}: {s[:40]!r} is not a non-negative decimal integer")
-    v = int(s)
-    if v > SAFE_INT:
-        raise ProtocolError("bad_value", f"{key}: {v} out of range")
-    return v
+    if not _VERSION_RE.match(s):
+        raise ProtocolError("bad_value", f"{key}: {s[:40]!r} is not a decimal integer in [0, 2^53-1]")
+    return int(s)
 
 
 def _parse_float(s: str, key: str) -> float:

@@ -159,6 +159,7 @@ def main(config: ActorConfig) -> int:
             if restart and not rt.stop.is_set():
                 waited = time.monotonic()
                 while slot.learner is None and not rt.stop.is_set():
+                    rt.tick()
                     slot.on_status(learner_status)
                     slot.adopt(weights_in, timeout=0.05, status=learner_status)
                     if time.monotonic() - waited > config.weights_timeout:
@@ -187,6 +188,7 @@ def main(config: ActorConfig) -> int:
                 waited = time.monotonic()
                 while slot.version < need and not rt.stop.is_set():
                     slot.adopt(weights_in, timeout=0.05, status=learner_status)
+                    rt.tick()  # waiting is progress too (the launcher kills a service whose statuses stop)
                     if watch.take() and len(ring):
                         ring.resend()
                     if time.monotonic() - waited > config.weights_timeout:

@@ -217,6 +217,7 @@ class ServiceRuntime:
 
     def all_counters(self) -> dict[str, int]:
         out = {k: int(v) for k, v in self.counters.items()}
+        out.update({f"auth_{k}": v for k, v in dict(self.auth.rejected).items()})
         if self._extra_counters is not None:
             out.update({k: int(v) for k, v in self._extra_counters().items()})
         return out

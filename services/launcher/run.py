@@ -1,0 +1,270 @@
+"""`up()`: one live run from start to summary (the loop that starts, watches, restarts and stops the services)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import time
+from typing import Any
+
+from common.config import config_record
+from services.common.config import ServiceConfig
+from services.launcher.children import Child, spawn, stop_children, tail
+from services.launcher.config import Launch, UpConfig, build_processes
+from services.launcher.report import Progress, finish
+from services.launcher.rundir import RunDir, RunDirError, default_run_name, describe, is_disk_full
+from services.launcher.supervise import Supervisor
+
+DISK_CHECK_PERIOD = 1.0  # s between free-space checks
+DISK_FULL_TEXT = "No space left on device"
+
+
+def router_settings(cfg: UpConfig, port: int) -> tuple[str, Any]:
+    """The embedded router's endpoint and zenoh config (the secured one with `security`)."""
+    from common.transport import router_config, tcp_endpoint
+
+    if cfg.security:
+        from common.security import load_security, router_config_for, tls_endpoint
+
+        return tls_endpoint(port, cfg.host), router_config_for(load_security(cfg.security), port, host=cfg.host)
+    endpoint = tcp_endpoint(port, cfg.host)
+    return endpoint, router_config(endpoint)
+
+
+class Run:
+    """The state of one run while the launcher watches it."""
+
+    def __init__(self, cfg: UpConfig, run: str, rundir: RunDir, endpoint: str):
+        self.cfg, self.run, self.rundir, self.endpoint = cfg, run, rundir, endpoint
+        self.children: list[Child] = []  # the current process of each service
+        self.everyone: list[Child] = []  # every process started (exit history, final reaping)
+        self.by_name: dict[str, Child] = {}
+        self.handled: set[int] = set()  # pids whose death was dealt with
+        self.outcome = "ok"
+        self.error: str | None = None
+        self.interrupts = 0
+        self.asked = 0
+        self.graceful_deadline: float | None = None
+        self.next_disk_check = 0.0
+        self.sup: Supervisor | None = None
+        self.status_pub: Any = None
+        self.statuses: Any = None
+
+    # -- the launcher's own status: 'stopping' tells every service the run is ending (common/auth.py signs it) --
+    def announce(self, state: str) -> None:
+        from common.protocol import ServiceStatus
+
+        if self.status_pub is None:
+            return
+        try:
+            self.status_pub.put(ServiceStatus(run=self.run, service="launcher", pid=os.getpid(), state=state,
+                                              t=time.time(), counters={}, incarnation=f"launcher-{os.getpid()}"))
+        except Exception as exc:  # never let a status take the launcher down
+            print(f"[launcher] (status not published: {exc})", file=sys.stderr)
+
+    def end(self, outcome: str | None = None, error: str | None = None, grace: float | None = None) -> None:
+        """Begin a clean stop: say the run is ending, ask the actor to stop; the others follow."""
+        if outcome and self.outcome == "ok":
+            self.outcome = outcome
+        if error and self.error is None:
+            self.error = error
+        if self.graceful_deadline is None:
+            self.announce("stopping")
+            self.by_name["actor"].signal_group(signal.SIGTERM)
+            self.graceful_deadline = time.monotonic() + (self.cfg.stop_timeout if grace is None else grace)
+
+    def disk_full(self, why: str) -> None:
+        if self.outcome != "disk_full":
+            self.end("disk_full", f"disk full: {why}; stopping the run", grace=min(self.cfg.stop_timeout, 5.0))
+
+    # -- one pass of the loop ---------------------------------------------------------------------------------
+    def deaths(self) -> None:
+        for c in self.children:
+            rc = c.poll()
+            if rc in (None, 0) or c.popen.pid in self.handled:
+                continue
+            self.handled.add(c.popen.pid)
+            if DISK_FULL_TEXT in tail(c.log_path, 40) or self.rundir.free_mb() < self.cfg.min_free_mb:
+                self.disk_full(f"{c.name} exited with code {rc} ({self.rundir.free_mb():.1f} MiB free under "
+                               f"{self.rundir.path})")
+            elif self.interrupts == 0 and self.outcome == "ok" and self.sup.can_restart(c.name):
+                self.sup.died(c, rc)
+            elif self.outcome == "ok":
+                self.outcome = "failed"
+                why = "" if self.interrupts else f" ({self.sup.restarts[c.name]} restarts already)"
+                print(f"\nerror: {c.name} exited with code {rc}{why}; last lines of {c.log_path}:\n{tail(c.log_path)}",
+                      file=sys.stderr)
+
+    def respawns(self) -> None:
+        for name, due in list(self.sup.pending.items()):
+            if self.outcome != "ok" or self.interrupts:
+                del self.sup.pending[name]
+            elif time.monotonic() >= due:
+                old = self.by_name[name]
+                new = spawn(old.spec, self.rundir.path, restarts=old.restarts + 1)
+                self.children[self.children.index(old)] = new
+                self.everyone.append(new)
+                self.by_name[name] = new
+                del self.sup.pending[name]
+                self.sup.respawned(new)
+                if self.graceful_deadline is not None:  # let it finish what it restarted for
+                    self.graceful_deadline = max(self.graceful_deadline, time.monotonic() + self.cfg.stop_timeout)
+
+    def hangs(self) -> None:
+        if self.outcome != "ok" or self.interrupts:
+            return
+        for child, why in self.sup.hung(self.children, self.statuses):
+            self.sup.kill_hung(child, why)  # its death is then handled (and restarted) like any other
+
+    def disk(self) -> None:
+        if time.monotonic() < self.next_disk_check:
+            return
+        self.next_disk_check = time.monotonic() + DISK_CHECK_PERIOD
+        free = self.rundir.free_mb()
+        if free < self.cfg.min_free_mb:
+            self.disk_full(f"{free:.1f} MiB free under {self.rundir.path} (less than --min-free-mb "
+                           f"{self.cfg.min_free_mb:g})")
+
+    def signals(self) -> None:
+        if self.interrupts <= self.asked:
+            return
+        self.asked = self.interrupts
+        if self.asked == 1:
+            print("\nstopping (Ctrl-C again to kill)...", file=sys.stderr, flush=True)
+            self.end("interrupted")
+        else:
+            stop_children(self.children)
+
+    def ending(self) -> bool:
+        """True when every service has exited and nothing is waiting to restart."""
+        codes = {c.name: c.poll() for c in self.children}
+        if all(rc is not None for rc in codes.values()) and not self.sup.pending:
+            return True
+        if self.outcome == "failed" and self.graceful_deadline is None:
+            self.end(grace=min(self.cfg.stop_timeout, 5.0))
+        if codes["actor"] == 0 and self.graceful_deadline is None:
+            self.announce("stopping")  # the actor finished the run: stragglers stopped later end 'stopped'
+            self.graceful_deadline = time.monotonic() + self.cfg.stop_timeout
+        if self.graceful_deadline is not None and time.monotonic() > self.graceful_deadline:
+            stragglers = [c.name for c in self.children if c.poll() is None]
+            print(f"\nterminating {', '.join(stragglers)} (still running {self.cfg.stop_timeout:.0f} s after the end)",
+                  file=sys.stderr, flush=True)
+            self.announce("stopping")
+            stop_children(self.children)
+            if self.outcome == "ok":
+                self.outcome = "timeout"
+        return False
+
+    def step(self) -> bool:
+        """One pass; True when the run is over."""
+        try:
+            self.sup.pump()
+            self.deaths()
+            self.respawns()
+            self.hangs()
+            self.disk()
+        except OSError as exc:
+            if not is_disk_full(exc):
+                raise
+            self.disk_full(describe(exc))
+        self.signals()
+        return self.ending()
+
+
+def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
+    """Name, directory (locked), credentials, processes and the run record. Raises RunDirError."""
+    from common.transport import free_port
+
+    run = cfg.run or default_run_name()
+    ServiceConfig(run=run)  # validates the name
+    rundir = RunDir(cfg.out, run)
+    rundir.open()
+    port = cfg.port or free_port(cfg.host)
+    endpoint, router_cfg = router_settings(cfg, port)
+    launch = Launch(cfg, run, rundir.path, endpoint)
+    procs, _ = build_processes(launch)
+    try:
+        rundir.make_credentials(run, ["launcher"] + [p.name for p in procs])
+        run_record = {"launcher": {**config_record(cfg), "run": run, "endpoint": endpoint},
+                      "services": {p.name: config_record(p.config) for p in procs}}
+        (rundir.path / "config" / "run.json").write_text(json.dumps(run_record, indent=2))
+    except OSError as exc:
+        raise RunDirError(f"cannot write the run directory {rundir.path}: {describe(exc)}") from None
+    return run, rundir, launch, procs, router_cfg
+
+
+def up(cfg: UpConfig) -> int:
+    try:
+        run, rundir, launch, procs, router_cfg = prepare(cfg)
+    except RunDirError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        return watch(cfg, run, rundir, launch, procs, router_cfg)
+    finally:
+        rundir.close()
+
+
+def open_launcher_session(r: Run, router_cfg: Any) -> Any:
+    """The router session, signing as `launcher` (its credential), with the launcher's status publisher."""
+    import zenoh
+
+    from common.auth import Auth, load_credential
+    from common.protocol import KEYS, status_key
+    from common.transport import MessagePublisher, set_default_auth, subscribe
+
+    set_default_auth(Auth(load_credential(r.rundir.path / "credentials" / "launcher.json", r.run, "launcher")))
+    session = zenoh.open(router_cfg)
+    r.status_pub = MessagePublisher(session, status_key(r.run, "launcher"), congestion="block")
+    r.status_sub, r.statuses = subscribe(session, KEYS["status"].wildcard(r.run), maxsize=4096, policy="drop_oldest")
+    return session
+
+
+def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, router_cfg: Any) -> int:
+    r = Run(cfg, run, rundir, launch.endpoint)
+
+    def on_signal(signum, frame):
+        r.interrupts += 1
+
+    old_int = signal.signal(signal.SIGINT, on_signal)
+    old_term = signal.signal(signal.SIGTERM, on_signal)
+    t_start = time.time()
+    session = open_launcher_session(r, router_cfg)
+    print(f"zenoh endpoint: {launch.endpoint}  (run {run}; join with --connect {launch.endpoint} --run {run})",
+          file=sys.stderr, flush=True)
+    print(f"run directory: {rundir.path}", file=sys.stderr, flush=True)
+    for line in getattr(launch, "banners", []):  # e.g. the console's address (--teacher web)
+        print(line, file=sys.stderr, flush=True)
+    progress = Progress(cfg.episodes, cfg.progress, f"{cfg.algo} on {cfg.env}")
+    r.sup = Supervisor(cfg, run, session)
+    try:
+        sub = progress.subscribe(session, run)
+        r.announce("ready")
+        try:
+            for spec in procs:
+                r.children.append(spawn(spec, rundir.path))
+        except OSError as exc:
+            if not is_disk_full(exc):
+                raise
+            r.outcome, r.error = "disk_full", f"disk full: {describe(exc)}; stopping the run"
+        r.everyone.extend(r.children)
+        r.by_name = {c.name: c for c in r.children}
+        while len(r.children) == len(procs):
+            progress.pump()
+            if r.step():
+                break
+            time.sleep(0.05)
+        sub.undeclare()
+        r.sup.pump()
+    finally:
+        r.announce("stopping")
+        stop_children(r.everyone)
+        progress.close()
+        r.sup.close()
+        r.status_pub.close()
+        session.close()
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+    return finish(cfg, run, rundir, launch.endpoint, r.children, r.outcome, time.time() - t_start, r.sup.records,
+                  r.everyone, r.error)

@@ -1,0 +1,113 @@
+"""The run directory: a unique name, an exclusive lock, the run's credentials, and what a full or read-only
+disk does (a one-line error, a clean stop, a summary.json that says why)."""
+from __future__ import annotations
+
+import errno
+import fcntl
+import json
+import os
+import secrets
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+SUBDIRS = ("config", "logs", "stats", "state")
+SUMMARY_RESERVE = 64 * 1024  # bytes summary.json holds from the start, so a full disk can still say why
+LOCK_FILE = ".lock"
+
+
+class RunDirError(Exception):
+    """The run cannot use its directory (in use, exists, unwritable, disk full): one line for the user."""
+
+
+def default_run_name() -> str:
+    """`live-<date>-<time>-<random>`: two launchers started in the same second never share a run."""
+    return f"live-{time.strftime('%Y%m%d-%H%M%S')}-{secrets.token_hex(3)}"
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    return isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT)
+
+
+def describe(exc: OSError) -> str:
+    return f"{exc.strerror or exc}{' (' + str(exc.filename) + ')' if exc.filename else ''}"
+
+
+class RunDir:
+    """Creates and locks `out/run`. The lock (an flock on `.lock`, held until the launcher exits, released by
+    the kernel even on SIGKILL) keeps a second launcher out of a run directory in use."""
+
+    def __init__(self, out: str | os.PathLike, run: str):
+        self.path = Path(out) / run
+        self._lock_fd: int | None = None
+
+    def open(self) -> None:
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o600)
+        except OSError as exc:
+            raise RunDirError(f"cannot write the run directory {self.path}: {describe(exc)}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise RunDirError(f"{self.path} is in use by another launcher; choose another --run") from None
+        self._lock_fd = fd
+        if (self.path / "session.mcap").exists():
+            raise RunDirError(f"{self.path}/session.mcap exists; choose another --run")
+        try:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+            for sub in SUBDIRS:
+                (self.path / sub).mkdir(exist_ok=True)
+            self.reserve_summary()
+        except OSError as exc:
+            raise RunDirError(f"cannot write the run directory {self.path}: {describe(exc)}") from None
+
+    def close(self) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+    # -- credentials -----------------------------------------------------------------------------------------
+    def make_credentials(self, run: str, identities: list[str]) -> dict[str, Path]:
+        """A new run secret and one credential per identity under `credentials/` (0700, files 0600): teachers
+        get a teacher credential (their own key, never the secret), the other services a service credential."""
+        from common.auth import make_run_credentials
+        from common.protocol import teacher_id_of
+
+        teachers = [t for t in map(teacher_id_of, identities) if t]
+        services = [i for i in identities if not teacher_id_of(i)]
+        return make_run_credentials(self.path / "credentials", run, services=services, teachers=teachers)
+
+    # -- disk ------------------------------------------------------------------------------------------------
+    def free_mb(self) -> float:
+        try:
+            return shutil.disk_usage(self.path).free / (1 << 20)
+        except OSError:
+            return float("inf")
+
+    def reserve_summary(self) -> None:
+        """Write summary.json now, padded: its blocks are ours, so the final summary fits even on a full disk."""
+        text = json.dumps({"outcome": "running"})
+        (self.path / "summary.json").write_text(text + " " * (SUMMARY_RESERVE - len(text)))
+
+    def write_summary(self, summary: dict[str, Any]) -> None:
+        """The final summary.json: whole if the disk allows, else the essentials in the reserved space."""
+        path = self.path / "summary.json"
+        text = json.dumps(summary, indent=2)
+        tmp = path.with_name(".summary.json.tmp")
+        try:
+            tmp.write_text(text)
+            os.replace(tmp, path)
+            return
+        except OSError:
+            tmp.unlink(missing_ok=True)
+        keep = {k: summary[k] for k in ("run", "outcome", "error", "wall_s", "exit_codes", "restarts") if k in summary}
+        text = json.dumps(keep)
+        if len(text) > SUMMARY_RESERVE:
+            text = json.dumps({k: keep[k] for k in ("run", "outcome", "error") if k in keep})[:SUMMARY_RESERVE]
+        with open(path, "r+") as f:  # overwrite in place: no new blocks needed
+            f.write(text)
+            f.truncate()

@@ -1,0 +1,159 @@
+"""Supervision: restarts of dead services (with their records), hung services (liveliness and progress
+watched), and the launcher's foxglove.Log records."""
+from __future__ import annotations
+
+import collections
+import contextlib
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+from services.launcher.children import Child, tail
+from services.launcher.config import UpConfig
+
+TOKEN_GRACE = 5.0  # s a service may run on after dropping its token (a clean exit takes well under a second)
+MIN_STATUSES = 3  # statuses seen from an incarnation before its silence counts (it ticks in its main loop)
+
+
+class HangWatch:
+    """Per service: whether it holds its liveliness token, and when its last status came. A process that runs
+    on without its token (its Zenoh session lapsed: the process is stopped or stuck) or, once it has ticked a
+    few times, without any status for `timeout` s, is hung."""
+
+    def __init__(self, timeout: float):
+        self.timeout = timeout
+        self.held: set[str] = set()  # services holding their token (since their current process started)
+        self.lost: dict[str, float] = {}  # service -> monotonic time its token went
+        self.last_status: dict[str, float] = {}
+        self.statuses: collections.Counter[str] = collections.Counter()
+
+    def token(self, name: str, present: bool) -> None:
+        if present:
+            self.held.add(name)
+            self.lost.pop(name, None)
+        elif name in self.held:
+            self.held.discard(name)
+            self.lost[name] = time.monotonic()
+
+    def status(self, name: str) -> None:
+        self.last_status[name] = time.monotonic()
+        self.statuses[name] += 1
+
+    def forget(self, name: str) -> None:
+        """A new process of `name`: nothing known about it yet."""
+        self.held.discard(name)
+        self.lost.pop(name, None)
+        self.last_status.pop(name, None)
+        self.statuses.pop(name, None)
+
+    def why(self, name: str) -> str | None:
+        now = time.monotonic()
+        if name in self.lost and now - self.lost[name] > TOKEN_GRACE:
+            return f"its liveliness token is gone since {now - self.lost[name]:.0f} s (Zenoh session lapsed)"
+        if self.statuses[name] >= MIN_STATUSES and now - self.last_status[name] > self.timeout:
+            return f"no status for {now - self.last_status[name]:.0f} s"
+        return None
+
+
+class Supervisor:
+    """Restarts, their records, and the launcher's foxglove.Log records (on `hitl/<run>/log/launcher`, re-sent
+    when the recorder comes back). Liveliness tokens tell when a restarted service is ready again."""
+
+    def __init__(self, cfg: UpConfig, run: str, session: Any):
+        from common.protocol import log_key
+        from common.transport import MessagePublisher
+        from common.protocol import alive_key
+        from services.common.faults import AliveWatch, ResendRing
+
+        self.cfg, self.run = cfg, run
+        self.records: list[dict[str, Any]] = []
+        self.restarts: dict[str, int] = collections.Counter()
+        self.pending: dict[str, float] = {}  # service -> monotonic time of its restart
+        self._alive: dict[str, list[float]] = collections.defaultdict(list)  # service -> wall times of PUTs
+        self._lock = threading.Lock()
+        self.ring = ResendRing(window=3600.0, max_items=1000)
+        self.hangs = HangWatch(cfg.hang_timeout)
+        self.pub = MessagePublisher(session, log_key(run, "launcher"))
+        self.recorder_watch = AliveWatch(session, run, ["recorder"])
+        self._sub = session.liveliness().declare_subscriber(alive_key(run), self._on_alive, history=True)
+
+    def _on_alive(self, sample: Any) -> None:
+        import zenoh
+
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive[name].append(time.time())
+                self.hangs.token(name, True)
+            else:
+                self.hangs.token(name, False)
+
+    def say(self, text: str, level: int = 3) -> None:
+        from common.protocol import Log, Time
+        from services.common.faults import publish_kept
+
+        print(f"\n[launcher] {text}", file=sys.stderr, flush=True)
+        try:
+            publish_kept(self.pub, Log(timestamp=Time.from_seconds(time.time()), level=level, message=text[:8000],
+                                       name="launcher", file="", line=0), self.ring)
+        except Exception as exc:
+            print(f"[launcher] (log record not published: {exc})", file=sys.stderr)
+
+    def pump(self) -> None:
+        if self.recorder_watch.take() and len(self.ring):
+            self.ring.resend()
+        with self._lock:
+            alive = {k: list(v) for k, v in self._alive.items()}
+        for rec in self.records:
+            if rec["t_ready"] is None and rec["t_respawned"] is not None:
+                after = [t for t in alive.get(rec["service"], []) if t >= rec["t_respawned"]]
+                if after:
+                    rec["t_ready"] = after[0]
+                    rec["recovered_s"] = round(after[0] - rec["t_died"], 3)
+                    self.say(f"{rec['service']} is back: ready {rec['recovered_s']:.2f} s after it died", 2)
+
+    def can_restart(self, name: str) -> bool:
+        return self.restarts[name] < self.cfg.restart_limit
+
+    def died(self, child: Child, rc: int) -> None:
+        name = child.name
+        k = self.restarts[name]
+        delay = min(8.0, self.cfg.restart_backoff * 2 ** k)
+        self.restarts[name] += 1
+        self.pending[name] = time.monotonic() + delay
+        how = f"signal {signal.Signals(-rc).name}" if rc < 0 and -rc in signal.Signals._value2member_map_ else f"code {rc}"
+        self.records.append({"service": name, "restart": k + 1, "exit": rc, "how": how, "t_died": time.time(),
+                             "t_respawned": None, "t_ready": None, "recovered_s": None,
+                             "pid": child.popen.pid})
+        self.say(f"{name} died ({how}); restarting in {delay:.1f} s (restart {k + 1} of {self.cfg.restart_limit}); "
+                 f"last lines of {child.log_path}:\n{tail(child.log_path, 5)}", 4)
+
+    def hung(self, children: list[Child], statuses: Any) -> list[tuple[Child, str]]:
+        """Services whose process runs but which have lost their liveliness token or stopped sending statuses."""
+        for item in statuses.drain():
+            self.hangs.status(item.key.rsplit("/", 1)[-1])
+        with self._lock:
+            return [(c, why) for c in children if c.poll() is None and (why := self.hangs.why(c.name))]
+
+    def kill_hung(self, child: Child, why: str) -> None:
+        self.say(f"{child.name} (pid {child.popen.pid}) is hung: {why}; killing it", 4)
+        with self._lock:
+            self.hangs.forget(child.name)
+        child.signal_group(signal.SIGKILL)
+
+    def respawned(self, child: Child) -> None:
+        with self._lock:
+            self.hangs.forget(child.name)
+        for rec in reversed(self.records):
+            if rec["service"] == child.name and rec["t_respawned"] is None:
+                rec["t_respawned"] = time.time()
+                rec["new_pid"] = child.popen.pid
+                break
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._sub.undeclare()
+        self.recorder_watch.close()
+        self.pub.close()
