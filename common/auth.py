@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from common.protocol import (SERVICE_ROLES, may_publish, observer_service_name, split_identity,
+from common.protocol import (SERVICE_ROLES, may_publish, observer_service_name, sender_of, split_identity,
                              teacher_service_name)
 
 VERSION = b"H1"
@@ -271,6 +271,26 @@ class Auth:
                     return "replayed"
             self._last[(identity, key_expr)] = (inc, n, t)
         return None
+
+
+class SignAsSender:
+    """Signs each key as the identity that publishes it in a launcher's run (`common.protocol.sender_of`), with a
+    service credential (which holds the run secret): what `replay play` uses to re-publish a recorded run."""
+
+    def __init__(self, cred: Credential):
+        if cred.secret is None:
+            raise AuthError(f"re-publishing a run needs a service credential (with the run secret), not "
+                            f"{cred.identity!r}'s teacher credential")
+        self.cred = cred
+        self._auths: dict[str, Auth] = {}
+
+    def sign(self, key_expr: str, payload: bytes) -> bytes | None:
+        identity = sender_of(key_expr)
+        if identity is None:
+            return None
+        if identity not in self._auths:
+            self._auths[identity] = Auth(service_credential(self.cred.secret, self.cred.run, identity))
+        return self._auths[identity].sign(key_expr, payload)
 
 
 def _parse(att: bytes | None) -> tuple[str, int, float, str, bytes, bytes] | None:

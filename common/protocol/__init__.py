@@ -25,7 +25,7 @@ from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, Compre
                         ServiceStatus, ShownStep, Step, Time)
 from ._roles import (ALIVE, NAMED_ROLES, OBSERVER_PREFIX, OWN_KINDS, PUBLISHES, ROLES, SERVICE_ROLES, TEACHER_PREFIX,
                      alive_key, incarnation_alive_key, may_publish, observer_service_name, publish_patterns,
-                     split_identity, teacher_id_of, teacher_service_name)
+                     sender_of, split_identity, teacher_id_of, teacher_service_name)
 from ._spec import REASONS, ProtocolError
 from ._foxglove import FoxgloveProto, SceneUpdate
 from ._observe import Request, TensorSummary, WeightsSnapshot
@@ -46,5 +46,5 @@ __all__ = [
     "FoxgloveProto", "SceneUpdate", "Request", "TensorSummary", "WeightsSnapshot",
     "ALIVE", "NAMED_ROLES", "OBSERVER_PREFIX", "OWN_KINDS", "PUBLISHES", "ROLES", "SERVICE_ROLES", "TEACHER_PREFIX",
     "alive_key", "incarnation_alive_key", "may_publish", "observer_service_name", "publish_patterns",
-    "split_identity", "teacher_id_of", "teacher_service_name",
+    "sender_of", "split_identity", "teacher_id_of", "teacher_service_name",
 ]

@@ -92,6 +92,28 @@ def may_publish(identity: str, key: str) -> bool:
     return False
 
 
+#: Who publishes each kind in a run started by the launcher (for re-publishing a recorded run: `replay play`).
+_SENDER = {"step": "actor", "weights": "learner", "episode": "learner", "ingest": "learner", "credit": "learner",
+           "feedback": TEACHER_PREFIX, "shown": TEACHER_PREFIX, "perception": TEACHER_PREFIX,
+           "reaction": OBSERVER_PREFIX, "camera": OBSERVER_PREFIX}
+
+
+def sender_of(key: str) -> str | None:
+    """The identity that publishes `key` in a launcher's run (`status/<s>` and `log/<s>`: `<s>`); None if nobody
+    in particular (`config`, `control`) or not a key of ours."""
+    try:
+        parsed = parse_key(key)
+    except ProtocolError:
+        return None
+    kind = parsed.spec.kind
+    if kind in OWN_KINDS:
+        return parsed.name
+    who = _SENDER.get(kind)
+    if who is None or not who.endswith("."):
+        return who
+    return f"{who}{parsed.name}"
+
+
 def alive_key(run: str, service: str = "*") -> str:
     """Liveliness token of a ready service (`*`: every service of the run)."""
     validate_name(run, "run")

@@ -45,7 +45,7 @@ class ServiceRuntime:
         rt.finish()                      # final status was sent in session(); stats file written
     """
 
-    def __init__(self, name: str, config: Any, *, install_signals: bool = True):
+    def __init__(self, name: str, config: Any, *, install_signals: bool = True, process_default: bool = True):
         validate_name(name, "service")
         self.name = name
         self.config = config
@@ -61,7 +61,7 @@ class ServiceRuntime:
         self.final_state: str | None = None
         self._run_end = None  # inbox of the launcher's status: 'stopping' means the run is ending
         _CURRENT[0] = self
-        self.auth = load_auth(name, config, self.incarnation)
+        self.auth = load_auth(name, config, self.incarnation, process_default)
         self._session = None
         self._status_pub = None
         self._log_pub = None
@@ -256,9 +256,10 @@ class ServiceRuntime:
 _CURRENT: list["ServiceRuntime | None"] = [None]  # this process's runtime (its final state sets the exit code)
 
 
-def load_auth(name: str, config: Any, incarnation: str) -> Any:
+def load_auth(name: str, config: Any, incarnation: str, process_default: bool = True) -> Any:
     """This service's signer and checker from its credential file (common/auth.py), installed as the process's
-    default for every publisher and inbox. Raises AuthError (one line) without one."""
+    default for every publisher and inbox (unless `process_default` is False: tests that build a runtime in
+    their own process). Raises AuthError (one line) without one."""
     from common.auth import Auth, AuthError, load_credential
     from common.transport import set_default_auth
 
@@ -269,7 +270,8 @@ def load_auth(name: str, config: Any, incarnation: str) -> Any:
     cred = load_credential(path, run=config.run, identity=name)
     auth = Auth(cred, incarnation, max_past=getattr(config, "max_past", 600.0),
                 max_future=getattr(config, "max_future", 10.0))
-    set_default_auth(auth)
+    if process_default:
+        set_default_auth(auth)
     return auth
 
 

@@ -15,8 +15,9 @@ from common.protocol import ProtocolError, parse_key
 
 
 def play(path: str | os.PathLike, session: Any, *, speed: float = 1.0, kinds: tuple[str, ...] = (),
-         stop: Any = None, on_record: Any = None) -> dict[str, int]:
-    """Publish the log's records on `session`. Returns counts by kind."""
+         stop: Any = None, on_record: Any = None, signer: Any = None) -> dict[str, int]:
+    """Publish the log's records on `session`, each signed as its original sender by `signer`
+    (`common.auth.SignAsSender`; receivers drop what is not signed). Returns counts by kind."""
     from common.transport import declare_publisher
 
     publishers: dict[str, Any] = {}
@@ -44,7 +45,13 @@ def play(path: str | os.PathLike, session: Any, *, speed: float = 1.0, kinds: tu
             pub = publishers.get(rec.key)
             if pub is None:
                 pub = publishers[rec.key] = declare_publisher(session, rec.key, congestion="block")
-            pub.put(rec.data)
+            if signer is None:
+                pub.put(rec.data)
+            else:
+                attachment = signer.sign(rec.key, rec.data)
+                if attachment is None:  # nobody in particular publishes it (config, control): not re-published
+                    continue
+                pub.put(rec.data, attachment=attachment)
             counts[kind] = counts.get(kind, 0) + 1
             if on_record is not None:
                 on_record(rec)

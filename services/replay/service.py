@@ -50,6 +50,15 @@ def cmd_play(args) -> int:
 
     from services.common.runtime import set_from_handler
 
+    signer = None
+    if args.credentials:
+        from common.auth import AuthError, SignAsSender, load_credential
+
+        try:
+            signer = SignAsSender(load_credential(args.credentials))
+        except AuthError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: set_from_handler(stop))
     signal.signal(signal.SIGTERM, lambda *_: set_from_handler(stop))
@@ -65,7 +74,7 @@ def cmd_play(args) -> int:
             stop.wait(args.start_delay)
         t = time.perf_counter()
         counts = play(args.log, session, speed=args.speed, kinds=tuple(k for k in args.kinds.split(",") if k),
-                      stop=stop)
+                      stop=stop, signer=signer)
         time.sleep(0.2)  # let BLOCK queues drain before closing
     total = sum(counts.values())
     print(f"published {total} records in {time.perf_counter() - t:.2f} s: {counts}", file=sys.stderr)
@@ -114,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--speed", type=float, default=1.0, help="pace multiplier; 0 = as fast as possible")
     p.add_argument("--kinds", default="", help="only these key kinds, comma-separated (e.g. step,feedback)")
     p.add_argument("--start-delay", type=float, default=1.0, help="seconds to wait before publishing")
+    p.add_argument("--credentials", help="a service credential of the run (python -m services credentials): each "
+                                         "record is signed as its original sender; without one, receivers drop them")
     p = sub.add_parser("retrain", help="fresh learner on the recorded inputs; compare final weights")
     p.add_argument("--learner", help="learner incarnation (default: the last one in the log)")
     p.add_argument("--save", help="write the retrained final weights to this safetensors file")

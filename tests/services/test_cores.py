@@ -242,7 +242,8 @@ def test_actor_never_goes_back_to_an_older_version():
 
     agent = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [0])
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
-    rt = ServiceRuntime("actor", ActorConfig(run=RUN), install_signals=False)
+    rt = ServiceRuntime("actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False,
+                        process_default=False)
     slot = WeightsSlot(agent, spec, rt)
     slot.announced = ["learner-1", "learner-2"]  # their ServiceStatus / liveliness announced them
     inbox = Inbox(8, "block")
@@ -263,3 +264,17 @@ def test_actor_never_goes_back_to_an_older_version():
     assert slot.adopt(inbox) and slot.version == 1 and rt.counters["learner_restarts"] == 1
     send(99, 0.9, learner="mallory")  # nobody announced it: dropped
     assert not slot.adopt(inbox) and slot.version == 1 and rt.counters["weights_dropped_unknown_incarnation"] == 1
+
+
+_CREDENTIALS: dict[str, str] = {}
+
+
+def actor_credentials(run: str) -> str:
+    """The actor's credential file of a throwaway run (made once per test process)."""
+    import tempfile
+
+    from common.auth import make_run_credentials
+
+    if run not in _CREDENTIALS:
+        _CREDENTIALS[run] = str(make_run_credentials(tempfile.mkdtemp(prefix="creds-"), run)["actor"])
+    return _CREDENTIALS[run]

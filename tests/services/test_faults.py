@@ -241,7 +241,8 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     agent = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [0])
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
     before = agent.policy_weights(0)  # copies
-    rt = ServiceRuntime("actor", ActorConfig(run=RUN), install_signals=False)
+    rt = ServiceRuntime("actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False,
+                        process_default=False)
     slot = WeightsSlot(agent, spec, rt)
     if announced:
         slot.announced = ["learner-1"]
@@ -260,3 +261,17 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
         assert changed == (ok or slot.version > 0)
     assert sum(v for k, v in rt.counters.items() if k.startswith("weights_dropped_")) >= 1 or \
         (announced and abs(dt) <= 10 and dict(tensors) == spec)
+
+
+_CREDENTIALS: dict[str, str] = {}
+
+
+def actor_credentials(run: str) -> str:
+    """The actor's credential file of a throwaway run (made once per test process)."""
+    import tempfile
+
+    from common.auth import make_run_credentials
+
+    if run not in _CREDENTIALS:
+        _CREDENTIALS[run] = str(make_run_credentials(tempfile.mkdtemp(prefix="creds-"), run)["actor"])
+    return _CREDENTIALS[run]

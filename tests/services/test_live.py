@@ -102,18 +102,22 @@ def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
 
     endpoint = tcp_endpoint(free_port())
     copy = tmp_path / "copy.mcap"
+    creds = tmp_path / "creds"
+    subprocess.run([sys.executable, "-m", "services", "credentials", "--run", "it", "--out", str(creds)], cwd=ROOT,
+                   env=env(), check=True, timeout=60)
     with open_session(router_config(endpoint)) as session:
         rec = subprocess.Popen([sys.executable, "-m", "services.recorder", "--connect", endpoint, "--run", "it",
-                                "--out", str(copy), "--parent-pid", str(os.getpid())], cwd=ROOT, env=env(),
+                                "--out", str(copy), "--parent-pid", str(os.getpid()),
+                                "--credentials", str(creds / "recorder.json")], cwd=ROOT, env=env(),
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
         try:
             assert not wait_alive(session, "it", ["recorder"], 60)
             play = subprocess.run([sys.executable, "-m", "services.replay", str(live_run.rundir / "session.mcap"),
                                    "play", "--connect", endpoint, "--speed", "0", "--kinds", "step,feedback,episode",
-                                   "--start-delay", "0"], cwd=ROOT, env=env(), capture_output=True, text=True,
+                                   "--start-delay", "0", "--credentials", str(creds / "launcher.json")], cwd=ROOT, env=env(), capture_output=True, text=True,
                                   timeout=120)
             assert play.returncode == 0, play.stderr
-            time.sleep(0.5)
+            time.sleep(3.0)  # the recorder checks and writes what is still in flight
         finally:
             rec.send_signal(signal.SIGTERM)
             rec.wait(20)
