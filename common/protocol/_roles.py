@@ -17,23 +17,26 @@ OBSERVER_PREFIX = "observer."
 ALIVE = "alive"  # liveliness tokens: hitl/<run>/alive/<service>[/<incarnation>]
 
 #: Single-instance services (their identity is the role name).
-SERVICE_ROLES = ("actor", "learner", "recorder", "launcher", "perception")
+SERVICE_ROLES = ("actor", "learner", "recorder", "launcher", "perception", "foxglove")
 #: Roles whose identity carries a name: `teacher.<id>`, `observer.<id>`.
 NAMED_ROLES = ("teacher", "observer")
 ROLES = SERVICE_ROLES + NAMED_ROLES
 
 #: Key kinds (`hitl/<run>/<kind>[/<name>]`) each role may publish. `{id}` is the identity's own name
-#: (`alice` for `teacher.alice`); `*` any name. Every identity may also publish its own status and log
-#: (:data:`OWN_KINDS`). `config` is written by the recorder into its log, never published.
+#: (`alice` for `teacher.alice`) or that name followed by `-<anything>` (the people a console teaches for:
+#: `web-alice` for `teacher.web`); `*` any name. Every identity may also publish its own status and log
+#: (:data:`OWN_KINDS`), under its name or its name followed by `-<anything>`. `config` is written by the
+#: recorder into its log, never published.
 PUBLISHES: dict[str, tuple[str, ...]] = {
     "actor": ("step",),
     "learner": ("weights", "episode", "ingest", "credit/*"),
     "recorder": (),
     "launcher": (),
     "perception": ("camera/*", "perception/*"),
+    "foxglove": (),
     # a teacher is a simulated observer, a web console (its screen's steps, the run controls) or the
     # perception service reading a face for it
-    "teacher": ("feedback/{id}", "shown/{id}", "control", "camera/{id}", "perception/{id}"),
+    "teacher": ("feedback/{id}", "shown/{id}", "control", "camera/*", "perception/*"),
     "observer": ("camera/{id}", "reaction/{id}"),
 }
 OWN_KINDS = ("status", "log")
@@ -68,10 +71,10 @@ def split_identity(identity: str) -> tuple[str, str | None]:
 
 
 def publish_patterns(identity: str) -> tuple[str, ...]:
-    """The key tails (`kind` or `kind/name`, `*` for any name) `identity` may publish."""
+    """The key tails `identity` may publish: `kind`, `kind/*` (any name), `kind/NAME+` (NAME or NAME-...)."""
     role, name = split_identity(identity)
-    own = tuple(f"{k}/{identity}" for k in OWN_KINDS)
-    return tuple(p.replace("{id}", name or "") for p in PUBLISHES[role]) + own
+    own = tuple(f"{k}/{identity}+" for k in OWN_KINDS)
+    return tuple(p.replace("{id}", f"{name}+") for p in PUBLISHES[role]) + own
 
 
 def may_publish(identity: str, key: str) -> bool:
@@ -87,7 +90,11 @@ def may_publish(identity: str, key: str) -> bool:
             continue
         if not name and parsed.name is None:
             return True
-        if name and (name == "*" or name == parsed.name):
+        if not name or parsed.name is None:
+            continue
+        if name == "*" or name == parsed.name:
+            return True
+        if name.endswith("+") and (parsed.name == name[:-1] or parsed.name.startswith(name[:-1] + "-")):
             return True
     return False
 

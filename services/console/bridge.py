@@ -77,6 +77,10 @@ class Hub:
 
     def _on_sample(self, sample: Any) -> None:  # a zenoh thread: hand the bytes to the loop
         item = (str(sample.key_expr), sample.payload.to_bytes(), time.time())
+        auth = self.rt.auth  # checked first (common/auth.py): a forgery never reaches a page or a person's status
+        att = sample.attachment
+        if auth is not None and auth.check(item[0], item[1], None if att is None else att.to_bytes(), item[2]):
+            return
         self.loop.call_soon_threadsafe(self.on_message, *item)
 
     def on_message(self, key: str, data: bytes, t_recv: float) -> None:

@@ -72,14 +72,12 @@ class RunDir:
 
     # -- credentials -----------------------------------------------------------------------------------------
     def make_credentials(self, run: str, identities: list[str]) -> dict[str, Path]:
-        """A new run secret and one credential per identity under `credentials/` (0700, files 0600): teachers
-        get a teacher credential (their own key, never the secret), the other services a service credential."""
+        """A new run secret and one credential per identity under `credentials/` (0700, files 0600). Everything the
+        launcher starts runs as this user on this machine: a service credential each (teachers that join from
+        elsewhere get a teacher credential: `python -m services credentials --teacher ID`)."""
         from common.auth import make_run_credentials
-        from common.protocol import teacher_id_of
 
-        teachers = [t for t in map(teacher_id_of, identities) if t]
-        services = [i for i in identities if not teacher_id_of(i)]
-        return make_run_credentials(self.path / "credentials", run, services=services, teachers=teachers)
+        return make_run_credentials(self.path / "credentials", run, services=identities)
 
     # -- disk ------------------------------------------------------------------------------------------------
     def free_mb(self) -> float:
