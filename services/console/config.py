@@ -36,6 +36,8 @@ class ConsoleConfig(TaskConfig):
     max_clock_skew: float = option(5.0, "reject a page time that maps more than this many seconds from the server's "
                                         "clock (absurd timestamps)")
     stop_after: float = option(3.0, "seconds to keep serving after the learner stopped (the page shows the end)")
+    replay: str | None = option(None, "instead of joining a run: serve this session.mcap (or run directory) as a "
+                                      "replay with a timeline to scrub (services/console/replay.py)")
 
     def __post_init__(self):
         super().__post_init__()

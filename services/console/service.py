@@ -168,6 +168,10 @@ def main(config: ConsoleConfig) -> int:
         print(f"error: the console serves {config.host} only with --security (a teacher password per person)",
               file=sys.stderr)
         return 2
+    if config.replay:
+        from services.console.replay import replay_main
+
+        return replay_main(config)
     rt = ServiceRuntime(f"teacher.{config.teacher_prefix}", config)
     with rt.session() as session:
         asyncio.run(serve(config, rt, session))

@@ -116,8 +116,9 @@ def _entries(path, log: _Log, learner: str | None) -> tuple[str, list, dict]:
     return learner, entries, batches[0].config
 
 
-def _replay(core, log: _Log, entries: list) -> tuple[int, int, int, bool]:
-    """Feed the core the recorded inputs in the recorded order: (steps, feedback, missing, ended)."""
+def _replay(core, log: _Log, entries: list, after_step=None) -> tuple[int, int, int, bool]:
+    """Feed the core the recorded inputs in the recorded order: (steps, feedback, missing, ended).
+    `after_step(step)` is called after each step is learned (the console's replay reads Q and H there)."""
     n_steps = n_fb = missing = 0
     ended = False
     for e in entries:
@@ -134,6 +135,8 @@ def _replay(core, log: _Log, entries: list) -> tuple[int, int, int, bool]:
         elif e.kind == "step":
             core.on_step(msg)
             n_steps += 1
+            if after_step is not None:
+                after_step(msg)
         else:
             core.on_feedback(msg)
             n_fb += 1
