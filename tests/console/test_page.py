@@ -3,6 +3,7 @@ the page draws the maze, key presses become feedback credited to the steps shown
 pause stops the actor, and the run's log holds every press with its page time and its system time."""
 from __future__ import annotations
 
+import json
 import time
 
 import numpy as np
@@ -70,7 +71,33 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
                     assert not nxt or nxt[0] >= press["t_sys"] - 4.0  # ...and still on screen 4 s before it
                 assert sum(got.values()) + credit["lost_mass"] == pytest.approx(1.0, abs=1e-6)
 
-            # 3. Pause stops the actor; resume starts it again.
+            # 3. A second person is a teacher of their own; what no page should send is counted and dropped.
+            other = open_console(ctx, url)
+            assert other.evaluate("hitl.me") == "web-2"
+            other.wait_for_function("hitl.shownLog.length >= 6", timeout=30_000)
+            other.keyboard.press("+")
+            other.wait_for_function("[...hitl.mine.values()].some(f => f.credit && f.credit.status === 'credited')",
+                                    timeout=30_000)
+            other.evaluate("""() => {
+                const ws = hitl.ws, now = (performance.timeOrigin + performance.now()) / 1000;
+                ws.send('{not json');
+                ws.send(JSON.stringify({type: 'bogus'}));
+                ws.send(JSON.stringify({type: 'feedback', value: 1, t_page: 1.0, offset: 0, rtt: 0}));
+                ws.send(JSON.stringify({type: 'feedback', value: 7, t_page: now, offset: hitl.clock.offset, rtt: 0}));
+                ws.send(JSON.stringify({type: 'control', command: 'pace', rate: 1e9}));
+                ws.send('x'.repeat(5000));
+                ws.send(new Uint8Array([1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]));
+                for (let i = 0; i < 40; i++)
+                    ws.send(JSON.stringify({type: 'feedback', value: -1, t_page: now, offset: hitl.clock.offset, rtt: 0}));
+            }""")
+            other.wait_for_function("hitl.rejected.flood > 0", timeout=10_000)
+            rejected = other.evaluate("hitl.rejected")
+            for reason in ("malformed", "unknown_kind", "absurd_timestamp", "bad_value", "oversized", "bad_frame"):
+                assert rejected.get(reason, 0) >= 1, (reason, rejected)
+            assert rejected["flood"] >= 40 - 16
+            other.close()
+
+            # 4. Pause stops the actor; resume starts it again.
             page.click("#pause")
             page.wait_for_function("hitl.paused === true", timeout=10_000)
             time.sleep(0.6)  # a step already in flight may still land
@@ -82,7 +109,7 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             page.click("#pause")
             page.wait_for_function(f"hitl.step.seq > {seq_paused} + 2", timeout=10_000)
 
-            # 4. End the run from the page.
+            # 5. End the run from the page.
             page.click("#end")
             assert run.wait(90) == 0, run.out[-3000:]
             assert page.errors == []
@@ -90,7 +117,7 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     finally:
         run.close()
 
-    # 5. The log: every press with its page time and system time; the paints; the credits; no step while paused.
+    # 6. The log: every press with its page time and system time; the paints; the credits; no step while paused.
     feedback = {}
     credits, shown_log, steps = [], [], []
     for rec in read_log(run.rundir / "session.mcap"):
@@ -111,6 +138,9 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
         assert fb.t_reaction == pytest.approx(press["t_sys"], abs=1e-6)
         assert fb.shown and fb.actor
     assert {c.seq for c in credits if c.teacher_id == "web-1"} >= set(feedback)
-    assert len(shown_log) >= 18 and all(s.screen == "web-1" for s in shown_log)
+    assert len([s for s in shown_log if s.screen == "web-1"]) >= 18 and {s.screen for s in shown_log} == {"web-1", "web-2"}
     paused = [s.seq for s in steps if t_paused < s.t_action < t_resumed]
     assert paused == [], f"steps taken while paused: {paused}"
+    stats = json.loads((run.rundir / "stats" / "teacher.web.json").read_text())["counters"]
+    assert stats["page_rejected_malformed"] >= 1 and stats["page_rejected_flood"] >= 40 - 16
+    assert stats["people_joined"] == 2
