@@ -45,38 +45,20 @@ class DelayModel:
         object.__setattr__(self, "probs", parse_probs(self.probs, "delay probabilities"))
         if not (self.unit > 0 and math.isfinite(self.unit)):
             raise ValueError(f"delay unit must be positive, got {self.unit}")
-
-    @property
-    def lags(self) -> np.ndarray:
-        return np.arange(len(self.probs), dtype=np.float64) * self.unit
-
-    @property
-    def max_lag(self) -> float:
-        return (len(self.probs) - 1) * self.unit
-
-    def sample_steps(self, u: float) -> int:
-        """The lag in units for a uniform draw u in [0, 1) (inverse CDF, so one draw per decision)."""
-        acc = 0.0
-        for i, p in enumerate(self.probs):
-            acc += p
-            if u < acc:
-                return i
-        return len(self.probs) - 1
+        # Kept as arrays for `mass_between`, which credit calls for every feedback (not fields: no effect on ==).
+        object.__setattr__(self, "_lags", np.arange(len(self.probs), dtype=np.float64) * self.unit)
+        object.__setattr__(self, "_probs", np.asarray(self.probs, np.float64))
 
     def mass_between(self, low, high):
         """P(low < lag <= high), elementwise over arrays (the point masses inside, summed in lag order)."""
         low, high = np.asarray(low, np.float64)[..., None], np.asarray(high, np.float64)[..., None]
-        inside = (low < self.lags) & (self.lags <= high)
-        out = np.where(inside, np.asarray(self.probs, np.float64), 0.0).sum(axis=-1)
+        inside = (low < self._lags) & (self._lags <= high)
+        out = np.where(inside, self._probs, 0.0).sum(axis=-1)
         return float(out) if out.ndim == 0 else out
 
     def cdf(self, x):
         """P(lag <= x), elementwise."""
         return self.mass_between(np.full(np.shape(x), -np.inf), x)
-
-    @classmethod
-    def uniform(cls, n: int, unit: float = 1.0) -> "DelayModel":
-        return cls(tuple([1.0 / n] * n), unit)
 
 
 def delay_from_spec(spec: str, unit: float = 1.0):

@@ -63,7 +63,7 @@ class ObserverBatch:
     generator; here they are drawn `block` steps at a time from that generator (numpy gives the same numbers
     either way, so a trial reacts the same alone, batched, or through `SimulatedObserver`), and the rule is
     applied to arrays: silent after the stop, feedback with probability p_feedback, the lag by inverse CDF
-    over `delay_probs` (a running sum, as `DelayModel.sample_steps`), polarity flipped with probability p_flip.
+    over `delay_probs` (a running sum of `delay_probs`), polarity flipped with probability p_flip.
     """
 
     def __init__(self, configs: list[ObserverConfig], seeds: list[int], block: int = 1024):

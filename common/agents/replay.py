@@ -2,16 +2,15 @@
 
 All fields of an entry are stored side by side in one float32 record (`rec`, [B, capacity, width];
 integer fields such as the action are small and exact in float32), so a minibatch is one gather;
-`data[name]` are views of the columns. Sampling is counter-based (`streams`): the j-th index of a trial's
-u-th minibatch is a pure function of (trial key, u, j) and the trial's current size, so its draws are the
-same alone or batched. `TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's
+`data[name]` are views of the columns. The agent samples them with counter-based draws (`streams`): the j-th
+index of a trial's u-th minibatch is a pure function of (trial key, u, j) and the trial's current size, so
+its draws are the same alone or batched. `TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's
 D_global.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from common.agents import streams
 
 
 class _Ring:
@@ -39,10 +38,6 @@ class _Ring:
             row[:, self.columns[name]] = np.asarray(value, np.float32).reshape(n, -1)
         return row
 
-    def add(self, trial: int, **values) -> int:
-        """Append one entry for `trial`; returns its slot (overwriting the oldest when full)."""
-        return int(self.add_rows(np.array([trial]), **{k: np.asarray(v)[None] for k, v in values.items()})[0])
-
     def add_rows(self, trials: np.ndarray, **values) -> np.ndarray:
         """Append one entry for each of `trials` (distinct); values are arrays with a leading trial axis."""
         slots = self.pos[trials].copy()
@@ -62,17 +57,9 @@ class _Ring:
         self.pos[trials] = (self.pos[trials] + counts) % self.capacity
         self.size[trials] = np.minimum(self.size[trials] + counts, self.capacity)
 
-    def sample_indices(self, keys: np.ndarray, draws: np.ndarray, trials: np.ndarray, n: int) -> np.ndarray:
-        """[len(trials), n] slots: trial k's minibatch number draws[k], drawn with its key keys[k]."""
-        counters = draws[:, None] * n + np.arange(n)[None, :]
-        return streams.integers(keys[:, None], counters, self.size[trials][:, None])
-
     def gather_records(self, trials: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """The records at slots idx [n, m] of trials [n]: [n, m, width] float32."""
         return self.rec[trials[:, None], idx]
-
-    def gather(self, name: str, trials: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        return self.data[name][trials[:, None], idx]
 
     def select(self, trials: np.ndarray) -> None:
         """Keep only `trials` (in that order)."""

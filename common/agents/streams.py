@@ -36,11 +36,6 @@ def uniforms(keys: np.ndarray, counters: np.ndarray) -> np.ndarray:
     return (z >> _S11).astype(np.float64) * _TO_UNIT
 
 
-def integers(keys: np.ndarray, counters: np.ndarray, high: np.ndarray) -> np.ndarray:
-    """Integers in [0, high) from `uniforms` (floor(u * high); bias below 2^-40 for high < 2^13)."""
-    return to_integers(uniforms(keys, counters), high)
-
-
 def to_integers(u: np.ndarray, high: np.ndarray) -> np.ndarray:
     """floor(u * high) for uniforms u in [0, 1), kept below high."""
     out = np.floor(u * np.asarray(high, dtype=np.float64)).astype(np.int64)

@@ -101,9 +101,6 @@ class LearnerCore:
     def policy_weights(self) -> dict[str, np.ndarray]:
         return self.agent.policy_weights(0)
 
-    def weights_spec(self) -> dict[str, tuple[int, ...]]:
-        return {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
-
     # -- ingest record -----------------------------------------------------------------------------------------
     def _entry(self, kind: str, source: str, seq: int, status: str, t: float) -> int:
         self.entries.append(IngestEntry(kind, source, int(seq), status, max(0.0, float(t))))

@@ -6,7 +6,7 @@ import scipy.stats
 from common.credit import credit_weights
 from common.delay import DelayModel, delay_from_spec, parse_probs
 
-UNIFORM3 = DelayModel.uniform(3)
+UNIFORM3 = DelayModel((1 / 3, 1 / 3, 1 / 3))
 
 
 def test_uniform_over_zero_to_two_steps_gives_a_third_to_each_of_the_last_three():

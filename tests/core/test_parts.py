@@ -10,6 +10,7 @@ from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJo
                                     mlp_backward, mlp_forward)
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import TransitionReplay
+from common.agents.streams import UniformBlocks, to_integers, uniforms
 
 
 def test_mlp_gradient_is_autograds():
@@ -83,10 +84,13 @@ def test_replay_rows_are_independent_and_sample_their_own_stream():
     for k in range(6):
         r.add_rows(np.array([0]), obs=[[k]], action=[k % 2], reward=[k], next_obs=[[k + 1]], terminated=[0.0])
     assert r.size.tolist() == [4, 0] and sorted(r.data["reward"][0].tolist()) == [2.0, 3.0, 4.0, 5.0]
-    keys = np.array([11, 12], np.uint64)
-    a = r.sample_indices(keys[:1], np.array([3]), np.array([0]), 5)
-    b = r.sample_indices(keys[:1], np.array([3]), np.array([0]), 5)
-    assert np.array_equal(a, b) and a.max() < 4
+    blocks = UniformBlocks(np.array([11, 12], np.uint64), 5, block=8)
+    u = blocks.get(np.array([0, 1]), np.array([3, 3]))
+    assert np.array_equal(u, uniforms(np.array([[11], [12]], np.uint64), 3 * 5 + np.arange(5)))  # same values
+    assert np.array_equal(blocks.get(np.array([1]), np.array([3]))[0], u[1])  # trial 1 alone: its own draws
+    idx = to_integers(u[:1], r.size[:1, None])
+    rec = r.gather_records(np.array([0]), idx)
+    assert rec.shape == (1, 5, r.width) and idx.max() < 4
 
 
 def test_explorer_and_mixture_are_functions_of_the_step():
