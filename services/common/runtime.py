@@ -60,6 +60,7 @@ class ServiceRuntime:
         self.signalled = False
         self.final_state: str | None = None
         self._run_end = None  # inbox of the launcher's status: 'stopping' means the run is ending
+        self._supervised = self._run_ending = False
         _CURRENT[0] = self
         self.auth = load_auth(name, config, self.incarnation, process_default)
         self._session = None
@@ -141,18 +142,19 @@ class ServiceRuntime:
 
     def _finished_its_part(self) -> bool:
         """'stopped' ends the run for whoever waits on this service; 'failed' does not (the launcher restarts it).
-        Stopped by a signal while a launcher supervises it: stopped only if the launcher said the run is ending
-        (its authenticated status 'stopping'); anybody else's SIGTERM is a death like any other."""
+        Stopped by a signal while a launcher supervises the run (its authenticated statuses come every second):
+        stopped only if the launcher said the run is ending ('stopping'); anybody else's SIGTERM is a death like
+        any other. Without a launcher, a signal is how a person stops a service."""
         if self.failed:
             return False
-        if not self.signalled or not getattr(self.config, "parent_pid", None) or self.counters["parent_gone"]:
+        if not self.signalled or self.counters["parent_gone"]:
             return True
         deadline = time.monotonic() + 1.0  # the launcher says so just before it signals
-        while time.monotonic() < deadline:
-            if self.run_is_ending():
-                return True
+        while True:
+            ending = self.run_is_ending()
+            if ending or not self._supervised or time.monotonic() > deadline:
+                return ending or not self._supervised
             time.sleep(0.02)
-        return False
 
     def run_is_ending(self) -> bool:
         """True once the launcher has announced (authenticated status 'stopping' or 'stopped') the end of the run."""
@@ -163,9 +165,10 @@ class ServiceRuntime:
                 st = item.decode()
             except Exception:
                 continue
+            self._supervised = True
             if st.state in ("stopping", "stopped"):
                 self._run_ending = True
-        return getattr(self, "_run_ending", False)
+        return self._run_ending
 
     def zenoh_config(self) -> Any:
         """A plain loopback client of `connect`, or with `security` the secured client of this service's

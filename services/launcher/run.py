@@ -47,6 +47,7 @@ class Run:
         self.asked = 0
         self.graceful_deadline: float | None = None
         self.next_disk_check = 0.0
+        self.next_status = 0.0
         self.sup: Supervisor | None = None
         self.status_pub: Any = None
         self.statuses: Any = None
@@ -158,6 +159,9 @@ class Run:
 
     def step(self) -> bool:
         """One pass; True when the run is over."""
+        if time.monotonic() >= self.next_status and self.graceful_deadline is None:
+            self.next_status = time.monotonic() + 1.0
+            self.announce("ready")  # services know a launcher supervises them (a stray SIGTERM is then a death)
         try:
             self.sup.pump()
             self.deaths()

@@ -28,6 +28,7 @@ class HangWatch:
         self.lost: dict[str, float] = {}  # service -> monotonic time its token went
         self.last_status: dict[str, float] = {}
         self.statuses: collections.Counter[str] = collections.Counter()
+        self.ended: set[str] = set()  # said its last word ('stopped' / 'failed'): on its way out, not hung
 
     def token(self, name: str, present: bool) -> None:
         if present:
@@ -37,19 +38,24 @@ class HangWatch:
             self.held.discard(name)
             self.lost[name] = time.monotonic()
 
-    def status(self, name: str) -> None:
+    def status(self, name: str, state: str) -> None:
         self.last_status[name] = time.monotonic()
         self.statuses[name] += 1
+        if state in ("stopped", "failed"):
+            self.ended.add(name)
 
     def forget(self, name: str) -> None:
         """A new process of `name`: nothing known about it yet."""
         self.held.discard(name)
+        self.ended.discard(name)
         self.lost.pop(name, None)
         self.last_status.pop(name, None)
         self.statuses.pop(name, None)
 
     def why(self, name: str) -> str | None:
         now = time.monotonic()
+        if name in self.ended:
+            return None
         if name in self.lost and now - self.lost[name] > TOKEN_GRACE:
             return f"its liveliness token is gone since {now - self.lost[name]:.0f} s (Zenoh session lapsed)"
         if self.statuses[name] >= MIN_STATUSES and now - self.last_status[name] > self.timeout:
@@ -132,8 +138,9 @@ class Supervisor:
 
     def hung(self, children: list[Child], statuses: Any) -> list[tuple[Child, str]]:
         """Services whose process runs but which have lost their liveliness token or stopped sending statuses."""
-        for item in statuses.drain():
-            self.hangs.status(item.key.rsplit("/", 1)[-1])
+        while (got := statuses.get_message(timeout=0)) is not None:
+            with self._lock:
+                self.hangs.status(got[1].service, got[1].state)
         with self._lock:
             return [(c, why) for c in children if c.poll() is None and (why := self.hangs.why(c.name))]
 

@@ -89,6 +89,7 @@ def _collect(session, key_expr: str, sink: list):
 def test_mcap_source_reruns_perception_on_a_recorded_session(face_run, tmp_path):
     """`--source mcap:LOG` replays the recorded camera frames through perception: same frames, same capture
     times, so the same feedback as the live run (the pipeline is deterministic)."""
+    from common.auth import make_run_credentials
     from common.protocol import decode, feedback_key
     from common.transport import free_port, open_session, router_config, tcp_endpoint
 
@@ -101,8 +102,10 @@ def test_mcap_source_reruns_perception_on_a_recorded_session(face_run, tmp_path)
     with open_session(router_config(endpoint)) as session:
         token = session.liveliness().declare_token("hitl/rerun/alive/tester")
         sub = _collect(session, "hitl/rerun/feedback/face", got)
+        creds = make_run_credentials(tmp_path / "creds", "rerun", services=("teacher.face",))
         out = subprocess.run([sys.executable, "-m", "services.perception", "--source", f"mcap:{log}", "--connect",
                               endpoint, "--run", "rerun", "--wait-for", "tester", "--realtime", "false",
+                              "--credentials", str(creds["teacher.face"]),
                               "--publish-frames", "false", "--stats-out", str(tmp_path / "stats.json"),
                               "--parent-pid", str(os.getpid())],
                              cwd=ROOT, env=env(), capture_output=True, text=True, timeout=180)
@@ -128,6 +131,7 @@ def test_malformed_frames_are_counted_and_dropped(tmp_path):
     counted and skipped; the next good frame is processed; the service exits cleanly."""
     import zenoh
 
+    from common.auth import Auth, load_credential, make_run_credentials
     from common.perception import assets
     from common.perception.media import load_video
     from common.protocol import CompressedImage, Time, camera_key
@@ -138,10 +142,12 @@ def test_malformed_frames_are_counted_and_dropped(tmp_path):
     frames, _ = load_video(assets.media_path("single_face_video"))
     endpoint = tcp_endpoint(free_port())
     stats = tmp_path / "stats.json"
+    creds = make_run_credentials(tmp_path / "creds", "bad", services=("teacher.face", "observer.cam"))
+    camera = Auth(load_credential(creds["observer.cam"]))  # the frames are signed: only their content is bad
     with open_session(router_config(endpoint)) as session:
         proc = subprocess.Popen([sys.executable, "-m", "services.perception", "--source", "zenoh:cam", "--connect",
                                  endpoint, "--run", "bad", "--stats-out", str(stats), "--parent-pid",
-                                 str(os.getpid())], cwd=ROOT, env=env(), stdout=subprocess.PIPE,
+                                 str(os.getpid()), "--credentials", str(creds["teacher.face"])], cwd=ROOT, env=env(), stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, start_new_session=True)
         try:
             assert not wait_alive(session, "bad", ["teacher.face"], 60), "perception did not come up"
@@ -149,7 +155,7 @@ def test_malformed_frames_are_counted_and_dropped(tmp_path):
             now = time.time()
 
             def put(payload: bytes) -> None:
-                pub.put(payload)
+                pub.put(payload, attachment=camera.sign(camera_key("bad", "cam"), payload))
                 time.sleep(0.3)  # one at a time: the service's frame queue drops the oldest when full
 
             put(CompressedImage(timestamp=Time.from_seconds(now), frame_id="cam", data=b"not a jpeg",

@@ -1,0 +1,233 @@
+"""Well-formed forgeries against a live run (issue 10): an attacker with its own process-level Zenoh session on
+the run's router sends forged weights, `stopped` statuses, sequence and version jumps, a fake incarnation, a
+replayed authentic message, and messages signed with a stolen teacher credential. Each changes nothing (the
+same actions and returns as the undisturbed run of the same seed) and each is counted by its receivers.
+
+`pytest -k forge` selects them."""
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from tests.services.live import assert_nothing_left, start_up, wait_for
+
+pytestmark = [pytest.mark.live, pytest.mark.timeout(600)]
+
+ARGS = ("--algo", "dqn", "--episodes", "6", "--seed", "3", "--max-ahead", "0")
+ROUNDS = 3  # each forgery is sent this many times
+
+
+class Attacker:
+    """A Zenoh client of the run's router that watches the real traffic and forges on cue."""
+
+    def __init__(self, endpoint: str, run: str, rundir):
+        import zenoh
+
+        from common.transport import client_config
+
+        self.run, self.rundir = run, rundir
+        self.session = zenoh.open(client_config(endpoint, connect_timeout=20))
+        self.statuses: dict[str, object] = {}
+        self.weights: list[tuple[bytes, bytes | None]] = []  # real payloads and their attachments
+        self.steps = 0
+        self.last_step = None
+        self.feedback = None
+        self.sent: dict[str, int] = {}
+        self._subs = [self.session.declare_subscriber(f"hitl/{run}/**", self._watch)]
+
+    def _watch(self, sample) -> None:
+        from common.protocol import Feedback, ServiceStatus, Step, decode
+
+        key, data = str(sample.key_expr), sample.payload.to_bytes()
+        if key.endswith("/weights"):
+            att = sample.attachment
+            self.weights.append((data, None if att is None else att.to_bytes()))
+            del self.weights[:-4]
+            return
+        try:
+            msg = decode(key, data)
+        except Exception:
+            return
+        if isinstance(msg, ServiceStatus):
+            self.statuses[msg.service] = msg
+        elif isinstance(msg, Step):
+            self.steps += 1
+            self.last_step = msg
+        elif isinstance(msg, Feedback):
+            self.feedback = msg
+
+    def put(self, what: str, key: str, data: bytes, attachment: bytes | None = None) -> None:
+        import zenoh
+
+        pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+        for _ in range(ROUNDS):
+            pub.put(data, attachment=attachment)
+            time.sleep(0.02)
+        pub.undeclare()
+        self.sent[what] = self.sent.get(what, 0) + ROUNDS
+
+    def forge_all(self) -> None:
+        """Every forgery of the issue, once the real services are running."""
+        import dataclasses
+
+        from common.auth import Auth, Credential, make_teacher_credential, load_credential
+        from common.protocol import (Feedback, ServiceStatus, Step, Weights, feedback_key, status_key, step_key,
+                                     weights_key)
+
+        run = self.run
+        real = Weights.decode(self.weights[-1][0])
+        learner_inc = real.incarnation
+        # 1. a forged Weights message: the real learner's incarnation, version 2^53-1, real-shaped tensors
+        top = Weights(run=run, incarnation=learner_inc, version=2**53 - 1, t_published=time.time(),
+                      tensors={k: np.zeros_like(v) for k, v in real.tensors.items()}).encode()
+        self.put("weights_unsigned", weights_key(run), top)
+        fake_learner = Auth(Credential("learner", run, b"k" * 32))  # a guessed key: a wrong tag
+        self.put("weights_bad_tag", weights_key(run), top, fake_learner.sign(weights_key(run), top))
+        # a replayed authentic message: real bytes, real tag, already seen
+        data, att = self.weights[-1]
+        self.put("weights_replayed", weights_key(run), data, att)
+        # 2. forged `stopped` statuses of the actor, the learner and the teacher (their real incarnations)
+        for service in ("actor", "learner", "teacher.oracle"):
+            st = self.statuses[service]
+            stopped = dataclasses.replace(st, state="stopped", t=time.time(), counters={"steps_published": 1,
+                                                                                      "feedback_published": 0})
+            self.put("status_unsigned", status_key(run, service), stopped.encode())
+        # 4. sequence jumps: feedback and a step far ahead of the real ones
+        fb = self.feedback
+        jump = dataclasses.replace(fb, seq=fb.seq + 4000, t_reaction=time.time())
+        self.put("feedback_seq_jump", feedback_key(run, fb.teacher_id), jump.encode())
+        step = self.last_step
+        self.put("step_seq_jump", step_key(run), dataclasses.replace(step, seq=step.seq + 4000,
+                                                                    t_action=time.time()).encode())
+        # 5. a fake incarnation announced by a status, then its steps
+        fake = dataclasses.replace(self.statuses["actor"], incarnation="actor-666-deadbeef", state="ready",
+                                   t=time.time())
+        self.put("fake_incarnation_status", status_key(run, "actor"), fake.encode())
+        self.put("fake_incarnation_step", step_key(run), dataclasses.replace(
+            step, incarnation="actor-666-deadbeef", seq=0, t_action=time.time()).encode())
+        # a stolen teacher credential: it signs as its teacher, never as the learner or the actor
+        path = make_teacher_credential(self.rundir / "credentials", run, "mallory", self.rundir / "mallory.json")
+        mallory = Auth(load_credential(path))
+        stopped = dataclasses.replace(self.statuses["learner"], state="stopped", t=time.time()).encode()
+        self.put("teacher_cred_status", status_key(run, "learner"), stopped,
+                 mallory.sign(status_key(run, "learner"), stopped))
+        self.put("teacher_cred_weights", weights_key(run), top, mallory.sign(weights_key(run), top))
+        assert isinstance(fb, Feedback) and isinstance(step, Step) and isinstance(fake, ServiceStatus)
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()
+        self.session.close()
+
+
+def run_attacked(tmp_path, run: str) -> tuple:
+    from common.transport import free_port
+
+    port = free_port()
+    launch = start_up(tmp_path, run, *ARGS, "--port", str(port))
+    assert wait_for((launch.rundir / "config" / "run.json").exists, 60)
+    attacker = Attacker(f"tcp/127.0.0.1:{port}", run, launch.rundir)
+    done = threading.Event()
+    errors: list[BaseException] = []
+
+    def attack() -> None:
+        try:
+            ok = wait_for(lambda: attacker.steps >= 40 and attacker.weights and attacker.feedback is not None
+                          and {"actor", "learner", "teacher.oracle"} <= set(attacker.statuses), 120)
+            assert ok, "the run never got going"
+            attacker.forge_all()
+        except BaseException as exc:  # reported by the fixture
+            errors.append(exc)
+        finally:
+            done.set()
+
+    threading.Thread(target=attack, daemon=True).start()
+    try:
+        rc = launch.wait(timeout=400)
+    finally:
+        done.wait(30)
+        attacker.close()
+    assert not errors, errors
+    return launch, rc, attacker.sent
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    base = tmp_path_factory.mktemp("forge")
+    calm = start_up(base, "calm", *ARGS)
+    assert calm.wait(timeout=400) == 0, calm.out
+    attacked, rc, sent = run_attacked(base, "attacked")
+    assert rc == 0, attacked.out
+    yield calm, attacked, sent
+    assert_nothing_left(calm.rundir)
+    assert_nothing_left(attacked.rundir)
+
+
+def actions(rundir) -> list[tuple[int, int, int]]:
+    from common.mcap_log import read_log
+    from common.protocol import Step
+
+    return [(r.message.episode, r.message.t_in_episode, r.message.action) for r in read_log(rundir)
+            if isinstance(r.message, Step)]
+
+
+def counters(rundir, service: str) -> dict[str, int]:
+    return json.loads((rundir / "stats" / f"{service}.json").read_text())["counters"]
+
+
+def same_run(calm, attacked) -> None:
+    a, b = calm.summary(), attacked.summary()
+    assert actions(attacked.rundir) == actions(calm.rundir)
+    assert b["returns"] == a["returns"] and len(b["returns"]) == 6
+    assert b["steps_learned"] == b["steps_sent"] == a["steps_sent"]
+    assert b["feedback_credited"] == a["feedback_credited"] and b["feedback_sent"] == a["feedback_sent"]
+    assert b["outcome"] == "ok" and not b["restarts"]
+
+
+def test_forge_weights_with_the_top_version_change_nothing(runs):
+    calm, attacked, sent = runs
+    same_run(calm, attacked)
+    actor = counters(attacked.rundir, "actor")
+    assert actor["auth_unauthenticated_weights"] >= sent["weights_unsigned"]
+    assert actor["auth_bad_tag_weights"] >= sent["weights_bad_tag"]
+    assert actor["auth_replayed_weights"] >= sent["weights_replayed"]
+    assert actor["auth_not_permitted_weights"] >= sent["teacher_cred_weights"]
+
+
+def test_forge_stopped_statuses_end_nothing(runs):
+    calm, attacked, sent = runs
+    same_run(calm, attacked)
+    for service in ("learner", "recorder"):  # both hear every status
+        c = counters(attacked.rundir, service)
+        assert c["auth_unauthenticated_status"] >= sent["status_unsigned"] + sent["fake_incarnation_status"], c
+    teacher = counters(attacked.rundir, "teacher.oracle")  # hears the actor's
+    assert teacher["auth_unauthenticated_status"] >= ROUNDS + sent["fake_incarnation_status"]
+
+
+def test_forge_sequence_jumps_silence_no_real_sender(runs):
+    calm, attacked, sent = runs
+    same_run(calm, attacked)
+    learner = counters(attacked.rundir, "learner")
+    assert learner["auth_unauthenticated_feedback"] >= sent["feedback_seq_jump"]
+    assert learner["auth_unauthenticated_step"] >= sent["step_seq_jump"] + sent["fake_incarnation_step"]
+    assert learner.get("duplicates_feedback", 0) == counters(calm.rundir, "learner").get("duplicates_feedback", 0)
+
+
+def test_forge_fake_incarnation_retires_no_real_actor(runs):
+    calm, attacked, sent = runs
+    same_run(calm, attacked)
+    s = attacked.summary()
+    assert s["actor_incarnations"] == 1
+    teacher = counters(attacked.rundir, "teacher.oracle")
+    assert teacher["auth_unauthenticated_step"] >= sent["step_seq_jump"] + sent["fake_incarnation_step"]
+
+
+def test_forge_with_a_stolen_teacher_credential_is_not_permitted(runs):
+    calm, attacked, sent = runs
+    same_run(calm, attacked)
+    for service in ("learner", "recorder"):
+        assert counters(attacked.rundir, service)["auth_not_permitted_status"] >= sent["teacher_cred_status"]
