@@ -83,5 +83,8 @@ def main(args, argv: list[str], parser: argparse.ArgumentParser) -> int:
                            command="python -m experiments " + shlex.join(argv))
     except RuntimeError as exc:  # a worker or Ray failed: finished trials are cached, re-run resumes
         parser.exit(1, f"error: {exc}\n")
+    except KeyboardInterrupt:
+        parser.exit(130, f"interrupted: finished trials are cached in {args.cache or args.out + '/cache'}; "
+                         "the same command resumes\n")
     print_outcome(result, args.out)
     return 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import queue
+import socket
 import threading
 from typing import Callable
 
@@ -46,6 +47,8 @@ def connect(address: str):
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     env = {"env_vars": {"PYTHONPATH": os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p)}}
     kw = dict(runtime_env=env, log_to_driver=False, configure_logging=False)
+    if address not in ("auto", "local"):
+        _check_reachable(address)
     try:
         if address == "local":
             ray.init(num_cpus=os.cpu_count(), include_dashboard=False, **kw)
@@ -69,6 +72,17 @@ def _ray_ready() -> bool:
     except ImportError:
         return False
     return ray.is_initialized()
+
+
+def _check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Fail in one line when nothing listens at HOST:PORT (ray.init would wait minutes for it)."""
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise RuntimeError(f"--ray expects auto, local or HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as exc:
+        raise RuntimeError(f"cannot connect to Ray at {address}: {exc.strerror or exc}") from None
 
 
 def run_ray(jobs: list[list], address: str, on_message: Callable[[tuple], None]) -> list[dict]:
