@@ -50,8 +50,10 @@ def bench(sweep: Sweep, workers: int, repeats: int, noop_tasks: int) -> dict:
             for name, ray in (("local", None), ("ray", head.address)):
                 out = os.path.join(tmp, f"{name}{r}")
                 res = run_sweep(sweep, out, workers=workers, ray=ray, progress=False, n_boot=200)
-                row[name] = {"run_s": res.run.run_s, "total_s": res.total_s, "tasks": len(res.run.jobs),
-                             "trials": res.run.computed}
+                jobs = res.run.jobs
+                row[name] = {"run_s": res.run.run_s, "total_s": res.total_s, "tasks": len(jobs),
+                             "trials": res.run.computed, "job_cpu_s": sum(j["cpu_s"] for j in jobs),
+                             "job_wall_max_s": max(j["wall_s"] for j in jobs), "load_before": os.getloadavg()[0]}
                 with open(os.path.join(out, "trials.csv")) as fh:
                     row[name]["table"] = fh.read()
             row["identical"] = row["local"].pop("table") == row["ray"].pop("table")
@@ -71,6 +73,10 @@ def format_report(rep: dict) -> str:
         lines.append(f"  round {i + 1}: local pool {lo['run_s']:.1f} s ({lo['tasks']} jobs) | Ray head "
                      f"{ra['run_s']:.1f} s ({ra['tasks']} tasks) | ratio {ra['run_s'] / lo['run_s']:.2f} | "
                      f"overhead per Ray task {r['overhead_per_task_s']:+.2f} s | identical: {r['identical']}")
+        lines.append(f"           CPU s in the jobs: local {lo['job_cpu_s']:.1f}, Ray {ra['job_cpu_s']:.1f}; start-up and "
+                     f"collection (wall - longest job): local {lo['run_s'] - lo['job_wall_max_s']:.1f} s, Ray "
+                     f"{ra['run_s'] - ra['job_wall_max_s']:.1f} s; load before: {lo['load_before']:.1f}, "
+                     f"{ra['load_before']:.1f}")
     n = rep["noop_task"]
     lines.append(f"  no-op Ray task round trip: first {n['first_s']:.2f} s (starts a worker), then median "
                  f"{n['median_s'] * 1000:.1f} ms over {n['n']}")
