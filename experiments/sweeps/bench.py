@@ -53,7 +53,7 @@ def bench(sweep: Sweep, workers: int, repeats: int, noop_tasks: int) -> dict:
                 jobs = res.run.jobs
                 row[name] = {"run_s": res.run.run_s, "total_s": res.total_s, "tasks": len(jobs),
                              "trials": res.run.computed, "job_cpu_s": sum(j["cpu_s"] for j in jobs),
-                             "job_wall_max_s": max(j["wall_s"] for j in jobs), "load_before": os.getloadavg()[0]}
+                             "job_wall_max_s": max(j["wall_s"] for j in jobs), "load_after": os.getloadavg()[0]}
                 with open(os.path.join(out, "trials.csv")) as fh:
                     row[name]["table"] = fh.read()
             row["identical"] = row["local"].pop("table") == row["ray"].pop("table")
@@ -75,8 +75,8 @@ def format_report(rep: dict) -> str:
                      f"overhead per Ray task {r['overhead_per_task_s']:+.2f} s | identical: {r['identical']}")
         lines.append(f"           CPU s in the jobs: local {lo['job_cpu_s']:.1f}, Ray {ra['job_cpu_s']:.1f}; start-up and "
                      f"collection (wall - longest job): local {lo['run_s'] - lo['job_wall_max_s']:.1f} s, Ray "
-                     f"{ra['run_s'] - ra['job_wall_max_s']:.1f} s; load before: {lo['load_before']:.1f}, "
-                     f"{ra['load_before']:.1f}")
+                     f"{ra['run_s'] - ra['job_wall_max_s']:.1f} s; load after: {lo['load_after']:.1f}, "
+                     f"{ra['load_after']:.1f}")
     n = rep["noop_task"]
     lines.append(f"  no-op Ray task round trip: first {n['first_s']:.2f} s (starts a worker), then median "
                  f"{n['median_s'] * 1000:.1f} ms over {n['n']}")

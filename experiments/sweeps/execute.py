@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Hashable, Iterable
 
 from experiments.reproduce import Task, make_jobs, read_cached, result_record, trial_key, write_json_atomic
 from experiments.runner import TrialSpec, run_trials
@@ -44,34 +44,39 @@ def cache_path(cache_dir: str, key: str) -> str:
     return os.path.join(cache_dir, key[:2], f"{key}.json")
 
 
+Slot = Hashable  # what a result fills: (cell, trial) in a sweep, (condition, arm, trial) elsewhere
+
+
 @dataclass
 class Plan:
-    records: dict[tuple[int, int], dict]  # (cell index, trial) -> cached record
-    todo: list[Task]  # distinct trials to compute; a Task's slots are the (cell, trial) pairs it fills
-    slots: dict[str, list[tuple[int, int]]] = field(default_factory=dict)  # key -> (cell, trial) pairs
+    records: dict[Slot, dict]  # slot -> cached record
+    todo: list[Task]  # distinct trials to compute
+    slots: dict[str, list[Slot]] = field(default_factory=dict)  # key of a trial to compute -> slots it fills
 
     @property
     def missing(self) -> int:
         return sum(len(self.slots[t.key]) for t in self.todo)
 
 
-def plan(sweep: Sweep, cache_dir: str) -> Plan:
-    """Which (cell, trial) results are cached, and the distinct trials still to run."""
-    records: dict[tuple[int, int], dict] = {}
-    slots: dict[str, list[tuple[int, int]]] = {}
+def sweep_slots(sweep: Sweep) -> list[tuple[Slot, TrialSpec]]:
+    return [((cell.index, k), sweep.spec(cell, k)) for cell in sweep.cells() for k in range(sweep.trials)]
+
+
+def plan(slot_specs: Iterable[tuple[Slot, TrialSpec]], cache_dir: str) -> Plan:
+    """Which slots' results are cached, and the distinct trials still to run."""
+    records: dict[Slot, dict] = {}
+    slots: dict[str, list[Slot]] = {}
     todo: dict[str, Task] = {}
     seen: dict[str, dict | None] = {}
-    for cell in sweep.cells():
-        for k in range(sweep.trials):
-            spec = sweep.spec(cell, k)
-            key = sweep_key(spec)
-            if key not in seen:
-                seen[key] = read_cached(cache_path(cache_dir, key), key)
-            if seen[key] is not None:
-                records[(cell.index, k)] = seen[key]
-                continue
-            todo.setdefault(key, Task(key, spec))
-            slots.setdefault(key, []).append((cell.index, k))
+    for slot, spec in slot_specs:
+        key = sweep_key(spec)
+        if key not in seen:
+            seen[key] = read_cached(cache_path(cache_dir, key), key)
+        if seen[key] is not None:
+            records[slot] = seen[key]
+            continue
+        todo.setdefault(key, Task(key, spec))
+        slots.setdefault(key, []).append(slot)
     return Plan(records, list(todo.values()), slots)
 
 
@@ -188,11 +193,18 @@ class RunStats:
 
 def execute(sweep: Sweep, cache_dir: str, workers: int = 2, ray_address: str | None = None,
             progress: bool = True, on_trial: Callable[[int, int], None] | None = None) -> tuple[Plan, RunStats]:
+    """Compute every missing trial of the sweep; see `run_slots`."""
+    return run_slots(sweep_slots(sweep), cache_dir, workers, ray_address, progress, on_trial)
+
+
+def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], cache_dir: str, workers: int = 2,
+              ray_address: str | None = None, progress: bool = True,
+              on_trial: Callable[[int, int], None] | None = None) -> tuple[Plan, RunStats]:
     """Compute every missing trial (writing each to the cache as it arrives); return the full plan.
-    `on_trial(done, total)` is called as trials arrive (an exception from it stops the sweep; what
+    `on_trial(done, total)` is called as trials arrive (an exception from it stops the run; what
     arrived stays cached)."""
-    p = plan(sweep, cache_dir)
-    total = len(sweep.cells()) * sweep.trials
+    p = plan(slot_specs, cache_dir)
+    total = len(slot_specs)
     done0 = len(p.records)
     items = {t.key: (t.key, t.spec, len(p.slots[t.key])) for t in p.todo}
     if ray_address and p.todo:
