@@ -32,9 +32,28 @@ class ObserverConfig:
     stop_episode: int | None = option(None, "no feedback for steps of this episode (0-based) and later "
                                             "(unsustainability); none = never")
     stop_step: int | None = option(None, "no feedback for this global step (0-based) and later; none = never")
+    late_delay_probs: tuple[float, ...] = option((), "if given, the lag distribution drifts: at episode e it is "
+                                                 "(1 - w) delay_probs + w late_delay_probs, w = min(1, e / drift_episodes)")
+    drift_episodes: int = option(1, "episodes over which a drifting lag distribution moves to late_delay_probs")
+
+    def lag_cdf(self, episode: int) -> np.ndarray:
+        """Cumulative lag distribution at `episode` over 0..max lag (drift included)."""
+        n = max(len(self.delay_probs), len(self.late_delay_probs))
+        start = np.zeros(n)
+        start[:len(self.delay_probs)] = self.delay_probs
+        if not self.late_delay_probs:
+            return np.cumsum(start)
+        late = np.zeros(n)
+        late[:len(self.late_delay_probs)] = self.late_delay_probs
+        w = min(1.0, episode / self.drift_episodes)
+        return np.cumsum((1 - w) * start + w * late)
 
     def __post_init__(self):
         object.__setattr__(self, "delay_probs", parse_probs(self.delay_probs, "delay-probs"))
+        late = parse_probs(self.late_delay_probs, "late-delay-probs") if len(self.late_delay_probs) else ()
+        object.__setattr__(self, "late_delay_probs", late)
+        if self.drift_episodes < 1:
+            raise ValueError(f"drift-episodes must be >= 1, got {self.drift_episodes}")
         for name in ("p_feedback", "p_flip"):
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 1.0):
@@ -74,13 +93,17 @@ class ObserverBatch:
         self.p_flip = np.array([c.p_flip for c in configs], np.float64)
         self.stop_episode = np.array([big if c.stop_episode is None else c.stop_episode for c in configs], np.int64)
         self.stop_step = np.array([big if c.stop_step is None else c.stop_step for c in configs], np.int64)
-        self.n_lags = np.array([len(c.delay_probs) for c in configs], np.int64)
+        self.n_lags = np.array([max(len(c.delay_probs), len(c.late_delay_probs)) for c in configs], np.int64)
         self.max_lag = int(self.n_lags.max()) - 1
+        # Lag CDFs at the start and at the end of a drift (the same when the observer does not drift).
         self.cum = np.zeros((len(configs), self.max_lag + 1), np.float64)
+        self.cum_late = np.zeros_like(self.cum)
         for k, c in enumerate(configs):
-            cum = np.cumsum(np.asarray(c.delay_probs, np.float64))
-            self.cum[k, :len(cum)] = cum
-            self.cum[k, len(cum):] = cum[-1]
+            for target, cdf in ((self.cum, c.lag_cdf(0)), (self.cum_late, c.lag_cdf(c.drift_episodes))):
+                target[k, :len(cdf)] = cdf
+                target[k, len(cdf):] = cdf[-1]
+        self.drift_episodes = np.array([c.drift_episodes for c in configs], np.float64)
+        self.drifts = bool(np.any(self.cum != self.cum_late))
         self.u = np.zeros((len(configs), block, 3), np.float64)
         self.watched = np.zeros(len(configs), np.int64)  # steps watched so far (draws used)
         self.drawn = np.zeros(len(configs), np.int64)  # steps' worth of uniforms drawn so far
@@ -96,13 +119,18 @@ class ObserverBatch:
         self.watched[rows] = n + 1
         silent = (episode >= self.stop_episode[rows]) | (global_step >= self.stop_step[rows])
         give = ~silent & (u[:, 0] < self.p_feedback[rows])
-        lag = np.minimum((u[:, 1:2] >= self.cum[rows]).sum(axis=1), self.n_lags[rows] - 1)
+        cum = self.cum[rows]
+        if self.drifts:
+            w = np.minimum(1.0, episode / self.drift_episodes[rows])[:, None]
+            cum = (1 - w) * cum + w * self.cum_late[rows]
+        lag = np.minimum((u[:, 1:2] >= cum).sum(axis=1), self.n_lags[rows] - 1)
         value = np.where(u[:, 2] < self.p_flip[rows], -intended, intended)
         return give, value, lag
 
     def select(self, rows: np.ndarray) -> None:
         """Keep only trials `rows` (in that order)."""
-        for name in ("p_feedback", "p_flip", "stop_episode", "stop_step", "n_lags", "cum", "u", "watched", "drawn"):
+        for name in ("p_feedback", "p_flip", "stop_episode", "stop_step", "n_lags", "cum", "cum_late",
+                     "drift_episodes", "u", "watched", "drawn"):
             setattr(self, name, getattr(self, name)[rows])
         self.rngs = [self.rngs[k] for k in rows]
 

@@ -46,12 +46,20 @@ def cmd_run(config: RunConfig) -> int:
 
 
 def cmd_reproduce(args, argv: list[str]) -> int:
-    from experiments.conditions import select
+    from dataclasses import replace
+
+    from experiments.conditions import FULL, QUICK, select
     from experiments.reproduce import reproduce
 
     conds = select(args.only)
-    stats = reproduce(conds, args.trials, args.out, workers=args.workers, progress=not args.no_progress,
-                      argv=argv)
+    scale = QUICK if args.quick else FULL
+    changes = {k: v for k, v in (("layouts", args.layouts), ("reps", args.reps),
+                                 ("maze_episodes", args.maze_episodes), ("taxi_episodes", args.taxi_episodes),
+                                 ("taxi_trials", args.taxi_trials)) if v is not None}
+    scale = replace(scale, **changes)
+    out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
+    args.out = out
+    stats = reproduce(conds, scale, out, workers=args.workers, progress=not args.no_progress, argv=argv)
     with open(os.path.join(args.out, "claims.json")) as fh:
         verdicts = {k: v["verdict"] for k, v in json.load(fh)["claims"].items()}
     print(f"{stats.trials} trials ({stats.trials_run} run, {stats.trials_cached} cached, {stats.trials_shared} "
@@ -82,11 +90,16 @@ def main(argv: list[str] | None = None) -> int:
     sweep_cli.add_arguments(p_sweep)
     p_rep = sub.add_parser("reproduce", help="every condition of the paper with all four agents: figures, "
                            "claims with computed verdicts, timing (cached: re-running only re-plots)")
-    p_rep.add_argument("--trials", type=int, default=30, help="trials per agent and condition (default: 30 = "
-                       "10 maze layouts x 3 seeds)")
+    p_rep.add_argument("--quick", action="store_true", help="the small form (8 layouts, 40 maze episodes, 4 Taxi "
+                       "trials x 60 episodes; about 2 minutes), written to runs/reproduce-quick unless --out is given")
+    p_rep.add_argument("--layouts", type=int, help="maze layouts (default 60: 30 honest, 30 misleading)")
+    p_rep.add_argument("--reps", type=int, help="seeds per layout (default 1)")
+    p_rep.add_argument("--maze-episodes", type=int, help="episodes per maze trial")
+    p_rep.add_argument("--taxi-episodes", type=int, help="episodes per Taxi trial")
+    p_rep.add_argument("--taxi-trials", type=int, help="Taxi trials per arm")
     p_rep.add_argument("--only", nargs="+", metavar="NAME", choices=list(BY_NAME),
                        help=f"run only these conditions ({', '.join(BY_NAME)})")
-    p_rep.add_argument("--out", default="docs/results", help="output directory (default: docs/results)")
+    p_rep.add_argument("--out", default=None, help="output directory (default: docs/results)")
     p_rep.add_argument("--workers", type=int, default=2, help="worker processes (default: 2; 1 = in this process)")
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
     p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
@@ -101,8 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "sweep":
         return sweep_cli.main(args, argv, p_sweep)
     if args.command == "reproduce":
-        if args.trials < 2:
-            p_rep.error("--trials must be at least 2 (intervals need resampling)")
+        if args.layouts is not None and args.layouts < 4:
+            p_rep.error("--layouts must be at least 4 (intervals resample layouts)")
         return cmd_reproduce(args, argv)
     if args.command == "bench":
         if args.trials < 1 or args.episodes < 1:

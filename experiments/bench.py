@@ -15,14 +15,18 @@ import time
 
 import numpy as np
 
-from experiments.conditions import ALGOS, select, trial_spec
-from experiments.reproduce import Task, make_jobs, run_jobs, trial_key
+from dataclasses import replace
+
+from experiments.conditions import ALGOS, QUICK, select, trial_spec
 from experiments.runner import run_trials
+from experiments.trialcache import Task, make_jobs, trial_key
+from experiments.workers import run_jobs
 
 
 def bench(conditions: list[str], trials: int, episodes: int, workers: int = 2, out: str | None = None) -> dict:
     conds = select(conditions)
-    specs = [trial_spec(c, algo, k, episodes) for c in conds for algo in ALGOS for k in range(trials)]
+    scale = replace(QUICK, maze_episodes=episodes, taxi_episodes=episodes)
+    specs = [trial_spec(c, algo, k, scale) for c in conds for algo in ALGOS if algo in c.arms for k in range(trials)]
 
     t0 = time.perf_counter()
     plain = [run_trials([s])[0] for s in specs]

@@ -31,7 +31,7 @@ from common.util import nz
 from experiments.envbatch import LoopEnvs, TableEnvs
 
 EPISODE_FIELDS = ("episode", "return", "steps", "feedback_given", "feedback_credited", "feedback_stale",
-                  "epsilon", "alpha_h")
+                  "epsilon", "alpha_h", "h_decided", "greedy", "mean_lag")
 
 
 @dataclass(frozen=True)
@@ -185,12 +185,17 @@ class _Batch:
     def end_episodes(self, ended: np.ndarray) -> None:
         st, agent = self.st, self.agent
         eps_now, alpha_now = agent.epsilons(ended), agent.alpha_h(ended)
+        lag_now = agent.mean_lag(ended)
         for j, row in enumerate(ended):
             i = int(st["orig"][row])
             record = {"episode": int(st["episode"][row]), "return": float(st["ep_return"][row]),
                       "steps": int(st["ep_steps"][row]), "feedback_given": int(st["ep_given"][row]),
                       "feedback_credited": int(st["ep_credited"][row]), "feedback_stale": int(st["ep_stale"][row]),
-                      "epsilon": float(eps_now[j]), "alpha_h": float(alpha_now[j])}
+                      "epsilon": float(eps_now[j]), "alpha_h": float(alpha_now[j]),
+                      # who decides: greedy actions this episode, and those where H overruled argmax Q
+                      "h_decided": int(agent.h_decided_count[row]), "greedy": int(agent.greedy_count[row]),
+                      "mean_lag": float(lag_now[j])}  # mean of the lag distribution credit uses now
+            agent.h_decided_count[row] = agent.greedy_count[row] = 0
             if self.greedy_eval:
                 record["greedy_steps"] = greedy_steps(agent, int(row), self.specs[i])
             self.results[i].episodes.append(record)

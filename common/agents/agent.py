@@ -33,6 +33,7 @@ from common.agents.config import AgentConfig
 from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max
 from common.agents.streams import to_integers
 from common.credit import credit_weights
+from common.delay_learning import TrialLags
 from common.util import nz
 
 # At most this many due rows run the Q and H minibatch steps as one stacked computation (above it,
@@ -55,7 +56,8 @@ class FeedbackOutcome:
 
 class TrialBatchAgent:
     # Per-trial arrays that `select` slices (the parts slice their own).
-    _ROW_ARRAYS = ("train_q", "train_h", "shaping", "steps", "q_updates", "h_updates")
+    _ROW_ARRAYS = ("train_q", "train_h", "shaping", "steps", "q_updates", "h_updates", "greedy_count",
+                   "h_decided_count")
 
     def __init__(self, configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
                  step_unit: float = 1.0, parts: AgentParts | None = None):
@@ -77,7 +79,8 @@ class TrialBatchAgent:
         self.assumed_delay = p.assumed_delay
         # At most one held step per point mass of the assumed delay can be credited by one feedback.
         probs = getattr(self.assumed_delay, "probs", None)
-        self.local_width = min(len(probs), base.history_steps) if probs is not None else base.history_steps
+        width = getattr(self.assumed_delay, "width", None) or (len(probs) if probs is not None else None)
+        self.local_width = min(width, base.history_steps) if width is not None else base.history_steps
         self.train_q = np.array([c.train_q for c in configs])
         self.train_h = np.array([c.train_h for c in configs])
         self.shaping = np.array([c.reward_shaping for c in configs])
@@ -85,6 +88,10 @@ class TrialBatchAgent:
         self.steps = np.zeros(B, dtype=np.int64)  # steps taken so far, per trial
         self.q_updates = np.zeros(B, dtype=np.int64)
         self.h_updates = np.zeros(B, dtype=np.int64)
+        # Who decides (read and reset by the runner per episode): steps of trials with Q and H, and those
+        # where the mixture's greedy action differed from Q's own (H overruled Q).
+        self.greedy_count = np.zeros(B, dtype=np.int64)
+        self.h_decided_count = np.zeros(B, dtype=np.int64)
 
     @property
     def B(self) -> int:
@@ -127,9 +134,27 @@ class TrialBatchAgent:
         if len(rows) == 0:
             return actions
         obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
-        greedy = self._scores(rows, obs[rows]).argmax(axis=1)
+        x = obs[rows].reshape(len(rows), 1, self.obs_dim)
+        aq, ah = self.mixture.weights(rows, self.steps[rows])
+        q, h = self.q.values(rows, x), self.h.values(rows, x)
+        greedy = (aq * q + ah * h)[:, 0, :].argmax(axis=1)
+        both = self.train_q[rows] & self.train_h[rows]
+        if both.any():
+            q_best = q[:, 0, :].argmax(axis=1)
+            self.greedy_count[rows] += both
+            self.h_decided_count[rows] += both & (greedy != q_best)
+            self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1))
         actions[rows] = self.explorer.choose(rows, self.steps[rows], greedy)
         return actions
+
+    def mean_lag(self, rows: np.ndarray) -> np.ndarray:
+        """Mean of the lag distribution (in steps) credit uses now for trials `rows` (nan if not point masses)."""
+        d = self.assumed_delay
+        if hasattr(d, "mean_lag"):
+            return d.mean_lag(rows)
+        probs = getattr(d, "probs", None)
+        value = float(np.dot(probs, np.arange(len(probs)))) if probs is not None else float("nan")
+        return np.full(len(rows), value)
 
     # ---------------------------------------------------------------------------------- observing
     def record_steps(self, rows: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
@@ -207,7 +232,12 @@ class TrialBatchAgent:
     def _credit_h(self, rows, t_feedback, values, counts, k, status, steps, lost) -> None:
         """Credit by timestamp: D_local, added to D_global, and an H step on D_local (summed) per round."""
         r = rows[k]
-        credit = self.history.credit(r, t_feedback[k], self.assumed_delay, self.local_width)
+        delay = self.assumed_delay
+        if isinstance(delay, TrialLags):  # one distribution per trial, learned where configured
+            if delay.learn[r].any():
+                self._learn_delay(r, t_feedback[k], values[k, 0])
+            delay = delay.rows(r)
+        credit = self.history.credit(r, t_feedback[k], delay, self.local_width)
         ok = credit.counts > 0
         status[k] = np.where(ok, CREDITED, STALE)
         steps[k] = credit.counts
@@ -224,6 +254,18 @@ class TrialBatchAgent:
                 break
             fb = np.repeat(values[k[g], rnd].astype(np.float32)[:, None], pos.shape[1], axis=1)
             self._learn_local(r[g], cnt[g], obs[g], act[g], fb, w32[g])
+
+    def _learn_delay(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray) -> None:
+        """One step of the learned lag distribution (common.delay_learning) per learning trial, from H's
+        current predictions at the step each lag points to (before H learns from this feedback)."""
+        lags = self.assumed_delay
+        m = lags.learn[rows]
+        r, t, f = rows[m], t_feedback[m], values[m]
+        pos, valid = self.history.steps_at_lags(r, t, lags.lags)
+        obs, act = self.history.obs[r[:, None], pos], self.history.action[r[:, None], pos]
+        h = self.h.values(r, obs)
+        pred = np.take_along_axis(h, act[:, :, None], axis=2)[:, :, 0]
+        lags.em.update(r, f, pred, valid)
 
     def _learn_local(self, rows, counts, obs, act, fb, w32) -> None:
         """D_local of one feedback per trial: into D_global, and one H step on it (its loss summed)."""

@@ -18,12 +18,13 @@ from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.streams import UniformBlocks
 from common.delay import DelayModel
+from common.delay_learning import TrialLags
 from common.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
 SHARED_FIELDS = ("network", "device", "hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
                  "replay_start", "target_update_interval", "update_interval", "h_batch_size",
-                 "feedback_memory_size", "assumed_delay_probs", "history_steps")
+                 "feedback_memory_size", "history_steps")
 
 
 @dataclass
@@ -44,16 +45,21 @@ class AgentParts:
              "h_draws")
     _STATE = ("q", "q_target", "h", "replay", "feedback_memory", "history")
 
+    def _per_trial(self) -> tuple[str, ...]:
+        """Parts with per-trial state beyond the fixed ones: the delay when it is one per trial (learned)."""
+        return ("assumed_delay",) if isinstance(self.assumed_delay, TrialLags) else ()
+
     def select(self, rows: np.ndarray) -> None:
-        for name in self._ROWS:
+        for name in self._ROWS + self._per_trial():
             getattr(self, name).select(rows)
 
     def state_dict(self) -> dict:
-        return {name: getattr(self, name).state_dict() for name in self._STATE}
+        return {name: getattr(self, name).state_dict() for name in self._STATE + ("mixture",) + self._per_trial()}
 
     def load_state_dict(self, state: dict) -> None:
-        for name in self._STATE:
-            getattr(self, name).load_state_dict(state[name])
+        for name in self._STATE + ("mixture",) + self._per_trial():
+            if name in state:  # (logs written before a part kept state lack it)
+                getattr(self, name).load_state_dict(state[name])
 
 
 def _keys(seeds: list[int], purpose: str) -> np.ndarray:
@@ -66,6 +72,15 @@ def mlp(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[in
     c = configs[0]
     opt = FlatRMSProp(c.lr, c.rmsprop_alpha, c.rmsprop_eps) if trained else None
     return StackedMLP(obs_dim, c.hidden, n_actions, [derive_seed(s, purpose) for s in seeds], opt)
+
+
+def _assumed_delay(configs: list[AgentConfig], step_unit: float):
+    """The paper's one point-mass model when every trial assumes the same lags and none learns them; else one
+    distribution per trial (`common.delay_learning.TrialLags`)."""
+    c = configs[0]
+    if all(x.assumed_delay_probs == c.assumed_delay_probs and not x.learn_delay for x in configs):
+        return DelayModel(c.assumed_delay_probs, step_unit)
+    return TrialLags(configs, step_unit)
 
 
 def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
@@ -82,7 +97,7 @@ def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds:
         history=BatchStepHistory(B, c.history_steps, obs_dim),
         explorer=EpsilonGreedy(configs, _keys(seeds, "explore"), n_actions),
         mixture=Mixture(configs),
-        assumed_delay=DelayModel(c.assumed_delay_probs, step_unit),
+        assumed_delay=_assumed_delay(configs, step_unit),
         q_draws=UniformBlocks(_keys(seeds, "q-replay"), c.batch_size),
         h_draws=UniformBlocks(_keys(seeds, "h-replay"), c.h_batch_size),
     )

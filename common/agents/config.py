@@ -50,6 +50,11 @@ class AgentConfig:
                                                     "the learner's assumption about the observer's lag over 0, 1, "
                                                     "2, ... steps (for credit)")
     history_steps: int = option(32, "recent steps a feedback may still be credited to; older targets are stale")
+    # Beyond the paper (ours; docs/results/REPORT.md: learned delay, adaptive alpha_h).
+    learn_delay: bool = option(False, "learn the lag distribution online (common.delay_learning: EM over lags "
+                                      "0..len(assumed)-1, starting from assumed_delay_probs)")
+    alpha_h_adapt: float = option(0.0, "if > 0, alpha_h is also multiplied by a running rate (this step size, "
+                                       "from 1) of argmax H agreeing with argmax Q; 0 = the paper's schedule")
 
     def __post_init__(self):
         object.__setattr__(self, "assumed_delay_probs",
@@ -60,6 +65,8 @@ class AgentConfig:
                 raise ValueError(f"{f.name} must be finite, got {v}")
         positive = ("hidden", "batch_size", "replay_size", "target_update_interval", "update_interval",
                     "h_batch_size", "feedback_memory_size", "history_steps")
+        if not 0 <= self.alpha_h_adapt <= 1:
+            raise ValueError(f"alpha_h_adapt must be in [0, 1], got {self.alpha_h_adapt}")
         for name in positive:
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")

@@ -13,17 +13,37 @@ from common.agents.streams import UniformBlocks
 
 
 class Mixture:
-    """alpha_q, and alpha_h(t) = alpha_h * alpha_h_decay^t per trial (paper: 1, 1, 0.9999)."""
+    """alpha_q, and alpha_h(t) = alpha_h * alpha_h_decay^t per trial (paper: 1, 1, 0.9999).
 
-    _ROWS = ("alpha_q", "alpha_h0", "alpha_h_decay")
+    Beyond the paper (`alpha_h_adapt` > 0): alpha_h(t) is also multiplied by a running rate of argmax H
+    agreeing with argmax Q (an exponential average with step `alpha_h_adapt`, starting at 1, fed by
+    `observe`), so a teacher whom the environment keeps contradicting loses the say."""
+
+    _ROWS = ("alpha_q", "alpha_h0", "alpha_h_decay", "adapt", "agree")
 
     def __init__(self, configs):
         self.alpha_q = np.array([c.alpha_q for c in configs], np.float64)
         self.alpha_h0 = np.array([c.alpha_h for c in configs], np.float64)
         self.alpha_h_decay = np.array([c.alpha_h_decay for c in configs], np.float64)
+        self.adapt = np.array([getattr(c, "alpha_h_adapt", 0.0) for c in configs], np.float64)
+        self.agree = np.ones(len(configs), np.float64)
 
     def alpha_h(self, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        return self.alpha_h0[rows] * self.alpha_h_decay[rows] ** steps.astype(np.float64)
+        sched = self.alpha_h0[rows] * self.alpha_h_decay[rows] ** steps.astype(np.float64)
+        return np.where(self.adapt[rows] > 0, sched * self.agree[rows], sched)
+
+    def observe(self, rows: np.ndarray, agree: np.ndarray) -> None:
+        """Trials `rows` chose with argmax H == argmax Q (`agree`, bool) at this step."""
+        a = self.adapt[rows] > 0
+        if a.any():
+            r = rows[a]
+            self.agree[r] += self.adapt[r] * (agree[a].astype(np.float64) - self.agree[r])
+
+    def state_dict(self) -> dict:
+        return {"agree": self.agree.copy()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agree[...] = state["agree"]
 
     def weights(self, rows: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(alpha_q, alpha_h) as float32 [n, 1, 1], to weigh values [n, N, A]."""

@@ -69,6 +69,19 @@ class BatchStepHistory:
         k = (times <= t[:, None]).sum(axis=1) - 1
         return np.where(k >= 0, pos[np.arange(len(trials)), np.maximum(k, 0)], -1)
 
+    def steps_at_lags(self, trials: np.ndarray, t_feedback: np.ndarray,
+                      lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For each trial and lag: the ring position of the newest held step taken at or before
+        t_feedback - lag ([n, L]), and whether there is one in the episode of the newest step shown at or
+        before t_feedback ([n, L] bool; as credit, never across an episode)."""
+        pos, times = self._chronological(trials)
+        rows = np.arange(len(trials))[:, None]
+        k = (times[:, None, :] <= (t_feedback[:, None] - lags[None, :])[:, :, None]).sum(axis=2) - 1
+        at = pos[rows, np.maximum(k, 0)]
+        current = self.episode[trials[:, None], at[:, :1]]
+        valid = (k >= 0) & (k[:, :1] >= 0) & (self.episode[trials[:, None], at] == current)
+        return np.where(valid, at, 0), valid
+
     def credit(self, trials: np.ndarray, t_feedback: np.ndarray, delay, width: int) -> BatchCredit:
         """Credit one feedback per trial; at most `width` steps can get weight (the assumed delay's point
         masses, or the capacity for a continuous delay)."""

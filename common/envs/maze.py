@@ -1,12 +1,20 @@
 """The paper's 8x8 maze: walls, a start at Manhattan distance 5 from the goal, -0.01 per step, +1 at the goal.
 
-Layouts are generated from fixed seeds (our choice, DESIGN.md): layout L is the L-th of ten initial
-conditions. Every layout is checked solvable by breadth-first search.
+Layouts are generated from fixed seeds (our choice, DESIGN.md), each checked solvable by breadth-first
+search and classified for the paper's Manhattan teacher rule (`misleading_dead_ends`):
+  honest      an agent taking only the moves the rule approves always reaches the goal (its shortest path
+              is then the Manhattan distance);
+  misleading  some cell reachable by approved moves alone has no approved move (a dead end along an
+              approved path): a teacher who follows the rule leads the agent into it.
+Draws come from one stream (seed base + j, j = 0, 1, ...), distinct layouts only; layout L is the
+(L // 2)-th honest draw for even L and the (L // 2)-th misleading draw for odd L, so any prefix of the
+layouts is balanced. LAYOUT_COUNT = 60: 30 of each kind. Layout 0 is the stream's first draw.
 """
 from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from functools import lru_cache
 
 import gymnasium as gym
 import numpy as np
@@ -17,7 +25,9 @@ MAX_STEPS = 1000
 STEP_REWARD = -0.01
 GOAL_REWARD = 1.0
 WALL_DENSITY = 0.2
-LAYOUT_COUNT = 10
+LAYOUT_KIND_COUNT = 30
+LAYOUT_COUNT = 2 * LAYOUT_KIND_COUNT
+HONEST, MISLEADING = "honest", "misleading"
 _LAYOUT_SEED_BASE = 20190128  # fixed so that layout L is the same on every machine
 
 # Actions north, east, south, west as (row, col) moves.
@@ -58,6 +68,51 @@ class MazeLayout:
                     queue.append(nxt)
         return None
 
+    def distances_to_goal(self) -> np.ndarray:
+        """[SIZE, SIZE] shortest-path steps from each cell to the goal (-1 for walls and unreachable cells)."""
+        dist = np.full((SIZE, SIZE), -1, np.int64)
+        dist[self.goal] = 0
+        queue = deque([self.goal])
+        while queue:
+            cell = queue.popleft()
+            for dr, dc in MOVES:
+                nxt = (cell[0] + dr, cell[1] + dc)
+                if not self.is_wall(*nxt) and dist[nxt] < 0:
+                    dist[nxt] = dist[cell] + 1
+                    queue.append(nxt)
+        return dist
+
+    def approved_moves(self, cell: tuple[int, int]) -> list[tuple[int, int]]:
+        """Cells the paper's Manhattan rule says +1 to moving into from `cell`: a real move (not into a
+        wall) that brings the agent closer to the goal."""
+        out = []
+        for dr, dc in MOVES:
+            nxt = (cell[0] + dr, cell[1] + dc)
+            if not self.is_wall(*nxt) and manhattan(nxt, self.goal) < manhattan(cell, self.goal):
+                out.append(nxt)
+        return out
+
+    def misleading_dead_ends(self) -> list[tuple[int, int]]:
+        """Cells other than the goal that an agent taking only approved moves from the start can reach
+        and that have no approved move (empty for an honest layout)."""
+        seen, queue, dead = {self.start}, deque([self.start]), []
+        while queue:
+            cell = queue.popleft()
+            if cell == self.goal:
+                continue
+            moves = self.approved_moves(cell)
+            if not moves:
+                dead.append(cell)
+            for nxt in moves:
+                if nxt not in seen:
+                    seen.add(nxt)
+                    queue.append(nxt)
+        return sorted(dead)
+
+    @property
+    def kind(self) -> str:
+        return MISLEADING if self.misleading_dead_ends() else HONEST
+
     def ascii(self, agent: tuple[int, int] | None = None) -> str:
         """'#' wall, '.' space, 'S' start, 'G' goal, 'A' agent."""
         rows = []
@@ -76,32 +131,64 @@ class MazeLayout:
         return "\n".join(rows)
 
 
+def _draw(j: int) -> MazeLayout | None:
+    """Draw j of the layout stream: random walls, a goal, a start at Manhattan distance 5 (None if the
+    walls leave no such start or the goal is unreachable; the stream then moves on to draw j + 1)."""
+    rng = np.random.default_rng(_LAYOUT_SEED_BASE + j)
+    walls = rng.random((SIZE, SIZE)) < WALL_DENSITY
+    free = [(r, c) for r in range(SIZE) for c in range(SIZE) if not walls[r, c]]
+    goal = free[rng.integers(len(free))]
+    starts = [cell for cell in free if manhattan(cell, goal) == START_DISTANCE]
+    if not starts:
+        return None
+    start = starts[rng.integers(len(starts))]
+    layout = MazeLayout(-1, tuple(tuple(bool(w) for w in row) for row in walls), start, goal)
+    return layout if layout.shortest_path() is not None else None
+
+
+@lru_cache(maxsize=1)
+def layout_pool() -> tuple[tuple[MazeLayout, ...], dict[str, int]]:
+    """(the LAYOUT_COUNT layouts in index order, how many distinct solvable draws of each kind the stream
+    needed: the natural frequency of misleading layouts)."""
+    kinds: dict[str, list[MazeLayout]] = {HONEST: [], MISLEADING: []}
+    seen = set()
+    drawn = {HONEST: 0, MISLEADING: 0}
+    j = 0
+    while min(len(v) for v in kinds.values()) < LAYOUT_KIND_COUNT:
+        layout = _draw(j)
+        j += 1
+        if layout is None or (layout.walls, layout.start, layout.goal) in seen:
+            continue
+        seen.add((layout.walls, layout.start, layout.goal))
+        drawn[layout.kind] += 1
+        kinds[layout.kind].append(layout)
+    pool = []
+    for index in range(LAYOUT_COUNT):
+        base = kinds[HONEST if index % 2 == 0 else MISLEADING][index // 2]
+        pool.append(MazeLayout(index, base.walls, base.start, base.goal))
+    return tuple(pool), drawn
+
+
+def layout_kind(index: int) -> str:
+    """honest (even index) or misleading (odd index) for the paper's Manhattan rule."""
+    return HONEST if index % 2 == 0 else MISLEADING
+
+
 def make_layout(index: int) -> MazeLayout:
-    """Layout `index` (0..9): random walls from a fixed seed, redrawn until the start can reach the goal."""
+    """Layout `index` (0..LAYOUT_COUNT-1): honest for even, misleading for odd indices."""
     if not 0 <= index < LAYOUT_COUNT:
         raise ValueError(f"layout must be in 0..{LAYOUT_COUNT - 1}, got {index}")
-    rng = np.random.default_rng(_LAYOUT_SEED_BASE + index)
-    while True:
-        walls = rng.random((SIZE, SIZE)) < WALL_DENSITY
-        free = [(r, c) for r in range(SIZE) for c in range(SIZE) if not walls[r, c]]
-        goal = free[rng.integers(len(free))]
-        starts = [cell for cell in free if manhattan(cell, goal) == START_DISTANCE]
-        if not starts:
-            continue
-        start = starts[rng.integers(len(starts))]
-        layout = MazeLayout(index, tuple(tuple(bool(w) for w in row) for row in walls), start, goal)
-        path = layout.shortest_path()
-        # Solvable, and the walls matter at least a little in some layouts: accept any solvable draw.
-        if path is not None:
-            return layout
+    return layout_pool()[0][index]
 
 
 class MazeEnv(gym.Env):
     """Gymnasium maze. `observation="mdp"`: (row, col) scaled to [0, 1]; `"pomdp"`: the 8 surrounding
     cells, 1.0 for wall (outside the grid counts as wall), 0.0 for space.
 
-    `info` carries what the simulated teacher's rule needs: the Manhattan distance to the goal before and
-    after the action (`target_distance_before`, `target_distance_after`) and `subgoal_reached`.
+    `info` carries what the simulated teacher's rules need: the Manhattan distance to the goal before and
+    after the action (`target_distance_before`, `target_distance_after`), the shortest-path distance
+    (`path_distance_before`, `path_distance_after`: what a person who knows the maze sees) and
+    `subgoal_reached`.
     """
 
     metadata = {"render_modes": ["ansi"]}
@@ -117,6 +204,7 @@ class MazeEnv(gym.Env):
         self.action_space = gym.spaces.Discrete(4)
         self.pos = self.layout.start
         self.steps = 0
+        self._path = self.layout.distances_to_goal()
 
     def _obs(self) -> np.ndarray:
         r, c = self.pos
@@ -135,6 +223,7 @@ class MazeEnv(gym.Env):
         if not 0 <= int(action) < 4:
             raise ValueError(f"maze action must be 0..3, got {action}")
         before = manhattan(self.pos, self.layout.goal)
+        path_before = self._path[self.pos]
         dr, dc = MOVES[int(action)]
         nxt = (self.pos[0] + dr, self.pos[1] + dc)
         if not self.layout.is_wall(*nxt):
@@ -145,6 +234,7 @@ class MazeEnv(gym.Env):
         truncated = not terminated and self.steps >= self.max_steps
         after = manhattan(self.pos, self.layout.goal)
         info = {"target_distance_before": float(before), "target_distance_after": float(after),
+                "path_distance_before": float(path_before), "path_distance_after": float(self._path[self.pos]),
                 "subgoal_reached": 1.0 if terminated else 0.0,
                 "row": float(self.pos[0]), "col": float(self.pos[1])}  # where the agent is (for pictures)
         return self._obs(), reward, terminated, truncated, info

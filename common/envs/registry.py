@@ -49,6 +49,7 @@ ENVS: dict[str, EnvSpec] = {
     "maze": EnvSpec("maze", lambda layout=0: MazeEnv(layout, "mdp"), progress_rule, True),
     "maze-pomdp": EnvSpec("maze-pomdp", lambda layout=0: MazeEnv(layout, "pomdp"), progress_rule, True),
     "taxi": EnvSpec("taxi", lambda layout=0: TaxiEnv(), progress_rule, False),
+    "taxi-fixed": EnvSpec("taxi-fixed", lambda layout=0: TaxiEnv(fixed_task=layout), progress_rule, True),
     "minigrid-empty": EnvSpec("minigrid-empty", _gym("MiniGrid-Empty-5x5-v0", MINIGRID_TURN_FORWARD),
                               progress_rule, False),
 }

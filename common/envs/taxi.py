@@ -4,6 +4,11 @@ Observation (our choice, DESIGN.md): one-hot taxi row (5), taxi column (5), pass
 or in the taxi: 5) and destination (4): 19 values. `info` carries the teacher rule's inputs: the Manhattan
 distance to the current target (the passenger before pick-up, the destination after) before and after the
 action, and `subgoal_reached` for a successful pick-up or drop-off.
+
+`fixed_task=k` (0..11) fixes the passenger's stand and the destination for every episode (the k-th of
+the 12 pairs of distinct stands), the taxi's start stays random: one initial condition per k, as the
+paper's observation (coordinates and an in-taxi flag) suggests. None (default) is Gymnasium's Taxi:
+passenger and destination drawn afresh every episode.
 """
 from __future__ import annotations
 
@@ -13,12 +18,16 @@ from gymnasium.envs.toy_text.taxi import TaxiEnv as _GymTaxi
 
 MAX_STEPS = 1000
 OBS_DIM = 5 + 5 + 5 + 4
+FIXED_TASKS = tuple((p, d) for p in range(4) for d in range(4) if p != d)
 
 
 class TaxiEnv(gym.Env):
     metadata = {"render_modes": ["ansi"]}
 
-    def __init__(self, max_steps: int = MAX_STEPS):
+    def __init__(self, max_steps: int = MAX_STEPS, fixed_task: int | None = None):
+        if fixed_task is not None and not 0 <= fixed_task < len(FIXED_TASKS):
+            raise ValueError(f"fixed_task must be in 0..{len(FIXED_TASKS) - 1}, got {fixed_task}")
+        self.fixed_task = fixed_task
         self._env = _GymTaxi()
         self.locs = self._env.locs
         self.max_steps = max_steps
@@ -51,6 +60,11 @@ class TaxiEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options=None):
         super().reset(seed=seed)
         state, _ = self._env.reset(seed=seed)
+        if self.fixed_task is not None:
+            row, col, _, _ = self._decode(int(state))
+            passenger, dest = FIXED_TASKS[self.fixed_task]
+            state = self._env.encode(row, col, passenger, dest)
+            self._env.s = int(state)
         self.state = int(state)
         self.steps = 0
         return self._obs(), {"target_distance": float(self._target_distance(self.state))}

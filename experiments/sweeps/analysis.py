@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from experiments import claims
+from experiments import curvestats as claims
 from experiments.sweeps.grid import Cell, Sweep, fmt_value, parse_assignment, parse_values
 
 Z_ALPHA, Z_POWER = 1.959964, 0.841621  # two-sided 5%, 80% power

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import shlex
 
-from experiments import claims
+from experiments import curvestats as claims
 from experiments.sweeps.grid import Sweep, coerce, from_mapping, load_yaml, parse_assignment, parse_values, split_top
 
 HELP = ("a grid of config fields, trials per cell: one tidy table (CSV, Parquet), a summary per cell, a "

@@ -1,7 +1,7 @@
 """Running a sweep's trials: the cache, batched jobs, a local process pool (default) or Ray, one progress bar.
 
 Cache: one JSON file per distinct trial, `cache/<key[:2]>/<key>.json`, where the key hashes everything
-that determines the result (`experiments.reproduce.trial_key`: environment, layout, seed, episodes, agent,
+that determines the result (`experiments.trialcache.trial_key`: environment, layout, seed, episodes, agent,
 observer unless the agent ignores feedback; `sweep_key` adds a teacher rule). Cells whose trials are
 identical (DQN under two observers) share them, an interrupted sweep resumes with only the missing
 trials, and a repeated one only re-plots.
@@ -10,7 +10,7 @@ The workers (processes here, or Ray tasks) only compute: each finished trial's r
 this process, which writes it to the cache at once. So a Ray cluster needs no shared file system.
 
 Batching: missing trials are grouped into lockstep batches by environment, split over the workers
-(`experiments.reproduce.make_jobs`); results do not depend on the batching.
+(`experiments.trialcache.make_jobs`); results do not depend on the batching.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, Hashable, Iterable
 
-from experiments.reproduce import Task, make_jobs, read_cached, result_record, trial_key, write_json_atomic
+from experiments.trialcache import Task, make_jobs, read_cached, result_record, trial_key, write_json_atomic
 from experiments.runner import TrialSpec, run_trials
 from experiments.sweeps.grid import Sweep
 

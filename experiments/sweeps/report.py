@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import yaml
 
-from experiments import claims
+from experiments import curvestats as claims
 from experiments.sweeps import analysis, execute, tables
 from experiments.sweeps.grid import Sweep
 

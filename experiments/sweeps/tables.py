@@ -14,7 +14,7 @@ import os
 
 import numpy as np
 
-from experiments import claims
+from experiments import curvestats as claims
 from experiments.sweeps.analysis import group_title, groups, legend_field, stop_of
 from experiments.sweeps.grid import Sweep, fmt_value
 

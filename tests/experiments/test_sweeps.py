@@ -7,7 +7,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from experiments import claims
+from experiments import curvestats as claims
 from experiments.__main__ import main
 from experiments.sweeps import analysis, execute, report
 from experiments.sweeps.grid import Sweep, load_yaml
@@ -144,7 +144,7 @@ def load_yaml_text(tmp_path, text):
     (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=dqn-tamer-agent.algo=dqn"], "a minus"),
     (["--grid", "agent.lr=fast"], "agent.lr expects float"),
     (["--set", "observer.delay_probs=[0.5,0.6]"], "must sum to 1"),
-    (["--grid", "env.layout=3,12"], "layout must be in 0..9"),
+    (["--grid", "env.layout=3,72"], "layout must be in 0..59"),
     (["--set", "env=NoSuchEnv-v0"], "unknown env"),
 ])
 def test_bad_sweeps_fail_with_one_line_before_running(tmp_path, capsys, args, message):

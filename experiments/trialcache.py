@@ -1,0 +1,153 @@
+"""The reproduction's trial cache and work plan.
+
+Caching: each trial's result is a JSON file `cache/<condition>/<arm>/<trial>-<key>.json`, written
+atomically by the worker the moment the trial finishes, where key hashes everything that determines the
+result (environment, layout, seed, episodes, agent config, observer config, RESULTS_VERSION). An
+interrupted run therefore resumes with only the missing trials, and a second run only re-plots. A trial
+whose agent ignores feedback (DQN) does not depend on the observer or the teacher rule, so its key leaves
+them out and the Maze MDP conditions share one set of DQN trials (run once, stored under each condition).
+
+Batching: all missing trials of one environment family (same observation and action spaces), whatever
+their condition and arm, go into the same lockstep batches, split over the workers, so the stragglers
+of one condition share ticks with those of others. Results do not depend on the batching
+(tests/experiments/test_batching.py).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+
+from experiments.conditions import Condition, Scale, n_trials, trial_spec
+from experiments.runner import TrialResult, TrialSpec
+
+RESULTS_VERSION = 2
+"""Bump when a change to the core changes results, so cached trials are recomputed."""
+
+# Environments that can share a lockstep batch (same observation and action spaces).
+FAMILY = {"maze": "maze", "maze-pomdp": "maze-pomdp", "taxi": "taxi", "taxi-fixed": "taxi"}
+
+
+def _record(obj) -> dict:
+    return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+
+
+def trial_key(spec: TrialSpec) -> str:
+    agent = spec.agent
+    uses_feedback = agent.train_h or agent.reward_shaping
+    payload = {"version": RESULTS_VERSION, "env": spec.env, "layout": spec.layout, "seed": spec.seed,
+               "episodes": spec.episodes, "agent": _record(agent),
+               "observer": _record(spec.observer) if uses_feedback else None,
+               "teacher_rule": spec.teacher_rule if uses_feedback else None}
+    return hashlib.sha1(json.dumps(payload, sort_keys=True, default=list).encode()).hexdigest()[:16]
+
+
+@dataclass
+class Slot:
+    cond: str
+    algo: str
+    trial: int
+    path: str
+
+
+@dataclass
+class Task:
+    key: str
+    spec: TrialSpec
+    slots: list[Slot] = field(default_factory=list)
+
+
+def result_record(key: str, result: TrialResult) -> dict:
+    eps = result.episodes
+    return {"key": key, "version": RESULTS_VERSION, "spec": {
+                "env": result.spec.env, "layout": result.spec.layout, "seed": result.spec.seed,
+                "episodes": result.spec.episodes, "agent": _record(result.spec.agent),
+                "observer": _record(result.spec.observer)},
+            "total_steps": result.total_steps,
+            "return": [e["return"] for e in eps], "steps": [e["steps"] for e in eps],
+            **{name: [e[name] for e in eps] for name in EXTRA_FIELDS}}
+
+
+EXTRA_FIELDS = ("feedback_given", "feedback_credited", "alpha_h", "h_decided", "greedy", "mean_lag")
+
+
+def write_json_atomic(path: str, obj) -> None:
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    tmp = f"{path}.tmp{os.getpid()}"
+    with open(tmp, "w") as fh:
+        json.dump(obj, fh)
+    os.replace(tmp, path)
+
+
+def read_cached(path: str, key: str) -> dict | None:
+    try:
+        with open(path) as fh:
+            rec = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    return rec if rec.get("key") == key else None
+
+
+def plan(conds: list[Condition], scale: Scale, cache_dir: str) -> tuple[dict, list[Task], int]:
+    """(cached records by (cond, arm, trial), tasks to run, number of slots reused from another
+    condition's identical trial)."""
+    cached: dict[tuple[str, str, int], dict] = {}
+    by_key: dict[str, Task] = {}
+    for c in conds:
+        for algo in c.arms:
+            for k in range(n_trials(c, scale)):
+                spec = trial_spec(c, algo, k, scale)
+                key = trial_key(spec)
+                path = os.path.join(cache_dir, c.name, algo.replace("/", "-"), f"{k:03d}-{key}.json")
+                rec = read_cached(path, key)
+                if rec is not None:
+                    cached[(c.name, algo, k)] = rec
+                    continue
+                by_key.setdefault(key, Task(key, spec)).slots.append(Slot(c.name, algo, k, path))
+    # A trial that only lacks its own file but exists under another condition (same key) is copied.
+    reused = 0
+    todo = []
+    known = {rec["key"]: rec for rec in cached.values()}
+    for key, task in by_key.items():
+        if key in known:
+            for s in task.slots:
+                write_json_atomic(s.path, known[key])
+                cached[(s.cond, s.algo, s.trial)] = known[key]
+                reused += 1
+        else:
+            todo.append(task)
+    return cached, todo, reused
+
+
+# Rough cost of an episode (CPU, arbitrary units) by environment, to balance jobs between workers:
+# environment steps per episode averaged over a run (Maze about 150, POMDP about 80, Taxi about 1000 as
+# no agent learns Taxi within the run) times the relative cost of a step (Taxi: larger observation,
+# updates every 4 steps). Measured from full runs (docs/results/timing.json).
+EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6, "taxi-fixed": 300.0}
+
+
+def job_cost(tasks: list[Task]) -> float:
+    return sum(t.spec.episodes * EPISODE_COST.get(t.spec.env, 300.0) for t in tasks)
+
+
+def make_jobs(tasks: list[Task], workers: int) -> list[list[Task]]:
+    """Batches for the workers, largest first.
+
+    All trials of one environment kind form one batch (one lockstep tail: the few trials stuck in
+    1000-step episodes then share ticks instead of each batch paying for its own). A kind is split
+    into interleaved parts (each with a similar mix of conditions and agents) only when it is more
+    than a worker's fair share of the work, so that all workers stay busy."""
+    by_env: dict[str, list[Task]] = {}
+    for t in tasks:
+        by_env.setdefault(FAMILY.get(t.spec.env, t.spec.env), []).append(t)
+    total = sum(job_cost(ts) for ts in by_env.values())
+    share = total / max(workers, 1)
+    jobs = []
+    for env, ts in by_env.items():
+        ts = sorted(ts, key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "", t.slots[0].trial if t.slots else 0))
+        parts = max(1, min(workers, len(ts), int(round(job_cost(ts) / max(share, 1e-9)))))
+        jobs.extend([ts[i::parts] for i in range(parts)])
+    jobs.sort(key=lambda j: -job_cost(j))
+    return jobs
