@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 
-from common.security import (PUBLISH_ALL, SecurityConfig, SecurityError, access_control, client_config_for,
+from common.security import (SecurityConfig, SecurityError, access_control, client_config_for,
                              generate_certificates, load_security, publish_keys, read_credentials,
                              router_config_dict, tls_endpoint)
 from common.transport import free_port
@@ -285,11 +285,17 @@ def test_access_rules_are_default_deny_and_least_privilege():
         else:
             assert rule["key_exprs"] == ["hitl/**"]
             assert rule["messages"] == ["declare_subscriber"] or rule["flows"] == ["egress"]
-    status = [f"hitl/*/{k}" for k in PUBLISH_ALL]
-    assert publish_keys(sec, "learner") == ["hitl/*/weights", "hitl/*/episode", "hitl/*/ingest"] + status
-    assert publish_keys(sec, "alice") == ["hitl/*/feedback/alice"] + status
-    assert publish_keys(sec, "actor") == ["hitl/*/step"] + status
-    assert publish_keys(sec, "recorder") == status
+    def own(service):  # each identity only its own status and log (its console's people: <service>-...)
+        return [f"hitl/*/{k}/{service}{tail}" for k in ("status", "log") for tail in ("", "-$*")]
+
+    assert publish_keys(sec, "learner") == ["hitl/*/weights", "hitl/*/episode", "hitl/*/ingest",
+                                            "hitl/*/credit/*"] + own("learner")
+    assert publish_keys(sec, "alice")[:2] == ["hitl/*/feedback/alice", "hitl/*/feedback/alice-$*"]
+    assert publish_keys(sec, "alice")[-4:] == own("teacher.alice")
+    assert publish_keys(sec, "actor") == ["hitl/*/step"] + own("actor")
+    assert publish_keys(sec, "recorder") == own("recorder")
+    assert not any("status/*" in k or k.endswith("/status/learner") for u in ("actor", "alice", "bob")
+                   for k in publish_keys(sec, u))
     assert not any("weights" in k for u in ("actor", "recorder", "perception", "alice", "bob")
                    for k in publish_keys(sec, u))
     assert all(s["link_protocols"] == ["tls"] for s in acl["subjects"])

@@ -231,3 +231,57 @@ def test_forge_with_a_stolen_teacher_credential_is_not_permitted(runs):
     same_run(calm, attacked)
     for service in ("learner", "recorder"):
         assert counters(attacked.rundir, service)["auth_not_permitted_status"] >= sent["teacher_cred_status"]
+
+
+def test_forge_stopped_status_in_secured_mode_with_a_teachers_credentials(runs, tmp_path):
+    """A stolen teacher password and teacher credential: the router lets it in, as that teacher only; its forged
+    `stopped` statuses of the learner and the actor (signed with its own key) never reach a receiver (the access
+    rules let an identity publish only its own status), and the run is the undisturbed one."""
+    import dataclasses
+
+    import zenoh
+
+    from common.auth import Auth, load_credential, make_teacher_credential
+    from common.protocol import status_key
+    from common.security import client_config_for, init, load_security
+
+    calm, _, _ = runs
+    init(tmp_path / "sec", ["oracle", "alice"], run="secure")
+    launch = start_up(tmp_path, "secure", *ARGS, "--security", str(tmp_path / "sec" / "security.json"))
+    run_json = launch.rundir / "config" / "run.json"
+    assert wait_for(run_json.exists, 60)
+    endpoint = json.loads(run_json.read_text())["launcher"]["endpoint"]
+    alice = load_security(tmp_path / "sec" / "clients" / "alice" / "security.json")
+    stolen = Auth(load_credential(make_teacher_credential(launch.rundir / "credentials", "secure", "alice",
+                                                          tmp_path / "alice.json")))
+    seen: dict[str, object] = {}
+    sent = 0
+    with zenoh.open(client_config_for(alice, "teacher", endpoint, teacher="alice", connect_timeout=20)) as session:
+        from common.protocol import ServiceStatus, decode
+
+        def watch(sample):
+            try:
+                msg = decode(str(sample.key_expr), sample.payload.to_bytes())
+            except Exception:
+                return
+            if isinstance(msg, ServiceStatus):
+                seen[msg.service] = msg
+
+        sub = session.declare_subscriber("hitl/secure/status/*", watch)
+        assert wait_for(lambda: {"actor", "learner"} <= set(seen), 120)
+        for service in ("learner", "actor", "teacher.oracle"):
+            key = status_key("secure", service)
+            data = dataclasses.replace(seen.get(service) or seen["actor"], service=service, state="stopped",
+                                       t=time.time()).encode()
+            pub = session.declare_publisher(key)
+            for _ in range(ROUNDS):
+                pub.put(data, attachment=stolen.sign(key, data))
+                sent += 1
+            pub.undeclare()
+        sub.undeclare()
+    assert launch.wait(timeout=400) == 0, launch.out
+    assert_nothing_left(launch.rundir)
+    same_run(calm, launch)
+    assert sent == 3 * ROUNDS
+    for service in ("learner", "recorder"):  # the router dropped them before any receiver saw them
+        assert counters(launch.rundir, service).get("auth_not_permitted_status", 0) == 0
