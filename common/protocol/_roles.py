@@ -29,14 +29,14 @@ ROLES = SERVICE_ROLES + NAMED_ROLES
 #: recorder into its log, never published.
 PUBLISHES: dict[str, tuple[str, ...]] = {
     "actor": ("step",),
-    "learner": ("weights", "episode", "ingest", "credit/*"),
+    "learner": ("weights", "snapshot", "episode", "ingest", "credit/*"),
     "recorder": (),
-    "launcher": (),
+    "launcher": ("request",),
     "perception": ("camera/*", "perception/*"),
     "foxglove": (),
     # a teacher is a simulated observer, a web console (its screen's steps, the run controls) or the
     # perception service reading a face for it
-    "teacher": ("feedback/{id}", "shown/{id}", "control", "camera/*", "perception/*"),
+    "teacher": ("feedback/{id}", "shown/{id}", "control", "camera/*", "perception/*", "request"),
     "observer": ("camera/{id}", "reaction/{id}"),
 }
 OWN_KINDS = ("status", "log")
