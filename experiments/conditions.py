@@ -48,23 +48,26 @@ MAZE_EPISODES = 60
 TAXI_EPISODES = 50
 # The reproduction's (ours): mazes until the best arm's curve is flat (checked in the report), Taxi as
 # long as the budget allows (docs/hyperparameters.md "Episode counts": DQN does not converge within it).
-REPRO_MAZE_EPISODES = 60
-REPRO_TAXI_EPISODES = 100
+REPRO_MAZE_EPISODES = 40
+REPRO_TAXI_EPISODES = 60
 
 
 @dataclass(frozen=True)
 class Scale:
     """How big a reproduction is: layouts, repetitions, episodes (full or --quick)."""
 
-    layouts: int = LAYOUT_COUNT
+    layouts: int = 40
+    """Maze layouts used (the first n: n/2 honest, n/2 misleading; the generator has LAYOUT_COUNT)."""
     reps: int = 1
     maze_episodes: int = REPRO_MAZE_EPISODES
     taxi_episodes: int = REPRO_TAXI_EPISODES
-    taxi_trials: int = 8
+    taxi_trials: int = 6
+    delay_layouts: int = 16
+    """Honest layouts of the learned-delay conditions."""
 
 
 FULL = Scale()
-QUICK = Scale(layouts=8, reps=1, maze_episodes=40, taxi_episodes=60, taxi_trials=4)
+QUICK = Scale(layouts=8, reps=1, maze_episodes=40, taxi_episodes=40, taxi_trials=4, delay_layouts=4)
 
 
 @dataclass(frozen=True)
@@ -176,7 +179,9 @@ def layout_set(cond: Condition, scale: Scale) -> list[int]:
     if cond.env == "taxi-fixed":
         return list(range(len(FIXED_TASKS)))
     layouts = list(range(min(scale.layouts, LAYOUT_COUNT)))
-    return [L for L in layouts if layout_kind(L) == "honest"] if cond.layouts == "honest" else layouts
+    if cond.layouts == "honest":
+        return [L for L in range(LAYOUT_COUNT) if layout_kind(L) == "honest"][:scale.delay_layouts]
+    return layouts
 
 
 def n_trials(cond: Condition, scale: Scale) -> int:

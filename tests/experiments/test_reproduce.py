@@ -101,10 +101,21 @@ def test_trial_seeds_come_from_layout_and_repetition():
         assert len({s.seed for s in specs}) == n  # no two trials share streams
         if c.env.startswith("maze"):
             layouts = {s.layout for s in specs}
-            assert layouts == (set(range(0, 60, 2)) if c.layouts == "honest" else set(range(60)))
+            assert layouts == (set(range(0, 32, 2)) if c.layouts == "honest" else set(range(40)))
     # the same (layout, repetition) is the same trial in every condition of a layout set
     a, b = trial_spec(BY_NAME["maze-high-delay"], "dqn", 7), trial_spec(BY_NAME["maze-flip"], "dqn", 7)
     assert (a.layout, a.seed) == (b.layout, b.seed)
     bigger = dataclasses.replace(FULL, reps=2)
-    assert trial_spec(BY_NAME["maze-flip"], "dqn", 60, bigger).layout == 0
-    assert trial_spec(BY_NAME["maze-flip"], "dqn", 60, bigger).seed != a.seed
+    assert trial_spec(BY_NAME["maze-flip"], "dqn", 47, bigger).layout == 7
+    assert trial_spec(BY_NAME["maze-flip"], "dqn", 47, bigger).seed != a.seed
+
+
+def test_machines_comparison_of_identical_runs_finds_no_difference(tmp_path):
+    from experiments import machines
+
+    conds = tiny(("maze-high-delay",))
+    rep.reproduce(conds, TINY, str(tmp_path / "a"), workers=1, progress=False, n_boot=50)
+    rep.reproduce(conds, TINY, str(tmp_path / "b"), workers=1, progress=False, n_boot=50)
+    out = machines.compare(str(tmp_path / "a"), str(tmp_path / "b"), n_boot=50)
+    assert sum(r["trials"] for r in out["rows"]) == 5 * 4 and sum(r["differ"] for r in out["rows"]) == 0
+    assert out["changed"] == {} and "no verdict changes" in out["summary"]

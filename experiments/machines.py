@@ -1,0 +1,87 @@
+"""Do results depend on the machine? Compare two reproductions run under different BLAS code paths.
+
+    OPENBLAS_CORETYPE=Haswell python -m experiments reproduce --out A             (the reference)
+    env -u OPENBLAS_CORETYPE python -m experiments reproduce --only COND --out B  (another code path)
+    python -m experiments.machines A B
+
+For every trial of B's conditions: do its per-episode steps and returns equal A's bit for bit? Then every
+claim is evaluated twice, on A's trials and on A's trials with B's conditions swapped in, and any verdict
+that changes is listed. Writes A/machines.json, which REPORT.md shows when A is re-plotted.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+
+import numpy as np
+
+from experiments.conditions import BY_NAME, FULL, Scale
+from experiments.evaluate import evaluate_claims
+from experiments.reproduce import collect
+from experiments.trialcache import plan
+
+
+def _conditions_in(out: str) -> list[str]:
+    cache = os.path.join(out, "cache")
+    return [c for c in BY_NAME if os.path.isdir(os.path.join(cache, c))]
+
+
+def _scale_of(out: str) -> Scale:
+    with open(os.path.join(out, "timing.json")) as fh:
+        return Scale(**json.load(fh)["scale"])
+
+
+def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
+    scale = _scale_of(dir_a) if os.path.exists(os.path.join(dir_a, "timing.json")) else FULL
+    names_a, names_b = _conditions_in(dir_a), _conditions_in(dir_b)
+    conds_a = [BY_NAME[n] for n in names_a]
+    conds_b = [BY_NAME[n] for n in names_b if n in names_a]
+    cached_a, todo_a, _ = plan(conds_a, scale, os.path.join(dir_a, "cache"))
+    cached_b, todo_b, _ = plan(conds_b, scale, os.path.join(dir_b, "cache"))
+    if todo_a or todo_b:
+        raise SystemExit(f"incomplete runs: {len(todo_a)} trials missing in A, {len(todo_b)} in B")
+    rows = []
+    for c in conds_b:
+        for arm in c.arms:
+            keys = [k for (cn, a, k) in cached_b if cn == c.name and a == arm]
+            differ = [k for k in keys if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]
+                      or cached_a[(c.name, arm, k)]["return"] != cached_b[(c.name, arm, k)]["return"]]
+            first = [int(np.argmax(np.array(cached_a[(c.name, arm, k)]["steps"]) != np.array(cached_b[(c.name, arm, k)]["steps"])))
+                     for k in differ if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]]
+            rows.append({"cond": c.name, "arm": arm, "trials": len(keys), "differ": len(differ),
+                         "first_diverging_episode_median": float(np.median(first)) if first else None})
+    data_a, _ = collect(conds_a, scale, cached_a)
+    swapped = dict(cached_a)
+    swapped.update(cached_b)
+    data_b, _ = collect(conds_a, scale, swapped)
+    va, vb = evaluate_claims(data_a, n_boot), evaluate_claims(data_b, n_boot)
+    changed = {cid: [va[cid]["verdict"], vb[cid]["verdict"]] for cid in va if va[cid]["verdict"] != vb[cid]["verdict"]}
+    est = {cid: [va[cid].get("estimate"), vb[cid].get("estimate")] for cid in va}
+    n_diff, n_all = sum(r["differ"] for r in rows), sum(r["trials"] for r in rows)
+    env_b = json.load(open(os.path.join(dir_b, "timing.json"))).get("env", {})
+    env_a = json.load(open(os.path.join(dir_a, "timing.json"))).get("env", {})
+    summary = (f"Run A: BLAS environment {env_a}; run B: {env_b} (the same CPU, another OpenBLAS kernel). Of the "
+               f"{n_all} trials of {', '.join(names_b)} run in both, {n_diff} differ in at least one episode "
+               "(rounding in the matrix products, amplified by training). Verdicts computed with B's trials in "
+               "place of A's: " + ("no verdict changes." if not changed else "changed: " + "; ".join(
+                   f"{k}: {a} -> {b}" for k, (a, b) in changed.items()) + "."))
+    return {"summary": summary, "rows": rows, "changed": changed, "estimates": est, "env_a": env_a, "env_b": env_b}
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 2:
+        print("usage: python -m experiments.machines DIR_A DIR_B", file=sys.stderr)
+        return 2
+    result = compare(argv[0], argv[1])
+    with open(os.path.join(argv[0], "machines.json"), "w") as fh:
+        json.dump(result, fh, indent=1)
+    print(result["summary"])
+    for r in result["rows"]:
+        print(f"  {r['cond']} {r['arm']}: {r['differ']} of {r['trials']} trials differ")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
