@@ -72,6 +72,13 @@ function drawScene() {
   }
 }
 
+function legend(s) {
+  const trail = "Tinted cells: the steps your latest feedback was credited to (green +1, red -1; darker = more weight).";
+  if (!s) return trail;
+  if (s.kind === "maze") return `Blue: the agent. Yellow: the goal. Dark: walls. ${trail}`;
+  return `Orange: the taxi (purple while carrying). Purple dot: the passenger. Yellow frame: the destination. ${trail}`;
+}
+
 function disc(g, [r, q], c, color, scale = 0.32) {
   g.fillStyle = color; g.beginPath(); g.arc(q * c + c / 2, r * c + c / 2, c * scale, 0, 2 * Math.PI); g.fill();
 }
@@ -240,6 +247,7 @@ function onMessage(m) {
       hitl.curve = m.curve.slice(); hitl.trail = m.trail.slice();
       document.getElementById("who").textContent = `you are teacher ${m.teacher_id} - run ${m.run}, ${m.algo} on ${m.env}`;
       document.getElementById("webcam").hidden = !m.camera;
+      document.getElementById("legend").textContent = legend(m.scene);
       document.getElementById("pace").value = String(m.rate);
       drawScene(); drawCurve(); showStatus(); break;
     case "pong": onPong(m); break;
