@@ -28,7 +28,8 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
     console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), env=up.env, layout=up.layout,
                             seed=up.seed, algo=up.algo, host=host, port=port, teacher_prefix=prefix, rate=up.rate,
                             episodes=up.episodes, screen_delay=up.screen_delay, camera=WEBCAM if up.webcam else None)
-    up.banners = getattr(up, "banners", []) + [f"console: http://{'127.0.0.1' if host == '127.0.0.1' else host}:{port}/"]
+    scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
+    up.banners = getattr(up, "banners", []) + [f"console: {scheme}://{host}:{port}/"]
     procs = [(f"teacher.{prefix}", "services.console", console)]
     if up.webcam:
         from services.perception.config import PerceptionLiveConfig

@@ -53,14 +53,35 @@ def check_login(config: ConsoleConfig, request: web.Request) -> str | None:
     """With --security: the teacher name if its password matches the security file, else None."""
     from common.security import load_security
 
+    import hmac
+
+    from common.security import SecurityError
+
     name, password = request.query.get("teacher", ""), request.query.get("password", "")
     security = load_security(config.security)
     try:
         username = security.username("teacher", name)
-        ok = bool(name) and security.password(username) == password
-    except Exception:
+        ok = bool(name) and hmac.compare_digest(security.password(username).encode(), password.encode())
+    except (SecurityError, OSError, ValueError):
         return None
     return name if ok else None
+
+
+def tls_context(config: ConsoleConfig):
+    """With --security on the router's machine: HTTPS with the router's certificate (the run's CA signs it),
+    so a password never crosses the network in clear text. None otherwise."""
+    import ssl
+
+    from common.security import load_security
+
+    if not config.security:
+        return None
+    security = load_security(config.security)
+    if not (security.router_cert and security.router_key):
+        return None
+    ctx = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    ctx.load_cert_chain(security.path(security.router_cert), security.path(security.router_key))
+    return ctx
 
 
 def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Application:
@@ -68,6 +89,9 @@ def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Applica
 
     async def index(request: web.Request) -> web.FileResponse:
         return web.FileResponse(STATIC / "index.html")
+
+    async def settings(request: web.Request) -> web.Response:
+        return web.json_response({"login": bool(config.security)})
 
     async def socket(request: web.Request) -> web.WebSocketResponse:
         name = request.query.get("name") or None
@@ -125,6 +149,7 @@ def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Applica
     app["sockets"] = set()
     app.router.add_get("/", index)
     app.router.add_get("/ws", socket)
+    app.router.add_get("/settings", settings)
     app.router.add_static("/static/", STATIC)
     return app
 
@@ -136,11 +161,12 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     app = make_app(config, rt, hub)
     runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
     await runner.setup()
-    site = web.TCPSite(runner, config.host, config.port)
+    tls = tls_context(config)
+    site = web.TCPSite(runner, config.host, config.port, ssl_context=tls)
     await site.start()
     rt.set_counters_source(lambda: {"people_now": len(hub.people)})
     rt.ready()
-    rt.log(f"console: http://{config.host}:{config.port}/")
+    rt.log(f"console: {'https' if tls else 'http'}://{config.host}:{config.port}/")
     stop_at = None
     try:
         last_announce = 0.0

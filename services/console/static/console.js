@@ -269,11 +269,16 @@ function onMessage(m) {
   }
 }
 
-function connect() {
+async function connect() {
   const q = new URLSearchParams(location.search);
   const params = new URLSearchParams();
   for (const k of ["name", "teacher", "password"]) if (q.get(k)) params.set(k, q.get(k));
-  const ws = hitl.ws = new WebSocket(`ws://${location.host}/ws?${params}`);
+  const settings = await (await fetch("/settings")).json();
+  if (settings.login && !params.get("password")) {  // --security: a teacher name and its password
+    params.set("teacher", prompt("teacher name") || "");
+    params.set("password", prompt("password") || "");
+  }
+  const ws = hitl.ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws?${params}`);
   ws.binaryType = "arraybuffer";
   ws.onopen = () => { for (let i = 0; i < 8; i++) setTimeout(ping, 60 * i); hitl.pinger = setInterval(ping, 2000); };
   ws.onmessage = (ev) => onMessage(JSON.parse(ev.data));
