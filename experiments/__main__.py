@@ -11,6 +11,15 @@ from common.config import ConfigParser, add_config_arguments, config_from_namesp
 from experiments.run_config import RunConfig
 
 
+def check_run(config: RunConfig) -> None:
+    """The env and the agent's networks can be built (else a one-line ValueError naming what is wrong)."""
+    from common.agents.torch_agent import check_agent
+    from common.envs import make_env
+
+    env, _ = make_env(config.task.env, config.task.layout, config.task.teacher_rule)
+    check_agent(config.agent, env)
+
+
 def cmd_run(config: RunConfig) -> int:
     from tqdm import tqdm
 
@@ -71,9 +80,15 @@ def cmd_reproduce(args, argv: list[str]) -> int:
 
 def cmd_bench(args) -> int:
     from experiments.bench import bench, format_report
+    from experiments.bench_paths import bench_paths, format_paths
+    from experiments.conditions import ALGOS, select, trial_spec
 
-    report = bench(args.conditions, args.trials, args.episodes, workers=args.workers, out=args.out)
-    print(format_report(report))
+    if not args.paths_only:
+        report = bench(args.conditions, args.trials, args.episodes, workers=args.workers, out=args.out)
+        print(format_report(report))
+    first = select(args.conditions)[:1]  # the torch path is slower: one condition's trials
+    specs = [trial_spec(c, algo, k, args.episodes) for c in first for algo in ALGOS for k in range(args.trials)]
+    print(format_paths(bench_paths(specs)))
     return 0
 
 
@@ -111,6 +126,8 @@ def main(argv: list[str] | None = None) -> int:
     p_bench.add_argument("--episodes", type=int, default=30, help="episodes per trial (default: 30)")
     p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
     p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
+    p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
+                         "torch MLP, on the first condition's trials)")
     args = parser.parse_args(argv)
     if args.command == "sweep":
         return sweep_cli.main(args, argv, p_sweep)
@@ -125,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "run":
         try:
             config = config_from_namespace(RunConfig, args)
+            check_run(config)
         except (ValueError, OSError) as exc:
             p_run.error(str(exc))
         return cmd_run(config)

@@ -4,19 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from common.agents import ALGOS, AgentConfig, agent_config
+from common.agents import ALGOS, AgentConfig
+from common.agents.config import agent_for
 from common.config import nested, option
 from common.observer import ObserverConfig
 from common.task import Task
-
-
-def agent_for(algo: str, agent) -> AgentConfig:
-    """`agent` (settings dict, None or AgentConfig) on top of `algo`'s preset; an AgentConfig of another
-    algorithm is an error naming both."""
-    built = nested(agent, AgentConfig, build=lambda **kw: agent_config(algo, **kw), name="agent")
-    if built.algo != algo:
-        raise ValueError(f"agent.algo {built.algo!r} differs from algo {algo!r}")
-    return built
 
 
 @dataclass(frozen=True)

@@ -21,9 +21,9 @@ from typing import Callable
 import numpy as np
 import torch
 
-from common.agents import AgentConfig, TrialBatchAgent
+from common.agents import AgentConfig, TrialBatchAgent, make_agent
 from common.agents.agent import CREDITED, STALE
-from common.envs import make_env
+from common.envs import make_env, obs_shape
 from common.observer import REACTION_OFFSET, ObserverBatch, ObserverConfig
 from common.seeding import derive_seed
 from common.steploop import StepLoop
@@ -102,7 +102,8 @@ class _Batch:
         self.world = EnvBatch(list(envs), list(rules), [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
         self.observers = ObserverBatch([s.observer for s in rows_specs],
                                        [derive_seed(s.seed, "observer") for s in rows_specs])
-        self.agent = TrialBatchAgent([s.agent for s in rows_specs], obs_dim, n_actions, [s.seed for s in rows_specs])
+        self.agent = make_agent([s.agent for s in rows_specs], obs_shape(envs[0]), n_actions,
+                                [s.seed for s in rows_specs])
         self.loop = StepLoop(self.agent)
         self.specs, self.results = specs, [TrialResult(s) for s in specs]
         self.n_episodes = np.array([s.episodes for s in specs], np.int64)

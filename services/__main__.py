@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from common.config import add_config_arguments, config_from_namespace
+from common.config import ConfigParser, add_config_arguments, config_from_namespace
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -22,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     from services.credentials import CredentialsConfig, credentials
     from services.launcher import UpConfig, up
 
-    parser = argparse.ArgumentParser(prog="python -m services", description=__doc__,
+    parser = ConfigParser(prog="python -m services", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     commands = {"up": (UpConfig, up), "bench": (BenchConfig, bench), "chaos": (ChaosConfig, chaos),

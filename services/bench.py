@@ -32,7 +32,7 @@ import numpy as np
 
 from common.agents import ALGOS
 from common.config import option
-from common.envs import ENV_NAMES
+from common.task import Task
 
 PHASES = ("ingest", "paper", "paper-b4", "rate")
 PING_KEY = "hitl-bench/{run}/ping"
@@ -44,7 +44,7 @@ class BenchConfig:
     """Throughput (steps/s with zero loss) and latencies (feedback -> H update, weights -> actor) of the live
     system on this machine, with the raw Zenoh round trip for scale."""
 
-    env: str = option("maze", "environment", choices=ENV_NAMES)
+    env: str = option("maze", "environment (a project name, Gymnasium id or module:factory)")
     algo: str = option("dqn-tamer", "agent of the learning phases", choices=ALGOS)
     steps: int = option(8000, "actor steps per phase")
     rate: float = option(250.0, "actor steps per second in the 'rate' phase (one the learner keeps up with)")
@@ -54,6 +54,7 @@ class BenchConfig:
     ping_period: float = option(0.005, "seconds between Zenoh pings")
 
     def __post_init__(self):
+        Task(env=self.env)  # a bad env is a one-line error here
         bad = [p for p in self.phases if p not in PHASES]
         if bad:
             raise ValueError(f"unknown phases {bad}; choose from {', '.join(PHASES)}")
@@ -153,7 +154,7 @@ def echo_main(endpoint: str, run: str) -> int:
 
 
 def phase_settings(name: str, cfg: BenchConfig) -> dict[str, Any]:
-    base = dict(env=cfg.env, algo=cfg.algo, episodes=10**9, max_steps=cfg.steps, progress=False)
+    base = dict(task=Task(env=cfg.env), algo=cfg.algo, episodes=10**9, max_steps=cfg.steps, progress=False)
     if name == "ingest":
         return {**base, "algo": "dqn", "update_interval": 10**9, "max_ahead": cfg.max_ahead}
     if name == "paper":

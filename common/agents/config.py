@@ -76,8 +76,10 @@ class AgentConfig:
             raise ValueError(f"lr must be positive, got {self.lr}")
         if self.algo not in AGENT_CONFIGS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(AGENT_CONFIGS)}")
-        if not self.network:
-            raise ValueError("network must be mlp, cnn, auto or module:factory")
+        from common.agents.torch_net import NETWORKS, network_factory
+
+        if self.network not in NETWORKS:
+            network_factory(self.network)  # a one-line error naming a bad name or module:factory
 
     def with_(self, **changes) -> "AgentConfig":
         return replace(self, **changes)
@@ -132,3 +134,14 @@ def agent_config(algo: str, /, **overrides) -> AgentConfig:
         raise ValueError(f"agent.algo {overrides['algo']!r} differs from algo {algo!r}")
     overrides.pop("algo", None)
     return AGENT_CONFIGS[algo](**overrides)
+
+
+def agent_for(algo: str, agent) -> AgentConfig:
+    """`agent` (a settings dict, None or an AgentConfig) on top of `algo`'s preset, for a parent config's
+    `__post_init__`; an AgentConfig of another algorithm is an error naming both."""
+    from common.config import nested
+
+    built = nested(agent, AgentConfig, build=lambda **kw: agent_config(algo, **kw), name="agent")
+    if built.algo != algo:
+        raise ValueError(f"agent.algo {built.algo!r} differs from algo {algo!r}")
+    return built

@@ -28,8 +28,8 @@ import time
 
 import numpy as np
 
-from common.agents import TrialBatchAgent, agent_config
-from common.envs import make_env
+from common.agents import TrialBatchAgent, make_agent
+from common.envs import make_env, obs_shape
 from common.protocol import (ProtocolError, ServiceStatus, Step, Weights, control_key, status_key, step_key,
                              weights_key)
 from services.actor.control import RunControl
@@ -122,7 +122,7 @@ def main(config: ActorConfig) -> int:
     rt = ServiceRuntime("actor", config)
     env, _ = make_env(config.env, config.layout)
     obs_dim, n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
-    agent = TrialBatchAgent([agent_config(config.algo)], obs_dim, n_actions, [config.seed])
+    agent = make_agent([config.agent], obs_shape(env), n_actions, [config.seed])
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
     slot = WeightsSlot(agent, spec, rt)
     seq = 0

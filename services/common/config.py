@@ -1,21 +1,23 @@
 """Config dataclasses of the live services: each is documented, is the service's command line
 (`common.config`), and is written to the run's log.
 
-Every service shares `ServiceConfig` (run name, router endpoint, launcher link, stats file); the task fields
-(`env`, `layout`, `seed`, `algo`) mean what they mean for the in-process runner, so a live run and an
-in-process run with the same values are the same experiment.
+Every service shares `ServiceConfig` (run name, router endpoint, launcher link, stats file); the task
+(`common.task.Task`: env, layout, seed, teacher rule), the agent (`AgentConfig`, `--agent.*`) and the
+observer (`ObserverConfig`, `--observer.*`) are the same dataclasses as the in-process runner's, so a live
+run and an in-process run with the same values are the same experiment.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
 
-from common.agents import ALGOS
-from common.config import option
-from common.delay import delay_from_spec, parse_probs
-from common.envs import ENV_NAMES
-from common.envs.maze import LAYOUT_COUNT
+from common.agents import ALGOS, AgentConfig
+from common.agents.config import agent_for
+from common.config import nested, option
+from common.delay import delay_from_spec
+from common.observer import ObserverConfig
 from common.protocol import teacher_service_name, validate_name
+from common.task import Task
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 CLOCKS = ("steps", "wall")
@@ -58,9 +60,7 @@ class ServiceConfig:
 class TaskConfig(ServiceConfig):
     """The experiment: environment, layout, seed (same meaning as `python -m experiments run`)."""
 
-    env: str = option("maze", "environment", choices=ENV_NAMES)
-    layout: int = option(0, f"maze layout 0..{LAYOUT_COUNT - 1} (ignored by taxi)")
-    seed: int = option(0, "trial seed: network init, exploration, observer, replay sampling, env")
+    task: Task = option(Task(), "environment, layout, seed, teacher rule", flatten=True)
     max_future: float = option(10.0, "reject inputs stamped more than this many seconds after they arrive")
     max_past: float = option(600.0, "reject inputs stamped more than this many seconds before they arrive")
     resend_window: float = option(30.0, "re-send what was published in the last N s when a learner or recorder "
@@ -68,14 +68,17 @@ class TaskConfig(ServiceConfig):
 
     def __post_init__(self):
         super().__post_init__()
+        object.__setattr__(self, "task", nested(self.task, Task))
         for name in ("max_future", "max_past", "resend_window"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name.replace('_', '-')} must be >= 0, got {v}")
-        if self.env not in ENV_NAMES:
-            raise ValueError(f"unknown env {self.env!r}; choose one of {', '.join(ENV_NAMES)}")
-        if not 0 <= self.layout < LAYOUT_COUNT:
-            raise ValueError(f"layout must be in 0..{LAYOUT_COUNT - 1}, got {self.layout}")
+
+    # The task's fields, read where the services used to have their own copies.
+    env = property(lambda self: self.task.env)
+    layout = property(lambda self: self.task.layout)
+    seed = property(lambda self: self.task.seed)
+    teacher_rule = property(lambda self: self.task.teacher_rule)
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,8 @@ class ActorConfig(TaskConfig):
     """The actor: steps the environment, acts with the newest weights it has, publishes every Step."""
 
     algo: str = option("dqn-tamer", "agent (sets the exploration and mixing schedules)", choices=ALGOS)
+    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset); the "
+                                             "actor uses its network and schedules", exclude=("algo",))
     episodes: int = option(50, "episodes to run, then stop")
     max_steps: int | None = option(None, "also stop after this many steps (none = no limit)")
     rate: float = option(0.0, "steps per second; 0 = as fast as possible")
@@ -102,6 +107,7 @@ class ActorConfig(TaskConfig):
         super().__post_init__()
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
+        object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         if self.episodes < 0:
             raise ValueError(f"episodes must be >= 0, got {self.episodes}")
         if self.max_steps is not None and self.max_steps < 0:
@@ -121,11 +127,7 @@ class TeacherConfig(TaskConfig):
     """The simulated teacher: the core's SimulatedObserver reacting on its own clock to the steps it sees."""
 
     teacher_id: str = option("oracle", "teacher name (last chunk of its feedback key)")
-    p_feedback: float = option(0.5, "probability that the observer gives feedback on a step")
-    delay_probs: tuple[float, ...] = option((0.3, 0.6, 0.1), "true lag distribution over 0,1,2.. steps")
-    flip: float = option(0.0, "probability the polarity is flipped (misread reaction)")
-    stop_episode: int | None = option(None, "silent from this episode on (0-based); none = never")
-    stop_step: int | None = option(None, "silent from this global step on; none = never")
+    observer: ObserverConfig = option(ObserverConfig(), "the simulated observer")
     clock: str = option("steps", "steps: a reaction to step k with lag d is sent once step k+d+1 is seen, stamped "
                                  "half-way between steps k+d and k+d+1; wall: sent at t_action(k) + (d + 0.5) * "
                                  "step-unit seconds (for a fixed actor rate)", choices=CLOCKS)
@@ -136,11 +138,7 @@ class TeacherConfig(TaskConfig):
     def __post_init__(self):
         super().__post_init__()
         _check_name(self.teacher_id, "teacher-id")
-        for name in ("p_feedback", "flip"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and 0 <= v <= 1):
-                raise ValueError(f"{name.replace('_', '-')} must be in [0, 1], got {v}")
-        object.__setattr__(self, "delay_probs", parse_probs(self.delay_probs, "delay-probs"))
+        object.__setattr__(self, "observer", nested(self.observer, ObserverConfig, name="observer"))
         if self.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, got {self.clock!r}")
         if not (math.isfinite(self.step_unit) and self.step_unit > 0):
@@ -158,14 +156,13 @@ class LearnerConfig(TaskConfig):
     """The learner: aligns feedback to steps by timestamp, trains Q and H, publishes weights and episodes."""
 
     algo: str = option("dqn-tamer", "agent", choices=ALGOS)
-    assumed_delay_probs: tuple[float, ...] = option((0.3333, 0.3333, 0.3334),
-                                                    "lag distribution over 0,1,2.. steps the learner assumes for credit")
+    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset; "
+                                             "update-interval b > 1 trades learning per step for throughput)",
+                                       exclude=("algo",))
     screen_delay: str = option("uniform:0.2,4", "delay in seconds the learner assumes for feedback from a person's "
                                                 "screen (the console): uniform:LOW,HIGH (Deep TAMER's 0.2-4 s) or any "
                                                 "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, "
                                                 "loc, scale)")
-    update_interval: int = option(1, "b: a Q and a D_global minibatch update every b steps (Algorithm 2; the paper's "
-                                     "setting is 1; larger trades learning per step for throughput)")
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
                                     "learned steps while it is behind")
     snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
@@ -187,10 +184,8 @@ class LearnerConfig(TaskConfig):
         super().__post_init__()
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
-        object.__setattr__(self, "assumed_delay_probs", parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         delay_from_spec(self.screen_delay)  # a one-line ValueError if malformed
-        if self.update_interval < 1:
-            raise ValueError(f"update-interval must be >= 1, got {self.update_interval}")
         if self.weights_every < 1:
             raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
         if self.snapshot_every < 1:

@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from common.agents import TrialBatchAgent, agent_config
-from common.envs import make_env
+from common.agents import make_agent
+from common.envs import make_env, obs_shape
 from common.envs.scene import SceneTracker, static_scene
 from common.protocol import (KEYS, CompressedImage, Control, Credit, EpisodeSummary, ExpressionPrediction, Feedback,
                              ProtocolError, ServiceStatus, Shown, Step, Time, Weights, camera_key, control_key,
@@ -44,7 +44,7 @@ class Hub:
         env, _ = make_env(config.env, config.layout)
         self.obs_dim, self.n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
         env.close()
-        self.agent = TrialBatchAgent([agent_config(config.algo)], self.obs_dim, self.n_actions, [config.seed])
+        self.agent = make_agent([config.agent], obs_shape(env), self.n_actions, [config.seed])
         self.spec = {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
         self.scene_static = static_scene(config.env, config.layout)
         self.tracker = SceneTracker(config.env, config.layout)

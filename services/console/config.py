@@ -4,7 +4,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from common.agents import ALGOS
+from common.agents import ALGOS, AgentConfig
+from common.agents.config import agent_for
 from common.config import option
 from common.delay import delay_from_spec
 from common.protocol import MAX_RATE
@@ -19,6 +20,8 @@ class ConsoleConfig(TaskConfig):
     is stamped with the person's action time on the system clock and lists the steps their screen showed."""
 
     algo: str = option("dqn-tamer", "agent (for Q, H and alpha_h shown on the page)", choices=ALGOS)
+    agent: AgentConfig | None = option(None, "the run's agent (its network holds the weights shown)",
+                                       exclude=("algo",))
     host: str = option("127.0.0.1", "address the web server listens on (anything but loopback needs --security)")
     port: int = option(8765, "web server port (the launcher picks a free one)")
     teacher_prefix: str = option("web", "people are teachers <prefix>-1, <prefix>-2, ... in the order they open "
@@ -40,6 +43,7 @@ class ConsoleConfig(TaskConfig):
                                       "replay with a timeline to scrub (services/console/replay.py)")
 
     def __post_init__(self):
+        object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         super().__post_init__()
         _check_name(self.teacher_prefix, "teacher-prefix")
         if self.camera is not None:

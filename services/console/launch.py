@@ -25,8 +25,8 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
     host = up.host if up.security else "127.0.0.1"
     prefix = "web" if teacher_id == "oracle" else teacher_id  # the launcher's default id is the oracle's
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
-    console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), env=up.env, layout=up.layout,
-                            seed=up.seed, algo=up.algo, host=host, port=port, teacher_prefix=prefix, rate=up.rate,
+    console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), task=up.task, algo=up.algo,
+                            agent=up.agent, host=host, port=port, teacher_prefix=prefix, rate=up.rate,
                             episodes=up.episodes, screen_delay=up.screen_delay, camera=WEBCAM if up.webcam else None)
     scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
     up.banners = getattr(up, "banners", []) + [f"console: {scheme}://{host}:{port}/"]

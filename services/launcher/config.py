@@ -8,10 +8,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from common.agents import ALGOS
-from common.config import option
+from common.agents import ALGOS, AgentConfig
+from common.agents.config import agent_for
+from common.config import nested, option
 from common.delay import parse_probs
-from common.envs import ENV_NAMES
+from common.observer import ObserverConfig
+from common.task import Task
 from common.protocol import teacher_id_of
 from services.common.config import ActorConfig, FoxgloveConfig, LearnerConfig, RecorderConfig
 from services.teacher.registry import TEACHERS, ProcessSpec
@@ -22,30 +24,29 @@ class UpConfig:
     """Start a live run: an embedded Zenoh router and one process per service, with a progress bar and a
     summary at the end."""
 
-    env: str = option("maze", "environment", choices=ENV_NAMES)
+    task: Task = option(Task(), "environment, layout, seed, teacher rule", flatten=True)
     algo: str = option("dqn-tamer", "agent", choices=ALGOS)
+    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset; its "
+                                             "assumed-delay-probs and update-interval are the flags below)",
+                                       exclude=("algo", "assumed_delay_probs", "update_interval"))
+    observer: ObserverConfig = option(ObserverConfig(), "the simulated observer")
     teacher: str = option("oracle", "teacher kind (services/teacher/registry.py)", choices=tuple(TEACHERS))
     teacher_id: str = option("oracle", "the teacher's name (its feedback key's last chunk)")
     episodes: int = option(50, "episodes the actor runs")
     max_steps: int | None = option(None, "the actor also stops after this many steps (none = no limit)")
     out: str = option("runs", "parent directory of the run's directory")
     run: str | None = option(None, "run name (default: live-<date>-<time>-<random>, unique)")
-    seed: int = option(0, "trial seed (network init, exploration, observer, replay sampling, env)")
-    layout: int = option(0, "maze layout 0..9")
     rate: float = option(0.0, "actor steps per second; 0 = as fast as possible")
     max_ahead: int | None = option(0, "steps the actor may run ahead of the weights it holds (0 = lockstep, as the "
                                       "in-process runner; more trades learning fidelity for throughput; none = never "
                                       "wait)")
-    p_feedback: float = option(0.5, "probability that the simulated observer gives feedback on a step")
-    delay_probs: tuple[float, ...] = option((0.3, 0.6, 0.1), "observer's true lag distribution over 0,1,2.. steps")
     assumed_delay_probs: tuple[float, ...] = option((0.3333, 0.3333, 0.3334),
-                                                    "lag distribution the learner assumes for credit")
-    flip: float = option(0.0, "probability the observer's polarity is flipped")
-    stop_episode: int | None = option(None, "observer silent from this episode on; none = never")
-    stop_step: int | None = option(None, "observer silent from this global step on; none = never")
+                                                    "lag distribution the learner assumes for credit (the agent's "
+                                                    "assumed-delay-probs; face-video shifts it by its lag)")
     host: str = option("127.0.0.1", "address the router listens on (0.0.0.0 to let other machines join)")
     port: int = option(0, "router port; 0 = pick a free one")
-    update_interval: int = option(1, "learner's b: Q and D_global minibatch updates every b steps (paper: 1)")
+    update_interval: int = option(1, "learner's b: Q and D_global minibatch updates every b steps (paper: 1; the "
+                                     "agent's update-interval)")
     weights_every: int = option(16, "learner publishes weights whenever it has caught up, and at least every N "
                                     "learned steps while behind")
     end_grace: float = option(3.0, "learner's wait for teachers after the last step (s)")
@@ -77,6 +78,9 @@ class UpConfig:
                                       "MiB free (a full disk)")
 
     def __post_init__(self):
+        object.__setattr__(self, "task", nested(self.task, Task))
+        object.__setattr__(self, "observer", nested(self.observer, ObserverConfig, name="observer"))
+        object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         if self.teacher not in TEACHERS:
             raise ValueError(f"unknown teacher {self.teacher!r}; choose one of {', '.join(TEACHERS)}")
         why = TEACHERS[self.teacher].available()
@@ -98,8 +102,17 @@ class UpConfig:
                 raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
         if not (math.isfinite(self.restart_backoff) and self.restart_backoff >= 0):
             raise ValueError(f"restart-backoff must be >= 0, got {self.restart_backoff}")
-        object.__setattr__(self, "delay_probs", parse_probs(self.delay_probs, "delay-probs"))
         object.__setattr__(self, "assumed_delay_probs", parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        if self.update_interval < 1:
+            raise ValueError(f"update-interval must be >= 1, got {self.update_interval}")
+        # One agent for learner and actor: the two launcher-level flags are its fields.
+        object.__setattr__(self, "agent", dataclasses.replace(
+            self.agent, assumed_delay_probs=self.assumed_delay_probs, update_interval=self.update_interval))
+
+    # The task's fields, read by the teacher kinds and the report.
+    env = property(lambda self: self.task.env)
+    layout = property(lambda self: self.task.layout)
+    seed = property(lambda self: self.task.seed)
 
 
 class Launch:
@@ -136,8 +149,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     if not teachers:
         raise ValueError(f"teacher kind {c.teacher!r} starts no process")
     teacher_names = [teachers[0].name]
-    learner = LearnerConfig(**launch.common("learner"), env=c.env, layout=c.layout, seed=c.seed, algo=c.algo,
-                            assumed_delay_probs=c.assumed_delay_probs, update_interval=c.update_interval,
+    learner = LearnerConfig(**launch.common("learner"), task=c.task, algo=c.algo, agent=c.agent,
                             weights_every=c.weights_every,
                             end_grace=c.end_grace,
                             wait_teachers=tuple(t for t in map(teacher_id_of, teacher_names) if t),
@@ -145,7 +157,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
                             debug_update_sleep=c.debug_update_sleep, screen_delay=c.screen_delay)
     others = ["recorder", "learner"] + [t.name for t in teachers]
-    actor = ActorConfig(**launch.common("actor"), env=c.env, layout=c.layout, seed=c.seed, algo=c.algo,
+    actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
                         episodes=c.episodes, max_steps=c.max_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
                         start_timeout=c.start_timeout, max_lag=c.max_lag,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights

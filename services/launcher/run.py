@@ -198,7 +198,20 @@ def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
     return run, rundir, launch, procs, router_cfg
 
 
+def check_task_and_agent(cfg: UpConfig) -> None:
+    """The env and the agent's networks can be built: else one line now, not a dying service later."""
+    from common.agents.torch_agent import check_agent
+    from common.envs import make_env
+
+    check_agent(cfg.agent, make_env(cfg.env, cfg.layout, cfg.task.teacher_rule)[0])
+
+
 def up(cfg: UpConfig) -> int:
+    try:
+        check_task_and_agent(cfg)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         run, rundir, launch, procs, router_cfg = prepare(cfg)
     except RunDirError as exc:

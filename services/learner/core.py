@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from common.agents import TrialBatchAgent, agent_config
+from common.agents import make_agent
 from common.agents.agent import STATUS_NAMES
 from common.config import config_record
-from common.envs import make_env
+from common.envs import make_env, obs_shape
 from common.protocol import Feedback, IngestEntry, Step
 from common.steploop import StepLoop
 from services.common.config import LearnerConfig
@@ -70,9 +70,8 @@ class LearnerCore:
         self.obs_dim = int(env.observation_space.shape[0])
         self.n_actions = int(env.action_space.n)
         env.close()
-        self.agent_config = agent_config(config.algo, assumed_delay_probs=config.assumed_delay_probs,
-                                         update_interval=config.update_interval)
-        self.agent = TrialBatchAgent([self.agent_config], self.obs_dim, self.n_actions, [config.seed])
+        self.agent_config = config.agent
+        self.agent = make_agent([self.agent_config], obs_shape(env), self.n_actions, [config.seed])
         self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
         self.screen = ScreenCredit(config.screen_delay, self.agent_config.history_steps)

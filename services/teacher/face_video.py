@@ -182,7 +182,7 @@ class FaceVideoCore:
 
     def __init__(self, config: FaceVideoConfig, library: ClipLibrary):
         self.config, self.lib = config, library
-        _, rule = make_env(config.env, config.layout)
+        _, rule = make_env(config.env, config.layout, config.teacher_rule)
         self.observer = SimulatedObserver(ObserverConfig(config.p_feedback, config.delay_probs, config.flip,
                                                          config.stop_episode, config.stop_step),
                                           rule, derive_seed(config.seed, "observer"), config.step_unit)
@@ -319,10 +319,11 @@ def face_video_processes(up, teacher_id: str) -> list[tuple[str, str, object]]:
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
     perception = PerceptionLiveConfig(**common, stats_out=up.stats_path(teacher), source=f"zenoh:{teacher_id}",
                                       teacher_id=teacher_id, stop_with=(observer,))
-    face = FaceVideoConfig(**common, stats_out=up.stats_path(observer), env=up.env, layout=up.layout, seed=up.seed,
-                           teacher_id=teacher_id, camera=teacher_id, p_feedback=up.p_feedback,
-                           delay_probs=up.delay_probs, flip=up.flip, stop_episode=up.stop_episode,
-                           stop_step=up.stop_step, step_unit=1.0 / up.rate)
+    o = up.observer
+    face = FaceVideoConfig(**common, stats_out=up.stats_path(observer), task=up.task,
+                           teacher_id=teacher_id, camera=teacher_id, p_feedback=o.p_feedback,
+                           delay_probs=o.delay_probs, flip=o.p_flip, stop_episode=o.stop_episode,
+                           stop_step=o.stop_step, step_unit=1.0 / up.rate)
     return [(teacher, "services.perception", perception), (observer, "services.teacher.face_video", face)]
 
 

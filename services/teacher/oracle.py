@@ -21,7 +21,7 @@ import dataclasses
 import heapq
 
 from common.envs import make_env
-from common.observer import ObserverConfig, SimulatedObserver
+from common.observer import SimulatedObserver
 from common.protocol import Step
 from common.seeding import derive_seed
 from services.common.config import TeacherConfig
@@ -41,12 +41,11 @@ class Reaction:
 class OracleTeacher:
     def __init__(self, config: TeacherConfig):
         self.config = config
-        _, rule = make_env(config.env, config.layout)
-        obs_cfg = ObserverConfig(config.p_feedback, config.delay_probs, config.flip, config.stop_episode,
-                                 config.stop_step)
+        _, rule = make_env(config.env, config.layout, config.teacher_rule)
+        obs_cfg = config.observer
         unit = 1.0 if config.clock == "steps" else config.step_unit
         self.observer = SimulatedObserver(obs_cfg, rule, derive_seed(config.seed, "observer"), unit)
-        self.clock = StepClock(len(config.delay_probs) + 8)
+        self.clock = StepClock(len(obs_cfg.delay_probs) + 8)
         self._pending: list[tuple[float, int, object, int]] = []  # (due key, counter, event, ref_seq)
         self._counter = 0
         self.counters: collections.Counter[str] = collections.Counter()

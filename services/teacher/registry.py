@@ -48,9 +48,8 @@ def _oracle(up: Any, teacher_id: str) -> list[ProcessSpec]:
     from services.common.config import TeacherConfig, teacher_service_name
 
     cfg = TeacherConfig(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid,
-                        stats_out=up.stats_path(teacher_service_name(teacher_id)), env=up.env, layout=up.layout,
-                        seed=up.seed, teacher_id=teacher_id, p_feedback=up.p_feedback, delay_probs=up.delay_probs,
-                        flip=up.flip, stop_episode=up.stop_episode, stop_step=up.stop_step,
+                        stats_out=up.stats_path(teacher_service_name(teacher_id)), task=up.task,
+                        teacher_id=teacher_id, observer=up.observer,
                         clock="wall" if up.rate > 0 else "steps",
                         step_unit=1.0 / up.rate if up.rate > 0 else 0.1)
     return [ProcessSpec(teacher_service_name(teacher_id), "services.teacher", cfg)]

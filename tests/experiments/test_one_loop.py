@@ -3,10 +3,11 @@ the same weights bit for bit, for all four agents."""
 import numpy as np
 import pytest
 
-from common.agents import ALGOS, agent_config
+from common.agents import ALGOS
 from common.observer import ObserverConfig
 from common.protocol import Feedback, Step
 from experiments.runner import TrialSpec, run_trials
+from common.task import Task
 from services.common.config import LearnerConfig
 from services.learner.core import LearnerCore
 
@@ -41,8 +42,8 @@ def to_messages(inputs) -> list:
 
 @pytest.mark.parametrize("algo", ALGOS)
 def test_runner_and_live_learner_end_with_identical_weights(algo):
-    config = LearnerConfig(run=RUN, env="maze", layout=2, algo=algo, seed=11)
-    agent = agent_config(algo, assumed_delay_probs=config.assumed_delay_probs, update_interval=config.update_interval)
+    config = LearnerConfig(run=RUN, task=Task(env="maze", layout=2, seed=11), algo=algo)
+    agent = config.agent
     spec = TrialSpec("maze", agent, ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11, layout=2,
                      episodes=8)
     result, inputs = runner_inputs(spec)

@@ -12,6 +12,7 @@ from common.envs import make_env
 from common.observer import ObserverConfig, SimulatedObserver
 from common.protocol import Feedback, Step
 from common.seeding import derive_seed
+from common.task import Task
 from services.common.config import LearnerConfig, TeacherConfig
 from services.common.stepclock import StepClock
 from services.learner.core import LearnerCore, learner_config_from_record
@@ -119,7 +120,7 @@ def test_actor_restart_forgets_history():
 
 
 def run_core(steps, feedbacks, order) -> LearnerCore:
-    core = LearnerCore(config(seed=3))
+    core = LearnerCore(config(task=Task(seed=3)))
     for kind, i in order:
         if kind == "s":
             core.on_step(steps[i])
@@ -173,7 +174,7 @@ def test_same_inputs_same_order_same_weights_and_entries():
 
 
 def test_config_record_round_trips():
-    core = LearnerCore(config(algo="deep-tamer", seed=7, assumed_delay_probs=(0.2, 0.8)))
+    core = LearnerCore(config(algo="deep-tamer", task=Task(seed=7), agent={"assumed_delay_probs": (0.2, 0.8)}))
     rebuilt = learner_config_from_record(core.config_record()["learner"])
     assert rebuilt == core.config
 
@@ -185,7 +186,7 @@ def teacher(**kw) -> OracleTeacher:
 
 
 def test_steps_clock_reacts_after_step_k_plus_lag_plus_one_stamped_half_way():
-    t = teacher(p_feedback=1.0, seed=5)
+    t = teacher(observer=ObserverConfig(p_feedback=1.0), task=Task(seed=5))
     times = [1000.0 + 0.37 * k ** 1.5 for k in range(40)]
     steps = make_steps(40, times)
     sent = []
@@ -207,7 +208,7 @@ def test_steps_clock_reacts_after_step_k_plus_lag_plus_one_stamped_half_way():
 
 
 def test_wall_clock_reacts_in_real_time():
-    t = teacher(p_feedback=1.0, clock="wall", step_unit=0.1, seed=1)
+    t = teacher(observer=ObserverConfig(p_feedback=1.0), clock="wall", step_unit=0.1, task=Task(seed=1))
     steps = make_steps(3, [50.0, 50.1, 50.2])
     for s in steps:
         assert t.on_step(s) == []
@@ -224,7 +225,7 @@ def test_teacher_config_rejects_bad_values():
     with pytest.raises(ValueError):
         TeacherConfig(run="bad run")
     with pytest.raises(ValueError):
-        TeacherConfig(p_feedback=1.5)
+        TeacherConfig(observer={"p_feedback": 1.5})
     assert dataclasses.replace(TeacherConfig(), clock="wall").clock == "wall"
 
 

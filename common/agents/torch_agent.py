@@ -1,0 +1,55 @@
+"""Choosing the agent's value networks: the paper's numpy MLP (`networks.StackedMLP`, the fast path) or
+torch modules (`torch_net.TorchValueNetworks`) behind the same `ValueNetworks` interface, so everything else
+(replay, D_global, credit, exploration streams, schedules, minibatch draws) is the same on either path. On the
+paper's MLP (`--agent.network torch-mlp`) the two paths give the same updates (tests/core/test_torch_path.py).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from common.agents.agent import TrialBatchAgent
+from common.agents.build import build_parts
+from common.agents.config import AgentConfig
+from common.agents.torch_net import TorchValueNetworks, build_modules, resolve_network
+from common.seeding import derive_seed
+
+
+def torch_networks(configs: list[AgentConfig], obs_shape: tuple[int, ...], n_actions: int, seeds: list[int],
+                   purpose: str, trained: bool = True) -> TorchValueNetworks:
+    """One module per trial of `configs[0].network` (seeded by `purpose`), with RMSprop if trained."""
+    c = configs[0]
+    try:
+        import torch
+
+        torch.device(c.device)
+    except RuntimeError as exc:
+        raise ValueError(f"device {c.device!r}: {exc}") from None
+    modules = build_modules(resolve_network(c.network, obs_shape), obs_shape, n_actions, c.hidden,
+                            [derive_seed(s, purpose) for s in seeds])
+    return TorchValueNetworks(modules, n_actions, c.lr if trained else None, c.rmsprop_alpha, c.rmsprop_eps,
+                              c.device)
+
+
+def make_agent(configs: list[AgentConfig], obs_shape: tuple[int, ...] | int, n_actions: int,
+               seeds: list[int], step_unit: float = 1.0) -> TrialBatchAgent:
+    """The agent for `configs` (one per trial; they share their network): numpy MLP for `mlp` (and `auto`
+    on flat observations), torch modules for anything else (`cnn`, `torch-mlp`, `module:factory`)."""
+    shape = (int(obs_shape),) if isinstance(obs_shape, (int, np.integer)) else tuple(int(s) for s in obs_shape)
+    obs_dim = int(np.prod(shape))
+    parts = build_parts(configs, obs_dim, n_actions, seeds, step_unit)
+    if resolve_network(configs[0].network, shape) != "mlp":
+        parts.q = torch_networks(configs, shape, n_actions, seeds, "q-init")
+        parts.q_target = torch_networks(configs, shape, n_actions, seeds, "q-init", trained=False)
+        parts.h = torch_networks(configs, shape, n_actions, seeds, "h-init")
+    return TrialBatchAgent(configs, obs_dim, n_actions, seeds, step_unit, parts=parts)
+
+
+def check_agent(config: AgentConfig, env) -> None:
+    """Raise the one-line ValueError that building `config`'s networks for `env` would (a CNN on flat
+    observations, a factory that fails or returns the wrong shape), before a run starts."""
+    from common.envs import obs_shape
+
+    shape = obs_shape(env)
+    name = resolve_network(config.network, shape)
+    if name != "mlp":
+        build_modules(name, shape, int(env.action_space.n), config.hidden, [0])
