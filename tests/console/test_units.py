@@ -1,0 +1,102 @@
+"""The console's parts without a browser: the page gate, a screen's timeline, the scene, and the learner's credit
+of a person's feedback in seconds over on-screen intervals."""
+from __future__ import annotations
+
+import json
+import struct
+
+import numpy as np
+import pytest
+
+from common.envs import make_env
+from common.envs.scene import SceneTracker, static_scene
+from common.protocol import Feedback, ShownStep, Step
+from common.screen import ScreenTimeline
+from services.common.config import LearnerConfig
+from services.console.people import PageError, PageGate, Person, RateLimit
+from services.learner.core import LearnerCore
+
+NOW = 1_800_000_000.0
+
+
+def person() -> Person:
+    return Person("web-1", RateLimit(8, 16), RateLimit(15))
+
+
+def reason(fn, *args) -> str:
+    with pytest.raises(PageError) as e:
+        fn(*args)
+    return e.value.reason
+
+
+def test_page_gate_accepts_good_input_and_names_the_reason_for_bad():
+    gate, p = PageGate(5.0, 1000, clock=lambda: NOW), person()
+    fb = gate.text(json.dumps({"type": "feedback", "value": -1, "t_page": NOW - 0.4, "offset": 0.1, "rtt": 0.001}), p)
+    assert fb["t_sys"] == pytest.approx(NOW - 0.3) and fb["value"] == -1 and p.offset == 0.1
+    cases = {
+        "{oops": "malformed", "[]": "malformed", json.dumps({"type": "hack"}): "unknown_kind",
+        json.dumps({"type": "feedback", "value": 2, "t_page": NOW, "offset": 0, "rtt": 0}): "bad_value",
+        json.dumps({"type": "feedback", "value": True, "t_page": NOW, "offset": 0, "rtt": 0}): "bad_value",
+        json.dumps({"type": "feedback", "value": 1, "t_page": NOW + 60, "offset": 0, "rtt": 0}): "absurd_timestamp",
+        json.dumps({"type": "feedback", "value": 1, "t_page": "now", "offset": 0, "rtt": 0}): "wrong_type",
+        '{"type": "ping", "t0": NaN}': "non_finite",
+        json.dumps({"type": "control", "command": "pace", "rate": 0}): "bad_value",
+        json.dumps({"type": "control", "command": "reboot"}): "bad_value",
+        json.dumps({"type": "shown", "seq": -1, "actor": "a", "t_page": NOW, "offset": 0, "rtt": 0}): "bad_value",
+        "x" * 5000: "oversized",
+    }
+    for text, why in cases.items():
+        assert reason(gate.text, text, p) == why, text[:60]
+    frame = struct.pack("<d", NOW - 0.1) + b"\xff\xd8" + b"\0" * 100
+    assert gate.frame(frame, p)[1][:2] == b"\xff\xd8"
+    assert reason(gate.frame, b"\0" * 50, p) == "bad_frame"
+    assert reason(gate.frame, struct.pack("<d", NOW) + b"\xff\xd8" + b"\0" * 2000, p) == "oversized_frame"
+    flood = [gate.text(json.dumps({"type": "feedback", "value": 1, "t_page": NOW, "offset": 0, "rtt": 0}), p)
+             for _ in range(15)]  # the burst (16, one used above) ...
+    assert len(flood) == 15
+    assert reason(gate.text, json.dumps({"type": "feedback", "value": 1, "t_page": NOW, "offset": 0, "rtt": 0}),
+                  p) == "flood"  # ... and then no more
+
+
+def test_screen_timeline_lists_what_a_feedback_may_refer_to():
+    tl = ScreenTimeline()
+    for k in range(20):
+        assert tl.add("a", k, 100.0 + 0.5 * k)
+    assert not tl.add("a", 5, 200.0)  # an older step
+    actor, shown = tl.window(106.3, 4.0)
+    assert actor == "a" and [s.seq for s in shown] == list(range(4, 13))  # on screen at 102.3 .. newest by 106.3
+
+
+def test_scene_follows_the_maze_and_the_taxi():
+    assert static_scene("maze", 2)["walls"][0][0] in (0, 1)
+    env, _ = make_env("maze-pomdp", 2)
+    env.reset(seed=0)
+    track = SceneTracker("maze-pomdp", 2)
+    for t, a in enumerate([0, 1, 1, 2, 3, 0, 1]):
+        nxt = env.step(a)[0]
+        assert track.after(t, a, nxt)["agent"] == list(env.pos)
+    taxi = SceneTracker("taxi").after(0, 0, np.eye(19)[[1, 6, 12, 17]].sum(axis=0))
+    assert taxi == {"taxi": [1, 1], "passenger": 2, "dest": 2}
+
+
+def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals():
+    core = LearnerCore(LearnerConfig(run="r", env="maze"))
+    env, _ = make_env("maze", 0)
+    obs, t0 = env.reset(seed=0)[0], 1000.0
+    shown = [ShownStep(k, t0 + 0.5 * k + 0.05) for k in range(12)]
+    fb = Feedback(run="r", teacher_id="web-1", seq=0, t_reaction=t0 + 5.8, value=1, source="key", t_page=5.0,
+                  actor="act-1", shown=shown)
+    assert core.on_feedback(fb) == []  # held: the newest step it lists is not learned yet
+    results = []
+    for k in range(12):
+        nxt, r, term, _, _ = env.step(k % 4)
+        results += core.on_step(Step(run="r", incarnation="act-1", seq=k, t_action=t0 + 0.5 * k, episode=0,
+                                     t_in_episode=k, obs=obs.tolist(), action=k % 4, reward=float(r),
+                                     next_obs=nxt.tolist(), terminated=bool(term), truncated=False,
+                                     weights_version=k, info={}))[0]
+        obs = nxt
+    (res,) = results
+    # uniform 0.2-4 s: each step gets the share of [t - 4, t - 0.2] = [1001.8, 1005.6] it was on screen
+    want = {3: 0.25 / 3.8, **{k: 0.5 / 3.8 for k in range(4, 11)}, 11: 0.05 / 3.8}
+    assert res.status == "credited" and dict(res.credited) == pytest.approx(want)
+    assert res.lost_mass == pytest.approx(0.0, abs=1e-9)
