@@ -3,6 +3,7 @@
   up     start an embedded Zenoh router and every service as its own process; progress; summary
   bench  throughput and latency figures of the live system on this machine (not a test)
   chaos  SIGKILL every service in turn during a run: losses, recovery times, rejected inputs (docs/faults.md)
+  bench-compare  steps/s of this checkout against another (e.g. a worktree of an earlier commit), interleaved
   credentials  a run's credential files for services started by hand, or one more teacher's (docs/security.md)
 
 Each service also runs on its own: python -m services.{actor,teacher,learner,recorder} --help, and
@@ -18,6 +19,7 @@ from common.config import ConfigParser, add_config_arguments, config_from_namesp
 
 def main(argv: list[str] | None = None) -> int:
     from services.bench import BenchConfig, bench
+    from services.bench_compare import BenchCompareConfig, bench_compare
     from services.chaos import ChaosConfig, chaos
     from services.credentials import CredentialsConfig, credentials
     from services.launcher import UpConfig, up
@@ -26,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     commands = {"up": (UpConfig, up), "bench": (BenchConfig, bench), "chaos": (ChaosConfig, chaos),
-                "credentials": (CredentialsConfig, credentials)}
+                "credentials": (CredentialsConfig, credentials), "bench-compare": (BenchCompareConfig, bench_compare)}
     parsers = {}
     for name, (cls, _) in commands.items():
         doc = (cls.__doc__ or "").strip()

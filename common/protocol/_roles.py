@@ -9,6 +9,8 @@ by every receiver) and the secured router's access rules (`common.security`) are
 """
 from __future__ import annotations
 
+import functools
+
 from ._keys import ROOT, parse_key, validate_name
 from ._spec import ProtocolError
 
@@ -77,6 +79,7 @@ def publish_patterns(identity: str) -> tuple[str, ...]:
     return tuple(p.replace("{id}", f"{name}+") for p in PUBLISHES[role]) + own
 
 
+@functools.lru_cache(maxsize=4096)  # checked for every message received: a bounded cache
 def may_publish(identity: str, key: str) -> bool:
     """True if `identity` may publish on the concrete key `key` (the run is not checked here)."""
     try:

@@ -213,6 +213,10 @@ class RecorderConfig(ServiceConfig):
                                             "(empty: only on SIGTERM / Ctrl-C)")
     flush_interval: float = option(0.5, "seconds between MCAP chunk flushes while data is pending")
     linger: float = option(0.3, "seconds to keep recording after the last awaited service stopped")
+    max_sender_mb_s: float = option(32.0, "write at most this many MiB per second from any one sender (the rest is "
+                                          "counted as capped_<kind>): a flood cannot fill the disk")
+    max_camera_mb_s: float = option(4.0, "and at most this many MiB per second of frames per camera")
+    max_camera_fps: float = option(60.0, "and at most this many frames per second per camera")
 
     def __post_init__(self):
         super().__post_init__()
@@ -220,6 +224,10 @@ class RecorderConfig(ServiceConfig):
             _check_name(name, "stop-when")
         if not (math.isfinite(self.flush_interval) and self.flush_interval > 0):
             raise ValueError(f"flush-interval must be positive, got {self.flush_interval}")
+        for name in ("max_sender_mb_s", "max_camera_mb_s", "max_camera_fps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
 
 
 @dataclass(frozen=True)

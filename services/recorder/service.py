@@ -26,6 +26,9 @@ from common.scene import SceneBuilder
 from services.common.config import RecorderConfig
 from services.common.faults import AliveWatch, first_time_logger
 from services.common.runtime import ServiceRuntime, service_main
+from services.recorder.caps import RecordCaps
+
+MIB = 1 << 20
 
 
 def load_run_config(config: RecorderConfig) -> RunConfig:
@@ -50,6 +53,7 @@ def main(config: RecorderConfig) -> int:
     rt.set_counters_source(lambda: {"messages_written": writer.counters["messages"],
                                     "bytes_written": writer.counters["bytes"]})
     stopped: set[str] = set()
+    caps = RecordCaps(config.max_sender_mb_s * MIB, config.max_camera_mb_s * MIB, config.max_camera_fps)
     try:
         with rt.session() as session:
             with subscription(session, run_prefix(config.run), maxsize=1 << 16, policy="block",
@@ -74,6 +78,9 @@ def main(config: RecorderConfig) -> int:
                             st = decode(item.key, item.data)
                             if not parse_key(item.key).spec.logged:
                                 rt.counters[f"not_logged_{item.key.split('/')[2]}"] += 1
+                                continue
+                            if not caps.admit(item.key, len(item.data)):
+                                rt.counters[f"capped_{item.key.split('/')[2]}"] += 1
                                 continue
                             t_log = int(item.t_recv * 1e9)
                             writer.write(item.key, item.data, log_time=t_log,

@@ -101,6 +101,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     last_actor = list(steps)[-1] if steps else None
     for row in ep_rows:  # the episode a killed actor was in: closed by the learner, not a result
         row["aborted"] = not row["finished"] and row["actor"] != last_actor
+        # the last actor's episode cut by Ctrl-C or --max-steps: marked, and not a return either
+        row["unfinished"] = not row["finished"] and row["actor"] == last_actor
     learner_eps = {(e.incarnation, e.episode): e for e in episodes}
     for row in ep_rows:
         e = learner_eps.get((row["actor"], row["episode"]))
@@ -185,7 +187,9 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "weights_logged": sum(len(v) for v in weights.values()),  # snapshots (Weights in older logs)
         "learners": learners,
         "episodes": ep_rows,
-        "returns": [r["return"] for r in ep_rows if not r["aborted"]],
+        "returns": [r["return"] for r in ep_rows if r["finished"]],
+        "unfinished_episodes": [{"actor": r["actor"], "episode": r["episode"], "steps": r["steps"]}
+                                for r in ep_rows if r["unfinished"]],
         "services": {name: {"state": st.state, "counters": dict(st.counters)} for name, st in sorted(statuses.items())},
     }
     if reactions:  # face-video: what the perception path did to the observer's reactions

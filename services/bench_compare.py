@@ -1,0 +1,64 @@
+"""`python -m services bench-compare --against DIR`: `services bench` of this checkout and of another one (e.g. a
+worktree of an earlier commit), interleaved phase by phase and repeated, printed side by side with ratios: on a
+shared, noisy machine only a comparison within one run means anything."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from common.config import option
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class BenchCompareConfig:
+    """Steps/s of the live system, this checkout against another, interleaved, in one run."""
+
+    against: str = option("", "the other checkout (a git worktree of the commit to compare with)")
+    phases: tuple[str, ...] = option(("ingest", "paper"), "bench phases to compare")
+    steps: int = option(3000, "actor steps per phase")
+    repeats: int = option(2, "rounds (each runs every phase in both checkouts, alternating which goes first)")
+    out: str = option("runs/bench-compare", "directory of the runs and compare.json")
+
+    def __post_init__(self):
+        if not self.against or not (Path(self.against) / "services" / "bench.py").is_file():
+            raise ValueError(f"--against {self.against!r}: not a checkout of this project")
+
+
+def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> float | None:
+    """Run one phase with `checkout`'s own code; its steps/s (None if it failed)."""
+    cmd = [sys.executable, "-m", "services", "bench", "--phases", phase, "--steps", str(cfg.steps), "--out", str(out)]
+    done = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True,
+                          text=True)
+    files = sorted(out.glob("bench-*.json"))
+    if done.returncode != 0 or not files:
+        print(f"  {checkout}: {phase} failed (exit {done.returncode}): {done.stderr[-400:]}", file=sys.stderr)
+        return None
+    return json.loads(files[-1].read_text())["phases"][phase]["steps_per_s"]
+
+
+def bench_compare(cfg: BenchCompareConfig) -> int:
+    other, out = Path(cfg.against).resolve(), Path(cfg.out) / time.strftime("%Y%m%d-%H%M%S")
+    rows: dict[str, dict[str, list]] = {p: {"this": [], "other": []} for p in cfg.phases}
+    for r in range(cfg.repeats):
+        for phase in cfg.phases:
+            order = [("other", other), ("this", ROOT)] if r % 2 == 0 else [("this", ROOT), ("other", other)]
+            for label, checkout in order:
+                sps = one(checkout, phase, cfg, out / f"{label}-{phase}-{r}")
+                rows[phase][label].append(sps)
+                print(f"round {r + 1} {phase:<8} {label:<5} {sps} steps/s", file=sys.stderr, flush=True)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "compare.json").write_text(json.dumps({"against": str(other), "rows": rows}, indent=2))
+    print(f"steps/s, this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved:")
+    print(f"{'phase':<10}{'other':>24}{'this':>24}{'ratio this/other':>18}")
+    for phase, r in rows.items():
+        a, b = [x for x in r["other"] if x], [x for x in r["this"] if x]
+        ratio = (sum(b) / len(b)) / (sum(a) / len(a)) if a and b else float("nan")
+        print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}{ratio:>18.3f}")
+    return 0

@@ -1,0 +1,144 @@
+"""Supervision and the run directory (issue 10): a hung learner is killed and restarted, a dead actor is restarted,
+a full or read-only disk ends the run with one line and a summary.json, two launchers never share a run.
+
+`pytest -k hang`, `-k disk` select them."""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import psutil
+import pytest
+
+from .live import ROOT, assert_nothing_left, env, processes_mentioning, start_up, wait_for
+
+pytestmark = [pytest.mark.live, pytest.mark.timeout(600)]
+
+
+def service_process(rundir, module: str) -> psutil.Process | None:
+    for p in processes_mentioning(str(rundir)):
+        if module in (p.info["cmdline"] or []):
+            return p
+    return None
+
+
+def log_size(rundir) -> int:
+    return sum(p.stat().st_size for p in rundir.glob("session*.mcap"))
+
+
+def assert_complete(s: dict, episodes: int | None = None) -> None:
+    assert s["outcome"] == "ok", s
+    n = s["steps_sent"]
+    assert n > 0 and s["steps_logged"] == n and s["steps_learned"] == n, s
+    assert s["steps_not_ingested"] == 0 and s["feedback_not_ingested"] == 0, s
+    if episodes is not None:
+        assert len(s["returns"]) == episodes
+
+
+def test_hang_learner_stopped_longer_than_its_lease_is_restarted_and_nothing_is_lost(tmp_path):
+    launch = start_up(tmp_path, "hang", "--episodes", "200", "--max-steps", "1500", "--rate", "40", "--seed", "2")
+    try:
+        assert wait_for(lambda: log_size(launch.rundir) > 50_000, 120), "the run never got going"
+        learner = service_process(launch.rundir, "services.learner")
+        assert learner is not None
+        learner.send_signal(signal.SIGSTOP)  # hung: alive, but its Zenoh session lapses
+        t_stop = time.time()
+        assert wait_for(lambda: not learner.is_running() or learner.status() == psutil.STATUS_ZOMBIE, 90)
+        took = time.time() - t_stop
+        rc = launch.wait(timeout=400)
+    finally:
+        if launch.popen.poll() is None:
+            launch.popen.kill()
+    assert rc == 0, launch.out
+    assert_nothing_left(launch.rundir)
+    s = launch.summary()
+    assert_complete(s)
+    assert s["steps_sent"] == 1500
+    kills = [r for r in s["restarts"] if r["service"] == "learner"]
+    assert kills and kills[0]["how"] == "signal SIGKILL" and kills[0]["recovered_s"] is not None, s["restarts"]
+    assert "is hung" in launch.out and took < 60, (took, launch.out[-2000:])
+
+
+def test_hang_dead_actor_is_restarted_and_the_run_completes(tmp_path):
+    """A SIGTERM the launcher did not send is a death: the actor ends 'failed', is restarted, and the run (its
+    teacher, learner, recorder) goes on to the last episode."""
+    launch = start_up(tmp_path, "dead", "--episodes", "12", "--rate", "40", "--seed", "1")
+    try:
+        assert wait_for(lambda: log_size(launch.rundir) > 50_000, 120), "the run never got going"
+        actor = service_process(launch.rundir, "services.actor")
+        actor.send_signal(signal.SIGTERM)
+        rc = launch.wait(timeout=400)
+    finally:
+        if launch.popen.poll() is None:
+            launch.popen.kill()
+    assert rc == 0, launch.out
+    assert_nothing_left(launch.rundir)
+    s = launch.summary()
+    assert_complete(s, episodes=12)
+    assert [r["service"] for r in s["restarts"]] == ["actor"] and s["restarts"][0]["exit"] == 1, s["restarts"]
+    assert s["actor_incarnations"] == 2
+
+
+def in_namespace(tmp_path, mount: str, *up_args: str) -> subprocess.CompletedProcess:
+    """`services up --out <tmpfs>` in a private mount namespace (unshare: no privileges needed), then the run
+    directory copied out for the test to read."""
+    out, keep = tmp_path / "mnt", tmp_path / "keep"
+    out.mkdir()
+    keep.mkdir()
+    script = (f"mount -t tmpfs -o {mount} tmpfs {out} && {sys.executable} -m services up --out {out} --run full "
+              f"--progress false {' '.join(up_args)}; rc=$?; cp -r {out}/. {keep}/ 2>/dev/null; exit $rc")
+    assert shutil.which("unshare"), "util-linux unshare is needed (apt-get install util-linux)"
+    return subprocess.run(["unshare", "-rm", "sh", "-c", script], cwd=ROOT, env=env(), capture_output=True,
+                          text=True, timeout=400)
+
+
+def test_disk_full_ends_the_run_with_one_line_and_a_summary(tmp_path):
+    done = in_namespace(tmp_path, "size=1500k", "--episodes", "200", "--rate", "0", "--min-free-mb", "0.01")
+    err = done.stderr
+    assert done.returncode == 1, err[-3000:]
+    assert "Traceback" not in err, err[-3000:]
+    errors = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1 and "disk full" in errors[0], err[-3000:]
+    s = json.loads((tmp_path / "keep" / "full" / "summary.json").read_text())
+    assert s["outcome"] == "disk_full" and "disk full" in s["error"], s
+
+
+def test_disk_read_only_out_is_one_line(tmp_path):
+    done = in_namespace(tmp_path, "ro,size=64k", "--episodes", "2")
+    assert done.returncode == 2
+    assert "Traceback" not in done.stderr
+    assert done.stderr.strip().count("\n") == 0 and done.stderr.startswith("error: cannot write"), done.stderr
+
+
+def test_two_launchers_with_the_same_out_make_two_runs_that_both_complete(tmp_path):
+    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--episodes", "3", "--progress", "false"]
+    procs = [subprocess.Popen(cmd, cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+             for _ in range(2)]
+    outs = [p.communicate(timeout=400)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    runs = sorted(d for d in tmp_path.iterdir() if d.is_dir())
+    assert len(runs) == 2, runs
+    for rundir in runs:
+        s = json.loads((rundir / "summary.json").read_text())
+        assert_complete(s, episodes=3)
+        assert_nothing_left(rundir)
+
+
+def test_a_run_directory_in_use_is_refused(tmp_path):
+    launch = start_up(tmp_path, "busy", "--episodes", "200", "--rate", "20")
+    try:
+        assert wait_for((launch.rundir / "config" / "run.json").exists, 60)
+        second = subprocess.run([sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", "busy",
+                                 "--progress", "false"], cwd=ROOT, env=env(), capture_output=True, text=True,
+                                timeout=120)
+        assert second.returncode == 2 and "in use by another launcher" in second.stderr, second.stderr
+    finally:
+        launch.popen.send_signal(signal.SIGINT)
+        launch.wait(timeout=120)
+    assert_nothing_left(launch.rundir)
+    assert os.path.exists(launch.rundir / "summary.json")
