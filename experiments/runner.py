@@ -134,11 +134,11 @@ class _Batch:
         st, R = self.st, self.R
         slot = (step - 1) % R
         due = st["inbox"][rows, slot]
+        if not due.any():
+            return
         st["inbox"][rows, slot] = 0
         has = due != 0
         counts = has.sum(axis=1)
-        if not counts.any():
-            return
         k = nz(counts > 0)
         order = np.argsort(~has[k], axis=1, kind="stable")
         values = np.take_along_axis(due[k], order, axis=1)  # each trial's reactions, oldest step first
@@ -255,7 +255,7 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     batch = _Batch(specs, use_tables, record_actions, greedy_eval, on_episode, on_trial_done, on_input)
     tick_start = time.process_time()
     while batch.st["active"].any():
-        running = int(batch.st["active"].sum())
+        running = int(batch.st["active"].sum()) if profile is not None else 0
         ended = batch.tick()
         if profile is not None:
             now = time.process_time()

@@ -327,8 +327,10 @@ class TrialBatchAgent:
         else:
             for job in jobs:
                 fit_together([job])
-        self.q_updates[q_rows] += 1
-        self.h_updates[h_rows] += 1
+        if len(q_rows):
+            self.q_updates[q_rows] += 1
+        if len(h_rows):
+            self.h_updates[h_rows] += 1
         sync = nz(active & self.train_q & (self.steps % c.target_update_interval == 0) & (self.steps > 0))
         if len(sync):
             self.q_target.sync_from(self.q, sync)

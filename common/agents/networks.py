@@ -266,7 +266,7 @@ def fit_together(jobs: list[FitJob]) -> None:
     jobs = [j for j in jobs if len(j.rows)]
     if not jobs:
         return
-    if not _stackable(jobs):
+    if not isinstance(jobs[0].net, StackedMLP) or (len(jobs) > 1 and not _stackable(jobs)):
         for j in jobs:
             j.net.fit(j)
         return
