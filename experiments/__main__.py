@@ -68,7 +68,12 @@ def cmd_reproduce(args, argv: list[str]) -> int:
     scale = replace(scale, **changes)
     out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
     args.out = out
-    stats = reproduce(conds, scale, out, workers=args.workers, progress=not args.no_progress, argv=argv)
+    try:
+        stats = reproduce(conds, scale, out, workers=args.workers, progress=not args.no_progress, argv=argv,
+                          ray=args.ray)
+    except RuntimeError as exc:  # a worker or Ray failed: finished trials are cached, re-run resumes
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     with open(os.path.join(args.out, "claims.json")) as fh:
         verdicts = {k: v["verdict"] for k, v in json.load(fh)["claims"].items()}
     print(f"{stats.trials} trials ({stats.trials_run} run, {stats.trials_cached} cached, {stats.trials_shared} "
@@ -117,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
                        help=f"run only these conditions ({', '.join(BY_NAME)})")
     p_rep.add_argument("--out", default=None, help="output directory (default: docs/results)")
     p_rep.add_argument("--workers", type=int, default=2, help="worker processes (default: 2; 1 = in this process)")
+    p_rep.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
+                       help="run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)")
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
     p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
                              "loop, measured side by side on the same trials")

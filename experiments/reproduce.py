@@ -1,9 +1,11 @@
 """`python -m experiments reproduce`: every condition with all its arms, figures, claims, REPORT.md.
 
-Pipeline: plan (which (condition, arm, trial) results are cached; experiments/trialcache.py) -> run
-the missing trials in batches on worker processes (experiments/workers.py) -> evaluate the declared
-claims (experiments/claims.py, experiments/evaluate.py) -> panels, figures, claims.json, REPORT.md,
-timing.json.
+The reproduction is a sweep: the named grid `paper` (experiments/sweeps/named.py: every condition with its
+arms, the reproduction's trial plan) run by the sweep engine (experiments/sweeps/execute.py: cache,
+batches, the local process pool or Ray with `ray=`, one progress bar), plus its pre-registered claims.
+Pipeline: plan (which (condition, arm, trial) results are cached) -> run the missing trials -> evaluate
+the declared claims (experiments/claims.py, experiments/evaluate.py) -> panels, figures, claims.json,
+REPORT.md, timing.json.
 """
 from __future__ import annotations
 
@@ -11,7 +13,6 @@ import json
 import os
 import platform
 import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -22,8 +23,9 @@ from common.envs.maze import layout_pool
 from experiments import figures, panels, report
 from experiments.conditions import DELAY_CONDITIONS, Condition, Scale, cluster_of, n_trials
 from experiments.evaluate import N_BOOT, ArmData, evaluate_claims
-from experiments.trialcache import EXTRA_FIELDS, make_jobs, plan
-from experiments.workers import run_jobs
+from experiments.sweeps.execute import run_slots
+from experiments.sweeps.named import paper_paths, paper_slots
+from experiments.trialcache import EXTRA_FIELDS
 
 
 @dataclass
@@ -97,30 +99,26 @@ def analyse(conds: list[Condition], data: dict, extras: dict, out: str, n_boot: 
 
 def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, progress: bool = True,
               on_progress: Callable[[int, int], None] | None = None, argv: list[str] | None = None,
-              n_boot: int = N_BOOT) -> ReproduceStats:
+              n_boot: int = N_BOOT, ray: str | None = None) -> ReproduceStats:
     """Run (or read from the cache) every trial, then write figures, claims.json, REPORT.md, timing.json.
 
     `on_progress(trials_done, trials_total)` is called in this process whenever a trial finishes (an
-    exception raised from it stops the run; finished trials stay cached)."""
+    exception raised from it stops the run; finished trials stay cached). `ray`: run the trials as Ray
+    tasks on that cluster (auto, local or HOST:PORT) instead of `workers` local processes."""
     t_start = time.perf_counter()
     os.makedirs(out, exist_ok=True)
     cache_dir = os.path.join(out, "cache")
-    cached, todo, reused = plan(conds, scale, cache_dir)
-    total = sum(len(c.arms) * n_trials(c, scale) for c in conds)
-    done0 = len(cached)
-    slots_todo = sum(len(t.slots) for t in todo)
     load_start = list(os.getloadavg())
-    infos = _run(todo, workers, total, done0, progress, on_progress)
+    run_plan, run = run_slots(paper_slots(conds, scale), paper_paths(cache_dir), workers, ray, progress, on_progress)
+    cached, infos, total, reused = run_plan.records, run.jobs, run.cell_trials, run.reused
+    done0, slots_todo, todo = run.cached, run.filled, run_plan.todo
     run_wall = time.perf_counter() - t_start
-    cached, todo_left, _ = plan(conds, scale, cache_dir)
-    if todo_left:
-        raise RuntimeError(f"{len(todo_left)} trials missing after the run")
     data, extras = collect(conds, scale, cached)
     result = analyse(conds, data, extras, out, n_boot)
     total_s = time.perf_counter() - t_start
     timing = {"total_s": total_s, "run_s": run_wall, "trials": total, "trials_run": slots_todo,
               "trials_computed": len(todo), "trials_cached": done0 - reused,
-              "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "cpus": os.cpu_count(),
+              "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "ray": ray, "cpus": os.cpu_count(),
               "python": platform.python_version(), "commit": git_commit(), "load_average_at_start": load_start,
               "load_average_at_end": list(os.getloadavg()),
               "cpu_s_per_worker": _cpu_per_worker(infos), "scale": scale.__dict__,
@@ -151,36 +149,6 @@ def _previous_verdicts(old: dict, computed: bool) -> dict:
     if not computed and "previous" in old:
         return old["previous"]
     return {cid: c.get("verdict") for cid, c in old.get("claims", {}).items()}
-
-
-def _run(todo, workers, total, done0, progress, on_progress) -> list[dict]:
-    jobs = make_jobs(todo, workers)
-    if not jobs:
-        return []
-    bar = None
-    if progress:
-        from tqdm import tqdm
-        bar = tqdm(total=float(total), initial=float(done0), desc="trials", unit="trial", file=sys.stderr,
-                   bar_format="{desc}: {n:.0f}/{total:.0f} trials |{bar}| {elapsed} elapsed, {remaining} left")
-    done, partial = [done0], [0.0]
-
-    def on_message(msg: tuple) -> None:
-        if msg[0] == "progress":
-            partial[0] += msg[1]
-        elif msg[0] == "trial":
-            done[0] += msg[1]
-            partial[0] -= msg[2]
-            if on_progress is not None:
-                on_progress(done[0], total)
-        if bar is not None and msg[0] in ("progress", "trial"):
-            bar.n = min(float(total), done[0] + max(partial[0], 0.0))
-            bar.refresh()
-
-    infos = run_jobs(jobs, workers, on_message)
-    if bar is not None:
-        bar.n = float(total)
-        bar.close()
-    return infos
 
 
 def _cpu_per_worker(infos: list[dict]) -> dict[str, float]:

@@ -2,7 +2,7 @@
 
 Cache: one JSON file per distinct trial, `cache/<key[:2]>/<key>.json`, where the key hashes everything
 that determines the result (`experiments.trialcache.trial_key`: environment, layout, seed, episodes, agent,
-observer unless the agent ignores feedback; `sweep_key` adds a teacher rule). Cells whose trials are
+observer and teacher rule unless the agent ignores feedback). Cells whose trials are
 identical (DQN under two observers) share them, an interrupted sweep resumes with only the missing
 trials, and a repeated one only re-plots.
 
@@ -14,9 +14,9 @@ Batching: missing trials are grouped into lockstep batches by environment, split
 """
 from __future__ import annotations
 
-import hashlib
 import multiprocessing as mp
 import os
+import platform
 import queue
 import signal
 import sys
@@ -33,18 +33,17 @@ Emit = Callable[[tuple], None]
 
 
 def sweep_key(spec: TrialSpec) -> str:
-    """The reproduction's key (so both can share trials), extended by a non-default teacher rule."""
-    key = trial_key(spec)
-    if spec.teacher_rule is None:
-        return key
-    return hashlib.sha1(f"{key}|rule={spec.teacher_rule}".encode()).hexdigest()[:16]
+    """The reproduction's key (environment, layout, seed, episodes, agent; observer and teacher rule
+    unless the agent ignores feedback), so sweeps and the reproduction can share trials."""
+    return trial_key(spec)
 
 
 def cache_path(cache_dir: str, key: str) -> str:
     return os.path.join(cache_dir, key[:2], f"{key}.json")
 
 
-Slot = Hashable  # what a result fills: (cell, trial) in a sweep, (condition, arm, trial) elsewhere
+Slot = Hashable  # what a result fills: (cell, trial) in a sweep, (condition, arm, trial) in the reproduction
+PathOf = Callable[[Slot, str], str]  # (slot, key) -> its cache file
 
 
 @dataclass
@@ -52,6 +51,7 @@ class Plan:
     records: dict[Slot, dict]  # slot -> cached record
     todo: list[Task]  # distinct trials to compute
     slots: dict[str, list[Slot]] = field(default_factory=dict)  # key of a trial to compute -> slots it fills
+    reused: int = 0  # slots filled from another slot's file with the same key (copied to their own)
 
     @property
     def missing(self) -> int:
@@ -62,22 +62,38 @@ def sweep_slots(sweep: Sweep) -> list[tuple[Slot, TrialSpec]]:
     return [((cell.index, k), sweep.spec(cell, k)) for cell in sweep.cells() for k in range(sweep.trials)]
 
 
-def plan(slot_specs: Iterable[tuple[Slot, TrialSpec]], cache_dir: str) -> Plan:
-    """Which slots' results are cached, and the distinct trials still to run."""
+def by_key(cache_dir: str) -> PathOf:
+    """A sweep's cache: one file per distinct trial, whatever slots it fills."""
+    return lambda slot, key: cache_path(cache_dir, key)
+
+
+def plan(slot_specs: Iterable[tuple[Slot, TrialSpec]], path_of: PathOf) -> Plan:
+    """Which slots' results are cached, and the distinct trials still to run. A slot whose own file is
+    missing but whose trial is cached under another slot (same key) gets a copy of that file."""
     records: dict[Slot, dict] = {}
-    slots: dict[str, list[Slot]] = {}
-    todo: dict[str, Task] = {}
-    seen: dict[str, dict | None] = {}
+    pending: dict[str, list[tuple[Slot, TrialSpec]]] = {}
+    known: dict[str, dict] = {}
+    read: dict[str, dict | None] = {}
     for slot, spec in slot_specs:
         key = sweep_key(spec)
-        if key not in seen:
-            seen[key] = read_cached(cache_path(cache_dir, key), key)
-        if seen[key] is not None:
-            records[slot] = seen[key]
-            continue
-        todo.setdefault(key, Task(key, spec))
-        slots.setdefault(key, []).append(slot)
-    return Plan(records, list(todo.values()), slots)
+        path = path_of(slot, key)
+        if path not in read:
+            read[path] = read_cached(path, key)
+        if read[path] is not None:
+            records[slot] = known[key] = read[path]
+        else:
+            pending.setdefault(key, []).append((slot, spec))
+    todo, slots, reused = [], {}, 0
+    for key, items in pending.items():
+        if key in known:
+            for slot, _ in items:
+                write_json_atomic(path_of(slot, key), known[key])
+                records[slot] = known[key]
+                reused += 1
+        else:
+            todo.append(Task(key, items[0][1]))
+            slots[key] = [slot for slot, _ in items]
+    return Plan(records, todo, slots, reused)
 
 
 # ---------------------------------------------------------------------------------- one job
@@ -105,10 +121,12 @@ def run_job(job_id: int, items: list[tuple[str, TrialSpec, int]], emit: Emit) ->
         emit(("trial", items[i][0], result_record(items[i][0], result), reported[i]))
 
     t0, c0 = time.perf_counter(), time.process_time()
-    results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done)
-    return {"job": job_id, "pid": os.getpid(), "env": specs[0].env, "trials": len(specs),
+    profile: dict = {}
+    results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done, profile=profile)
+    return {"job": job_id, "pid": os.getpid(), "host": platform.node(), "env": specs[0].env, "trials": len(specs),
             "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
-            "trial_steps": int(sum(r.total_steps for r in results))}
+            "trial_steps": int(sum(r.total_steps for r in results)),
+            "max_trial_steps": int(max(r.total_steps for r in results)), "by_running_trials": profile}
 
 
 # ------------------------------------------------------------------------------ local pool
@@ -189,21 +207,22 @@ class RunStats:
     run_s: float
     jobs: list[dict]
     backend: str
+    reused: int = 0  # of the cached: copied from another slot's file with the same trial
 
 
 def execute(sweep: Sweep, cache_dir: str, workers: int = 2, ray_address: str | None = None,
             progress: bool = True, on_trial: Callable[[int, int], None] | None = None) -> tuple[Plan, RunStats]:
     """Compute every missing trial of the sweep; see `run_slots`."""
-    return run_slots(sweep_slots(sweep), cache_dir, workers, ray_address, progress, on_trial)
+    return run_slots(sweep_slots(sweep), by_key(cache_dir), workers, ray_address, progress, on_trial)
 
 
-def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], cache_dir: str, workers: int = 2,
+def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], path_of: PathOf, workers: int = 2,
               ray_address: str | None = None, progress: bool = True,
               on_trial: Callable[[int, int], None] | None = None) -> tuple[Plan, RunStats]:
-    """Compute every missing trial (writing each to the cache as it arrives); return the full plan.
-    `on_trial(done, total)` is called as trials arrive (an exception from it stops the run; what
-    arrived stays cached)."""
-    p = plan(slot_specs, cache_dir)
+    """Compute every missing trial (writing it to its slots' cache files as it arrives); return the
+    full plan. `on_trial(done, total)` is called as trials arrive (an exception from it stops the run;
+    what arrived stays cached)."""
+    p = plan(slot_specs, path_of)
     total = len(slot_specs)
     done0 = len(p.records)
     items = {t.key: (t.key, t.spec, len(p.slots[t.key])) for t in p.todo}
@@ -219,7 +238,8 @@ def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], cache_dir: str, workers:
             partial[0] += msg[1]
         elif msg[0] == "trial":
             _, key, rec, reported = msg
-            write_json_atomic(cache_path(cache_dir, key), rec)
+            for path in dict.fromkeys(path_of(slot, key) for slot in p.slots[key]):
+                write_json_atomic(path, rec)
             for slot in p.slots[key]:
                 p.records[slot] = rec
             done[0] += len(p.slots[key])
@@ -247,7 +267,7 @@ def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], cache_dir: str, workers:
     if missing:
         raise RuntimeError(f"{missing} trials missing after the run")
     stats = RunStats(total, len(p.todo), p.missing, done0, run_s, infos,
-                     "ray" if ray_address and jobs else "local" if jobs else "cache")
+                     "ray" if ray_address and jobs else "local" if jobs else "cache", p.reused)
     return p, stats
 
 

@@ -6,7 +6,8 @@ import os
 import pytest
 
 from experiments import reproduce as rep
-from experiments import trialcache, workers
+from experiments import trialcache
+from experiments.sweeps import execute
 from experiments.conditions import BY_NAME, CONDITIONS, FULL, Scale, n_trials, trial_spec
 
 TINY = Scale(layouts=4, reps=1, maze_episodes=3, taxi_episodes=2, taxi_trials=2)
@@ -44,13 +45,13 @@ def test_interrupted_sweep_resumes_with_only_the_missing_trials(tmp_path, monkey
     assert len(cached) >= 5 and todo
 
     ran = []
-    real = workers.run_trials
+    real = execute.run_trials
 
     def spy(specs, **kw):
         ran.extend(specs)
         return real(specs, **kw)
 
-    monkeypatch.setattr(workers, "run_trials", spy)
+    monkeypatch.setattr(execute, "run_trials", spy)
     missing = {t.key for t in todo}
     stats = rep.reproduce(conds, TINY, str(out), workers=1, progress=False, n_boot=50)
     assert {trialcache.trial_key(s) for s in ran} == missing and len(ran) == len(missing)
@@ -72,7 +73,7 @@ def test_dqn_trials_are_shared_between_observers_and_teacher_rules(tmp_path):
     a = json.load(open(next((tmp_path / "cache" / "maze-high-nodelay" / "dqn").glob("000-*.json"))))
     b = json.load(open(next((tmp_path / "cache" / "maze-sp-high-delay" / "dqn").glob("000-*.json"))))
     assert a == b
-    res = workers.run_trials([trial_spec(conds[1], "dqn", 0, TINY)])[0]
+    res = execute.run_trials([trial_spec(conds[1], "dqn", 0, TINY)])[0]
     assert list(res.returns) == b["return"]
 
 

@@ -110,7 +110,7 @@ def test_interrupted_sweep_resumes_and_a_repeated_one_only_replots(tmp_path, mon
 
     with pytest.raises(Stop):
         run_sweep(sweep, out, workers=1, progress=False, n_boot=50, on_trial=interrupt)
-    left = execute.plan(execute.sweep_slots(sweep), f"{out}/cache")
+    left = execute.plan(execute.sweep_slots(sweep), execute.by_key(f"{out}/cache"))
     assert len(left.records) >= 4 and left.todo
     ran = []
     real = execute.run_trials

@@ -1,5 +1,6 @@
 """The same sweep through a real local Ray head (127.0.0.1, two CPUs) gives the local pool's results, and
 leaves no Ray process behind."""
+import json
 import os
 import subprocess
 import sys
@@ -30,6 +31,12 @@ def test_a_sweep_through_a_local_ray_head_equals_the_local_pool(tmp_path):
         assert "computed on ray" in remote
         # the Ray run's results were streamed back into its own cache: a repeat computes nothing
         assert "nothing to compute" in run([*SWEEP, "--out", str(tmp_path / "ray"), "--ray", head.address])
+        # the reproduction is the same engine: its named grid runs through the head too
+        run(["reproduce", "--only", "maze-high-nodelay", "--layouts", "4", "--maze-episodes", "3", "--no-progress",
+             "--out", str(tmp_path / "paper"), "--ray", head.address])
+        head.snapshot()
+        timing = json.loads((tmp_path / "paper" / "timing.json").read_text())
+        assert timing["ray"] == head.address and timing["trials_computed"] > 0 and timing["jobs"]
         assert len(head.seen) >= 3  # gcs, raylet, workers...: the check below is not vacuous
     for name in ("trials.csv", "summary.csv", "contrasts.json"):
         assert (tmp_path / "ray" / name).read_text() == (tmp_path / "local" / name).read_text(), name
