@@ -190,17 +190,29 @@ class TorchValueNetworks:
         self.modules[row].load_state_dict(tensors)
 
     def state_dict(self) -> dict:
-        out = {"modules": [m.state_dict() for m in self.modules]}
-        if self.opts is not None:
-            out["opts"] = [o.state_dict() for o in self.opts]
-        return copy.deepcopy(out)
+        """Weights and RMSprop state as nested dicts of tensors with dot-free string keys (what the learner's
+        checkpoint stores): {"t<k>": {"w": {name: tensor}, "sq": {i: square_avg}, "step": {i: step}}}."""
+        out = {}
+        for k, m in enumerate(self.modules):
+            trial = {"w": {n.replace(".", "/"): v.detach().cpu().clone() for n, v in m.state_dict().items()}}
+            if self.opts is not None:
+                states = [self.opts[k].state.get(p, {}) for p in m.parameters()]
+                trial["sq"] = {str(i): st["square_avg"].detach().cpu().clone() for i, st in enumerate(states) if st}
+                trial["step"] = {str(i): torch.as_tensor(st["step"]).detach().cpu().clone()
+                                 for i, st in enumerate(states) if st}
+            out[f"t{k}"] = trial
+        return out
 
     def load_state_dict(self, state: dict) -> None:
-        for m, s in zip(self.modules, state["modules"]):
-            m.load_state_dict(s)
-        if self.opts is not None:
-            for o, s in zip(self.opts, state["opts"]):
-                o.load_state_dict(s)
+        for k, m in enumerate(self.modules):
+            trial = state[f"t{k}"]
+            m.load_state_dict({n.replace("/", "."): torch.as_tensor(v) for n, v in trial["w"].items()})
+            if self.opts is None:
+                continue
+            for i, p in enumerate(m.parameters()):
+                if str(i) in trial.get("sq", {}):
+                    self.opts[k].state[p] = {"step": torch.as_tensor(trial["step"][str(i)]).clone(),
+                                             "square_avg": torch.as_tensor(trial["sq"][str(i)]).to(self.device)}
 
 
 def param_count(module: nn.Module) -> int:

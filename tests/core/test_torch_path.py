@@ -20,12 +20,12 @@ from experiments.runner import TrialSpec, run_trials
 torch.set_num_threads(1)  # as the runner and the services run it (threads only contend at these sizes)
 
 
-def _drive(agent, rng_seed: int, steps: int, obs_dim: int, n_actions: int) -> None:
+def _drive(agent, rng_seed: int, steps: int, obs_dim: int, n_actions: int, t0: int = 0) -> None:
     """The same inputs for any agent: random transitions of 3 trials, feedback now and then."""
     rng = np.random.default_rng(rng_seed)
     loop = StepLoop(agent)
     rows = np.arange(agent.B)
-    for t in range(steps):
+    for t in range(t0, t0 + steps):
         obs = rng.random((agent.B, obs_dim), dtype=np.float32)
         nxt = rng.random((agent.B, obs_dim), dtype=np.float32)
         give = rng.random(agent.B) < 0.5
@@ -114,3 +114,20 @@ def test_image_observations_get_a_cnn_by_default():
     other.load_policy_weights(weights)  # what the actor does with the learner's weights
     obs = env.reset(seed=0)[0]
     assert agent.greedy_action(0, obs) == other.greedy_action(0, obs)
+
+
+def test_torch_state_survives_the_learners_checkpoint(tmp_path):
+    from services.learner import checkpoint
+
+    def agent():
+        return make_agent([agent_config("dqn-tamer", network="torch-mlp")], 5, 4, [7])
+
+    a = agent()
+    _drive(a, 3, 60, 5, 4)
+    checkpoint.save(tmp_path / "c.ckpt", a.state_dict(), {})
+    b = agent()
+    b.load_state_dict(checkpoint.load(tmp_path / "c.ckpt")[0])
+    _drive(a, 4, 30, 5, 4, t0=60)
+    _drive(b, 4, 30, 5, 4, t0=60)  # same inputs after the restore: same weights (optimiser state included)
+    for k, v in a.policy_weights(0).items():
+        np.testing.assert_array_equal(v, b.policy_weights(0)[k], err_msg=k)

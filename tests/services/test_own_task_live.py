@@ -82,3 +82,15 @@ def test_user_factory_and_rule_run_live(tmp_path):
             assert fb.intended == namespace["closer_or_quiet"](step.info)
             checked += 1
     assert checked > 0
+
+
+@pytest.mark.slow
+def test_minigrid_with_a_cnn_learns_live(tmp_path):
+    """The picture task in the live system: the learner trains the CNN, the actor acts with its weights."""
+    launch = _run(tmp_path, "mg", "--env", "minigrid-empty", "--algo", "dqn-tamer", "--episodes", "15")
+    returns = launch.summary()["returns"]
+    records = list(read_log(launch.rundir / "session.mcap"))
+    assert records[0].message.config["launcher"]["agent"]["network"] == "auto"  # images: a CNN
+    snapshot = next(r.message for r in records if type(r.message).__name__ == "WeightsSnapshot")
+    assert "q.conv.0.weight" in {t.name for t in snapshot.tensors}
+    assert len(returns) == 15 and sum(returns[-5:]) / 5 > max(0.85, sum(returns[:5]) / 5), returns
