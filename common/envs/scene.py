@@ -36,7 +36,7 @@ def static_scene(env: str, layout: int = 0) -> dict[str, Any] | None:
         lay = make_layout(layout)
         return {"kind": "maze", "size": SIZE, "walls": [[int(w) for w in row] for row in lay.walls],
                 "goal": list(lay.goal), "start": list(lay.start), "actions": list(MAZE_ACTIONS)}
-    if env == "taxi":
+    if env.startswith("taxi"):
         return {"kind": "taxi", "size": 5, "stands": [list(s) for s in TAXI_STANDS], "stand_names": "RGYB",
                 "walls_east": _taxi_walls(), "actions": list(TAXI_ACTIONS)}
     return None
@@ -63,7 +63,7 @@ class SceneTracker:
                 obs = np.asarray(next_obs, np.float64)
                 self.pos = (int(round(obs[0] * (SIZE - 1))), int(round(obs[1] * (SIZE - 1))))
             return {"agent": list(self.pos)}
-        if self.kind == "taxi":
+        if self.kind.startswith("taxi"):
             obs = np.asarray(next_obs)
             if obs.shape != (19,):
                 return None

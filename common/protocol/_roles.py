@@ -30,7 +30,7 @@ ROLES = SERVICE_ROLES + NAMED_ROLES
 #: (:data:`OWN_KINDS`), under its name or its name followed by `-<anything>`. `config` is written by the
 #: recorder into its log, never published.
 PUBLISHES: dict[str, tuple[str, ...]] = {
-    "actor": ("step",),
+    "actor": ("step", "camera/env"),  # camera/env: the env's own picture for the console (services/actor/render.py)
     "learner": ("weights", "snapshot", "episode", "ingest", "credit/*"),
     "recorder": (),
     "launcher": ("request",),

@@ -33,6 +33,7 @@ from common.envs import make_env, obs_shape
 from common.protocol import (ProtocolError, ServiceStatus, Step, Weights, control_key, status_key, step_key,
                              weights_key)
 from services.actor.control import RunControl
+from services.actor.render import FramePublisher, enable_rgb
 from common.seeding import derive_seed
 from services.common.config import ActorConfig
 from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, atomic_write_json, first_time_logger, publish_kept, read_json
@@ -146,6 +147,8 @@ def main(config: ActorConfig) -> int:
                              policy="drop_oldest") as learner_status, \
                 subscription(session, control_key(config.run), maxsize=64, policy="drop_oldest") as control_in, \
                 MessagePublisher(session, step_key(config.run)) as pub:
+            frames = FramePublisher(session, config.run, env, rt.counters) \
+                if config.render_frames and enable_rgb(env) else None
             watch = AliveWatch(session, config.run, ("learner", "recorder"))
             slot.watch = IncarnationWatch(session, config.run, "learner")
             save_state(episodes_done)
@@ -229,6 +232,8 @@ def main(config: ActorConfig) -> int:
                                        terminated=bool(terminated), truncated=bool(truncated),
                                        weights_version=slot.version,
                                        info={k: float(info[k]) for k in INFO_KEYS if k in info}), ring)
+                if frames is not None:
+                    frames.publish(seq)
                 seq += 1
                 t_in_episode += 1
                 obs = nxt
@@ -242,6 +247,8 @@ def main(config: ActorConfig) -> int:
             watch.before_exit(ring, RECORDER_WAIT, rt.log)
             watch.close()
             slot.watch.close()
+            if frames is not None:
+                frames.close()
     rt.write_stats()
     rt.log(f"stopped after {seq} steps, {episode} episodes")
     return code

@@ -96,6 +96,8 @@ class ActorConfig(TaskConfig):
                                       "trades fidelity for throughput; none = never wait)")
     max_lag: int = option(2048, "whatever max-ahead says, never more than this many steps ahead of the learner's "
                                 "newest weights: bounds what is in flight and queued (back-pressure; docs/faults.md)")
+    render_frames: bool = option(False, "publish the env's RGB render after each step as JPEG on hitl/<run>/camera/env "
+                                        "(the console shows environments it has no scene for)")
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")

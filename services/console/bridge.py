@@ -14,6 +14,7 @@ feedback at the end.
 from __future__ import annotations
 
 import asyncio
+import base64
 import collections
 import os
 import time
@@ -72,6 +73,8 @@ class Hub:
                 KEYS["status"].wildcard(run), KEYS["feedback"].wildcard(run), KEYS["control"].wildcard(run)]
         if self.config.camera:
             keys.append(perception_key(run, self.config.camera))
+        if self.scene_static is None:  # the actor's picture of an env we cannot draw (services/actor/render.py)
+            keys.append(camera_key(run, "env"))
         for key in keys:
             self.subs.append(self.session.declare_subscriber(key, self._on_sample))
 
@@ -88,6 +91,11 @@ class Hub:
             msg = Weights.decode(data, expected=self.spec) if key.endswith("/weights") else decode(key, data)
         except ProtocolError as e:
             self.rt.counters[f"run_rejected_{e.reason}"] += 1
+            return
+        if isinstance(msg, CompressedImage):
+            if msg.frame_id.isdigit() and key.endswith("/camera/env"):
+                self.broadcast({"type": "frame", "seq": int(msg.frame_id), "format": msg.format,
+                                "data": base64.b64encode(msg.data).decode("ascii")})
             return
         handler = {Step: self._step, EpisodeSummary: self._episode, Weights: self._weights, Credit: self._credit,
                    ServiceStatus: self._status, Feedback: self._feedback, ExpressionPrediction: self._face,

@@ -9,7 +9,11 @@ WEBCAM = "webcam"  # camera id of the people's webcam frames
 
 def console_defaults(up: Any) -> dict:
     """A person watches: pace 2 steps/s unless the user chose one, and time for the last presses to land."""
+    from common.envs.scene import static_scene
+
     out = {}
+    if static_scene(up.env, up.layout) is None:  # no drawing of ours: show the env's own picture
+        out["render_frames"] = True
     if up.rate == 0:
         out["rate"] = 2.0
     if up.end_grace == 3.0:

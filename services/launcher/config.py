@@ -68,6 +68,8 @@ class UpConfig:
                                                 "or a scipy.stats NAME:ARGS (e.g. gamma:2,0.2,0.4)")
     console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
+    render_frames: bool = option(False, "the actor publishes the env's RGB render of each step (camera/env); "
+                                        "--teacher web sets it for environments the console has no scene for")
     foxglove: int | None = option(None, "also serve the run's channels (as in the log) over Foxglove's WebSocket "
                                         "protocol on this port (services/foxglove; docs/logs.md)")
     foxglove_host: str = option("127.0.0.1", "address the Foxglove bridge serves on")
@@ -159,7 +161,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
                         episodes=c.episodes, max_steps=c.max_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
-                        start_timeout=c.start_timeout, max_lag=c.max_lag,
+                        start_timeout=c.start_timeout, max_lag=c.max_lag, render_frames=c.render_frames,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights
                         weights_timeout=120.0 if c.restart_limit else 30.0)
     recorder = RecorderConfig(**launch.common("recorder"), out=str(launch.rundir / "session.mcap"),

@@ -51,8 +51,10 @@ def test_scripted_person_teaches_dqn_tamer(tmp_path):
     checked = 0
     for c in credited:
         fb = feedback[c.seq]
-        reacted = [p for p in plan if abs(p["due"] - fb.t_page) < 0.05 and p["value"] == fb.value]
-        assert reacted, f"press {fb.seq} matches no planned reaction"
+        # the reaction it was: due at or before the press (a timer never fires early; a loaded machine fires late)
+        due = [p for p in plan if p["value"] == fb.value and -0.005 <= fb.t_page - p["due"] < 1.0]
+        assert due, f"press {fb.seq} matches no planned reaction"
+        reacted = [min(due, key=lambda p: fb.t_page - p["due"])]
         if all(episode_of[p["seq"]] != episode_of[fb.shown[-1].seq] for p in reacted):
             continue  # reacting to an episode's last step after the next began: credit never crosses episodes
         seqs = {s.seq for s in c.steps}

@@ -12,6 +12,7 @@ from common.envs import make_env
 from common.envs.scene import SceneTracker, static_scene
 from common.protocol import Feedback, ShownStep, Step
 from common.screen import ScreenTimeline
+from common.task import Task
 from services.common.config import LearnerConfig
 from services.console.people import PageError, PageGate, Person, RateLimit
 from services.learner.core import LearnerCore
@@ -80,7 +81,7 @@ def test_scene_follows_the_maze_and_the_taxi():
 
 
 def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals():
-    core = LearnerCore(LearnerConfig(run="r", env="maze"))
+    core = LearnerCore(LearnerConfig(run="r", task=Task(env="maze")))
     env, _ = make_env("maze", 0)
     obs, t0 = env.reset(seed=0)[0], 1000.0
     shown = [ShownStep(k, t0 + 0.5 * k + 0.05) for k in range(12)]

@@ -40,8 +40,16 @@ function drawScene() {
   const cv = document.getElementById("scene"), g = cv.getContext("2d");
   const s = hitl.hello && hitl.hello.scene, st = hitl.step;
   g.fillStyle = COLORS.free; g.fillRect(0, 0, cv.width, cv.height);
-  if (!s) { g.fillStyle = "#222"; g.font = "14px monospace";
-    g.fillText(st ? `obs ${JSON.stringify(st.next_obs)}` : "waiting for the first step", 10, 20); return; }
+  if (!s) {  // no drawing of ours: the env's own picture from the actor, else the observation's numbers
+    if (hitl.frame) {
+      const f = hitl.frame, k = Math.min(cv.width / f.width, cv.height / f.height);
+      g.drawImage(f, (cv.width - f.width * k) / 2, (cv.height - f.height * k) / 2, f.width * k, f.height * k);
+    } else {
+      g.fillStyle = "#222"; g.font = "14px monospace";
+      g.fillText(st ? `obs ${JSON.stringify(st.next_obs)}` : "waiting for the first step", 10, 20);
+    }
+    return;
+  }
   const c = cellSize();
   if (s.kind === "maze") {
     for (let r = 0; r < s.size; r++) for (let q = 0; q < s.size; q++) {
@@ -74,7 +82,7 @@ function drawScene() {
 
 function legend(s) {
   const trail = "Tinted cells: the steps your latest feedback was credited to (green +1, red -1; darker = more weight).";
-  if (!s) return trail;
+  if (!s) return "The environment's own picture, rendered by the actor after each step.";
   if (s.kind === "maze") return `Blue: the agent. Yellow: the goal. Dark: walls. ${trail}`;
   return `Orange: the taxi (purple while carrying). Purple dot: the passenger. Yellow frame: the destination. ${trail}`;
 }
@@ -251,6 +259,12 @@ function onMessage(m) {
       document.getElementById("pace").value = String(m.rate);
       drawScene(); drawCurve(); showStatus(); break;
     case "pong": onPong(m); break;
+    case "frame": {
+      const img = new Image();
+      img.onload = () => { hitl.frame = img; hitl.frameSeq = m.seq; drawScene(); };
+      img.src = `data:image/${m.format};base64,${m.data}`;
+      break;
+    }
     case "step": onStep(m); break;
     case "prefs": hitl.prefs = m; showPrefs(); break;
     case "episode": hitl.curve.push(m); drawCurve(); break;
