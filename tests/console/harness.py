@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from services.console.scripted import y4m_from_video  # noqa: F401  (the tests' fake camera too)
 from tests.services.live import ROOT, env, kill_tree
 
 CHROMIUM = "/usr/bin/chromium"
@@ -119,22 +120,3 @@ def uniform_weights(t_feedback: float, shown: list[dict], low: float = 0.2, high
             out[s["seq"]] = (b - a) / (high - low)
     return out
 
-
-def y4m_from_video(src: Path, dst: Path, width: int = 320, height: int = 180) -> Path:
-    """Chromium's fake camera plays YUV4MPEG2 (y4m): convert a clip to it (I420, same frame rate)."""
-    import cv2
-
-    cap = cv2.VideoCapture(str(src))
-    fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
-    num, den = int(round(fps * 1000)), 1000
-    with open(dst, "wb") as out:
-        out.write(f"YUV4MPEG2 W{width} H{height} F{num}:{den} Ip A1:1 C420jpeg\n".encode())
-        while True:
-            ok, frame = cap.read()
-            if not ok:
-                break
-            yuv = cv2.cvtColor(cv2.resize(frame, (width, height), interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2YUV_I420)
-            out.write(b"FRAME\n")
-            out.write(yuv.tobytes())
-    cap.release()
-    return dst
