@@ -49,3 +49,34 @@ def test_run_writes_config_and_episodes(tmp_path):
     assert {"episode", "return", "steps", "feedback_given", "feedback_credited"} <= set(rows[0])
     assert int(rows[2]["feedback_given"]) <= 2  # the observer stopped after episode 1 (stragglers only)
     assert (out / "curve.png").stat().st_size > 1000
+
+
+def test_run_takes_a_gymnasium_id(tmp_path):
+    out = tmp_path / "lake"
+    assert main(["run", "--env", "FrozenLake-v1", "--episodes", "3", "--agent.lr", "5e-4", "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())  # the first record: the whole config tree
+    assert config["task"]["env"] == "FrozenLake-v1" and config["agent"]["lr"] == 5e-4
+    assert len(list(csv.DictReader((out / "episodes.csv").open()))) == 3
+
+
+def test_run_takes_a_users_env_factory_and_rule(tmp_path, monkeypatch):
+    (tmp_path / "userworld.py").write_text(
+        "import gymnasium as gym\n"
+        "CALLS = []\n"
+        "def make_lake(layout=0):\n"
+        "    return gym.make('FrozenLake-v1', is_slippery=False)\n"
+        "def always_good(info):\n"
+        "    CALLS.append(dict(info))\n"
+        "    return 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import importlib
+    import sys as _sys
+    _sys.modules.pop("userworld", None)
+    userworld = importlib.import_module("userworld")
+    out = tmp_path / "user"
+    assert main(["run", "--env", "userworld:make_lake", "--teacher-rule", "userworld:always_good",
+                 "--episodes", "2", "--observer.p-feedback", "1", "--out", str(out)]) == 0
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    steps = sum(int(r["steps"]) for r in rows)
+    assert len(userworld.CALLS) == steps  # the user's rule judged every step ...
+    assert {"reward", "target_distance_before", "target_distance_after"} <= set(userworld.CALLS[0])  # ... from info
