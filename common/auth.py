@@ -237,9 +237,12 @@ class Auth:
             self._keys[identity] = self.cred.key_of(identity)
         return self._keys[identity]
 
-    def check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None = None) -> str | None:
-        """None if authentic and new, else the reason to drop it (:data:`AUTH_REASONS`), counted."""
-        reason = self._check(key_expr, payload, attachment, t_recv)
+    def check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None = None,
+              window: dict | None = None) -> str | None:
+        """None if authentic and new, else the reason to drop it (:data:`AUTH_REASONS`), counted. `window`: the
+        replay state of one subscription (a sample matching two subscriptions of a process arrives at each once;
+        default: this object's own)."""
+        reason = self._check(key_expr, payload, attachment, t_recv, self._last if window is None else window)
         if reason is not None:
             parts = key_expr.split("/", 3)
             name = f"{reason}_{parts[2] if len(parts) > 2 and parts[2].isidentifier() else 'other'}"
@@ -247,7 +250,8 @@ class Auth:
                 self.rejected[name] = self.rejected.get(name, 0) + 1
         return reason
 
-    def _check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None) -> str | None:
+    def _check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None,
+               window: dict) -> str | None:
         parsed = _parse(attachment)
         if parsed is None:
             return "unauthenticated"
@@ -263,13 +267,13 @@ class Auth:
         if not (now - self.max_past <= t <= now + self.max_future):
             return "stale_signature"
         with self._lock:
-            last = self._last.get((identity, key_expr))
+            last = window.get((identity, key_expr))
             if last is not None:
                 if inc == last[0] and n <= last[1]:
                     return "replayed"
                 if inc != last[0] and t <= last[2]:
                     return "replayed"
-            self._last[(identity, key_expr)] = (inc, n, t)
+            window[(identity, key_expr)] = (inc, n, t)
         return None
 
 
@@ -322,7 +326,7 @@ def signer_identity(attachment: bytes | None) -> str | None:
 
 
 
-def bench(n: int = 20000) -> list[dict[str, Any]]:
+def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
     """Microseconds per message to sign (publisher) and to check (each receiver), for a Step, a Feedback and the
     DQN-TAMER maze Weights, as the services send them (`python -m common.auth bench`)."""
     import numpy as np
@@ -343,15 +347,21 @@ def bench(n: int = 20000) -> list[dict[str, Any]]:
     for name, key, payload, sender, count in (("Step", step_key(run), step.encode(), "actor", n),
                                               ("Feedback", feedback_key(run, "oracle"), fb.encode(), "teacher.oracle", n),
                                               ("Weights", weights_key(run), w.encode(), "learner", max(1, n // 20))):
-        signer = Auth(service_credential(secret, run, sender))
-        checker = Auth(service_credential(secret, run, "recorder"))
-        t0 = time.perf_counter()
-        tags = [signer.sign(key, payload) for _ in range(count)]
-        t1 = time.perf_counter()
-        bad = sum(checker.check(key, payload, tag) is not None for tag in tags)
-        t2 = time.perf_counter()
-        out.append({"message": name, "bytes": len(payload), "n": count, "sign_us": (t1 - t0) / count * 1e6,
-                    "check_us": (t2 - t1) / count * 1e6, "rejected": bad})
+        sign_s, check_s, bad = [], [], 0
+        for _ in range(repeats):  # the best of several rounds: other processes only ever add time
+            signer = Auth(service_credential(secret, run, sender))
+            checker = Auth(service_credential(secret, run, "recorder"))
+            t0 = time.perf_counter()
+            tags = [signer.sign(key, payload) for _ in range(count)]
+            t1 = time.perf_counter()
+            bad += sum(checker.check(key, payload, tag) is not None for tag in tags)
+            t2 = time.perf_counter()
+            sign_s.append(t1 - t0)
+            check_s.append(t2 - t1)
+        out.append({"message": name, "bytes": len(payload), "n": count, "repeats": repeats,
+                    "sign_us": min(sign_s) / count * 1e6, "check_us": min(check_s) / count * 1e6,
+                    "sign_us_median": sorted(sign_s)[len(sign_s) // 2] / count * 1e6,
+                    "check_us_median": sorted(check_s)[len(check_s) // 2] / count * 1e6, "rejected": bad})
     return out
 
 
@@ -361,12 +371,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m common.auth", description="authentication of run messages")
     sub = parser.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("bench", help="microseconds per message to sign and to check")
-    b.add_argument("-n", type=int, default=20000, help="messages per type (Weights: n/20)")
+    b.add_argument("-n", type=int, default=20000, help="messages per type and round (Weights: n/20)")
+    b.add_argument("--repeats", type=int, default=7, help="rounds; the best and the median are printed")
     args = parser.parse_args(argv)
-    rows = bench(args.n)
-    print(f"{'message':<10}{'bytes':>8}{'sign µs':>10}{'check µs':>10}")
+    rows = bench(args.n, args.repeats)
+    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; µs per message, best (median) of "
+          f"{args.repeats} rounds")
+    print(f"{'message':<10}{'bytes':>8}{'sign µs':>18}{'check µs':>18}")
     for r in rows:
-        print(f"{r['message']:<10}{r['bytes']:>8}{r['sign_us']:>10.2f}{r['check_us']:>10.2f}")
+        print(f"{r['message']:<10}{r['bytes']:>8}{r['sign_us']:>9.2f} ({r['sign_us_median']:>5.1f})"
+              f"{r['check_us']:>9.2f} ({r['check_us_median']:>5.1f})")
     return 0 if all(r["rejected"] == 0 for r in rows) else 1
 
 

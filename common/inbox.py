@@ -81,6 +81,7 @@ class Inbox:
         self.counters: collections.Counter[str] = collections.Counter()
         # Checked in zenoh's callback, before the sample is queued: a forgery never takes a real sample's place.
         self.auth = auth if auth is not None else default_auth()
+        self._window: dict = {}  # this subscription's replay state (common.auth.Auth.check)
 
     # producer side (zenoh's callback thread)
     def handler(self) -> Any:
@@ -98,7 +99,8 @@ class Inbox:
         item = Received(str(sample.key_expr), sample.payload.to_bytes(), time.time(), _zenoh_seconds(sample.timestamp))
         if self.auth is not None:
             att = sample.attachment
-            reason = self.auth.check(item.key, item.data, None if att is None else att.to_bytes(), item.t_recv)
+            reason = self.auth.check(item.key, item.data, None if att is None else att.to_bytes(), item.t_recv,
+                                     self._window)
             if reason is not None:
                 with self._cond:
                     self.counters["received"] += 1

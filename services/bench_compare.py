@@ -31,16 +31,17 @@ class BenchCompareConfig:
             raise ValueError(f"--against {self.against!r}: not a checkout of this project")
 
 
-def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> float | None:
-    """Run one phase with `checkout`'s own code; its steps/s (None if it failed)."""
+def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> tuple[float | None, bool]:
+    """Run one phase with `checkout`'s own code: its steps/s (None if it did not run) and whether it lost nothing."""
     cmd = [sys.executable, "-m", "services", "bench", "--phases", phase, "--steps", str(cfg.steps), "--out", str(out)]
     done = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True,
                           text=True)
     files = sorted(out.glob("bench-*.json"))
-    if done.returncode != 0 or not files:
-        print(f"  {checkout}: {phase} failed (exit {done.returncode}): {done.stderr[-400:]}", file=sys.stderr)
-        return None
-    return json.loads(files[-1].read_text())["phases"][phase]["steps_per_s"]
+    if not files:
+        print(f"  {checkout}: {phase} did not run (exit {done.returncode}): {done.stderr[-400:]}", file=sys.stderr)
+        return None, False
+    res = json.loads(files[-1].read_text())["phases"][phase]
+    return res["steps_per_s"], bool(res["zero_loss"] and res["exit_code"] == 0)
 
 
 def bench_compare(cfg: BenchCompareConfig) -> int:
@@ -50,9 +51,10 @@ def bench_compare(cfg: BenchCompareConfig) -> int:
         for phase in cfg.phases:
             order = [("other", other), ("this", ROOT)] if r % 2 == 0 else [("this", ROOT), ("other", other)]
             for label, checkout in order:
-                sps = one(checkout, phase, cfg, out / f"{label}-{phase}-{r}")
+                sps, clean = one(checkout, phase, cfg, out / f"{label}-{phase}-{r}")
                 rows[phase][label].append(sps)
-                print(f"round {r + 1} {phase:<8} {label:<5} {sps} steps/s", file=sys.stderr, flush=True)
+                print(f"round {r + 1} {phase:<8} {label:<5} {sps} steps/s{'' if clean else ' (NOT zero loss / exit != 0)'}",
+                      file=sys.stderr, flush=True)
     out.mkdir(parents=True, exist_ok=True)
     (out / "compare.json").write_text(json.dumps({"against": str(other), "rows": rows}, indent=2))
     print(f"steps/s, this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved:")

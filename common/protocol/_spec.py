@@ -249,6 +249,13 @@ class Bool(Spec):
         return "boolean"
 
 
+#: Canonical standard base64 (what `b64encode` writes: padded, unused bits zero), in the schema and the decoder
+#: alike. `(?![\s\S])` ends the string in every regex dialect (Python's `$` also matches before a newline).
+BASE64_PATTERN = (r"^(?:[A-Za-z0-9+/]{4})*(?:[A-Za-z0-9+/][AQgw]==|[A-Za-z0-9+/]{2}[AEIMQUYcgkosw048]=)?"
+                  r"(?![\s\S])")
+_BASE64_RE = re.compile(BASE64_PATTERN)
+
+
 class Bytes64(Spec):
     """Binary data carried as a standard base64 string (as foxglove.CompressedImage does in JSON)."""
 
@@ -257,7 +264,7 @@ class Bytes64(Spec):
         self.description = description
 
     def schema(self) -> dict:
-        return {"type": "string", "contentEncoding": "base64",
+        return {"type": "string", "contentEncoding": "base64", "pattern": BASE64_PATTERN,
                 "maxLength": 4 * ((self.max_bytes + 2) // 3)}
 
     def check(self, value: Any, path: str) -> bytes:
@@ -265,6 +272,8 @@ class Bytes64(Spec):
             raise ProtocolError("wrong_type", f"{path}: expected base64 string, got {_type_name(value)}")
         if len(value) > 4 * ((self.max_bytes + 2) // 3):
             raise ProtocolError("bad_value", f"{path}: longer than {self.max_bytes} bytes")
+        if not _BASE64_RE.match(value):
+            raise ProtocolError("bad_value", f"{path}: not canonical standard base64")
         try:
             return base64.b64decode(value.encode("ascii"), validate=True)
         except (binascii.Error, UnicodeEncodeError, ValueError):

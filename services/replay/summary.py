@@ -289,7 +289,7 @@ def format_summary(s: dict[str, Any]) -> str:
 def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> None:
     import numpy as np
 
-    from experiments.plots import plot_curves
+    from common.plots import plot_curves
 
     rets = np.asarray(s["returns"], dtype=float)
     plot_curves({"live": rets}, str(path), title or f"live run {s['run']}: return per episode")

@@ -1,0 +1,31 @@
+"""Learning-curve plots (matplotlib, headless)."""
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def plot_curves(curves: dict[str, np.ndarray], path: str, title: str, ylabel: str = "return per episode",
+                stop_episode: int | None = None, bands: dict[str, tuple[np.ndarray, np.ndarray]] | None = None):
+    """One line per name (x = episode); optional shaded bands; a dashed line where feedback stops."""
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    for name, y in curves.items():
+        x = np.arange(len(y))
+        (line,) = ax.plot(x, y, label=name, lw=1.6)
+        if bands and name in bands:
+            lo, hi = bands[name]
+            ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.18, lw=0)
+    if stop_episode is not None:
+        ax.axvline(stop_episode, color="grey", ls="--", lw=1)
+        ax.text(stop_episode, ax.get_ylim()[1], " feedback stops", va="top", fontsize=8, color="grey")
+    ax.set_xlabel("episode")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
