@@ -86,13 +86,17 @@ def cmd_reproduce(args, argv: list[str]) -> int:
 def cmd_bench(args) -> int:
     from experiments.bench import bench, format_report
     from experiments.bench_paths import bench_paths, format_paths
-    from experiments.conditions import ALGOS, select, trial_spec
+    from dataclasses import replace
+
+    from experiments.conditions import ALGOS, QUICK, select, trial_spec
 
     if not args.paths_only:
         report = bench(args.conditions, args.trials, args.episodes, workers=args.workers, out=args.out)
         print(format_report(report))
     first = select(args.conditions)[:1]  # the torch path is slower: one condition's trials
-    specs = [trial_spec(c, algo, k, args.episodes) for c in first for algo in ALGOS for k in range(args.trials)]
+    scale = replace(QUICK, maze_episodes=args.episodes, taxi_episodes=args.episodes)
+    specs = [trial_spec(c, algo, k, scale) for c in first for algo in ALGOS if algo in c.arms
+             for k in range(args.trials)]
     print(format_paths(bench_paths(specs)))
     return 0
 

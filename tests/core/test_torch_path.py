@@ -131,3 +131,11 @@ def test_torch_state_survives_the_learners_checkpoint(tmp_path):
     _drive(b, 4, 30, 5, 4, t0=60)  # same inputs after the restore: same weights (optimiser state included)
     for k, v in a.policy_weights(0).items():
         np.testing.assert_array_equal(v, b.policy_weights(0)[k], err_msg=k)
+
+
+def test_bench_prints_both_paths_side_by_side(capsys):
+    from experiments.__main__ import main
+
+    assert main(["bench", "--paths-only", "--trials", "1", "--episodes", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "numpy MLP (fast path)" in out and "torch MLP (autograd + optim)" in out and "numpy / torch: x" in out
