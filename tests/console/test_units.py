@@ -101,3 +101,24 @@ def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals
     want = {3: 0.25 / 3.8, **{k: 0.5 / 3.8 for k in range(4, 11)}, 11: 0.05 / 3.8}
     assert res.status == "credited" and dict(res.credited) == pytest.approx(want)
     assert res.lost_mass == pytest.approx(0.0, abs=1e-9)
+
+
+def test_security_login_and_tls_and_loopback_only_without_it(tmp_path):
+    from aiohttp.test_utils import make_mocked_request
+
+    from common.security import SECURITY_FILE, init, load_security
+    from services.console.config import ConsoleConfig
+    from services.console.service import check_login, main, tls_context
+
+    init(tmp_path, ["web", "alice"])
+    sec_path = str(tmp_path / SECURITY_FILE)
+    security = load_security(sec_path)
+    cfg = ConsoleConfig(run="r", security=sec_path)
+    good = security.password("alice")
+    assert check_login(cfg, make_mocked_request("GET", f"/ws?teacher=alice&password={good}")) == "alice"
+    assert check_login(cfg, make_mocked_request("GET", "/ws?teacher=alice&password=wrong")) is None
+    assert check_login(cfg, make_mocked_request("GET", f"/ws?teacher=mallory&password={good}")) is None
+    assert check_login(cfg, make_mocked_request("GET", "/ws")) is None
+    assert tls_context(cfg) is not None  # HTTPS with the router's certificate
+    assert tls_context(ConsoleConfig(run="r")) is None
+    assert main(ConsoleConfig(run="r", host="0.0.0.0")) == 2  # other machines only with --security
