@@ -48,7 +48,7 @@ class WebRun:
     def out(self) -> str:
         return "".join(self.lines)
 
-    def url(self, timeout: float = 60.0) -> str:
+    def url(self, timeout: float = 150.0) -> str:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/)", self.out)
@@ -82,7 +82,7 @@ def browser(playwright, user_data_dir: Path, extra_args: tuple[str, ...] = (), p
         permissions=list(permissions), viewport={"width": 1280, "height": 760})
 
 
-def open_console(ctx, url: str, timeout_ms: int = 60_000):
+def open_console(ctx, url: str, timeout_ms: int = 120_000):
     page = ctx.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
