@@ -35,7 +35,7 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
-from common.protocol import (SERVICE_ROLES, may_publish, observer_service_name, sender_of, split_identity,
+from common.protocol import (SERVICE_ROLES, kind_of, may_publish, observer_service_name, sender_of, split_identity,
                              teacher_service_name)
 
 VERSION = b"H1"
@@ -244,8 +244,8 @@ class Auth:
         default: this object's own)."""
         reason = self._check(key_expr, payload, attachment, t_recv, self._last if window is None else window)
         if reason is not None:
-            parts = key_expr.split("/", 3)
-            name = f"{reason}_{parts[2] if len(parts) > 2 and parts[2].isidentifier() else 'other'}"
+            kind = kind_of(key_expr)
+            name = f"{reason}_{kind if kind.isidentifier() else 'other'}"
             with self._lock:
                 self.rejected[name] = self.rejected.get(name, 0) + 1
         return reason

@@ -16,7 +16,7 @@ No zenoh or mcap import here: the pure core may use these types too.
 
 from ._base import PROTOCOL_VERSION, Message
 from ._console import CONTROL_COMMANDS, MAX_RATE, Control, Credit, CreditedStep, Shown
-from ._keys import (KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, config_key, decode, episode_key,
+from ._keys import (kind_of, KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, config_key, decode, episode_key,
                     control_key, credit_key, feedback_key, feedback_wildcard, shown_key, ingest_key, log_key, message_type, parse_key, perception_key, reaction_key,
                     run_prefix,
                     status_key, step_key, validate_name, weights_key)
@@ -46,5 +46,5 @@ __all__ = [
     "FoxgloveProto", "SceneUpdate", "Request", "TensorSummary", "WeightsSnapshot",
     "ALIVE", "NAMED_ROLES", "OBSERVER_PREFIX", "OWN_KINDS", "PUBLISHES", "ROLES", "SERVICE_ROLES", "TEACHER_PREFIX",
     "alive_key", "incarnation_alive_key", "may_publish", "observer_service_name", "publish_patterns",
-    "sender_of", "split_identity", "teacher_id_of", "teacher_service_name",
+    "kind_of", "sender_of", "split_identity", "teacher_id_of", "teacher_service_name",
 ]

@@ -188,6 +188,13 @@ def parse_key(key: Any) -> ParsedKey:
     return ParsedKey(spec, parts[1], parts[3] if len(parts) == 4 else None)
 
 
+def kind_of(key: str) -> str:
+    """The kind chunk of a key (`step` for `hitl/<run>/step`), or "" if it has none; never raises (for counters
+    and filters; `parse_key` validates)."""
+    parts = key.split("/", 3) if isinstance(key, str) else []
+    return parts[2] if len(parts) >= 3 and parts[0] == ROOT else ""
+
+
 def message_type(key: str) -> type:
     """The message class carried on a concrete key."""
     return parse_key(key).spec.message

@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from common.protocol import Feedback, ServiceStatus, Step
+from common.protocol import Feedback, ServiceStatus, Step, teacher_id_of
 
 # -- rejected-input reasons beyond the decoders' (common.protocol.REASONS) ------------------------------------------
 
@@ -73,8 +73,8 @@ class InputGate:
     def on_status(self, st: ServiceStatus) -> None:
         if st.service == "actor" and st.incarnation and st.incarnation not in self.retired:
             self._remember(self.announced, st.incarnation)
-        elif st.service.startswith("teacher."):
-            self._remember(self.teachers, st.service[len("teacher."):])
+        elif teacher_id_of(st.service):
+            self._remember(self.teachers, teacher_id_of(st.service))
 
     def announce(self, incarnation: str) -> None:
         """An actor incarnation seen alive (its liveliness token, see `IncarnationWatch`)."""

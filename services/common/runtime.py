@@ -17,7 +17,8 @@ import uuid
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from common.protocol import ServiceStatus, alive_key, incarnation_alive_key, status_key, validate_name
+from common.protocol import (ServiceStatus, alive_key, incarnation_alive_key, status_key, teacher_id_of,
+                             validate_name)
 
 HARD_EXIT_AFTER = 5.0  # s a service gets to stop cleanly once its launcher is gone
 MAX_SAMPLES = 200_000  # latency samples kept per kind
@@ -183,7 +184,7 @@ class ServiceRuntime:
 
         sec = load_security(security)
         endpoint = next((e for e in cfg.connect if e.startswith("tls/")), None)
-        if self.name.startswith("teacher."):
+        if teacher_id_of(self.name):
             return client_config_for(sec, "teacher", endpoint, teacher=self.name.split(".", 1)[1],
                                      connect_timeout=cfg.connect_timeout)
         role = self.name.split(".", 1)[0]

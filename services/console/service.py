@@ -21,6 +21,7 @@ from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
+from common.protocol import teacher_service_name
 from services.common.runtime import ServiceRuntime, service_main
 from services.console.bridge import Hub
 from services.console.config import ConsoleConfig
@@ -198,7 +199,7 @@ def main(config: ConsoleConfig) -> int:
         from services.console.replay import replay_main
 
         return replay_main(config)
-    rt = ServiceRuntime(f"teacher.{config.teacher_prefix}", config)
+    rt = ServiceRuntime(teacher_service_name(config.teacher_prefix), config)
     with rt.session() as session:
         asyncio.run(serve(config, rt, session))
     rt.write_stats()

@@ -5,7 +5,7 @@ import time
 import warnings
 from pathlib import Path
 
-from common.protocol import ProtocolError, ServiceStatus, decode
+from common.protocol import ProtocolError, ServiceStatus, decode, kind_of
 from services.common.config import LearnerConfig
 from services.common.runtime import ServiceRuntime
 from services.learner.core import LearnerCore
@@ -26,7 +26,7 @@ def catch_up(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, consu
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", LogRecoveryWarning)
             for rec in read_log(path, decode=False):
-                kind = rec.key.split("/")[2] if rec.key.count("/") >= 2 else ""
+                kind = kind_of(rec.key)
                 if kind not in ("step", "feedback", "status"):
                     continue
                 try:

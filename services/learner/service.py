@@ -29,7 +29,7 @@ from __future__ import annotations
 import sys
 import time
 
-from common.protocol import (KEYS, EpisodeSummary, Feedback, Ingest, ProtocolError, ServiceStatus, Step, Weights,
+from common.protocol import (KEYS, kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ProtocolError, ServiceStatus, Step, Weights,
                              episode_key, feedback_wildcard, ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
 from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, InputGate, ResendRing,
@@ -40,7 +40,6 @@ from services.learner.catchup import catch_up
 from services.learner.core import LearnerCore
 from services.learner.snapshots import Snapshots
 
-TEACHER_PREFIX = "teacher."
 
 
 def restore(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: InputGate) -> dict | None:
@@ -194,7 +193,7 @@ class Learner:
 
     def on_status(self, st: ServiceStatus) -> None:
         self.gate.on_status(st)
-        teacher = st.service[len(TEACHER_PREFIX):] if st.service.startswith(TEACHER_PREFIX) else None
+        teacher = teacher_id_of(st.service)
         if teacher is not None:
             self.teachers_known.add(teacher)
         if st.state != "stopped":
@@ -224,7 +223,7 @@ class Learner:
         try:
             msg = got.decode()
         except ProtocolError as e:
-            self.reject(e.reason, got.key.split("/")[2])
+            self.reject(e.reason, kind_of(got.key))
         else:
             self.consume(msg, now, got.t_recv, t_sent)
         idle = len(self.inbox) == 0

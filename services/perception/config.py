@@ -89,6 +89,7 @@ class PerceptionServiceConfig:
 import math  # noqa: E402
 
 from common.config import option  # noqa: E402
+from common.protocol import teacher_service_name  # noqa: E402
 from services.common.config import ServiceConfig, _check_name  # noqa: E402
 
 DETECTORS = ("tracking", "haar", "haar-full")
@@ -167,7 +168,7 @@ class PerceptionLiveConfig(ServiceConfig):
 
     @property
     def service_name(self) -> str:
-        return f"teacher.{self.teacher_id}"
+        return teacher_service_name(self.teacher_id)
 
     @property
     def pipeline(self) -> PipelineConfig:

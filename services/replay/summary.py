@@ -10,7 +10,7 @@ import warnings
 from typing import Any
 
 from common.mcap_log import LogRecoveryWarning, read_log
-from common.protocol import (EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
+from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
                              WeightsSnapshot)
 
 
@@ -36,7 +36,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         warnings.simplefilter("always", LogRecoveryWarning)
         for rec in reader:
             m = rec.message
-            kinds[rec.key.split("/")[2] if rec.key.count("/") >= 2 else rec.key] += 1
+            kinds[kind_of(rec.key) or rec.key] += 1
             if isinstance(m, Step):
                 steps[m.incarnation].append(m)
             elif isinstance(m, Feedback):
@@ -70,8 +70,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             not_from_run["weights"] += len(weights.pop(inc))
     teacher_count: dict[str, int] = {}
     for (svc, _), st in by_pid.items():
-        if svc.startswith("teacher."):
-            tid = svc[len("teacher."):]
+        if teacher_id_of(svc):
+            tid = teacher_id_of(svc)
             teacher_count[tid] = max(teacher_count.get(tid, 0), int(st.counters.get("feedback_published", 0)))
     kept = []
     for m in feedback_msgs:
@@ -155,7 +155,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             n = max(n, len(step_seqs.get(st.incarnation or "", [])))
         actor_sent += n
 
-    teacher_services = sorted(s for s in statuses if s.startswith("teacher."))
+    teacher_services = sorted(s for s in statuses if teacher_id_of(s))
     sent = [counter(s, "feedback_published") for s in teacher_services]  # kept across restarts (state file)
     out = {
         "run": reader.run_config.run if reader.run_config else None,

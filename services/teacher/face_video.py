@@ -38,7 +38,9 @@ from common.config import option
 from common.delay import parse_probs
 from common.envs import make_env
 from common.observer import ObserverConfig, SimulatedObserver
-from common.protocol import CompressedImage, ObserverReaction, Step, Time, camera_key, reaction_key, status_key, step_key
+from common.protocol import (CompressedImage, ObserverReaction, Step, Time, camera_key, reaction_key, status_key, step_key,
+                             teacher_service_name)
+from common.protocol import observer_service_name
 from common.seeding import derive_seed
 from services.common.config import TaskConfig, _check_name
 from services.common.faults import atomic_write_json, read_json
@@ -118,9 +120,6 @@ class FaceVideoConfig(TaskConfig):
     def service_name(self) -> str:
         return observer_service_name(self.teacher_id)
 
-
-def observer_service_name(teacher_id: str) -> str:
-    return f"observer.{teacher_id}"
 
 
 # -- the clips --------------------------------------------------------------------------------------------------
@@ -315,7 +314,7 @@ def face_video_processes(up, teacher_id: str) -> list[tuple[str, str, object]]:
     from services.perception.config import PerceptionLiveConfig
 
     observer = observer_service_name(teacher_id)
-    teacher = f"teacher.{teacher_id}"
+    teacher = teacher_service_name(teacher_id)
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
     perception = PerceptionLiveConfig(**common, stats_out=up.stats_path(teacher), source=f"zenoh:{teacher_id}",
                                       teacher_id=teacher_id, stop_with=(observer,))
