@@ -147,6 +147,13 @@ def _check_file(cls: type, data: dict, where: str) -> dict:
     """`data` with lists made tuples; an unknown setting (at any depth) is a ValueError naming it."""
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls)}
+    data = dict(data)
+    for f in fields.values():  # a flattened group's settings may also be given at this level (env: ...)
+        sub = _config_type(hints[f.name])
+        if f.metadata.get("flatten") and sub is not None:
+            for name in [k for k in data if k not in fields and k in {g.name for g in dataclasses.fields(sub)}]:
+                group = data.setdefault(f.name, {})
+                group[name] = data.pop(name)
     out = {}
     for key, value in data.items():
         if key not in fields:

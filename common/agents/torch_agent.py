@@ -18,16 +18,23 @@ def torch_networks(configs: list[AgentConfig], obs_shape: tuple[int, ...], n_act
                    purpose: str, trained: bool = True) -> TorchValueNetworks:
     """One module per trial of `configs[0].network` (seeded by `purpose`), with RMSprop if trained."""
     c = configs[0]
-    try:
-        import torch
-
-        torch.device(c.device)
-    except RuntimeError as exc:
-        raise ValueError(f"device {c.device!r}: {exc}") from None
+    check_device(c.device)
     modules = build_modules(resolve_network(c.network, obs_shape), obs_shape, n_actions, c.hidden,
                             [derive_seed(s, purpose) for s in seeds])
     return TorchValueNetworks(modules, n_actions, c.lr if trained else None, c.rmsprop_alpha, c.rmsprop_eps,
                               c.device)
+
+
+def check_device(device: str) -> None:
+    """A one-line ValueError for a device torch does not know or this machine does not have."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except RuntimeError as exc:
+        raise ValueError(f"device {device!r}: {exc}") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r}: CUDA is not available on this machine")
 
 
 def make_agent(configs: list[AgentConfig], obs_shape: tuple[int, ...] | int, n_actions: int,
@@ -52,4 +59,5 @@ def check_agent(config: AgentConfig, env) -> None:
     shape = obs_shape(env)
     name = resolve_network(config.network, shape)
     if name != "mlp":
+        check_device(config.device)
         build_modules(name, shape, int(env.action_space.n), config.hidden, [0])

@@ -80,3 +80,37 @@ def test_run_takes_a_users_env_factory_and_rule(tmp_path, monkeypatch):
     steps = sum(int(r["steps"]) for r in rows)
     assert len(userworld.CALLS) == steps  # the user's rule judged every step ...
     assert {"reward", "target_distance_before", "target_distance_after"} <= set(userworld.CALLS[0])  # ... from info
+
+
+def test_config_file_is_the_nested_tree_and_flags_override_it(tmp_path):
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("env: FrozenLake-v1\nagent:\n  lr: 0.002\n  gamma: 0.8\nobserver:\n  p_feedback: 0.3\n")
+    out = tmp_path / "r"
+    assert main(["run", "--config", str(cfg), "--agent.lr", "5e-4", "--episodes", "1", "--out", str(out)]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert (config["task"]["env"], config["agent"]["lr"], config["agent"]["gamma"],
+            config["observer"]["p_feedback"]) == ("FrozenLake-v1", 5e-4, 0.8, 0.3)
+
+
+@pytest.mark.parametrize("text, message", [
+    ("agent:\n  learning_rate: 0.1\n", "unknown setting 'learning_rate'"),
+    ("observer:\n  p_feedback: 3\n", "p-feedback must be in [0, 1]"),
+])
+def test_bad_config_files_give_one_line_errors(tmp_path, capsys, text, message):
+    cfg = tmp_path / "bad.yaml"
+    cfg.write_text(text)
+    with pytest.raises(SystemExit):
+        main(["run", "--config", str(cfg), "--out", str(tmp_path / "never")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+
+
+def test_a_missing_gpu_is_a_one_line_error(capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA: the error cannot happen")
+    with pytest.raises(SystemExit):
+        main(["run", "--env", "minigrid-empty", "--agent.device", "cuda", "--out", "/nonexistent/never"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "device 'cuda': CUDA is not available" in err[0]
