@@ -177,6 +177,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "feedback_not_ingested": sum(1 for k in logged_fb if k not in consumed_fb),
         "rejected_inputs": rejected_inputs(by_pid),
         "duplicates_dropped": rejected_inputs(by_pid, prefixes=("duplicates_",)),
+        # dropped before anything else by the authentication check (common/auth.py): reason_kind -> count
+        "unauthenticated_inputs": rejected_inputs(by_pid, prefixes=("auth_",)),
         "feedback_sent": sum(x for x in sent if x is not None) if sent else None,
         "feedback_logged": len(logged_fb),
         "feedback_seq_contiguous_in_log": all(_contiguous(sorted(v)) for v in feedback.values()),

@@ -63,8 +63,9 @@ def _actions(launch):
 
 def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     """A separate process floods the step, feedback and weights keys with garbage of every kind during a run
-    (DQN, lockstep). Every subscriber drops and counts it by reason; the run acts and learns exactly as the
-    same run undisturbed (action for action), and no garbage feedback reaches the learner's core."""
+    (DQN, lockstep). Every subscriber drops and counts it (unsigned: before it is even queued, docs/security.md;
+    the decoders' own reasons are tested in tests/plumbing); the run acts and learns exactly as the same run
+    undisturbed (action for action), and no garbage feedback reaches the learner's core."""
     args = ("--algo", "dqn", "--episodes", "12", "--seed", "2", "--max-ahead", "0")
     calm = start_up(tmp_path, "calm", *args)
     assert calm.wait(timeout=240) == 0, calm.out
@@ -94,13 +95,11 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     assert learner["feedback_received"] == s["feedback_sent"] == s["feedback_logged"]  # no forged feedback got in
     assert s["steps_logged"] == s["steps_sent"] == s["steps_learned"]
     assert s["learner_step_entries"] == {"learned": s["steps_sent"]}
-    rej = s["rejected_inputs"]
-    assert set(rej["learner"]) >= {"malformed", "oversized", "wrong_type", "missing_field", "extra_field",
-                                   "non_finite", "bad_value", "future_timestamp", "stale_timestamp",
-                                   "unknown_incarnation", "obs_shape", "action_range", "unknown_teacher", "bad_seq"}
-    assert set(rej["actor"]) >= {"malformed", "bad_shape", "non_finite", "unknown_incarnation"}
-    assert {"malformed", "oversized", "unknown_incarnation"} <= set(rej["teacher.oracle"])
-    assert {"malformed", "oversized", "non_finite"} <= set(rej["recorder"])
+    auth = s["unauthenticated_inputs"]
+    assert {"unauthenticated_step", "unauthenticated_feedback"} <= set(auth["learner"]), auth
+    assert "unauthenticated_weights" in auth["actor"] and "unauthenticated_step" in auth["teacher.oracle"], auth
+    assert {"unauthenticated_step", "unauthenticated_feedback", "unauthenticated_weights"} <= set(auth["recorder"])
+    assert s["rejected_inputs"].get("learner", {}).get("unknown_incarnation", 0) == 0  # nothing got as far
     for launch in (calm, noisy):
         assert_nothing_left(launch.rundir)
 
