@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import shlex
 
-from experiments import curvestats as claims
+from experiments.evaluate import N_BOOT
 from experiments.sweeps.grid import Sweep, coerce, from_mapping, load_yaml, parse_assignment, parse_values, split_top
 
 HELP = ("a grid of config fields, trials per cell: one tidy table (CSV, Parquet), a summary per cell, a "
@@ -24,8 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--layouts", default=None, metavar="L1,L2",
                    help="maze layouts the trials cycle over (default: all 10)")
     p.add_argument("--contrast", action="append", default=[], metavar="'F=A - F=B'",
-                   help="a named contrast, e.g. 'agent.algo=dqn-tamer - agent.algo=dqn' (prefix 'final:' "
-                        "for another metric); repeatable")
+                   help="a named contrast, e.g. 'agent.algo=dqn-tamer - agent.algo=dqn' on mean ln steps (prefix "
+                        "'return:', 'success:' or 'ln_steps_last10:' for another metric); repeatable")
     p.add_argument("--legend", default=None, metavar="FIELD",
                    help="swept field drawn as lines in each figure (default: agent.algo if swept, else the "
                         "last swept field); the other fields make the groups")
@@ -37,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
                    help="run the trials as Ray tasks: 'auto' (the running cluster), an address (HOST:PORT) "
                         "or 'local' (a private instance); needs pip install '.[ray]'")
-    p.add_argument("--boot", type=int, default=claims.N_BOOT, help=f"bootstrap resamples (default: {claims.N_BOOT})")
+    p.add_argument("--boot", type=int, default=N_BOOT, help=f"bootstrap resamples (default: {N_BOOT})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

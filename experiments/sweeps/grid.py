@@ -2,9 +2,10 @@
 
 A sweep comes from the command line (`--grid observer.p_feedback=0.1,0.5 agent.algo=dqn,dqn-tamer`), from
 a YAML file (same keys, see `docs/sweeps.md`), or both (the command line wins). Every cell of the grid
-(one combination of values) runs the same trials: trial k of a cell that does not fix a layout runs on
-layout `layouts[k % L]` with seed `k // L`, so with the default layouts (all ten) trial k is the
-reproduction's trial k, and every comparison between cells is paired by trial (same layout and seed).
+(one combination of values) runs the same trials: trial k of a cell that does not fix a layout runs
+repetition k // L of layout `layouts[k % L]` with a seed derived from both, so with the default layouts
+(the reproduction's) trial k is the reproduction's trial k, and every comparison between cells is paired
+by trial (same layout and seed).
 
 Field paths (`FIELDS`) are those of `experiments run`'s config tree (`RunConfig`): `env`, `layout`,
 `teacher_rule`, `episodes`, `agent.<field>` (with `agent.algo`), `observer.<field>`; values are checked
@@ -29,7 +30,7 @@ from common.envs import LAYOUT_COUNT
 from common.envs.registry import resolve_env
 from common.observer import ObserverConfig
 from common.task import Task
-from experiments.conditions import AGENT_OVERRIDES, MAZE_EPISODES, TAXI_EPISODES
+from experiments.conditions import AGENT_OVERRIDES, FULL, MAZE_EPISODES, TAXI_EPISODES, trial_seed
 from experiments.run_config import RunConfig
 from experiments.runner import TrialSpec
 
@@ -239,14 +240,17 @@ class Sweep:
         return {"env": "maze", **self.fixed, **cell.values}
 
     def layout_seed(self, settings: dict, k: int) -> tuple[int, int]:
-        """(layout, seed) of trial k: a fixed layout gives seed k; else trials cycle over the layouts
-        (environments without layouts: layout 0, seed k)."""
+        """(layout, seed) of trial k, the reproduction's trial plan: repetition k // L of layout
+        layouts[k % L], seeded from both (`conditions.trial_seed`); a fixed layout repeats it, and an
+        environment without layouts has layout 0."""
         if settings.get("layout") is not None:
-            return settings["layout"], k
-        if not resolve_env(settings["env"]).uses_layout:
-            return 0, k
-        layouts = self.layouts or tuple(range(LAYOUT_COUNT))
-        return layouts[k % len(layouts)], k // len(layouts)
+            layout, rep = settings["layout"], k
+        elif not resolve_env(settings["env"]).uses_layout:
+            layout, rep = 0, k
+        else:
+            layouts = self.layouts or tuple(range(FULL.layouts))
+            layout, rep = layouts[k % len(layouts)], k // len(layouts)
+        return layout, trial_seed(layout, rep)
 
     def spec(self, cell: Cell, k: int) -> TrialSpec:
         s = self.settings(cell)

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import yaml
 
-from experiments import curvestats as claims
+from experiments.evaluate import N_BOOT
+from experiments import stats
 from experiments.sweeps import analysis, execute, tables
 from experiments.sweeps.grid import Sweep
 
@@ -32,7 +33,7 @@ class SweepResult:
 
 
 def run_sweep(sweep: Sweep, out: str, workers: int = 2, ray: str | None = None, progress: bool = True,
-              cache_dir: str | None = None, n_boot: int = claims.N_BOOT, on_trial=None,
+              cache_dir: str | None = None, n_boot: int = N_BOOT, on_trial=None,
               command: str = "") -> SweepResult:
     t0 = time.perf_counter()
     contrasts = [analysis.parse_contrast(c, sweep) for c in sweep.contrasts]  # bad ones fail before running
@@ -42,14 +43,12 @@ def run_sweep(sweep: Sweep, out: str, workers: int = 2, ray: str | None = None, 
         yaml.safe_dump(sweep.record(), fh, sort_keys=False)
     p, run = execute.execute(sweep, cache_dir, workers, ray, progress, on_trial)
 
-    cells = sweep.cells()
-    returns = {c.index: np.array([p.records[(c.index, k)]["return"] for k in range(sweep.trials)]) for c in cells}
-    clusters = np.array([p.records[(cells[0].index, k)]["spec"]["layout"] for k in range(sweep.trials)])
-    summary = analysis.summarize(sweep, returns, clusters, n_boot)
-    rows = [r for con in contrasts for r in analysis.evaluate_contrast(con, sweep, returns, clusters, n_boot)]
+    data = cell_data(sweep, p.records)
+    summary = analysis.summarize(sweep, data, n_boot)
+    rows = analysis.evaluate_contrasts(contrasts, sweep, data, n_boot)
     warnings = [analysis.warning_line(r) for r in rows if r["underpowered"]]
     files = [*tables.write_tidy(tables.tidy_table(sweep, p.records), out),
-             tables.write_summary(summary, sweep, out), *tables.plot_groups(sweep, returns, out)]
+             tables.write_summary(summary, sweep, out), *tables.plot_groups(sweep, data, out)]
     with open(os.path.join(out, "summary.json"), "w") as fh:
         json.dump({str(k): v for k, v in summary.items()}, fh, indent=1, default=_plain)
     with open(os.path.join(out, "contrasts.json"), "w") as fh:
@@ -72,6 +71,17 @@ def run_sweep(sweep: Sweep, out: str, workers: int = 2, ray: str | None = None, 
     return SweepResult(run, total_s, summary, rows, warnings, files)
 
 
+def cell_data(sweep: Sweep, records: dict) -> dict[int, analysis.CellData]:
+    out = {}
+    for c in sweep.cells():
+        recs = [records[(c.index, k)] for k in range(sweep.trials)]
+        layouts = np.array([r["spec"]["layout"] for r in recs])
+        out[c.index] = analysis.CellData(np.array([r["steps"] for r in recs], np.float64),
+                                         np.array([r["return"] for r in recs], np.float64),
+                                         analysis.clusters_of(layouts))
+    return out
+
+
 def _plain(v):
     if isinstance(v, tuple):
         return list(v)
@@ -91,9 +101,6 @@ def _read_json(path: str):
 def _iv(iv: dict | None, digits: int = 2) -> str:
     if not iv:
         return ""
-    if "censored_at" in iv:
-        f = lambda v: "never" if v >= iv["censored_at"] else f"{v:.0f}"  # noqa: E731
-        return f"{f(iv['estimate'])} [{f(iv['ci'][0])}, {f(iv['ci'][1])}]"
     return f"{iv['estimate']:.{digits}f} [{iv['ci'][0]:.{digits}f}, {iv['ci'][1]:.{digits}f}]"
 
 
@@ -101,24 +108,29 @@ def write_markdown(path: str, sweep: Sweep, summary: dict, rows: list[dict], war
                    command: str) -> None:
     lines = [f"# Sweep `{sweep.name}` (generated)", "",
              f"`{command or 'python -m experiments sweep'}`: {len(sweep.cells())} cells x {sweep.trials} trials, "
-             f"wall {timing['total_s']:.1f} s ({timing['backend']}). Tidy table: `trials.csv` / `trials.parquet`; "
-             "intervals: 95% bootstrap over trials, paired by trial (same layout and seed in every cell).", "",
-             "## Cells", "", "| cell | AUC | final | initial | episodes to 90% | post-stop gain |",
+             f"wall {timing['total_s']:.1f} s ({timing['backend']}). Tidy table: `trials.csv` / `trials.parquet`. "
+             "Per trial: mean ln steps per episode (all episodes, last 10), share of episodes that reach the goal, "
+             "mean return; per cell: mean over trials with a 95% layout-cluster bootstrap interval (the "
+             "reproduction's metrics and intervals). Every cell runs the same trials (layout, seed), so contrasts "
+             "are paired.", "",
+             "## Cells", "", "| cell | trials (clusters) | ln steps | ln steps, last 10 | success | return |",
              "|---|---|---|---|---|---|"]
     for row in summary.values():
-        lines.append(f"| {row['cell']} | {_iv(row['auc'])} | {_iv(row['final'])} | {_iv(row['initial'])} | "
-                     f"{_iv(row['to90'])} | {_iv(row.get('post_stop'))} |")
+        lines.append(f"| {row['cell']} | {row['trials']} ({row['clusters']}) | {_iv(row['ln_steps'])} | "
+                     f"{_iv(row['ln_steps_last10'])} | {_iv(row['success'])} | {_iv(row['return'])} |")
     groups = analysis.groups(sweep)
     lines += ["", "## Figures", ""]
     for g, (fixed, _) in enumerate(groups):
         lines += [f"![{analysis.group_title(fixed)}](group-{g:02d}.png)", ""]
     if rows:
-        lines += ["## Contrasts", "", "| contrast | where | estimate [95% CI] | margin | verdict | MDE | trials needed |",
-                  "|---|---|---|---|---|---|---|"]
+        lines += ["## Contrasts", "", "Left minus right, paired by trial; p: two-sided t-test on the layout means, "
+                  "Holm-adjusted over all rows.", "",
+                  "| contrast | where | estimate [95% CI] | p (Holm) | margin | verdict | MDE | trials needed |",
+                  "|---|---|---|---|---|---|---|---|"]
         for r in rows:
             need = "-" if r["trials_needed"] is None else str(r["trials_needed"])
             flag = " (underpowered)" if r["underpowered"] else ""
-            lines.append(f"| {r['metric']}: {r['contrast']} | {r['where']} | {_iv(r, 3)} | "
+            lines.append(f"| {r['metric']}: {r['contrast']} | {r['where']} | {_iv(r, 3)} | {stats.fmt_p(r['p_holm'])} | "
                          f"{r['margin']:.3f} | **{r['verdict']}**{flag} | {r['mde']:.3f} | {need} |")
         lines.append("")
     if warnings:

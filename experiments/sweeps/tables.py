@@ -14,12 +14,12 @@ import os
 
 import numpy as np
 
-from experiments import curvestats as claims
-from experiments.sweeps.analysis import group_title, groups, legend_field, stop_of
+from experiments import stats
+from experiments.sweeps.analysis import METRICS, CellData, group_title, groups, legend_field, stop_of
 from experiments.sweeps.grid import Sweep, fmt_value
 
 EPISODE_COLUMNS = ("return", "steps", "feedback_given", "feedback_credited")
-SUMMARY_METRICS = ("auc", "final", "initial", "post_stop", "to90")
+SUMMARY_METRICS = METRICS
 
 
 def _column_value(v):
@@ -76,7 +76,7 @@ def write_tidy(cols: dict[str, list], out: str) -> tuple[str, str]:
 def write_summary(summary: dict, sweep: Sweep, out: str) -> str:
     """summary.csv: one row per cell, each metric's estimate and 95% interval."""
     path = os.path.join(out, "summary.csv")
-    head = ["cell", *sweep.grid, "trials", "episodes"]
+    head = ["cell", *sweep.grid, "trials", "clusters", "episodes"]
     for m in SUMMARY_METRICS:
         head += [m, f"{m}_lo", f"{m}_hi"]
     with open(path, "w", newline="") as fh:
@@ -84,7 +84,7 @@ def write_summary(summary: dict, sweep: Sweep, out: str) -> str:
         w.writerow(head)
         for row in summary.values():
             line = [row["cell"], *(_column_value(row["values"][p]) for p in sweep.grid), row["trials"],
-                    row["episodes"]]
+                    row["clusters"], row["episodes"]]
             for m in SUMMARY_METRICS:
                 iv = row.get(m)
                 line += [iv["estimate"], iv["ci"][0], iv["ci"][1]] if iv else ["", "", ""]
@@ -92,8 +92,9 @@ def write_summary(summary: dict, sweep: Sweep, out: str) -> str:
     return path
 
 
-def plot_groups(sweep: Sweep, returns: dict[int, np.ndarray], out: str) -> list[str]:
-    """One figure per group: a trimmed-mean curve with its bootstrap band per legend value."""
+def plot_groups(sweep: Sweep, data: dict[int, CellData], out: str) -> list[str]:
+    """One figure per group, one line per legend value: steps per episode (geometric mean over trials, as
+    the reproduction's figures) and mean return per episode."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -101,23 +102,24 @@ def plot_groups(sweep: Sweep, returns: dict[int, np.ndarray], out: str) -> list[
     leg = legend_field(sweep)
     paths = []
     for g, (fixed, cells) in enumerate(groups(sweep)):
-        fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=100)
+        fig, (ax_s, ax_r) = plt.subplots(1, 2, figsize=(9.6, 3.9), dpi=90)
         for cell in cells:
-            mid, lo, hi = claims.curve_band(returns[cell.index])
-            x = np.arange(1, len(mid) + 1)
+            d = data[cell.index]
             label = f"{leg}={fmt_value(cell.values[leg])}" if leg else cell.label
-            (line,) = ax.plot(x, mid, lw=1.5, label=label)
-            ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
-        stops = {stop_of(sweep, c) for c in cells} - {None}
-        for s in stops:
-            ax.axvline(s + 0.5, color="black", ls="--", lw=1)
+            x = np.arange(1, d.steps.shape[1] + 1)
+            (line,) = ax_s.plot(x, np.exp(stats.log_steps(d.steps).mean(axis=0)), lw=1.4, label=label)
+            ax_r.plot(x, d.returns.mean(axis=0), lw=1.4, color=line.get_color(), label=label)
+        for ax in (ax_s, ax_r):
+            for s in {stop_of(sweep, c) for c in cells} - {None}:
+                ax.axvline(s + 0.5, color="black", ls="--", lw=0.8)
+            ax.set_xlabel("episode")
+            ax.grid(alpha=0.3, which="both")
+        ax_s.set_yscale("log")
+        ax_s.set_ylabel("steps per episode (geometric mean)")
+        ax_r.set_ylabel("return per episode (mean)")
+        ax_s.legend(fontsize=8, loc="upper right")
         env = sweep.spec(cells[0], 0).env
-        ax.set_title(f"{sweep.name}: {group_title(fixed)}\n{env}, 10%-trimmed mean of {sweep.trials} trials, "
-                     "95% bootstrap band", fontsize=9)
-        ax.set_xlabel("episode")
-        ax.set_ylabel("return per episode")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right", title=None)
+        fig.suptitle(f"{sweep.name}: {group_title(fixed)} ({env}, {sweep.trials} trials per line)", fontsize=10)
         fig.tight_layout()
         path = os.path.join(out, f"group-{g:02d}.png")
         fig.savefig(path)

@@ -7,9 +7,9 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
-from experiments import curvestats as claims
 from experiments.__main__ import main
-from experiments.sweeps import analysis, execute, report
+from experiments.conditions import trial_seed
+from experiments.sweeps import analysis, execute
 from experiments.sweeps.grid import Sweep, load_yaml
 from experiments.sweeps.report import run_sweep
 
@@ -49,13 +49,15 @@ def test_grid_from_the_command_line_gives_a_tidy_table_summary_figures_and_contr
                              "return", "steps", "feedback_given", "feedback_credited"]
     assert {(r["observer.p_feedback"], r["agent.algo"]) for r in rows} == \
         {("0.1", "dqn"), ("0.1", "dqn-tamer"), ("0.5", "dqn"), ("0.5", "dqn-tamer")}
-    # trials cycle over the given layouts, seed = k // 2
-    assert {(r["trial"], r["layout"], r["seed"]) for r in rows} == {("0", "0", "0"), ("1", "1", "0"), ("2", "0", "1")}
+    # trials cycle over the given layouts, the reproduction's seeds (from layout and repetition k // 2)
+    assert {(r["trial"], r["layout"], r["seed"]) for r in rows} == {
+        ("0", "0", str(trial_seed(0, 0))), ("1", "1", str(trial_seed(1, 0))), ("2", "0", str(trial_seed(0, 1)))}
     table = pq.read_table(tmp_path / "trials.parquet")
     assert table.num_rows == len(rows) and table.column_names == list(rows[0])
     assert table.schema.field("observer.p_feedback").type == "double"
     assert table.column("return").to_pylist() == [float(r["return"]) for r in rows]
-    assert len(read_csv(tmp_path / "summary.csv")) == 4
+    summary = read_csv(tmp_path / "summary.csv")
+    assert len(summary) == 4 and {"ln_steps", "ln_steps_lo", "ln_steps_hi", "success", "return"} <= set(summary[0])
     assert sorted(p.name for p in tmp_path.glob("group-*.png")) == ["group-00.png", "group-01.png"]
     md = (tmp_path / "SWEEP.md").read_text()
     assert "observer.p_feedback=0.5" in md and "## Contrasts" in md
@@ -64,24 +66,30 @@ def test_grid_from_the_command_line_gives_a_tidy_table_summary_figures_and_contr
 
 
 def test_named_contrast_is_computed_from_the_table(tmp_path):
-    assert cli(tmp_path) == 0
+    assert cli(tmp_path, "--contrast", "return: observer.p_feedback=0.5 - observer.p_feedback=0.1") == 0
     rows = read_csv(tmp_path / "trials.csv")
     result = json.loads((tmp_path / "contrasts.json").read_text())
-    assert [r["where"] for r in result] == ["observer.p_feedback=0.1", "observer.p_feedback=0.5"]
+    assert [(r["metric"], r["where"]) for r in result] == [
+        ("ln_steps", "observer.p_feedback=0.1"), ("ln_steps", "observer.p_feedback=0.5"),
+        ("return", "agent.algo=dqn"), ("return", "agent.algo=dqn-tamer")]
 
-    def auc(p, algo):  # per-trial mean return, in trial order
-        return np.array([np.mean([float(r["return"]) for r in rows if r["observer.p_feedback"] == p
-                                  and r["agent.algo"] == algo and r["trial"] == str(k)]) for k in range(3)])
+    def per_trial(column, transform, **where):  # per-trial mean over episodes, in trial order
+        return np.array([np.mean([transform(float(r[column])) for r in rows if r["trial"] == str(k)
+                                  and all(r[f] == v for f, v in where.items())]) for k in range(3)])
 
-    for r, p in zip(result, ("0.1", "0.5")):
-        expected = claims.tmean(auc(p, "dqn-tamer")) - claims.tmean(auc(p, "dqn"))
-        assert r["estimate"] == pytest.approx(expected)
-        assert r["ci"][0] <= r["estimate"] <= r["ci"][1] or r["ci"][0] == r["ci"][1]
-        assert r["verdict"] in ("A > B", "A < B", "no meaningful difference", "inconclusive")
-        assert r["verdict"] == report.analysis.verdict_of(r["ci"], r["margin"])
-        assert r["trials"] == 3 and r["mde"] > 0
-        # with 3 trials, the verdict rests on fewer trials than an effect of the size seen needs
+    for r, p in zip(result[:2], ("0.1", "0.5")):  # mean ln steps, dqn-tamer minus dqn, paired by trial
+        a = per_trial("steps", np.log, **{"observer.p_feedback": p, "agent.algo": "dqn-tamer"})
+        b = per_trial("steps", np.log, **{"observer.p_feedback": p, "agent.algo": "dqn"})
+        assert r["estimate"] == pytest.approx(np.mean(a - b))
+    dqn = {p: per_trial("return", float, **{"observer.p_feedback": p, "agent.algo": "dqn"}) for p in ("0.1", "0.5")}
+    assert result[2]["estimate"] == pytest.approx(np.mean(dqn["0.5"] - dqn["0.1"])) == 0  # DQN ignores feedback
+    assert result[2]["verdict"] == "no meaningful difference"
+    for r in result:
+        assert r["ci"][0] <= r["estimate"] <= r["ci"][1]
+        assert r["verdict"] == analysis.decide(r["ci"], r["p_holm"], r["margin"], r["estimate"])
+        assert r["p_holm"] >= r["p"] and r["trials"] == 3 and r["clusters"] == 2  # layouts 0 and 1
         assert r["underpowered"] == (r["trials_needed"] is None or r["trials_needed"] > 3)
+    assert "underpowered" in (tmp_path / "SWEEP.md").read_text()
 
 
 def test_the_same_grid_from_yaml_is_the_same_sweep(tmp_path):
@@ -162,7 +170,7 @@ def test_any_agent_observer_and_env_field_reaches_the_trial():
     spec = sweep.spec(sweep.cells()[0], 1)
     assert (spec.agent.algo, spec.agent.lr, spec.agent.update_interval) == ("deep-tamer", 0.01, 4)  # taxi's default
     assert spec.observer.delay_probs == (1.0, 0.0, 0.0) and spec.observer.stop_episode == 5
-    assert (spec.env, spec.episodes, spec.layout, spec.seed) == ("taxi", 4, 0, 1)
+    assert (spec.env, spec.episodes, spec.layout, spec.seed) == ("taxi", 4, 0, trial_seed(0, 1))
 
 
 def test_the_sweep_file_in_the_docs_is_valid(tmp_path):
@@ -171,7 +179,7 @@ def test_the_sweep_file_in_the_docs_is_valid(tmp_path):
     sweep = Sweep(**load_yaml_text(tmp_path, text))
     assert len(sweep.cells()) == 8 and sweep.legend == "observer.p_flip"
     cons = [analysis.parse_contrast(c, sweep) for c in sweep.contrasts]
-    assert [c.metric for c in cons] == ["auc", "final"] and cons[1].left == {"observer.p_flip": 0.0}
+    assert [c.metric for c in cons] == ["ln_steps", "return"] and cons[1].left == {"observer.p_flip": 0.0}
 
 
 def test_an_unreachable_ray_address_is_a_one_line_error(tmp_path, capsys):
@@ -180,3 +188,15 @@ def test_an_unreachable_ray_address_is_a_one_line_error(tmp_path, capsys):
               "--out", str(tmp_path), "--no-progress", "--ray", "127.0.0.1:1"])
     assert exc.value.code == 1
     assert capsys.readouterr().err.strip() == "error: cannot connect to Ray at 127.0.0.1:1: Connection refused"
+
+
+def test_a_sweep_trial_is_the_reproductions_trial():
+    from experiments.conditions import BY_NAME, FULL, trial_spec
+    cond = BY_NAME["maze-high-delay"]
+    sweep = Sweep(grid={"agent.algo": ["dqn", "dqn-tamer"]}, trials=45,
+                  fixed={"observer.p_feedback": 0.5, "observer.delay_probs": (0.3, 0.6, 0.1),
+                         "episodes": cond.episodes(FULL)})
+    for cell in sweep.cells():
+        for k in (0, 7, 44):
+            mine, theirs = sweep.spec(cell, k), trial_spec(cond, cell.values["agent.algo"], k, FULL)
+            assert mine == theirs and execute.sweep_key(mine) == execute.trial_key(theirs)
