@@ -335,6 +335,18 @@ class TrialBatchAgent:
         if len(sync):
             self.q_target.sync_from(self.q, sync)
 
+    def idle_update(self) -> None:
+        """One more Q and D_global minibatch step between two steps (a paced run's idle time; the learner records
+        it in its Ingest order so `replay retrain` repeats it). No target sync: that stays on the step count."""
+        c = self.base
+        q_rows = nz(self.train_q & (self.steps > 0) & (self.replay.size >= max(c.replay_start, 1)))
+        h_rows = nz(self.train_h & (self.feedback_memory.size > 0))
+        jobs = ([self._q_job(q_rows)] if len(q_rows) else []) + ([self._h_job(h_rows)] if len(h_rows) else [])
+        if jobs:
+            fit_together(jobs)
+        self.q_updates[q_rows] += 1
+        self.h_updates[h_rows] += 1
+
     def _q_job(self, rows: np.ndarray) -> FitJob:
         """Q's TD step on a replay minibatch: target r + gamma (1 - terminated) max_a Q_target(s', a)."""
         d = self.obs_dim

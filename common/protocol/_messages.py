@@ -176,7 +176,7 @@ class EpisodeSummary(Message):
     t_end: float = fld(Seconds("Wall-clock time (s) when the episode ended."))
 
 
-INGEST_KINDS = ("step", "feedback", "end", "outcome")
+INGEST_KINDS = ("step", "feedback", "end", "outcome", "idle")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -193,7 +193,8 @@ class IngestEntry:
 INGEST_ENTRY_SPEC = Obj({
     "kind": Str(enum=INGEST_KINDS, description=(
         "`step` / `feedback`: an input consumed, in consumption order; `end`: the learner stopped taking inputs; "
-        "`outcome`: what became of a feedback (not an input; retrain checks it).")),
+        "`outcome`: what became of a feedback (not an input; retrain checks it); `idle`: an extra Q and D_global "
+        "minibatch step the learner took between two steps of a paced run (retrain repeats it).")),
     "source": Str(128, pattern=TOKEN_PATTERN, min_len=1, description=(
         "The input's origin: the actor incarnation (step), the teacher id (feedback, outcome), the learner (end).")),
     "seq": Int(0, description="The input's own `seq` (Step.seq, Feedback.seq); 0 for `end`."),

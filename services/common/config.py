@@ -161,6 +161,9 @@ class LearnerConfig(TaskConfig):
     agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset; "
                                              "update-interval b > 1 trades learning per step for throughput)",
                                        exclude=("algo",))
+    idle_updates: int = option(0, "extra Q and D_global minibatch steps between two steps when no input came for "
+                                  "50 ms (a paced run's idle time; recorded in the Ingest order, so retrain repeats "
+                                  "them; 0 = the paper's schedule only)")
     screen_delay: str = option("uniform:0.2,4", "delay in seconds the learner assumes for feedback from a person's "
                                                 "screen (the console): uniform:LOW,HIGH (Deep TAMER's 0.2-4 s) or any "
                                                 "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, "
@@ -190,6 +193,8 @@ class LearnerConfig(TaskConfig):
         delay_from_spec(self.screen_delay)  # a one-line ValueError if malformed
         if self.weights_every < 1:
             raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
+        if self.idle_updates < 0:
+            raise ValueError(f"idle-updates must be >= 0, got {self.idle_updates}")
         if self.snapshot_every < 1:
             raise ValueError(f"snapshot-every must be >= 1, got {self.snapshot_every}")
         if not 1 <= self.ingest_batch <= 2048:

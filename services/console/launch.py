@@ -14,6 +14,8 @@ def console_defaults(up: Any) -> dict:
     out = {}
     if static_scene(up.env, up.layout) is None:  # no drawing of ours: show the env's own picture
         out["render_frames"] = True
+    if up.idle_updates == 0:  # at a person's pace the learner has time to spare between steps
+        out["idle_updates"] = 8
     if up.rate == 0:
         out["rate"] = 2.0
     if up.end_grace == 3.0:

@@ -199,6 +199,16 @@ class LearnerCore:
         self.counters["feedback_held"] += 1
         return []
 
+    def idle(self, t: float = 0.0) -> bool:
+        """An extra minibatch step between two steps (the service decides when, by the wall clock; the entry
+        records it, so the same inputs in the same order still give the same weights). False if none applies."""
+        if self.ended or self.steps_learned == 0:
+            return False
+        self.agent.idle_update()
+        self._entry("idle", self.actor or "none", self.steps_learned, "", t)
+        self.counters["idle_updates"] += 1
+        return True
+
     def end(self, t: float = 0.0) -> list[FeedbackResult]:
         """No more inputs: held feedback is rejected (`after_end`)."""
         if self.ended:

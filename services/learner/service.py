@@ -66,6 +66,7 @@ class Learner:
         self.session = session
         self.credit_pubs: dict = {}  # per person (console teacher): where their Credit messages go
         self.inbox, self.status, self.watch, self.actors, self.requests = inbox, status, watch, actors, requests
+        self.idle_left = 0  # extra minibatch steps still allowed before the next step arrives
         self.wpub, self.epub, self.ipub = publishers["weights"], publishers["episode"], publishers["ingest"]
         self.ingest_seq = 0
         self.sent_at: dict[int, tuple] = {}  # ingest position of a held feedback -> (when sent, when it arrived)
@@ -216,8 +217,13 @@ class Learner:
     def take_input(self) -> None:
         """One input from the inbox (if any) into the core; publish weights and flush Ingest when due."""
         got = self.inbox.get(timeout=0.05)
-        if got is None:
+        if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
+            if self.idle_left > 0 and self.core.idle(time.time()):
+                self.idle_left -= 1
+                self.flush_ingest()
             return
+        if got.key.endswith("/step"):  # a new step: a new budget of idle-time updates before the next one
+            self.idle_left = self.config.idle_updates
         now = time.time()
         t_sent = got.t_zenoh if got.t_zenoh is not None else got.t_recv
         try:

@@ -126,6 +126,9 @@ def _replay(core, log: _Log, entries: list, after_step=None) -> tuple[int, int, 
             core.end()
             ended = True
             continue
+        if e.kind == "idle":
+            core.idle()
+            continue
         store = log.steps if e.kind == "step" else log.feedback if e.kind == "feedback" else None
         if store is None:
             continue

@@ -3,10 +3,16 @@ maze through the console at a test-friendly pace: every press is credited, and a
 the person was reacting to, since its on-screen interval lies inside the assumed 0.2-4 s window."""
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+
 import pytest
 
 from common.mcap_read import read_log
 from common.protocol import Credit, Feedback, Step
+
+from tests.services.live import ROOT, env
 
 from .harness import SCRIPTED, WebRun, browser, open_console
 
@@ -61,3 +67,10 @@ def test_scripted_person_teaches_dqn_tamer(tmp_path):
         assert any(p["seq"] in seqs for p in reacted), (fb.seq, [p["seq"] for p in reacted], sorted(seqs))
         checked += 1
     assert checked >= 35
+    # The learner's idle-time updates and its credit of the person's feedback are in its Ingest order:
+    # retraining from the log gives its weights bit for bit.
+    retrain = subprocess.run([sys.executable, "-m", "services.replay", str(run.rundir / "session.mcap"), "retrain"],
+                             cwd=ROOT, env=env(), capture_output=True, text=True, timeout=300)
+    assert retrain.returncode == 0, retrain.stdout[-2000:] + retrain.stderr[-2000:]
+    stats = json.loads((run.rundir / "stats" / "learner.json").read_text())["counters"]
+    assert stats.get("idle_updates", 0) > 0
