@@ -14,7 +14,20 @@ from services.launcher.children import Child, tail
 from services.launcher.config import UpConfig
 
 TOKEN_GRACE = 5.0  # s a service may run on after dropping its token (a clean exit takes well under a second)
+# A token can also lapse on a machine so loaded that keep-alives come late; a process that still uses CPU is
+# then not hung, unless it stays without its token for the status timeout (its session never came back).
 MIN_STATUSES = 3  # statuses seen from an incarnation before its silence counts (it ticks in its main loop)
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU seconds of a process, None if it cannot be read (gone, or not ours)."""
+    import psutil
+
+    try:
+        t = psutil.Process(pid).cpu_times()
+    except (psutil.Error, OSError):
+        return None
+    return float(t.user + t.system)
 
 
 class HangWatch:
@@ -29,6 +42,19 @@ class HangWatch:
         self.last_status: dict[str, float] = {}
         self.statuses: collections.Counter[str] = collections.Counter()
         self.ended: set[str] = set()  # said its last word ('stopped' / 'failed'): on its way out, not hung
+        self.cpu: dict[str, tuple[float, float]] = {}  # service -> (CPU seconds, monotonic time they last grew)
+
+    def progress(self, name: str, cpu_seconds: float | None) -> None:
+        """The process's CPU time now (None if unknown): it grows while the process runs at all."""
+        if cpu_seconds is None:
+            return
+        old = self.cpu.get(name)
+        if old is None or cpu_seconds > old[0]:
+            self.cpu[name] = (cpu_seconds, time.monotonic())
+
+    def _idle_for(self, name: str, now: float) -> float:
+        """Seconds since the process last used CPU (infinite when never measured)."""
+        return now - self.cpu[name][1] if name in self.cpu else float("inf")
 
     def token(self, name: str, present: bool) -> None:
         if present:
@@ -51,13 +77,16 @@ class HangWatch:
         self.lost.pop(name, None)
         self.last_status.pop(name, None)
         self.statuses.pop(name, None)
+        self.cpu.pop(name, None)
 
     def why(self, name: str) -> str | None:
         now = time.monotonic()
         if name in self.ended:
             return None
-        if name in self.lost and now - self.lost[name] > TOKEN_GRACE:
-            return f"its liveliness token is gone since {now - self.lost[name]:.0f} s (Zenoh session lapsed)"
+        gone = now - self.lost[name] if name in self.lost else -1.0
+        if gone > TOKEN_GRACE and (self._idle_for(name, now) > TOKEN_GRACE or gone > self.timeout):
+            return f"its liveliness token is gone since {gone:.0f} s (Zenoh session lapsed) and it " + (
+                f"used no CPU for {self._idle_for(name, now):.0f} s" if gone <= self.timeout else "never got it back")
         if self.statuses[name] >= MIN_STATUSES and now - self.last_status[name] > self.timeout:
             return f"no status for {now - self.last_status[name]:.0f} s"
         return None
@@ -142,6 +171,8 @@ class Supervisor:
             with self._lock:
                 self.hangs.status(got[1].service, got[1].state)
         with self._lock:
+            for c in children:
+                self.hangs.progress(c.name, cpu_seconds(c.popen.pid))
             return [(c, why) for c in children if c.poll() is None and (why := self.hangs.why(c.name))]
 
     def kill_hung(self, child: Child, why: str) -> None:

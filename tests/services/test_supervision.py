@@ -142,3 +142,26 @@ def test_a_run_directory_in_use_is_refused(tmp_path):
         launch.wait(timeout=120)
     assert_nothing_left(launch.rundir)
     assert os.path.exists(launch.rundir / "summary.json")
+
+
+def test_hang_watch_spares_a_loaded_live_service_whose_token_lapsed(monkeypatch):
+    """On a loaded machine a token can lapse while the process still runs (uses CPU): not hung until the
+    status timeout; a stopped process (no CPU) is hung after the token grace."""
+    from services.launcher import supervise
+
+    clock = [1000.0]
+    monkeypatch.setattr(supervise.time, "monotonic", lambda: clock[0])
+    watch = supervise.HangWatch(timeout=60.0)
+    for name in ("busy", "stopped"):
+        watch.token(name, True)
+        watch.progress(name, 1.0)
+        watch.token(name, False)  # both sessions lapse at t = 1000
+    for second in range(1, 31):
+        clock[0] = 1000.0 + second
+        watch.progress("busy", 1.0 + 0.01 * second)  # slow but running
+        watch.progress("stopped", 1.0)
+    assert watch.why("busy") is None
+    assert "no CPU" in watch.why("stopped")
+    clock[0] = 1061.0
+    watch.progress("busy", 2.0)
+    assert "never got it back" in watch.why("busy")  # its session never came back: hung after all
