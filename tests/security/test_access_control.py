@@ -288,11 +288,11 @@ def test_access_rules_are_default_deny_and_least_privilege():
     def own(service):  # each identity only its own status and log (its console's people: <service>-...)
         return [f"hitl/*/{k}/{service}{tail}" for k in ("status", "log") for tail in ("", "-$*")]
 
-    assert publish_keys(sec, "learner") == ["hitl/*/weights", "hitl/*/episode", "hitl/*/ingest",
+    assert publish_keys(sec, "learner") == ["hitl/*/weights", "hitl/*/snapshot", "hitl/*/episode", "hitl/*/ingest",
                                             "hitl/*/credit/*"] + own("learner")
     assert publish_keys(sec, "alice")[:2] == ["hitl/*/feedback/alice", "hitl/*/feedback/alice-$*"]
     assert publish_keys(sec, "alice")[-4:] == own("teacher.alice")
-    assert publish_keys(sec, "actor") == ["hitl/*/step"] + own("actor")
+    assert publish_keys(sec, "actor") == ["hitl/*/step", "hitl/*/camera/env"] + own("actor")
     assert publish_keys(sec, "recorder") == own("recorder")
     assert not any("status/*" in k or k.endswith("/status/learner") for u in ("actor", "alice", "bob")
                    for k in publish_keys(sec, u))
