@@ -100,6 +100,10 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     assert "unauthenticated_weights" in auth["actor"] and "unauthenticated_step" in auth["teacher.oracle"], auth
     assert {"unauthenticated_step", "unauthenticated_feedback", "unauthenticated_weights"} <= set(auth["recorder"])
     assert s["rejected_inputs"].get("learner", {}).get("unknown_incarnation", 0) == 0  # nothing got as far
+    # the replay audit of the flooded run agrees with the live learner (no forgery reached the log)
+    from services.replay.retrain import retrain
+    audit = retrain(noisy.rundir / "session.mcap")
+    assert audit.compared and audit.identical and audit.outcomes_match and audit.entry_mismatch is None, audit
     for launch in (calm, noisy):
         assert_nothing_left(launch.rundir)
 
