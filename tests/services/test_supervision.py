@@ -41,7 +41,7 @@ def assert_complete(s: dict, episodes: int | None = None) -> None:
 
 
 def test_hang_learner_stopped_longer_than_its_lease_is_restarted_and_nothing_is_lost(tmp_path):
-    launch = start_up(tmp_path, "hang", "--episodes", "200", "--max-steps", "1500", "--rate", "40", "--seed", "2")
+    launch = start_up(tmp_path, "hang", "--episodes", "100000", "--max-steps", "1500", "--rate", "40", "--seed", "2")
     try:
         assert wait_for(lambda: log_size(launch.rundir) > 50_000, 120), "the run never got going"
         learner = service_process(launch.rundir, "services.learner")
