@@ -105,7 +105,11 @@ def alive_tokens(rundir: Path) -> Any:
         if sample.kind == zenoh.SampleKind.PUT:
             puts.setdefault(str(sample.key_expr).rsplit("/", 1)[-1], []).append(time.time())
 
-    sub = session.liveliness().declare_subscriber(f"hitl/{run}/alive/*", on, history=True)
+    try:
+        sub = session.liveliness().declare_subscriber(f"hitl/{run}/alive/*", on, history=True)
+    except BaseException:
+        session.close()
+        raise
     return session, sub, puts
 
 

@@ -233,8 +233,13 @@ def open_launcher_session(r: Run, router_cfg: Any) -> Any:
 
     set_default_auth(Auth(load_credential(r.rundir.path / "credentials" / "launcher.json", r.run, "launcher")))
     session = zenoh.open(router_cfg)
-    r.status_pub = MessagePublisher(session, status_key(r.run, "launcher"), congestion="block")
-    r.status_sub, r.statuses = subscribe(session, KEYS["status"].wildcard(r.run), maxsize=4096, policy="drop_oldest")
+    try:
+        r.status_pub = MessagePublisher(session, status_key(r.run, "launcher"), congestion="block")
+        r.status_sub, r.statuses = subscribe(session, KEYS["status"].wildcard(r.run), maxsize=4096,
+                                             policy="drop_oldest")
+    except BaseException:
+        session.close()  # an unclosed session keeps the launcher from exiting
+        raise
     return session
 
 
@@ -248,6 +253,17 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
     old_term = signal.signal(signal.SIGTERM, on_signal)
     t_start = time.time()
     session = open_launcher_session(r, router_cfg)
+    try:
+        return _supervise(cfg, run, rundir, launch, procs, r, session, t_start)
+    finally:
+        session.close()
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)
+
+
+def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, r: Run, session: Any,
+               t_start: float) -> int:
+    """Announce the run, start the children and pump until the run ends; always stops what it started."""
     print(f"zenoh endpoint: {launch.endpoint}  (run {run}; join with --connect {launch.endpoint} --run {run})",
           file=sys.stderr, flush=True)
     print(f"run directory: {rundir.path}", file=sys.stderr, flush=True)
@@ -280,8 +296,5 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
         progress.close()
         r.sup.close()
         r.status_pub.close()
-        session.close()
-        signal.signal(signal.SIGINT, old_int)
-        signal.signal(signal.SIGTERM, old_term)
     return finish(cfg, run, rundir, launch.endpoint, r.children, r.outcome, time.time() - t_start, r.sup.records,
                   r.everyone, r.error)
