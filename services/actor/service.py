@@ -122,6 +122,10 @@ def main(config: ActorConfig) -> int:
     apply_torch_threads()
     rt = ServiceRuntime("actor", config)
     env, _ = make_env(config.env, config.layout)
+    if config.episode_steps is not None:  # the registry's envs truncate at their `max_steps`
+        if not hasattr(env, "max_steps"):
+            raise ValueError(f"--episode-steps: {config.env} has no max_steps to set")
+        env.max_steps = config.episode_steps
     obs_dim, n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
     agent = make_agent([config.agent], obs_shape(env), n_actions, [config.seed])
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}

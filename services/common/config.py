@@ -90,6 +90,8 @@ class ActorConfig(TaskConfig):
                                              "actor uses its network and schedules", exclude=("algo",))
     episodes: int = option(50, "episodes to run, then stop")
     max_steps: int | None = option(None, "also stop after this many steps (none = no limit)")
+    episode_steps: int | None = option(None, "cut an episode (truncated) after this many steps (none = the env's own "
+                                             "limit: 1000 for the maze and Taxi)")
     rate: float = option(0.0, "steps per second; 0 = as fast as possible")
     max_ahead: int | None = option(0, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
                                       "(0 = lockstep with the learner, as the in-process runner, learns best; more "
@@ -114,6 +116,8 @@ class ActorConfig(TaskConfig):
             raise ValueError(f"episodes must be >= 0, got {self.episodes}")
         if self.max_steps is not None and self.max_steps < 0:
             raise ValueError(f"max-steps must be >= 0 or none, got {self.max_steps}")
+        if self.episode_steps is not None and self.episode_steps < 1:
+            raise ValueError(f"episode-steps must be >= 1 or none, got {self.episode_steps}")
         if not (math.isfinite(self.rate) and self.rate >= 0):
             raise ValueError(f"rate must be >= 0, got {self.rate}")
         if self.max_ahead is not None and self.max_ahead < 0:

@@ -34,6 +34,8 @@ class UpConfig:
     teacher_id: str = option("oracle", "the teacher's name (its feedback key's last chunk)")
     episodes: int = option(50, "episodes the actor runs")
     max_steps: int | None = option(None, "the actor also stops after this many steps (none = no limit)")
+    episode_steps: int | None = option(None, "the actor cuts an episode after this many steps (none = the env's own "
+                                             "limit: 1000 for the maze and Taxi)")
     out: str = option("runs", "parent directory of the run's directory")
     run: str | None = option(None, "run name (default: live-<date>-<time>-<random>, unique)")
     rate: float = option(0.0, "actor steps per second; 0 = as fast as possible")
@@ -161,7 +163,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             debug_update_sleep=c.debug_update_sleep, screen_delay=c.screen_delay, idle_updates=c.idle_updates)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
-                        episodes=c.episodes, max_steps=c.max_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
+                        episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
                         start_timeout=c.start_timeout, max_lag=c.max_lag, render_frames=c.render_frames,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights
                         weights_timeout=120.0 if c.restart_limit else 30.0)
