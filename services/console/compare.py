@@ -1,0 +1,173 @@
+"""`python -m services.console.compare`: does the scripted person at 2 steps/s make DQN-TAMER reach the goal in
+fewer episodes than DQN alone?
+
+The comparison is declared here, in `DESIGN`, before any of its runs (the two pilot sessions in docs/console.md,
+layout 0 with seeds 0 and 1, are not part of it). Each pair is an honest maze layout with its own seed; in each
+pair the same scripted person (`static/scripted_person.js`: the paper's rule, pressing on half the steps it saw,
+0.3-1.5 s after the paint) teaches every arm through the real console in headless Chromium, one
+`python -m services.console.scripted` process per run, several at once (the runs are paced by the clock, not the
+CPU).
+
+Primary measure: the episode in which the agent first reached the goal within twice the shortest path (an agent
+that never did scores episodes + 1). Primary test, the only one that decides: DQN's episode minus DQN-TAMER's
+(default assumed delay, Deep TAMER's uniform 0.2-4 s), one-sided Wilcoxon signed-rank over the pairs (zero
+differences dropped), at 0.05. Secondary, shown and never deciding: the sign test, steps over all episodes, and
+the arm with the assumed delay matched to this person (uniform 0.3-1.5 s).
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from common.config import option, parse_config
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@dataclass(frozen=True)
+class Arm:
+    name: str
+    algo: str
+    screen_delay: str = "uniform:0.2,4"
+
+
+@dataclass(frozen=True)
+class Design:
+    """What is compared, fixed before the runs."""
+
+    pairs: tuple[tuple[int, int], ...] = ((2, 2), (4, 3), (6, 4), (8, 5), (10, 6), (12, 7), (14, 8), (16, 9))
+    arms: tuple[Arm, ...] = (Arm("DQN-TAMER", "dqn-tamer"), Arm("DQN", "dqn"),
+                             Arm("DQN-TAMER, matched delay", "dqn-tamer", "uniform:0.3,1.5"))
+    primary: tuple[str, str] = ("DQN", "DQN-TAMER")  # the test is first minus second > 0
+    episodes: int = 10
+    rate: float = 2.0
+    episode_steps: int = 200  # bounds a run's wall time (an uncut maze episode may take 1000 steps = 500 s)
+    good_factor: float = 2.0
+    alpha: float = 0.05
+
+
+DESIGN = Design()
+
+
+@dataclass(frozen=True)
+class CompareConfig:
+    """Run the declared comparison (DESIGN in this module) and write its table, figure and verdict."""
+
+    out: str = option("runs/compare", "directory of the runs and results")
+    parallel: int = option(8, "runs at once")
+    pairs: int | None = option(None, "only the first N pairs (a trial of the machinery; no verdict is written)")
+    timeout: float = option(2400.0, "seconds a run may take")
+
+
+def run_arm(cfg: CompareConfig, arm: Arm, layout: int, seed: int) -> dict:
+    """One scripted session (its own process); its result dict, reused when it already exists."""
+    tag = f"{arm.algo}-{arm.screen_delay.replace(':', '').replace(',', '-')}-l{layout}-s{seed}"
+    result = Path(cfg.out) / "results" / f"{tag}.json"
+    if not result.exists():
+        result.parent.mkdir(parents=True, exist_ok=True)
+        cmd = [sys.executable, "-m", "services.console.scripted", "--algo", arm.algo, "--layout", str(layout),
+               "--seed", str(seed), "--episodes", str(DESIGN.episodes), "--rate", str(DESIGN.rate),
+               "--episode-steps", str(DESIGN.episode_steps), "--screen-delay", arm.screen_delay,
+               "--good-factor", str(DESIGN.good_factor), "--out", str(Path(cfg.out) / "runs"), "--run", tag,
+               "--timeout", str(cfg.timeout), "--result", str(result)]
+        log = (Path(cfg.out) / "results" / f"{tag}.log").open("w")
+        subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, check=False)
+    if not result.exists():
+        raise RuntimeError(f"run {tag} wrote no result: see {result.with_suffix('.log')}")
+    row = json.loads(result.read_text())["runs"][0]
+    return {"arm": arm.name, "layout": layout, "seed": seed, **row}
+
+
+def episodes_to_goal(row: dict) -> int:
+    return row["first_good_episode"] or DESIGN.episodes + 1
+
+
+def primary_test(rows: list[dict]) -> dict:
+    """The declared test: paired differences (first arm minus second) of the episode that first reached the goal."""
+    from scipy import stats
+
+    by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
+    first, second = DESIGN.primary
+    d = np.array([episodes_to_goal(by[first, l, s]) - episodes_to_goal(by[second, l, s]) for l, s in DESIGN.pairs])
+    nonzero = d[d != 0]
+    p = float(stats.wilcoxon(nonzero, alternative="greater").pvalue) if len(nonzero) else 1.0
+    sign = stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue if len(nonzero) else 1.0
+    return {"differences": d.tolist(), "mean": float(d.mean()), "wins": int((d > 0).sum()),
+            "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p, "sign_p": float(sign),
+            "verdict": "fewer episodes" if p < DESIGN.alpha and d.mean() > 0 else "not shown"}
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| layout | seed | " + " | ".join(a.name for a in DESIGN.arms) + " |",
+             "|---|---|" + "---|" * len(DESIGN.arms)]
+    by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
+    for l, s in DESIGN.pairs:
+        cells = [f"{by[a.name, l, s]['first_good_episode'] or 'never'} ({by[a.name, l, s]['total_steps']} steps)"
+                 for a in DESIGN.arms]
+        lines.append(f"| {l} | {s} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def figure(rows: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    for a in DESIGN.arms:
+        mine = [r for r in rows if r["arm"] == a.name]
+        steps = np.array([r["steps_per_episode"][:DESIGN.episodes] for r in mine], float)
+        right.plot(np.arange(1, steps.shape[1] + 1), np.median(steps, axis=0), marker="o", label=a.name)
+        left.plot([f"{l}/{s}" for l, s in DESIGN.pairs],
+                  [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p)) for p in DESIGN.pairs],
+                  marker="o", linestyle="none", label=a.name)
+    left.set(xlabel="layout/seed", ylabel=f"first episode within {DESIGN.good_factor:g}x shortest path",
+             title="episodes to reach the goal (never = 11)")
+    right.set(xlabel="episode", ylabel="steps (median over pairs)", yscale="log", title="steps per episode")
+    left.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(cfg: CompareConfig) -> int:
+    pairs = DESIGN.pairs[:cfg.pairs] if cfg.pairs else DESIGN.pairs
+    jobs = [(a, l, s) for l, s in pairs for a in DESIGN.arms]
+    print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {DESIGN.episodes} episodes at {DESIGN.rate} steps/s",
+          file=sys.stderr, flush=True)
+    t0, rows = time.monotonic(), []
+    with ThreadPoolExecutor(cfg.parallel) as pool:
+        for row in pool.map(lambda j: run_arm(cfg, *j), jobs):
+            rows.append(row)
+            print(f"[compare] {row['arm']} layout {row['layout']} seed {row['seed']}: first good episode "
+                  f"{row['first_good_episode'] or 'never'}, {row['total_steps']} steps "
+                  f"({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
+    out = Path(cfg.out)
+    if cfg.pairs:
+        print(json.dumps(rows, indent=1))
+        return 0
+    test = primary_test(rows)
+    figure(rows, out / "compare.png")
+    (out / "compare.json").write_text(json.dumps({"design": asdict(DESIGN), "primary": test, "runs": rows}, indent=1))
+    (out / "compare.md").write_text(table(rows) + "\n")
+    print(table(rows))
+    print(f"primary ({DESIGN.primary[0]} minus {DESIGN.primary[1]}, episodes to the goal): mean {test['mean']:+.2f}, "
+          f"{test['wins']} wins / {test['ties']} ties / {test['losses']} losses, Wilcoxon p {test['wilcoxon_p']:.4f}, "
+          f"sign p {test['sign_p']:.4f}: {test['verdict']}")
+    print(f"wrote {out / 'compare.json'}, compare.md, compare.png")
+    return 0
+
+
+def cli(argv: list[str] | None = None) -> int:
+    return main(parse_config(CompareConfig, argv, prog="python -m services.console.compare"))
+
+
+if __name__ == "__main__":
+    sys.exit(cli())
