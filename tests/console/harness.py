@@ -51,7 +51,7 @@ class WebRun:
     def url(self, timeout: float = 150.0) -> str:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/)", self.out)
+            m = re.search(r"console: (https?://127\.0\.0\.1:(\d+)/)", self.out)
             if m and _listening(int(m.group(2))):  # printed when started; serving a moment later
                 return m.group(1)
             if self.popen.poll() is not None:
@@ -74,12 +74,13 @@ class WebRun:
             self.popen.wait(10)
 
 
-def browser(playwright, user_data_dir: Path, extra_args: tuple[str, ...] = (), permissions: tuple[str, ...] = ()):
+def browser(playwright, user_data_dir: Path, extra_args: tuple[str, ...] = (), permissions: tuple[str, ...] = (),
+            ignore_https_errors: bool = False):
     """A headless Chromium context (fresh profile). Raises (the test fails) if the browser cannot start."""
     assert Path(CHROMIUM).exists(), f"{CHROMIUM} is missing: `make setup` installs Debian's chromium"
     return playwright.chromium.launch_persistent_context(
         str(user_data_dir), executable_path=CHROMIUM, headless=True, args=[*FLAGS, *extra_args],
-        permissions=list(permissions), viewport={"width": 1280, "height": 760})
+        permissions=list(permissions), viewport={"width": 1280, "height": 760}, ignore_https_errors=ignore_https_errors)
 
 
 def open_console(ctx, url: str, timeout_ms: int = 120_000):
