@@ -58,12 +58,20 @@ def test_interrupted_sweep_resumes_with_only_the_missing_trials(tmp_path, monkey
     assert stats.trials_run == sum(len(t.slots) for t in todo)
     assert returns_of(str(out), conds) == reference
 
+    resumed = json.loads((out / "timing.json").read_text())
+    assert not resumed["from_scratch"] and resumed["trials_cached"] >= 5  # a resumed run is no scratch timing
+    assert "NOT a from-scratch timing" in (out / "REPORT.md").read_text()
+
     ran.clear()
-    timing_before = json.loads((out / "timing.json").read_text())
-    again = rep.reproduce(conds, TINY, str(out), workers=1, progress=False, n_boot=50)
+    scratch = json.loads((full / "timing.json").read_text())
+    assert scratch["from_scratch"] and scratch["last_from_scratch"]["total_s"] == scratch["total_s"]
+    again = rep.reproduce(conds, TINY, str(full), workers=1, progress=False, n_boot=50)
     assert ran == [] and again.trials_run == 0  # a second run only re-plots
-    timing_after = json.loads((out / "timing.json").read_text())
-    assert timing_after["total_s"] == timing_before["total_s"] and timing_after["replot_s"] > 0
+    timing_after = json.loads((full / "timing.json").read_text())
+    assert timing_after["trials_cached"] == timing_after["trials"] and not timing_after["from_scratch"]
+    assert timing_after["last_from_scratch"] == scratch["last_from_scratch"]  # the scratch figure is kept
+    report = (full / "REPORT.md").read_text()
+    assert "NOT a from-scratch timing" in report and "The last from-scratch run" in report
 
 
 def test_dqn_trials_are_shared_between_observers_and_teacher_rules(tmp_path):
