@@ -19,8 +19,8 @@ from dataclasses import replace
 
 from experiments.conditions import ALGOS, QUICK, select, trial_spec
 from experiments.runner import run_trials
+from experiments.sweeps.execute import run_local
 from experiments.trialcache import Task, make_jobs, trial_key
-from experiments.workers import run_jobs
 
 
 def bench(conditions: list[str], trials: int, episodes: int, workers: int = 2, out: str | None = None) -> dict:
@@ -42,12 +42,17 @@ def bench(conditions: list[str], trials: int, episodes: int, workers: int = 2, o
 
     # Parallel: the reproduce path (jobs of one environment kind split over workers). Every trial runs,
     # even where reproduce would share identical trials between conditions, so all three do the same work.
-    t0 = time.perf_counter()
-    infos = run_jobs(make_jobs([Task(trial_key(s), s) for s in specs], workers), workers, lambda m: None)
-    t_parallel = time.perf_counter() - t0
+    # The same process pool as sweeps and the reproduction (`experiments.sweeps.execute.run_local`).
+    jobs = [[(t.key, t.spec, 1) for t in job] for job in make_jobs([Task(trial_key(s), s) for s in specs], workers)]
     steps_par = {}
-    for info in infos:
-        steps_par.update(info["steps"])
+
+    def on_message(msg: tuple) -> None:
+        if msg[0] == "trial":  # ("trial", key, record, progress already reported)
+            steps_par[msg[1]] = msg[2]["total_steps"]
+
+    t0 = time.perf_counter()
+    run_local(jobs, workers, on_message)
+    t_parallel = time.perf_counter() - t0
 
     mismatches = [i for i, s in enumerate(specs)
                   if not np.array_equal(plain[i].returns, batched[id(s)].returns)

@@ -144,6 +144,158 @@ def _activation(gb: _GraphBuilder, act: str, x: str, name: str) -> str:
     raise UnsupportedLayerError(f"activation {act!r} in layer {name}")
 
 
+class _KerasToOnnx:
+    """The conversion's state, one layer at a time in file order: each Keras layer's ONNX tensor and shape."""
+
+    def __init__(self, weights: dict[str, dict[str, np.ndarray]]):
+        self.weights = weights
+        self.gb = _GraphBuilder()
+        self.tensor: dict[str, str] = {}  # keras layer name -> onnx tensor name
+        self.shape: dict[str, tuple[int, int, int]] = {}  # keras layer name -> (C, H, W) or (C, 1, 1) after GAP
+        self.flat: set[str] = set()  # layers whose output is [N, C]
+        self.graph_input = None
+
+    def add(self, layer: KerasLayer) -> None:
+        """Convert one layer: its ONNX nodes, output tensor and shape."""
+        n, kind = layer.name, layer.class_name
+        if kind == "InputLayer":
+            _, ih, iw, ic = layer.config["batch_input_shape"]
+            self.graph_input = helper.make_tensor_value_info("input", TensorProto.FLOAT, ["N", ic, ih, iw])
+            self.tensor[n], self.shape[n] = "input", (ic, ih, iw)
+            return
+        src = self.tensor[layer.inbound[0]] if layer.inbound else None
+        in_shape = self.shape[layer.inbound[0]] if layer.inbound else (0, 0, 0)
+        convert = self._CONVERTERS.get(kind)
+        if convert is None:
+            raise UnsupportedLayerError(f"Keras layer {kind} ({n}) is not supported by this converter")
+        self.tensor[n], self.shape[n] = convert(self, layer, src, in_shape)
+        if layer.inbound and layer.inbound[0] in self.flat and n not in self.flat:
+            self.flat.add(n)
+
+    def _convolution(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
+        """Conv2D, SeparableConv2D (depthwise group conv + pointwise 1x1 conv), DepthwiseConv2D."""
+        gb, c, n, w, kind = self.gb, layer.config, layer.name, self.weights.get(layer.name, {}), layer.class_name
+        cin, h, wd = in_shape
+        if tuple(c.get("dilation_rate", (1, 1))) != (1, 1):
+            raise UnsupportedLayerError(f"dilated convolution in {n}")
+        if c.get("data_format", "channels_last") != "channels_last":
+            raise UnsupportedLayerError(f"data_format {c['data_format']} in {n}")
+        k, s = tuple(c["kernel_size"]), tuple(c["strides"])
+        pads, (oh, ow) = _pads_and_shape((h, wd), k, s, c["padding"])
+        x = src
+        if kind in ("SeparableConv2D", "DepthwiseConv2D"):
+            dk = w["depthwise_kernel"]  # (kh, kw, cin, mult) -> (cin*mult, 1, kh, kw)
+            mult = dk.shape[3]
+            dw = dk.reshape(k[0], k[1], cin * mult).transpose(2, 0, 1)[:, None, :, :]
+            dw_inputs = [x, gb.const(f"{n}_dw_w", dw)]
+            if kind == "DepthwiseConv2D" and "bias" in w:
+                dw_inputs.append(gb.const(f"{n}_dw_b", w["bias"]))
+            x = gb.node("Conv", dw_inputs, f"{n}_dw", name=f"{n}_dw", group=cin,
+                        kernel_shape=list(k), strides=list(s), pads=pads)
+            cout = cin * mult
+            if kind == "SeparableConv2D":
+                pw = w["pointwise_kernel"].transpose(3, 2, 0, 1)  # (1,1,cin*m,out) -> (out,cin*m,1,1)
+                pw_inputs = [x, gb.const(f"{n}_pw_w", pw)]
+                if "bias" in w:
+                    pw_inputs.append(gb.const(f"{n}_pw_b", w["bias"]))
+                x = gb.node("Conv", pw_inputs, f"{n}_pw", name=f"{n}_pw", kernel_shape=[1, 1])
+                cout = pw.shape[0]
+        else:
+            kern = w["kernel"].transpose(3, 2, 0, 1)  # (kh,kw,in,out) -> (out,in,kh,kw)
+            conv_inputs = [x, gb.const(f"{n}_w", kern)]
+            if "bias" in w:
+                conv_inputs.append(gb.const(f"{n}_b", w["bias"]))
+            x = gb.node("Conv", conv_inputs, f"{n}_conv", name=n,
+                        kernel_shape=list(k), strides=list(s), pads=pads)
+            cout = kern.shape[0]
+        return _activation(gb, c.get("activation"), x, n), (cout, oh, ow)
+
+    def _batch_norm(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
+        gb, c, n, w = self.gb, layer.config, layer.name, self.weights.get(layer.name, {})
+        axis = c.get("axis", -1)
+        if axis not in (-1, 3) and not (axis == 1 and layer.inbound[0] in self.flat):
+            raise UnsupportedLayerError(f"BatchNormalization over axis {axis} in {n}")
+        mean, var = w["moving_mean"], w["moving_variance"]
+        gamma = w.get("gamma", np.ones_like(mean))
+        beta = w.get("beta", np.zeros_like(mean))
+        ins = [src] + [gb.const(f"{n}_{p}", a) for p, a in
+                       (("scale", gamma), ("bias", beta), ("mean", mean), ("var", var))]
+        out = gb.node("BatchNormalization", ins, f"{n}_bn", name=n, epsilon=float(c.get("epsilon", 1e-3)))
+        return out, in_shape
+
+    def _activation_layer(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
+        """Activation (relu, softmax, linear) and ReLU (plain only)."""
+        c, n, kind = layer.config, layer.name, layer.class_name
+        act = c.get("activation", "relu") if kind == "Activation" else "relu"
+        if kind == "ReLU" and (c.get("max_value") is not None or c.get("negative_slope", 0)):
+            raise UnsupportedLayerError(f"parametrised ReLU in {n}")
+        if act == "softmax" and layer.inbound[0] not in self.flat:
+            raise UnsupportedLayerError(f"softmax over a spatial tensor in {n}")
+        return _activation(self.gb, act, src, n), in_shape
+
+    def _dropout(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
+        return src, in_shape  # identity at inference
+
+    def _sum(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
+        """Add: a chain of ONNX Adds over the inbound layers."""
+        n = layer.name
+        ins = [self.tensor[i] for i in layer.inbound]
+        acc = ins[0]
+        for j, other in enumerate(ins[1:]):
+            acc = self.gb.node("Add", [acc, other], f"{n}_{j}", name=f"{n}_{j}")
+        return acc, in_shape
+
+    def _pooling(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
+        """MaxPooling2D, AveragePooling2D (padding excluded from the average, as Keras does)."""
+        c, n = layer.config, layer.name
+        cin, h, wd = in_shape
+        k = tuple(c["pool_size"])
+        s = tuple(c.get("strides") or k)
+        pads, (oh, ow) = _pads_and_shape((h, wd), k, s, c["padding"])
+        op = "MaxPool" if layer.class_name == "MaxPooling2D" else "AveragePool"
+        extra = {} if op == "MaxPool" else {"count_include_pad": 0}
+        out = self.gb.node(op, [src], f"{n}_pool", name=n, kernel_shape=list(k), strides=list(s), pads=pads,
+                           **extra)
+        return out, (cin, oh, ow)
+
+    def _global_average_pool(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
+        n = layer.name
+        gap = self.gb.node("GlobalAveragePool", [src], f"{n}_gap", name=n)
+        self.flat.add(n)
+        return self.gb.node("Flatten", [gap], f"{n}_flat", name=f"{n}_flatten", axis=1), (in_shape[0], 1, 1)
+
+    _CONVERTERS = {
+        "Conv2D": _convolution, "SeparableConv2D": _convolution, "DepthwiseConv2D": _convolution,
+        "BatchNormalization": _batch_norm, "Activation": _activation_layer, "ReLU": _activation_layer,
+        "Dropout": _dropout, "Add": _sum, "MaxPooling2D": _pooling, "AveragePooling2D": _pooling,
+        "GlobalAveragePooling2D": _global_average_pool,
+    }
+
+    def model(self, out_layer: str, source_name: str, labels) -> onnx.ModelProto:
+        """The checked ONNX model whose output `probs` is `out_layer`'s [N, classes] tensor."""
+        if out_layer not in self.flat:
+            raise UnsupportedLayerError("the model output is not a [N, classes] tensor")
+        n_classes = self.shape[out_layer][0]
+        final = self.gb.node("Identity", [self.tensor[out_layer]], "probs", name="output")
+        graph = helper.make_graph(
+            self.gb.nodes, "keras_h5", [self.graph_input],
+            [helper.make_tensor_value_info(final, TensorProto.FLOAT, ["N", n_classes])],
+            initializer=self.gb.inits,
+        )
+        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
+                                  producer_name="hitl-tamer common.perception.convert",
+                                  producer_version=CONVERTER_VERSION)
+        model.ir_version = 8  # readable by every onnxruntime >= 1.14
+        meta = {"source": source_name, "converter_version": CONVERTER_VERSION}
+        if labels is not None:
+            if len(labels) != n_classes:
+                raise ValueError(f"{len(labels)} labels for a model with {n_classes} outputs")
+            meta["labels"] = json.dumps(list(labels))
+        helper.set_model_props(model, meta)
+        onnx.checker.check_model(model)
+        return model
+
+
 def keras_h5_to_onnx(h5_path: Path, labels: list[str] | tuple[str, ...] | None = None) -> onnx.ModelProto:
     """Build the ONNX equivalent of a Keras HDF5 model (see module doc for the supported subset)."""
     h5_path = Path(h5_path)
@@ -151,126 +303,10 @@ def keras_h5_to_onnx(h5_path: Path, labels: list[str] | tuple[str, ...] | None =
     weights = read_keras_weights(h5_path)
     if len(inputs) != 1 or len(outputs) != 1:
         raise UnsupportedLayerError("only single-input single-output models are supported")
-    gb = _GraphBuilder()
-    tensor: dict[str, str] = {}  # keras layer name -> onnx tensor name
-    shape: dict[str, tuple[int, int, int]] = {}  # keras layer name -> (C, H, W) or (C, 1, 1) after GAP
-    flat: set[str] = set()  # layers whose output is [N, C]
-    graph_input = None
-
+    conversion = _KerasToOnnx(weights)
     for layer in layers:
-        c, n, w = layer.config, layer.name, weights.get(layer.name, {})
-        src = tensor[layer.inbound[0]] if layer.inbound else None
-        cin, h, wd = shape[layer.inbound[0]] if layer.inbound else (0, 0, 0)
-        kind = layer.class_name
-        if kind == "InputLayer":
-            _, ih, iw, ic = c["batch_input_shape"]
-            graph_input = helper.make_tensor_value_info("input", TensorProto.FLOAT, ["N", ic, ih, iw])
-            tensor[n], shape[n] = "input", (ic, ih, iw)
-            continue
-        if kind in ("Conv2D", "SeparableConv2D", "DepthwiseConv2D"):
-            if tuple(c.get("dilation_rate", (1, 1))) != (1, 1):
-                raise UnsupportedLayerError(f"dilated convolution in {n}")
-            if c.get("data_format", "channels_last") != "channels_last":
-                raise UnsupportedLayerError(f"data_format {c['data_format']} in {n}")
-            k, s = tuple(c["kernel_size"]), tuple(c["strides"])
-            pads, (oh, ow) = _pads_and_shape((h, wd), k, s, c["padding"])
-            x = src
-            if kind in ("SeparableConv2D", "DepthwiseConv2D"):
-                dk = w["depthwise_kernel"]  # (kh, kw, cin, mult) -> (cin*mult, 1, kh, kw)
-                mult = dk.shape[3]
-                dw = dk.reshape(k[0], k[1], cin * mult).transpose(2, 0, 1)[:, None, :, :]
-                dw_inputs = [x, gb.const(f"{n}_dw_w", dw)]
-                if kind == "DepthwiseConv2D" and "bias" in w:
-                    dw_inputs.append(gb.const(f"{n}_dw_b", w["bias"]))
-                x = gb.node("Conv", dw_inputs, f"{n}_dw", name=f"{n}_dw", group=cin,
-                            kernel_shape=list(k), strides=list(s), pads=pads)
-                cout = cin * mult
-                if kind == "SeparableConv2D":
-                    pw = w["pointwise_kernel"].transpose(3, 2, 0, 1)  # (1,1,cin*m,out) -> (out,cin*m,1,1)
-                    pw_inputs = [x, gb.const(f"{n}_pw_w", pw)]
-                    if "bias" in w:
-                        pw_inputs.append(gb.const(f"{n}_pw_b", w["bias"]))
-                    x = gb.node("Conv", pw_inputs, f"{n}_pw", name=f"{n}_pw", kernel_shape=[1, 1])
-                    cout = pw.shape[0]
-            else:
-                kern = w["kernel"].transpose(3, 2, 0, 1)  # (kh,kw,in,out) -> (out,in,kh,kw)
-                conv_inputs = [x, gb.const(f"{n}_w", kern)]
-                if "bias" in w:
-                    conv_inputs.append(gb.const(f"{n}_b", w["bias"]))
-                x = gb.node("Conv", conv_inputs, f"{n}_conv", name=n,
-                            kernel_shape=list(k), strides=list(s), pads=pads)
-                cout = kern.shape[0]
-            tensor[n] = _activation(gb, c.get("activation"), x, n)
-            shape[n] = (cout, oh, ow)
-        elif kind == "BatchNormalization":
-            axis = c.get("axis", -1)
-            if axis not in (-1, 3) and not (axis == 1 and layer.inbound[0] in flat):
-                raise UnsupportedLayerError(f"BatchNormalization over axis {axis} in {n}")
-            mean, var = w["moving_mean"], w["moving_variance"]
-            gamma = w.get("gamma", np.ones_like(mean))
-            beta = w.get("beta", np.zeros_like(mean))
-            ins = [src] + [gb.const(f"{n}_{p}", a) for p, a in
-                           (("scale", gamma), ("bias", beta), ("mean", mean), ("var", var))]
-            tensor[n] = gb.node("BatchNormalization", ins, f"{n}_bn", name=n,
-                                epsilon=float(c.get("epsilon", 1e-3)))
-            shape[n] = (cin, h, wd)
-        elif kind in ("Activation", "ReLU"):
-            act = c.get("activation", "relu") if kind == "Activation" else "relu"
-            if kind == "ReLU" and (c.get("max_value") is not None or c.get("negative_slope", 0)):
-                raise UnsupportedLayerError(f"parametrised ReLU in {n}")
-            if act == "softmax" and layer.inbound[0] not in flat:
-                raise UnsupportedLayerError(f"softmax over a spatial tensor in {n}")
-            tensor[n] = _activation(gb, act, src, n)
-            shape[n] = (cin, h, wd)
-        elif kind == "Dropout":
-            tensor[n], shape[n] = src, (cin, h, wd)
-        elif kind == "Add":
-            ins = [tensor[i] for i in layer.inbound]
-            acc = ins[0]
-            for j, other in enumerate(ins[1:]):
-                acc = gb.node("Add", [acc, other], f"{n}_{j}", name=f"{n}_{j}")
-            tensor[n], shape[n] = acc, (cin, h, wd)
-        elif kind in ("MaxPooling2D", "AveragePooling2D"):
-            k = tuple(c["pool_size"])
-            s = tuple(c.get("strides") or k)
-            pads, (oh, ow) = _pads_and_shape((h, wd), k, s, c["padding"])
-            op = "MaxPool" if kind == "MaxPooling2D" else "AveragePool"
-            extra = {} if op == "MaxPool" else {"count_include_pad": 0}
-            tensor[n] = gb.node(op, [src], f"{n}_pool", name=n, kernel_shape=list(k), strides=list(s),
-                                pads=pads, **extra)
-            shape[n] = (cin, oh, ow)
-        elif kind == "GlobalAveragePooling2D":
-            gap = gb.node("GlobalAveragePool", [src], f"{n}_gap", name=n)
-            tensor[n] = gb.node("Flatten", [gap], f"{n}_flat", name=f"{n}_flatten", axis=1)
-            shape[n] = (cin, 1, 1)
-            flat.add(n)
-        else:
-            raise UnsupportedLayerError(f"Keras layer {kind} ({n}) is not supported by this converter")
-        if layer.inbound and layer.inbound[0] in flat and n not in flat:
-            flat.add(n)
-
-    out_layer = outputs[0]
-    if out_layer not in flat:
-        raise UnsupportedLayerError("the model output is not a [N, classes] tensor")
-    n_classes = shape[out_layer][0]
-    final = gb.node("Identity", [tensor[out_layer]], "probs", name="output")
-    graph = helper.make_graph(
-        gb.nodes, "keras_h5", [graph_input],
-        [helper.make_tensor_value_info(final, TensorProto.FLOAT, ["N", n_classes])],
-        initializer=gb.inits,
-    )
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
-                              producer_name="hitl-tamer common.perception.convert",
-                              producer_version=CONVERTER_VERSION)
-    model.ir_version = 8  # readable by every onnxruntime >= 1.14
-    meta = {"source": h5_path.name, "converter_version": CONVERTER_VERSION}
-    if labels is not None:
-        if len(labels) != n_classes:
-            raise ValueError(f"{len(labels)} labels for a model with {n_classes} outputs")
-        meta["labels"] = json.dumps(list(labels))
-    helper.set_model_props(model, meta)
-    onnx.checker.check_model(model)
-    return model
+        conversion.add(layer)
+    return conversion.model(outputs[0], h5_path.name, labels)
 
 
 def converter_fingerprint() -> str:

@@ -6,7 +6,8 @@ import dataclasses
 import json
 from typing import Any, ClassVar
 
-from ._spec import ProtocolError, Spec, check_object
+from ._containers import check_object
+from ._spec import ProtocolError, Spec
 
 #: Bumped when a wire format changes incompatibly. Written into every log's metadata and RunConfig.
 PROTOCOL_VERSION = 1

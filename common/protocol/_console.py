@@ -8,7 +8,8 @@ from typing import ClassVar
 
 from ._base import Message, fld
 from ._messages import RUN, Count, Name, Seconds, Token
-from ._spec import Float, Int, List, Nullable, Obj, ProtocolError, Str
+from ._containers import List, Nullable, Obj
+from ._spec import Float, Int, ProtocolError, Str
 
 CONTROL_COMMANDS = ("pause", "resume", "pace", "end")
 MAX_RATE = 50.0  # steps per second a console may ask for

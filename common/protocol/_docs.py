@@ -41,6 +41,18 @@ def markdown() -> str:
       "dataclass whose fields carry their validation rules; the JSON Schemas (draft 2020-12), the validating "
       "decoders, the MCAP schemas and this page all derive from it.")
     w("")
+    _conventions(w)
+    _decode_errors(w)
+    _key_expressions(w)
+    _publishers(w)
+    _usage(w)
+    _message_types(w)
+    w("")
+    return "\n".join(out)
+
+
+def _conventions(w) -> None:
+    """The encoding rules every message type follows."""
     w("## Conventions")
     w("")
     w("- JSON messages are compact UTF-8 JSON objects. `encode()` validates before sending; `decode(bytes)` "
@@ -58,6 +70,10 @@ def markdown() -> str:
     w(f"- Incarnations (a process's own id, new at every start) match `{TOKEN_PATTERN}`.")
     w("- The size limit of each type is checked on the raw bytes before any parsing (`oversized`).")
     w("")
+
+
+def _decode_errors(w) -> None:
+    """The table of `ProtocolError` reasons."""
     w("## Decode errors")
     w("")
     w("| reason | meaning |")
@@ -65,6 +81,10 @@ def markdown() -> str:
     for reason, meaning in REASONS.items():
         w(f"| `{reason}` | {_cell(meaning)} |")
     w("")
+
+
+def _key_expressions(w) -> None:
+    """The table of key expressions, one row a message type."""
     w("## Key expressions")
     w("")
     w(f"Every key is `{ROOT}/<run>/<kind>[/<name>]`; a recorder subscribes to `{ROOT}/<run>/**`. `decode(key, "
@@ -78,6 +98,10 @@ def markdown() -> str:
         w(f"| `{spec.pattern()}` | `{spec.message.__name__}` | {spec.congestion} | {spec.queue_policy} | "
           f"{_cell(spec.doc)} |")
     w("")
+
+
+def _publishers(w) -> None:
+    """Who may publish what: the roles' table."""
     w("## Who may publish what")
     w("")
     w("An identity is a service name; its role is the part before the first `.`. Every receiver checks a message's "
@@ -91,6 +115,10 @@ def markdown() -> str:
         ident = f"`{role}.<id>`" if role in NAMED_ROLES else f"`{role}`"
         w(f"| {role} | {ident} | {', '.join(f'`{k}`' for k in kinds) or '(only its own status and log)'} |")
     w("")
+
+
+def _usage(w) -> None:
+    """How to publish, receive and log, and what a log segment holds."""
     w("## Publishing, receiving, logging")
     w("")
     w("```python")
@@ -123,6 +151,10 @@ def markdown() -> str:
     for row in topics_table():
         w(row)
     w("")
+
+
+def _message_types(w) -> None:
+    """One subsection a message type: its fields, rules and JSON Schema."""
     w("## Message types")
     for spec in KEYS.values():
         cls = spec.message
@@ -152,9 +184,6 @@ def markdown() -> str:
             w("")
             w("Rules across fields: " + "; ".join(cls.CROSS_RULES) + ".")
         _schema_block(w, cls)
-    w("")
-    return "\n".join(out)
-
 
 def _weights_section(w) -> None:
     w("Binary, in the [safetensors](https://github.com/huggingface/safetensors) format: 8-byte little-endian "

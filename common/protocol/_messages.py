@@ -6,7 +6,8 @@ import dataclasses
 from typing import Any, ClassVar
 
 from ._base import PROTOCOL_VERSION, Message, fld
-from ._spec import AnyJSON, Bool, Bytes64, Float, Int, List, Map, Nullable, Obj, ProtocolError, Str
+from ._containers import AnyJSON, List, Map, Nullable, Obj
+from ._spec import Bool, Bytes64, Float, Int, ProtocolError, Str
 
 #: Names that become one chunk of a key expression (run, teacher_id, service, camera id): letters, digits,
 #: `_ . : -`, starting with a letter or digit, at most 64 characters. This excludes every character that

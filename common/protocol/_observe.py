@@ -7,7 +7,8 @@ from typing import ClassVar
 
 from ._base import Message, fld
 from ._messages import RUN, Count, Name, Seconds, Token
-from ._spec import Bytes64, Float, Int, List, Nullable, Obj, Str
+from ._containers import List, Nullable, Obj
+from ._spec import Bytes64, Float, Int, Str
 
 SNAPSHOT_REASONS = ("start", "every", "episode", "request", "final")
 

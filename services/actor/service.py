@@ -116,34 +116,185 @@ class WeightsSlot:
         return adopted
 
 
+class Actor:
+    """One incarnation of the actor: its environment, acting agent, weights slot and resend ring.
+
+    `main` opens the session and its inboxes, hands them to `connect`, then calls `start` (wait for the
+    services it needs; after a restart, for the learner's current weights) and `run` (the step loop).
+    """
+
+    def __init__(self, config: ActorConfig, rt: ServiceRuntime):
+        self.config, self.rt = config, rt
+        self.env, _ = make_env(config.env, config.layout)
+        if config.episode_steps is not None:  # the registry's envs truncate at their `max_steps`
+            if not hasattr(self.env, "max_steps"):
+                raise ValueError(f"--episode-steps: {config.env} has no max_steps to set")
+            self.env.max_steps = config.episode_steps
+        n_actions = int(self.env.action_space.n)
+        self.agent = make_agent([config.agent], obs_shape(self.env), n_actions, [config.seed])
+        spec = {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
+        self.slot = WeightsSlot(self.agent, spec, rt)
+        self.seq = 0  # steps this incarnation published
+        self.ring = ResendRing(config.resend_window)
+        rt.set_counters_source(lambda: {"steps_published": self.seq, "weights_version": self.slot.version,
+                                        "resent": self.ring.resent})
+        self.code = 0
+        state = read_json(config.state_file) if config.state_file else None
+        self.restart = state is not None
+        self.episode = int(state["episodes_done"]) if state else 0  # episodes finished (by every incarnation)
+        self.restarts = int(state.get("restarts", 0)) + 1 if state else 0
+        self.base = 0  # steps the learner had learned before this incarnation's first step (its version then)
+
+    def connect(self, session, weights_in, learner_status, control_in, pub) -> None:
+        """Take the open inboxes and the step publisher; start the frames and the liveliness watches."""
+        config = self.config
+        self.weights_in, self.learner_status, self.control_in, self.pub = weights_in, learner_status, control_in, pub
+        self.frames = FramePublisher(session, config.run, self.env, self.rt.counters) \
+            if config.render_frames and enable_rgb(self.env) else None
+        self.watch = AliveWatch(session, config.run, ("learner", "recorder"))
+        self.slot.watch = IncarnationWatch(session, config.run, "learner")
+
+    def save_state(self, episodes: int) -> None:
+        if self.config.state_file:
+            atomic_write_json(self.config.state_file, {"episodes_done": episodes, "restarts": self.restarts,
+                                                       "incarnation": self.rt.incarnation})
+
+    def give_up(self, code: int, why: str) -> None:
+        self.rt.log(why)
+        self.rt.stop.set()
+        self.code = code
+
+    def adopt_weights(self, timeout: float | None = None) -> bool:
+        return self.slot.adopt(self.weights_in, timeout=timeout, status=self.learner_status)
+
+    def start(self, session) -> None:
+        """Announce readiness, wait for the services named in `wait_for`; a restart waits for weights too."""
+        config, rt, slot = self.config, self.rt, self.slot
+        self.save_state(self.episode)
+        rt.ready()
+        missing = wait_alive(session, config.run, config.wait_for, config.start_timeout, rt.stop)
+        if missing and not rt.stop.is_set():
+            self.give_up(3, f"gave up waiting for {sorted(missing)} after {config.start_timeout} s")
+        if self.restart and not rt.stop.is_set():
+            waited = time.monotonic()
+            while slot.learner is None and not rt.stop.is_set():
+                rt.tick()
+                slot.on_status(self.learner_status)
+                self.adopt_weights(timeout=0.05)
+                if time.monotonic() - waited > config.weights_timeout:
+                    self.give_up(4, f"restarted, but no weights after {config.weights_timeout} s; stopping")
+            self.base = slot.version
+            rt.event(f"actor restarted (restart {self.restarts}): continuing at episode {self.episode} with the "
+                     f"learner's weights version {self.base}", 3)
+
+    def wait_for_version(self) -> None:
+        """Lockstep: wait until the weights are at most `max_ahead` (capped by `max_lag`) steps behind."""
+        config, rt, slot = self.config, self.rt, self.slot
+        ahead = config.max_lag if config.max_ahead is None else min(config.max_ahead, config.max_lag)
+        need = self.base + self.seq - ahead
+        waited = time.monotonic()
+        while slot.version < need and not rt.stop.is_set():
+            self.adopt_weights(timeout=0.05)
+            rt.tick()  # waiting is progress too (the launcher kills a service whose statuses stop)
+            if self.watch.take() and len(self.ring):
+                self.ring.resend()
+            if time.monotonic() - waited > config.weights_timeout:
+                self.give_up(4, f"no weights >= {need} after {config.weights_timeout} s; stopping")
+        if not rt.stop.is_set():
+            rt.counters["weights_wait_us"] += int((time.monotonic() - waited) * 1e6)
+
+    def wait_for_tick(self, control: RunControl, next_tick: float) -> tuple[float, bool]:
+        """At a fixed pace, wait for the next tick, adopting weights as they arrive.
+
+        Returns the new tick and whether to act now (False: paused or ended meanwhile).
+        """
+        period = control.period
+        next_tick += period
+        while (delay := next_tick - time.perf_counter()) > 0 and not self.rt.stop.is_set():
+            self.adopt_weights(timeout=min(delay, 0.05))
+            if control.take(self.control_in):
+                if control.paused or control.end:
+                    break
+                next_tick = time.perf_counter() + control.period
+        if control.paused or control.end:
+            return next_tick, False
+        if delay < -period:
+            next_tick = time.perf_counter()  # fell behind: do not try to catch up with a burst
+        return next_tick, True
+
+    def act_and_publish(self, obs: np.ndarray, t_prev: float, t_in_episode: int):
+        """Act on `obs`, step the environment, publish the Step. Returns (next obs, t_action, episode ended)."""
+        config, agent = self.config, self.agent
+        agent.steps[0] = self.base + self.seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
+        action = int(agent.act(obs.reshape(1, -1))[0])
+        t_action = max(time.time(), t_prev + 1e-6)  # strictly increasing, even if the clock steps back
+        nxt, reward, terminated, truncated, info = self.env.step(action)
+        if terminated or truncated:
+            self.save_state(self.episode + 1)  # before the last step goes out: a restart never repeats an episode
+        publish_kept(self.pub, Step(run=config.run, incarnation=self.rt.incarnation, seq=self.seq,
+                                    t_action=t_action, episode=self.episode, t_in_episode=t_in_episode,
+                                    obs=obs.tolist(), action=action, reward=float(reward),
+                                    next_obs=np.asarray(nxt).tolist(), terminated=bool(terminated),
+                                    truncated=bool(truncated), weights_version=self.slot.version,
+                                    info={k: float(info[k]) for k in INFO_KEYS if k in info}), self.ring)
+        if self.frames is not None:
+            self.frames.publish(self.seq)
+        self.seq += 1
+        return nxt, t_action, bool(terminated or truncated)
+
+    def run(self) -> None:
+        """Act, step and publish until the episodes (or `max_steps`) are done, a stop or the person's end."""
+        config, rt, slot = self.config, self.rt, self.slot
+        env_seed = derive_seed(config.seed, "env" if not self.restart else f"env-restart-{self.restarts}")
+        obs = self.env.reset(seed=env_seed % (2**31))[0]
+        control = RunControl(config.rate, rt.counters, rt.log)
+        next_tick = time.perf_counter()
+        t_prev = 0.0
+        t_in_episode = 0
+        limit = config.max_steps if config.max_steps is not None else float("inf")
+        while self.episode < config.episodes and self.base + self.seq < limit and not rt.stop.is_set():
+            slot.limit = self.base + self.seq + 1
+            slot.on_status(self.learner_status)
+            self.adopt_weights()
+            if self.watch.take() and len(self.ring):
+                rt.log(f"learner or recorder (re)started: re-sending the last {len(self.ring)} steps")
+                self.ring.resend()
+            self.wait_for_version()
+            if rt.stop.is_set():
+                break
+            if pace(control, self.control_in, slot, self.weights_in, self.learner_status, rt):
+                next_tick = time.perf_counter()  # paused, resumed or re-paced: the tick starts afresh
+            if control.end or rt.stop.is_set():
+                break
+            if control.period:
+                next_tick, act_now = self.wait_for_tick(control, next_tick)
+                if not act_now:
+                    continue  # back to the top: wait there while paused, or end
+            obs, t_prev, ended = self.act_and_publish(obs, t_prev, t_in_episode)
+            t_in_episode += 1
+            if ended:
+                self.episode += 1
+                t_in_episode = 0
+                obs = self.env.reset()[0]
+            rt.tick()
+
+    def close(self) -> None:
+        """Report how the run ended, let a restarting recorder catch up, close the watches and frames."""
+        self.rt.counters["episodes"] = self.episode
+        self.rt.failed = self.code != 0  # gave up: not the end of the run (the launcher restarts it)
+        self.watch.before_exit(self.ring, RECORDER_WAIT, self.rt.log)
+        self.watch.close()
+        self.slot.watch.close()
+        if self.frames is not None:
+            self.frames.close()
+
+
 def main(config: ActorConfig) -> int:
     from common.transport import MessagePublisher, subscription
 
     apply_torch_threads()
     rt = ServiceRuntime("actor", config)
-    env, _ = make_env(config.env, config.layout)
-    if config.episode_steps is not None:  # the registry's envs truncate at their `max_steps`
-        if not hasattr(env, "max_steps"):
-            raise ValueError(f"--episode-steps: {config.env} has no max_steps to set")
-        env.max_steps = config.episode_steps
-    obs_dim, n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
-    agent = make_agent([config.agent], obs_shape(env), n_actions, [config.seed])
-    spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
-    slot = WeightsSlot(agent, spec, rt)
-    seq = 0
-    rt.set_counters_source(lambda: {"steps_published": seq, "weights_version": slot.version, "resent": ring.resent})
-    code = 0
-    state = read_json(config.state_file) if config.state_file else None
-    restart = state is not None
-    episodes_done = int(state["episodes_done"]) if state else 0
-    restarts = int(state.get("restarts", 0)) + 1 if state else 0
-    ring = ResendRing(config.resend_window)
-
-    def save_state(episodes: int) -> None:
-        if config.state_file:
-            atomic_write_json(config.state_file, {"episodes_done": episodes, "restarts": restarts,
-                                                  "incarnation": rt.incarnation})
-
+    actor = Actor(config, rt)
     with rt.session() as session:
         # Not maxsize 1: garbage flooding the weights key must not evict the real weights before they are read.
         with subscription(session, weights_key(config.run), maxsize=64, policy="drop_oldest") as weights_in, \
@@ -151,111 +302,13 @@ def main(config: ActorConfig) -> int:
                              policy="drop_oldest") as learner_status, \
                 subscription(session, control_key(config.run), maxsize=64, policy="drop_oldest") as control_in, \
                 MessagePublisher(session, step_key(config.run)) as pub:
-            frames = FramePublisher(session, config.run, env, rt.counters) \
-                if config.render_frames and enable_rgb(env) else None
-            watch = AliveWatch(session, config.run, ("learner", "recorder"))
-            slot.watch = IncarnationWatch(session, config.run, "learner")
-            save_state(episodes_done)
-            rt.ready()
-            missing = wait_alive(session, config.run, config.wait_for, config.start_timeout, rt.stop)
-            if missing and not rt.stop.is_set():
-                rt.log(f"gave up waiting for {sorted(missing)} after {config.start_timeout} s")
-                rt.stop.set()
-                code = 3
-            base = 0  # steps the learner had learned before this incarnation's first step (its version then)
-            if restart and not rt.stop.is_set():
-                waited = time.monotonic()
-                while slot.learner is None and not rt.stop.is_set():
-                    rt.tick()
-                    slot.on_status(learner_status)
-                    slot.adopt(weights_in, timeout=0.05, status=learner_status)
-                    if time.monotonic() - waited > config.weights_timeout:
-                        rt.log(f"restarted, but no weights after {config.weights_timeout} s; stopping")
-                        rt.stop.set()
-                        code = 4
-                base = slot.version
-                rt.event(f"actor restarted (restart {restarts}): continuing at episode {episodes_done} with the "
-                         f"learner's weights version {base}", 3)
-            env_seed = derive_seed(config.seed, "env" if not restart else f"env-restart-{restarts}")
-            obs = env.reset(seed=env_seed % (2**31))[0]
-            control = RunControl(config.rate, rt.counters, rt.log)
-            next_tick = time.perf_counter()
-            t_prev = 0.0
-            episode, t_in_episode = episodes_done, 0
-            limit = config.max_steps if config.max_steps is not None else float("inf")
-            while episode < config.episodes and base + seq < limit and not rt.stop.is_set():
-                slot.limit = base + seq + 1
-                slot.on_status(learner_status)
-                slot.adopt(weights_in, status=learner_status)
-                if watch.take() and len(ring):
-                    rt.log(f"learner or recorder (re)started: re-sending the last {len(ring)} steps")
-                    ring.resend()
-                ahead = config.max_lag if config.max_ahead is None else min(config.max_ahead, config.max_lag)
-                need = base + seq - ahead
-                waited = time.monotonic()
-                while slot.version < need and not rt.stop.is_set():
-                    slot.adopt(weights_in, timeout=0.05, status=learner_status)
-                    rt.tick()  # waiting is progress too (the launcher kills a service whose statuses stop)
-                    if watch.take() and len(ring):
-                        ring.resend()
-                    if time.monotonic() - waited > config.weights_timeout:
-                        rt.log(f"no weights >= {need} after {config.weights_timeout} s; stopping")
-                        rt.stop.set()
-                        code = 4
-                if rt.stop.is_set():
-                    break
-                rt.counters["weights_wait_us"] += int((time.monotonic() - waited) * 1e6)
-                if pace(control, control_in, slot, weights_in, learner_status, rt):
-                    next_tick = time.perf_counter()  # paused, resumed or re-paced: the tick starts afresh
-                if control.end or rt.stop.is_set():
-                    break
-                if control.period:
-                    period = control.period
-                    next_tick += period
-                    # Wait for the next tick on the weights inbox: weights are adopted as they arrive.
-                    while (delay := next_tick - time.perf_counter()) > 0 and not rt.stop.is_set():
-                        slot.adopt(weights_in, timeout=min(delay, 0.05), status=learner_status)
-                        if control.take(control_in):
-                            if control.paused or control.end:
-                                break
-                            next_tick = time.perf_counter() + control.period
-                    if control.paused or control.end:
-                        continue  # back to the top: wait there while paused, or end
-                    if delay < -period:
-                        next_tick = time.perf_counter()  # fell behind: do not try to catch up with a burst
-                agent.steps[0] = base + seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
-                action = int(agent.act(obs.reshape(1, -1))[0])
-                t_action = max(time.time(), t_prev + 1e-6)  # strictly increasing, even if the clock steps back
-                t_prev = t_action
-                nxt, reward, terminated, truncated, info = env.step(action)
-                if terminated or truncated:
-                    save_state(episode + 1)  # before the last step goes out: a restart never repeats an episode
-                publish_kept(pub, Step(run=config.run, incarnation=rt.incarnation, seq=seq, t_action=t_action,
-                                       episode=episode, t_in_episode=t_in_episode, obs=obs.tolist(), action=action,
-                                       reward=float(reward), next_obs=np.asarray(nxt).tolist(),
-                                       terminated=bool(terminated), truncated=bool(truncated),
-                                       weights_version=slot.version,
-                                       info={k: float(info[k]) for k in INFO_KEYS if k in info}), ring)
-                if frames is not None:
-                    frames.publish(seq)
-                seq += 1
-                t_in_episode += 1
-                obs = nxt
-                if terminated or truncated:
-                    episode += 1
-                    t_in_episode = 0
-                    obs = env.reset()[0]
-                rt.tick()
-            rt.counters["episodes"] = episode
-            rt.failed = code != 0  # gave up: not the end of the run (the launcher restarts it)
-            watch.before_exit(ring, RECORDER_WAIT, rt.log)
-            watch.close()
-            slot.watch.close()
-            if frames is not None:
-                frames.close()
+            actor.connect(session, weights_in, learner_status, control_in, pub)
+            actor.start(session)
+            actor.run()
+            actor.close()
     rt.write_stats()
-    rt.log(f"stopped after {seq} steps, {episode} episodes")
-    return code
+    rt.log(f"stopped after {actor.seq} steps, {actor.episode} episodes")
+    return actor.code
 
 
 def pace(control: RunControl, control_in, slot: WeightsSlot, weights_in, learner_status, rt: ServiceRuntime) -> bool:

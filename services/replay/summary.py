@@ -7,6 +7,7 @@ from __future__ import annotations
 import collections
 import os
 import warnings
+from dataclasses import dataclass, field
 from typing import Any
 
 from common.mcap_log import LogRecoveryWarning, read_log
@@ -18,76 +19,81 @@ def _contiguous(seqs: list[int]) -> bool:
     return seqs == list(range(seqs[0], seqs[0] + len(seqs))) if seqs else True
 
 
-def summarize(path: str | os.PathLike) -> dict[str, Any]:
-    """Read the log (also a truncated one: recovered up to its last complete chunk, with a warning)."""
-    reader = read_log(path)
-    steps: dict[str, list[Step]] = collections.defaultdict(list)  # by actor incarnation, in log order
-    feedback: dict[str, list[int]] = collections.defaultdict(list)  # teacher -> seqs
-    feedback_values = collections.Counter()
-    feedback_msgs: list[Feedback] = []
-    reactions: list[ObserverReaction] = []  # a video-backed observer's diagnostics (face-video teacher)
-    ingest: dict[str, list[Ingest]] = collections.defaultdict(list)
-    episodes: list[EpisodeSummary] = []
-    statuses: dict[str, ServiceStatus] = {}  # the latest of each service
-    by_pid: dict[tuple[str, int], ServiceStatus] = {}  # the latest of each process (restarts are new pids)
-    weights: dict[str, list[int]] = collections.defaultdict(list)
-    kinds = collections.Counter()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", LogRecoveryWarning)
-        for rec in reader:
-            m = rec.message
-            kinds[kind_of(rec.key) or rec.key] += 1
-            if isinstance(m, Step):
-                steps[m.incarnation].append(m)
-            elif isinstance(m, Feedback):
-                feedback_msgs.append(m)
-            elif isinstance(m, ObserverReaction):
-                reactions.append(m)
-            elif isinstance(m, Ingest):
-                ingest[m.learner].append(m)
-            elif isinstance(m, EpisodeSummary):
-                episodes.append(m)
-            elif isinstance(m, ServiceStatus):
-                statuses[m.service] = m
-                by_pid[(m.service, m.pid)] = m
-            elif isinstance(m, (Weights, WeightsSnapshot)):  # logs since the snapshots: snapshots only
-                weights[m.incarnation].append(m.version)
-    for w in caught:
-        warnings.warn(w.message, w.category, stacklevel=2)
-    status = reader.status
+@dataclass
+class LogContents:
+    """The messages of a session log that the summary reads, sorted by kind."""
 
-    # Valid messages from nobody in the run (forged or garbage: the recorder keeps whatever decodes) are left out:
-    # steps of actor incarnations no actor status announced, feedback of teachers without a status or with a
-    # seq far beyond the teacher's count. `log.not_from_run` counts them.
-    actor_incs = {st.incarnation for (svc, _), st in by_pid.items() if svc == "actor" and st.incarnation}
+    steps: dict[str, list[Step]] = field(default_factory=lambda: collections.defaultdict(list))  # by actor incarnation, in log order
+    feedback_msgs: list[Feedback] = field(default_factory=list)
+    reactions: list[ObserverReaction] = field(default_factory=list)  # a video-backed observer's diagnostics (face-video teacher)
+    ingest: dict[str, list[Ingest]] = field(default_factory=lambda: collections.defaultdict(list))
+    episodes: list[EpisodeSummary] = field(default_factory=list)
+    statuses: dict[str, ServiceStatus] = field(default_factory=dict)  # the latest of each service
+    by_pid: dict[tuple[str, int], ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
+    weights: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(list))
+    kinds: collections.Counter = field(default_factory=collections.Counter)
+
+
+def read_contents(reader) -> LogContents:
+    """Sort every record of the reader by kind (the reader recovers a truncated log, warning as it goes)."""
+    c = LogContents()
+    for rec in reader:
+        m = rec.message
+        c.kinds[kind_of(rec.key) or rec.key] += 1
+        if isinstance(m, Step):
+            c.steps[m.incarnation].append(m)
+        elif isinstance(m, Feedback):
+            c.feedback_msgs.append(m)
+        elif isinstance(m, ObserverReaction):
+            c.reactions.append(m)
+        elif isinstance(m, Ingest):
+            c.ingest[m.learner].append(m)
+        elif isinstance(m, EpisodeSummary):
+            c.episodes.append(m)
+        elif isinstance(m, ServiceStatus):
+            c.statuses[m.service] = m
+            c.by_pid[(m.service, m.pid)] = m
+        elif isinstance(m, (Weights, WeightsSnapshot)):  # logs since the snapshots: snapshots only
+            c.weights[m.incarnation].append(m.version)
+    return c
+
+
+def drop_not_from_run(c: LogContents) -> collections.Counter:
+    """Leave out valid messages from nobody in the run; returns their count by kind (`log.not_from_run`).
+
+    Forged or garbage messages: the recorder keeps whatever decodes. Left out are steps of actor
+    incarnations no actor status announced, weights of learner incarnations no learner status announced, and
+    feedback of teachers without a status or with a seq far beyond the teacher's count.
+    """
+    actor_incs = {st.incarnation for (svc, _), st in c.by_pid.items() if svc == "actor" and st.incarnation}
     not_from_run = collections.Counter()
     if actor_incs:
-        for inc in [i for i in steps if i not in actor_incs]:
-            not_from_run["step"] += len(steps.pop(inc))
-    learner_incs = {st.incarnation for (svc, _), st in by_pid.items() if svc == "learner" and st.incarnation}
+        for inc in [i for i in c.steps if i not in actor_incs]:
+            not_from_run["step"] += len(c.steps.pop(inc))
+    learner_incs = {st.incarnation for (svc, _), st in c.by_pid.items() if svc == "learner" and st.incarnation}
     if learner_incs:
-        for inc in [i for i in weights if i not in learner_incs]:
-            not_from_run["weights"] += len(weights.pop(inc))
+        for inc in [i for i in c.weights if i not in learner_incs]:
+            not_from_run["weights"] += len(c.weights.pop(inc))
     teacher_count: dict[str, int] = {}
-    for (svc, _), st in by_pid.items():
+    for (svc, _), st in c.by_pid.items():
         if teacher_id_of(svc):
             tid = teacher_id_of(svc)
             teacher_count[tid] = max(teacher_count.get(tid, 0), int(st.counters.get("feedback_published", 0)))
     kept = []
-    for m in feedback_msgs:
+    for m in c.feedback_msgs:
         if teacher_count and (m.teacher_id not in teacher_count or m.seq > teacher_count[m.teacher_id] + 4096):
             not_from_run["feedback"] += 1
             continue
         kept.append(m)
-        feedback[m.teacher_id].append(m.seq)
-        feedback_values[m.value] += 1
-    feedback_msgs = kept
+    c.feedback_msgs = kept
+    return not_from_run
 
-    # Steps: contiguous per incarnation (all seqs once; after a recorder restart the re-sent ones come later in
-    # the log than newer live ones, so in seq order); episode returns from the actor's own steps.
-    for ss in steps.values():
-        ss.sort(key=lambda s: s.seq)
-    step_seqs = {inc: [s.seq for s in ss] for inc, ss in steps.items()}
+
+def episode_rows(steps: dict[str, list[Step]], episodes: list[EpisodeSummary]) -> list[dict[str, Any]]:
+    """One row per (actor incarnation, episode) from the actor's own steps, with the learner's episode summary.
+
+    `steps` must be in seq order per incarnation.
+    """
     ep_rows = []
     for inc, ss in steps.items():
         by_ep: dict[int, list[Step]] = collections.defaultdict(list)
@@ -109,10 +115,24 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         if e is not None:
             row.update(feedback_received=e.feedback_received, feedback_credited=e.feedback_credited,
                        weights_version=e.weights_version)
+    return ep_rows
 
-    # What became of each feedback: the outcome entries of the learner's record (across restored learners).
-    outcome: dict[tuple[str, int], str] = {}
-    learner_steps = collections.Counter()
+
+@dataclass
+class LearnerRecord:
+    """What the learner's record of consumed inputs says (across restored learners)."""
+
+    learners: dict[str, dict[str, Any]]  # per learner incarnation: its Ingest batches
+    outcome: dict[tuple[str, int], str]  # (teacher, feedback seq) -> what became of it
+    step_entries: collections.Counter  # step entries by status
+    learned: dict[str, list[int]]  # actor incarnation -> seqs learned, in order
+    consumed_feedback: set[tuple[str, int]]
+    chain: list[str]
+    gaps: int
+
+
+def learner_record(ingest: dict[str, list[Ingest]]) -> LearnerRecord:
+    """The outcome entries, steps learned and feedback consumed of the learner's record (sorts `ingest`)."""
     learners = {}
     for inc, batches in ingest.items():
         batches.sort(key=lambda b: b.seq)
@@ -123,28 +143,26 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
                          "first_index": first.index,
                          "resumed_from": (first.config or {}).get("resumed_from") if first.seq == 0 else None}
     record, chain, record_gaps = effective_ingest(ingest)
-    learned: dict[str, list[int]] = collections.defaultdict(list)  # actor incarnation -> seqs learned, in order
-    consumed_fb: set[tuple[str, int]] = set()
+    out = LearnerRecord(learners, {}, collections.Counter(), collections.defaultdict(list), set(), chain,
+                        record_gaps)
     for e in record:
         if e.kind == "outcome":
-            outcome[(e.source, e.seq)] = e.status
+            out.outcome[(e.source, e.seq)] = e.status
         elif e.kind == "step":
-            learner_steps[e.status] += 1
+            out.step_entries[e.status] += 1
             if e.status in ("learned", "gap"):
-                learned[e.source].append(e.seq)
+                out.learned[e.source].append(e.seq)
         elif e.kind == "feedback":
-            consumed_fb.add((e.source, e.seq))
-    logged_fb = [(t, s) for t, seqs in feedback.items() for s in seqs]
-    by_status = collections.Counter(outcome.get(k, "unresolved") for k in logged_fb)
-    rejected = {k: v for k, v in sorted(by_status.items()) if k != "credited"}
-    learned_keys = {(inc, q) for inc, seqs in learned.items() for q in seqs}
-    steps_not_ingested = sum(1 for inc, seqs in step_seqs.items() for q in seqs if (inc, q) not in learned_keys)
+            out.consumed_feedback.add((e.source, e.seq))
+    return out
 
-    def counter(service: str, name: str) -> int | None:
-        st = statuses.get(service)
-        return None if st is None or name not in st.counters else int(st.counters[name])
 
-    # Steps sent: each actor process's own count (a killed one's last status may be old: the log tells more).
+def actor_steps_sent(by_pid: dict[tuple[str, int], ServiceStatus],
+                     step_seqs: dict[str, list[int]]) -> tuple[int, list[str | None]]:
+    """Steps sent: each actor process's own count (a killed one's last status may be old: the log tells more).
+
+    Returns the sum and the incarnations of the actors that did not report `stopped` (killed).
+    """
     actor_sent, killed_actors = 0, []
     for (service, _pid), st in by_pid.items():
         if service != "actor":
@@ -154,31 +172,68 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
             killed_actors.append(st.incarnation)
             n = max(n, len(step_seqs.get(st.incarnation or "", [])))
         actor_sent += n
+    return actor_sent, killed_actors
 
-    teacher_services = sorted(s for s in statuses if teacher_id_of(s))
+
+def summarize(path: str | os.PathLike) -> dict[str, Any]:
+    """Read the log (also a truncated one: recovered up to its last complete chunk, with a warning)."""
+    reader = read_log(path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", LogRecoveryWarning)
+        c = read_contents(reader)
+    for w in caught:
+        warnings.warn(w.message, w.category, stacklevel=2)
+    status = reader.status
+    not_from_run = drop_not_from_run(c)
+    feedback: dict[str, list[int]] = collections.defaultdict(list)  # teacher -> seqs
+    for m in c.feedback_msgs:
+        feedback[m.teacher_id].append(m.seq)
+    feedback_values = collections.Counter(m.value for m in c.feedback_msgs)
+
+    # Steps: contiguous per incarnation (all seqs once; after a recorder restart the re-sent ones come later in
+    # the log than newer live ones, so in seq order); episode returns from the actor's own steps.
+    for ss in c.steps.values():
+        ss.sort(key=lambda s: s.seq)
+    step_seqs = {inc: [s.seq for s in ss] for inc, ss in c.steps.items()}
+    ep_rows = episode_rows(c.steps, c.episodes)
+
+    # What became of each feedback: the outcome entries of the learner's record (across restored learners).
+    lr = learner_record(c.ingest)
+    logged_fb = [(t, s) for t, seqs in feedback.items() for s in seqs]
+    by_status = collections.Counter(lr.outcome.get(k, "unresolved") for k in logged_fb)
+    rejected = {k: v for k, v in sorted(by_status.items()) if k != "credited"}
+    learned_keys = {(inc, q) for inc, seqs in lr.learned.items() for q in seqs}
+    steps_not_ingested = sum(1 for inc, seqs in step_seqs.items() for q in seqs if (inc, q) not in learned_keys)
+
+    def counter(service: str, name: str) -> int | None:
+        st = c.statuses.get(service)
+        return None if st is None or name not in st.counters else int(st.counters[name])
+
+    actor_sent, killed_actors = actor_steps_sent(c.by_pid, step_seqs)
+    teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
     sent = [counter(s, "feedback_published") for s in teacher_services]  # kept across restarts (state file)
     out = {
         "run": reader.run_config.run if reader.run_config else None,
         "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
-                "truncated_files": status.truncated, "recovery": status.summary(), "by_kind": dict(kinds),
+                "truncated_files": status.truncated, "recovery": status.summary(), "by_kind": dict(c.kinds),
                 "warnings": [str(w.message) for w in caught], "not_from_run": dict(not_from_run)},
-        "steps_sent": actor_sent if any(k[0] == "actor" for k in by_pid) else None,
+        "steps_sent": actor_sent if any(k[0] == "actor" for k in c.by_pid) else None,
         "actor_incarnations_killed": killed_actors,
         "steps_logged": sum(len(v) for v in step_seqs.values()),
         "steps_seq_contiguous_in_log": all(_contiguous(v) for v in step_seqs.values()),
         "actor_incarnations": len(step_seqs),
         "steps_learned": counter("learner", "steps_learned"),
         "steps_lost_at_learner": counter("learner", "steps_lost"),
-        "learner_step_entries": dict(learner_steps),
-        "learner_chain": chain,
-        "learner_record_gaps": record_gaps,
-        "learner_seq_contiguous": all(_contiguous(v) for v in learned.values()),
+        "learner_step_entries": dict(lr.step_entries),
+        "learner_chain": lr.chain,
+        "learner_record_gaps": lr.gaps,
+        "learner_seq_contiguous": all(_contiguous(v) for v in lr.learned.values()),
         "steps_not_ingested": steps_not_ingested,
-        "feedback_not_ingested": sum(1 for k in logged_fb if k not in consumed_fb),
-        "rejected_inputs": rejected_inputs(by_pid),
-        "duplicates_dropped": rejected_inputs(by_pid, prefixes=("duplicates_",)),
+        "feedback_not_ingested": sum(1 for k in logged_fb if k not in lr.consumed_feedback),
+        "rejected_inputs": rejected_inputs(c.by_pid),
+        "duplicates_dropped": rejected_inputs(c.by_pid, prefixes=("duplicates_",)),
         # dropped before anything else by the authentication check (common/auth.py): reason_kind -> count
-        "unauthenticated_inputs": rejected_inputs(by_pid, prefixes=("auth_",)),
+        "unauthenticated_inputs": rejected_inputs(c.by_pid, prefixes=("auth_",)),
         "feedback_sent": sum(x for x in sent if x is not None) if sent else None,
         "feedback_logged": len(logged_fb),
         "feedback_seq_contiguous_in_log": all(_contiguous(sorted(v)) for v in feedback.values()),
@@ -186,18 +241,19 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "feedback_negative": feedback_values.get(-1, 0),
         "feedback_credited": by_status.get("credited", 0),
         "feedback_rejected": rejected,
-        "weights_logged": sum(len(v) for v in weights.values()),  # snapshots (Weights in older logs)
-        "learners": learners,
+        "weights_logged": sum(len(v) for v in c.weights.values()),  # snapshots (Weights in older logs)
+        "learners": lr.learners,
         "episodes": ep_rows,
         "returns": [r["return"] for r in ep_rows if r["finished"]],
         "unfinished_episodes": [{"actor": r["actor"], "episode": r["episode"], "steps": r["steps"]}
                                 for r in ep_rows if r["unfinished"]],
-        "services": {name: {"state": st.state, "counters": dict(st.counters)} for name, st in sorted(statuses.items())},
+        "services": {name: {"state": st.state, "counters": dict(st.counters)}
+                     for name, st in sorted(c.statuses.items())},
     }
-    if reactions:  # face-video: what the perception path did to the observer's reactions
+    if c.reactions:  # face-video: what the perception path did to the observer's reactions
         from services.teacher.face_metrics import face_metrics
 
-        out["face"] = face_metrics(reactions, feedback_msgs)
+        out["face"] = face_metrics(c.reactions, c.feedback_msgs)
     return out
 
 

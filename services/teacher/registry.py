@@ -71,13 +71,13 @@ def _face_video_unavailable() -> str | None:
 
 
 def _face_video_defaults(up: Any) -> dict:
-    from services.teacher.face_video import face_video_defaults
+    from services.teacher.face_launch import face_video_defaults
 
     return face_video_defaults(up)
 
 
 def _face_video(up: Any, teacher_id: str) -> list[ProcessSpec]:
-    from services.teacher.face_video import face_video_processes
+    from services.teacher.face_launch import face_video_processes
 
     return [ProcessSpec(*p) for p in face_video_processes(up, teacher_id)]
 

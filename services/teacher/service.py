@@ -26,104 +26,140 @@ from services.teacher.oracle import OracleTeacher
 STEPS_AFTER_STOP_TIMEOUT = 5.0  # s to wait for steps still in flight once the actor reported 'stopped'
 
 
+class Teacher:
+    """The teacher service's state: the oracle, the step gate, the next feedback seq and the resend ring.
+
+    `main` opens the session and its inboxes, hands them to `connect`, then calls `run` (take steps, send
+    the reactions that fall due, follow the actor's statuses) until the actor's every step has been seen.
+    """
+
+    def __init__(self, config: TeacherConfig, rt: ServiceRuntime):
+        self.config, self.rt = config, rt
+        self.core = OracleTeacher(config)
+        self.state = read_json(config.state_file) if config.state_file else None
+        self.published = int(self.state["next_seq"]) if self.state else 0  # the next feedback seq
+        self.ring = ResendRing(config.resend_window)
+        env, _ = make_env(config.env, config.layout)
+        self.gate = InputGate(int(env.observation_space.shape[0]), int(env.action_space.n),
+                              max_future=config.max_future, max_past=config.max_past)
+        env.close()
+        self.note_rejected = first_time_logger(rt.event, "step")
+        rt.set_counters_source(lambda: {**self.core.counters, "feedback_published": self.published,
+                                        "resent": self.ring.resent})
+        self.actor_final: int | None = None  # steps the actor reported when it stopped
+        self.stopped_at = 0.0  # monotonic time of that report
+
+    def connect(self, session, steps, status, pub) -> None:
+        """Take the open inboxes and the feedback publisher; start the liveliness watches."""
+        self.steps, self.status, self.pub = steps, status, pub
+        self.actors = IncarnationWatch(session, self.config.run, "actor")
+        self.watch = AliveWatch(session, self.config.run, ("learner", "recorder"))
+
+    def send(self, reactions) -> None:
+        config = self.config
+        for r in reactions:
+            seq = self.published
+            if config.state_file:  # first: a crash right after must not reuse this seq
+                atomic_write_json(config.state_file, {"next_seq": seq + 1})
+            publish_kept(self.pub, Feedback(run=config.run, teacher_id=config.teacher_id, seq=seq,
+                                            t_reaction=r.t_reaction, value=r.value, source="oracle",
+                                            ref_seq=r.ref_seq, intended=r.intended), self.ring)
+            self.published += 1
+            self.rt.samples["send_delay_s"].append(time.time() - r.t_reaction)
+
+    def admitted(self, received) -> Step | None:
+        """The next step if it passes the gate (else counted and dropped)."""
+        rt = self.rt
+        try:
+            msg = received.decode()
+        except ProtocolError as e:
+            rt.counters[f"rejected_{e.reason}"] += 1
+            self.note_rejected(e.reason)
+            return None
+        for inc in self.actors.take():
+            self.gate.announce(inc)
+        reason = self.gate.admit_step(msg, received.t_recv)
+        if reason == DEDUP_REASON:
+            rt.counters["duplicates_step"] += 1
+        elif reason:
+            rt.counters[f"rejected_{reason}"] += 1
+            self.note_rejected(reason)
+        return None if reason else msg
+
+    def take_step(self) -> None:
+        """Wait for the next step (at most until the next reaction falls due) and let the oracle react."""
+        timeout = 0.05
+        nd = self.core.next_due()
+        if nd is not None:
+            timeout = min(timeout, max(0.0, nd - time.time()))
+        got = self.steps.get(timeout=timeout)
+        if got is not None:
+            step = self.admitted(got)
+            if step is not None:
+                self.rt.samples["step_transit_s"].append(got.t_recv - step.t_action)
+                self.rt.samples["step_queued_s"].append(time.time() - got.t_recv)
+                self.send(self.core.on_step(step))
+
+    def follow_actor(self) -> None:
+        """Read the actor's statuses: announcements for the gate, and how many steps it sent once stopped."""
+        for item in self.status.drain():
+            try:
+                st = item.decode()
+            except ProtocolError as e:
+                self.rt.counters[f"rejected_status_{e.reason}"] += 1
+                continue
+            self.gate.on_status(st)
+            if st.state == "stopped" and self.actor_final is None and st.incarnation in (None, self.gate.actor):
+                self.actor_final = int(st.counters.get("steps_published", 0))
+                self.stopped_at = time.monotonic()
+
+    def all_steps_seen(self) -> bool:
+        """The actor has stopped and its every step was seen (or the wait for steps in flight ran out)."""
+        if self.actor_final is None or len(self.steps) != 0:
+            return False
+        seen = self.core.next_seq if self.core.actor == self.gate.actor else 0  # this actor's steps seen (or lost)
+        if seen >= self.actor_final or time.monotonic() - self.stopped_at > STEPS_AFTER_STOP_TIMEOUT:
+            if seen < self.actor_final:
+                self.rt.log(f"actor reported {self.actor_final} steps, saw {seen}")
+            return True
+        return False
+
+    def run(self) -> None:
+        rt = self.rt
+        if self.state is not None:
+            rt.event(f"teacher restarted: continuing at feedback seq {self.published}", 3)
+        rt.ready()
+        while not rt.stop.is_set():
+            self.take_step()
+            self.send(self.core.due(time.time()))
+            self.follow_actor()
+            if self.watch.take() and len(self.ring):
+                rt.log(f"learner or recorder (re)started: re-sending the last {len(self.ring)} feedback")
+                self.ring.resend()
+            if self.all_steps_seen():
+                break
+            rt.tick()
+        self.send(self.core.finish(time.time()))
+        self.watch.before_exit(self.ring, 20.0, rt.log)
+        rt.counters.update({f"inbox_{k}": v for k, v in self.steps.snapshot().items()})
+        self.actors.close()
+        self.watch.close()
+
+
 def main(config: TeacherConfig) -> int:
     from common.transport import MessagePublisher, subscription
 
     rt = ServiceRuntime(config.service_name, config)
-    core = OracleTeacher(config)
-    state = read_json(config.state_file) if config.state_file else None
-    published = {"n": int(state["next_seq"]) if state else 0}
-    ring = ResendRing(config.resend_window)
-    env, _ = make_env(config.env, config.layout)
-    gate = InputGate(int(env.observation_space.shape[0]), int(env.action_space.n), max_future=config.max_future,
-                     max_past=config.max_past)
-    env.close()
-    note_rejected = first_time_logger(rt.event, "step")
-    rt.set_counters_source(lambda: {**core.counters, "feedback_published": published["n"], "resent": ring.resent})
-
+    teacher = Teacher(config, rt)
     with rt.session() as session:
         with subscription(session, step_key(config.run), maxsize=1 << 16, policy="block",
                           block_timeout=3600) as steps, \
                 subscription(session, status_key(config.run, "actor"), maxsize=64, policy="drop_oldest") as status, \
                 MessagePublisher(session, feedback_key(config.run, config.teacher_id)) as pub:
-
-            def send(reactions) -> None:
-                for r in reactions:
-                    seq = published["n"]
-                    if config.state_file:  # first: a crash right after must not reuse this seq
-                        atomic_write_json(config.state_file, {"next_seq": seq + 1})
-                    publish_kept(pub, Feedback(run=config.run, teacher_id=config.teacher_id, seq=seq,
-                                               t_reaction=r.t_reaction, value=r.value, source="oracle",
-                                               ref_seq=r.ref_seq, intended=r.intended), ring)
-                    published["n"] += 1
-                    rt.samples["send_delay_s"].append(time.time() - r.t_reaction)
-
-            def admitted(got) -> Step | None:
-                """The next step if it passes the gate (else counted and dropped)."""
-                received = got
-                try:
-                    msg = received.decode()
-                except ProtocolError as e:
-                    rt.counters[f"rejected_{e.reason}"] += 1
-                    note_rejected(e.reason)
-                    return None
-                for inc in actors.take():
-                    gate.announce(inc)
-                reason = gate.admit_step(msg, received.t_recv)
-                if reason == DEDUP_REASON:
-                    rt.counters["duplicates_step"] += 1
-                elif reason:
-                    rt.counters[f"rejected_{reason}"] += 1
-                    note_rejected(reason)
-                return None if reason else msg
-
-            actors = IncarnationWatch(session, config.run, "actor")
-            watch = AliveWatch(session, config.run, ("learner", "recorder"))
-            if state is not None:
-                rt.event(f"teacher restarted: continuing at feedback seq {published['n']}", 3)
-            rt.ready()
-            actor_final: int | None = None
-            stopped_at = 0.0
-            while not rt.stop.is_set():
-                timeout = 0.05
-                nd = core.next_due()
-                if nd is not None:
-                    timeout = min(timeout, max(0.0, nd - time.time()))
-                got = steps.get(timeout=timeout)
-                if got is not None:
-                    step = admitted(got)
-                    if step is not None:
-                        rt.samples["step_transit_s"].append(got.t_recv - step.t_action)
-                        rt.samples["step_queued_s"].append(time.time() - got.t_recv)
-                        send(core.on_step(step))
-                send(core.due(time.time()))
-                for item in status.drain():
-                    try:
-                        st = item.decode()
-                    except ProtocolError as e:
-                        rt.counters[f"rejected_status_{e.reason}"] += 1
-                        continue
-                    gate.on_status(st)
-                    if st.state == "stopped" and actor_final is None and st.incarnation in (None, gate.actor):
-                        actor_final = int(st.counters.get("steps_published", 0))
-                        stopped_at = time.monotonic()
-                if watch.take() and len(ring):
-                    rt.log(f"learner or recorder (re)started: re-sending the last {len(ring)} feedback")
-                    ring.resend()
-                if actor_final is not None and len(steps) == 0:
-                    seen = core.next_seq if core.actor == gate.actor else 0  # this actor's steps seen (or lost)
-                    if seen >= actor_final or time.monotonic() - stopped_at > STEPS_AFTER_STOP_TIMEOUT:
-                        if seen < actor_final:
-                            rt.log(f"actor reported {actor_final} steps, saw {seen}")
-                        break
-                rt.tick()
-            send(core.finish(time.time()))
-            watch.before_exit(ring, 20.0, rt.log)
-            rt.counters.update({f"inbox_{k}": v for k, v in steps.snapshot().items()})
-            actors.close()
-            watch.close()
+            teacher.connect(session, steps, status, pub)
+            teacher.run()
     rt.write_stats()
-    rt.log(f"stopped: {published['n']} feedback sent for {core.counters['steps_seen']} steps")
+    rt.log(f"stopped: {teacher.published} feedback sent for {teacher.core.counters['steps_seen']} steps")
     return 0
 
 

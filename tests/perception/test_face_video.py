@@ -11,8 +11,8 @@ from common.credit import credit_weights
 from common.delay import DelayModel
 from common.protocol import Feedback, ObserverReaction, ProtocolError, decode, reaction_key
 from services.teacher.face_metrics import face_metrics
-from services.teacher.face_video import (PERCEPTION_LAG_S, ClipLibrary, FaceVideoConfig, FaceVideoCore,
-                                         face_assumed_delay, face_video_defaults)
+from services.teacher.face_launch import PERCEPTION_LAG_S, face_assumed_delay, face_video_defaults
+from services.teacher.face_video import ClipLibrary, FaceVideoConfig, FaceVideoCore
 
 FPS = 24.0
 

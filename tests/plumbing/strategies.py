@@ -11,7 +11,8 @@ from common.protocol import (NAME_PATTERN, TOKEN_PATTERN, Box, CompressedImage, 
                              EpisodeSummary, ExpressionPrediction, Feedback, Ingest, IngestEntry, RunConfig,
                              Request, ServiceStatus, Shown, ShownStep, Step, TensorSummary, Time, Weights,
                              WeightsSnapshot)
-from common.protocol._spec import AnyJSON, Bool, Bytes64, Float, Int, List, Map, Nullable, Obj, Spec, Str
+from common.protocol._containers import AnyJSON, List, Map, Nullable, Obj
+from common.protocol._spec import Bool, Bytes64, Float, Int, Spec, Str
 
 TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)
 JSON_SCALARS = st.none() | st.booleans() | st.integers(-(2**60), 2**60) | st.floats(allow_nan=False, allow_infinity=False) | TEXT
