@@ -25,7 +25,7 @@ from experiments.conditions import DELAY_CONDITIONS, Condition, Scale, cluster_o
 from experiments.evaluate import N_BOOT, ArmData, evaluate_claims
 from experiments.sweeps.execute import run_slots
 from experiments.sweeps.named import paper_paths, paper_slots
-from experiments.trialcache import EXTRA_FIELDS
+from experiments.trialcache import EXTRA_FIELDS, read_json_or_none
 
 
 @dataclass
@@ -44,14 +44,6 @@ def git_commit() -> str:
                               cwd=os.path.dirname(os.path.abspath(__file__)), timeout=10).stdout.strip() or "?"
     except (OSError, subprocess.SubprocessError):
         return "?"
-
-
-def _read_json(path: str):
-    try:
-        with open(path) as fh:
-            return json.load(fh)
-    except (OSError, ValueError):
-        return None
 
 
 def collect(conds: list[Condition], scale: Scale, cached: dict) -> tuple[dict, dict]:
@@ -127,7 +119,7 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
               "trial_steps": int(sum(info["trial_steps"] for info in infos)),
               "jobs": [{k: v for k, v in info.items() if k != "steps"} for info in infos]}
     timing_path = os.path.join(out, "timing.json")
-    previous_timing = _read_json(timing_path) or {}
+    previous_timing = read_json_or_none(timing_path) or {}
     # The last run that simulated every trial (a from-scratch timing) is kept beside this run's own figures,
     # so a cached re-run never passes off as the cost of the reproduction.
     timing["from_scratch"] = timing["trials_cached"] == 0 and timing["trials_computed"] > 0
@@ -136,7 +128,7 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
     with open(timing_path, "w") as fh:
         json.dump(timing, fh, indent=1)
     claims_path = os.path.join(out, "claims.json")
-    old = _read_json(claims_path) or {}
+    old = read_json_or_none(claims_path) or {}
     result["previous"] = _previous_verdicts(old, computed=slots_todo > 0)
     with open(claims_path, "w") as fh:
         json.dump(result, fh, indent=1)

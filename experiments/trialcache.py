@@ -81,6 +81,15 @@ def write_json_atomic(path: str, obj) -> None:
     os.replace(tmp, path)
 
 
+def read_json_or_none(path: str):
+    """The JSON in `path`, or None when it is missing or unreadable (a previous run's timing, claims)."""
+    try:
+        with open(path) as fh:
+            return json.load(fh)
+    except (OSError, ValueError):
+        return None
+
+
 def read_cached(path: str, key: str) -> dict | None:
     try:
         with open(path) as fh:

@@ -1,10 +1,11 @@
 """`python -m services bench-compare --against DIR`: `services bench` of this checkout and of another one (e.g. a
-worktree of an earlier commit), interleaved phase by phase and repeated, printed side by side with ratios: on a
-shared, noisy machine only a comparison within one run means anything."""
+worktree of an earlier commit), interleaved phase by phase and repeated, printed side by side with ratios (of the means, of each round, and
+their median): on a shared, noisy machine only a comparison within one run means anything."""
 from __future__ import annotations
 
 import json
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -57,10 +58,14 @@ def bench_compare(cfg: BenchCompareConfig) -> int:
                       file=sys.stderr, flush=True)
     out.mkdir(parents=True, exist_ok=True)
     (out / "compare.json").write_text(json.dumps({"against": str(other), "rows": rows}, indent=2))
-    print(f"steps/s, this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved:")
-    print(f"{'phase':<10}{'other':>24}{'this':>24}{'ratio this/other':>18}")
+    print(f"steps/s, this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved "
+          f"(load average now {' '.join(f'{x:.2f}' for x in os.getloadavg())}):")
+    print(f"{'phase':<10}{'other':>24}{'this':>24}{'ratio this/other':>18}{'per round':>24}{'median':>8}")
     for phase, r in rows.items():
         a, b = [x for x in r["other"] if x], [x for x in r["this"] if x]
         ratio = (sum(b) / len(b)) / (sum(a) / len(a)) if a and b else float("nan")
-        print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}{ratio:>18.3f}")
+        rounds = [t / o for o, t in zip(r["other"], r["this"]) if o and t]  # both ran in that round
+        median = statistics.median(rounds) if rounds else float("nan")
+        print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}{ratio:>18.3f}"
+              f"{', '.join(f'{x:.3f}' for x in rounds):>24}{median:>8.3f}")
     return 0

@@ -20,6 +20,7 @@ from experiments.evaluate import N_BOOT
 from experiments import stats
 from experiments.sweeps import analysis, execute, tables
 from experiments.sweeps.grid import Sweep
+from experiments.trialcache import read_json_or_none
 
 
 @dataclass
@@ -58,7 +59,7 @@ def run_sweep(sweep: Sweep, out: str, workers: int = 2, ray: str | None = None, 
               "ray": ray, "cell_trials": run.cell_trials, "trials_computed": run.computed,
               "cell_trials_filled": run.filled, "cell_trials_cached": run.cached, "jobs": run.jobs}
     timing_path = os.path.join(out, "timing.json")
-    previous = _read_json(timing_path)
+    previous = read_json_or_none(timing_path)
     if run.computed == 0 and previous and previous.get("trials_computed", 0) > 0:
         previous["replot_s"] = total_s  # a re-plot keeps the timing of the run that computed the trials
         timing = previous
@@ -88,14 +89,6 @@ def _plain(v):
     if isinstance(v, np.generic):
         return v.item()
     raise TypeError(f"not JSON: {type(v).__name__}")
-
-
-def _read_json(path: str):
-    try:
-        with open(path) as fh:
-            return json.load(fh)
-    except (OSError, ValueError):
-        return None
 
 
 def _iv(iv: dict | None, digits: int = 2) -> str:

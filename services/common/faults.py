@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from common.protocol import Feedback, ServiceStatus, Step, teacher_id_of
+from common.protocol import Feedback, ProtocolError, ServiceStatus, Step, teacher_id_of
 
 # -- rejected-input reasons beyond the decoders' (common.protocol.REASONS) ------------------------------------------
 
@@ -327,6 +327,16 @@ class AliveWatch:
 
 
 # -- state files --------------------------------------------------------------------------------------------------------
+
+def decoded_statuses(inbox: Any, counters: dict) -> Iterable[ServiceStatus]:
+    """The statuses waiting in `inbox`, decoded; one that does not decode is counted as
+    `rejected_status_<reason>` and dropped."""
+    for item in inbox.drain():
+        try:
+            yield item.decode()
+        except ProtocolError as e:
+            counters[f"rejected_status_{e.reason}"] += 1
+
 
 def atomic_write(path: str | os.PathLike, data: bytes) -> None:
     """Write to a temporary file beside `path`, then `os.replace`: readers see the old or the new file whole,

@@ -33,7 +33,7 @@ from common.protocol import (KEYS, kind_of, teacher_id_of, EpisodeSummary, Feedb
                              episode_key, feedback_wildcard, ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
 from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, InputGate, ResendRing,
-                                    first_time_logger, publish_kept)
+                                    decoded_statuses, first_time_logger, publish_kept)
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
 from services.learner import checkpoint
 from services.learner.catchup import catch_up
@@ -205,12 +205,7 @@ class Learner:
             self.teachers_final[teacher] = int(st.counters.get("feedback_published", 0))
 
     def drain_status(self) -> None:
-        for item in self.status.drain():
-            try:
-                st = item.decode()
-            except ProtocolError as e:
-                self.rt.counters[f"rejected_status_{e.reason}"] += 1
-                continue
+        for st in decoded_statuses(self.status, self.rt.counters):
             self.on_status(st)
 
     # -- the loop --------------------------------------------------------------------------------------------

@@ -19,7 +19,8 @@ from common.envs import make_env
 from common.protocol import Feedback, ProtocolError, Step, feedback_key, status_key, step_key
 from services.common.config import TeacherConfig
 from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, InputGate, ResendRing,
-                                    atomic_write_json, first_time_logger, publish_kept, read_json)
+                                    atomic_write_json, decoded_statuses, first_time_logger, publish_kept,
+                                    read_json)
 from services.common.runtime import ServiceRuntime, service_main
 from services.teacher.oracle import OracleTeacher
 
@@ -102,12 +103,7 @@ class Teacher:
 
     def follow_actor(self) -> None:
         """Read the actor's statuses: announcements for the gate, and how many steps it sent once stopped."""
-        for item in self.status.drain():
-            try:
-                st = item.decode()
-            except ProtocolError as e:
-                self.rt.counters[f"rejected_status_{e.reason}"] += 1
-                continue
+        for st in decoded_statuses(self.status, self.rt.counters):
             self.gate.on_status(st)
             if st.state == "stopped" and self.actor_final is None and st.incarnation in (None, self.gate.actor):
                 self.actor_final = int(st.counters.get("steps_published", 0))

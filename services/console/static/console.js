@@ -3,8 +3,6 @@
 // the console's system clock is estimated as NTP does, from the ping with the smallest round trip.
 "use strict";
 
-const COLORS = { wall: "#333333", free: "#ffffff", grid: "#dddddd", goal: "#f1c40f", start: "#cfe3f5",
-  agent: "#2980b9", taxi: "#e67e22", full: "#8e44ad", good: "46,139,87", bad: "192,57,43" };
 const pageNow = () => (performance.timeOrigin + performance.now()) / 1000;
 const pageTime = (ts) => (performance.timeOrigin + ts) / 1000;  // an event's or a frame's DOMHighResTimeStamp
 
@@ -33,9 +31,7 @@ function onPong(m) {
 }
 function stamp(tPage) { return { t_page: tPage, offset: hitl.clock.offset, rtt: Math.min(hitl.clock.rtt, 60) }; }
 
-// ---------------------------------------------------------------- drawing
-function cellSize() { const s = hitl.hello && hitl.hello.scene; return s ? 480 / s.size : 60; }
-
+// ---------------------------------------------------------------- drawing (shared with the replay page: draw.js)
 function drawScene() {
   const cv = document.getElementById("scene"), g = cv.getContext("2d");
   const s = hitl.hello && hitl.hello.scene, st = hitl.step;
@@ -50,34 +46,7 @@ function drawScene() {
     }
     return;
   }
-  const c = cellSize();
-  if (s.kind === "maze") {
-    for (let r = 0; r < s.size; r++) for (let q = 0; q < s.size; q++) {
-      g.fillStyle = s.walls[r][q] ? COLORS.wall : (r === s.start[0] && q === s.start[1] ? COLORS.start : COLORS.free);
-      g.fillRect(q * c, r * c, c, c);
-    }
-    g.fillStyle = COLORS.goal; g.fillRect(s.goal[1] * c + 4, s.goal[0] * c + 4, c - 8, c - 8);
-  } else if (s.kind === "taxi") {
-    s.stands.forEach(([r, q], i) => { g.fillStyle = "#ecf0f1"; g.fillRect(q * c + 2, r * c + 2, c - 4, c - 4);
-      g.fillStyle = "#555"; g.font = `${c / 3}px sans-serif`; g.fillText(s.stand_names[i], q * c + 6, r * c + c / 3 + 4); });
-  }
-  drawTrail(g, c);
-  g.strokeStyle = COLORS.grid; g.lineWidth = 1;
-  for (let i = 0; i <= s.size; i++) { g.beginPath(); g.moveTo(i * c, 0); g.lineTo(i * c, s.size * c); g.stroke();
-    g.beginPath(); g.moveTo(0, i * c); g.lineTo(s.size * c, i * c); g.stroke(); }
-  if (s.kind === "taxi") {
-    g.strokeStyle = "#222"; g.lineWidth = 5;
-    s.walls_east.forEach(([r, q]) => { g.beginPath(); g.moveTo((q + 1) * c, r * c); g.lineTo((q + 1) * c, (r + 1) * c); g.stroke(); });
-  }
-  const sc = st && st.scene;
-  if (!sc) return;
-  if (sc.agent) { disc(g, sc.agent, c, COLORS.agent); }
-  if (sc.taxi) {
-    const dest = s.stands[sc.dest];
-    g.strokeStyle = COLORS.goal; g.lineWidth = 6; g.strokeRect(dest[1] * c + 3, dest[0] * c + 3, c - 6, c - 6);
-    disc(g, sc.taxi, c, sc.passenger === 4 ? COLORS.full : COLORS.taxi);
-    if (sc.passenger < 4) { const p = s.stands[sc.passenger]; disc(g, p, c, COLORS.full, 0.18); }
-  }
+  drawWorld(cv, s, st && st.scene, drawTrail);
 }
 
 function legend(s) {
@@ -85,10 +54,6 @@ function legend(s) {
   if (!s) return "The environment's own picture, rendered by the actor after each step.";
   if (s.kind === "maze") return `Blue: the agent. Yellow: the goal. Dark: walls. ${trail}`;
   return `Orange: the taxi (purple while carrying). Purple dot: the passenger. Yellow frame: the destination. ${trail}`;
-}
-
-function disc(g, [r, q], c, color, scale = 0.32) {
-  g.fillStyle = color; g.beginPath(); g.arc(q * c + c / 2, r * c + c / 2, c * scale, 0, 2 * Math.PI); g.fill();
 }
 
 function cellOf(seq) { const sc = hitl.positions.get(seq); return sc && (sc.agent || sc.taxi); }
@@ -108,16 +73,10 @@ function drawTrail(g, c) {
 }
 
 function drawCurve() {
-  const cv = document.getElementById("curve"), g = cv.getContext("2d");
-  g.clearRect(0, 0, cv.width, cv.height);
-  const pts = hitl.curve; if (!pts.length) return;
-  const n = Math.max(hitl.hello ? hitl.hello.episodes : 1, pts.length);
-  const ys = pts.map((p) => p.return), lo = Math.min(...ys, 0), hi = Math.max(...ys, 1);
-  g.strokeStyle = "#2d3142"; g.lineWidth = 2; g.beginPath();
-  pts.forEach((p, i) => { const x = 5 + (cv.width - 10) * i / Math.max(1, n - 1);
-    const y = cv.height - 5 - (cv.height - 10) * (p.return - lo) / (hi - lo);
-    i ? g.lineTo(x, y) : g.moveTo(x, y); });
-  g.stroke();
+  const cv = document.getElementById("curve"), pts = hitl.curve;
+  const drawn = drawReturns(cv, pts, Math.max(hitl.hello ? hitl.hello.episodes : 1, pts.length));
+  if (!drawn) return;
+  const { g, lo, hi } = drawn;
   g.fillStyle = "#555"; g.font = "11px sans-serif"; g.fillText(`return (${lo.toFixed(1)}..${hi.toFixed(1)}) per episode`, 6, 12);
 }
 

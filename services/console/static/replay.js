@@ -1,10 +1,7 @@
 // The replay page: one recorded session (/timeline.json), scrubbed step by step. Same picture of the environment
-// as the live console; Q and H are the learner's at each step (re-learned from the log by the server).
+// as the live console (draw.js); Q and H are the learner's at each step (re-learned from the log by the server).
 "use strict";
 
-const COLORS = { wall: "#333333", free: "#ffffff", grid: "#dddddd", goal: "#f1c40f", start: "#cfe3f5",
-  agent: "#2980b9", taxi: "#e67e22", full: "#8e44ad", good: "46,139,87", bad: "192,57,43",
-  q: "#2d3142", h: "#d35400", cursor: "#2980b9" };
 const WINDOW = 40;  // steps each side of the chosen one in the detail timeline
 
 const replay = window.replay = { data: null, index: 0, playing: false, timer: null, bySeq: new Map(),
@@ -47,37 +44,7 @@ function drawScene() {
   const sc = replay.data.scene, st = replay.data.steps[replay.index];
   g.fillStyle = COLORS.free; g.fillRect(0, 0, cv.width, cv.height);
   if (!sc || !st) { g.fillStyle = "#222"; g.font = "14px monospace"; g.fillText("no picture of this environment", 10, 20); return; }
-  const c = cv.width / sc.size;
-  if (sc.kind === "maze") {
-    for (let r = 0; r < sc.size; r++) for (let q = 0; q < sc.size; q++) {
-      g.fillStyle = sc.walls[r][q] ? COLORS.wall : (r === sc.start[0] && q === sc.start[1] ? COLORS.start : COLORS.free);
-      g.fillRect(q * c, r * c, c, c);
-    }
-    g.fillStyle = COLORS.goal; g.fillRect(sc.goal[1] * c + 4, sc.goal[0] * c + 4, c - 8, c - 8);
-  } else {
-    sc.stands.forEach(([r, q], i) => { g.fillStyle = "#ecf0f1"; g.fillRect(q * c + 2, r * c + 2, c - 4, c - 4);
-      g.fillStyle = "#555"; g.font = `${c / 3}px sans-serif`; g.fillText(sc.stand_names[i], q * c + 6, r * c + c / 3 + 4); });
-  }
-  drawCredited(g, c);
-  g.strokeStyle = COLORS.grid; g.lineWidth = 1;
-  for (let i = 0; i <= sc.size; i++) { g.beginPath(); g.moveTo(i * c, 0); g.lineTo(i * c, sc.size * c); g.stroke();
-    g.beginPath(); g.moveTo(0, i * c); g.lineTo(sc.size * c, i * c); g.stroke(); }
-  if (sc.kind === "taxi") {
-    g.strokeStyle = "#222"; g.lineWidth = 5;
-    sc.walls_east.forEach(([r, q]) => { g.beginPath(); g.moveTo((q + 1) * c, r * c); g.lineTo((q + 1) * c, (r + 1) * c); g.stroke(); });
-  }
-  const where = st.scene || {};
-  if (where.agent) disc(g, where.agent, c, COLORS.agent);
-  if (where.taxi) {
-    const dest = sc.stands[where.dest];
-    g.strokeStyle = COLORS.goal; g.lineWidth = 6; g.strokeRect(dest[1] * c + 3, dest[0] * c + 3, c - 6, c - 6);
-    disc(g, where.taxi, c, where.passenger === 4 ? COLORS.full : COLORS.taxi);
-    if (where.passenger < 4) disc(g, sc.stands[where.passenger], c, COLORS.full, 0.18);
-  }
-}
-
-function disc(g, [r, q], c, color, scale = 0.32) {
-  g.fillStyle = color; g.beginPath(); g.arc(q * c + c / 2, r * c + c / 2, c * scale, 0, 2 * Math.PI); g.fill();
+  drawWorld(cv, sc, st.scene || {}, drawCredited);
 }
 
 // The feedback given within a few steps of this one: each credited step's cell (where the agent acted from)
@@ -128,18 +95,13 @@ function showStep() {
 }
 
 function drawCurve() {
-  const cv = document.getElementById("curve"), g = cv.getContext("2d"), pts = replay.data.curve;
-  g.clearRect(0, 0, cv.width, cv.height);
-  if (!pts.length) return;
-  const ys = pts.map((p) => p.return), lo = Math.min(...ys, 0), hi = Math.max(...ys, 1);
-  g.strokeStyle = COLORS.q; g.lineWidth = 2; g.beginPath();
-  pts.forEach((p, i) => { const x = 5 + (cv.width - 10) * i / Math.max(1, pts.length - 1);
-    const y = cv.height - 5 - (cv.height - 10) * (p.return - lo) / (hi - lo); i ? g.lineTo(x, y) : g.moveTo(x, y); });
-  g.stroke();
+  const cv = document.getElementById("curve"), pts = replay.data.curve;
+  const drawn = drawReturns(cv, pts, pts.length);
+  if (!drawn) return;
+  const { g, lo, hi, x } = drawn;
   const cur = replay.data.steps[replay.index];
   if (cur) { const k = pts.findIndex((p) => p.episode === cur.episode);
-    if (k >= 0) { const x = 5 + (cv.width - 10) * k / Math.max(1, pts.length - 1);
-      g.strokeStyle = COLORS.cursor; g.lineWidth = 1; g.beginPath(); g.moveTo(x, 0); g.lineTo(x, cv.height); g.stroke(); } }
+    if (k >= 0) { g.strokeStyle = COLORS.cursor; g.lineWidth = 1; g.beginPath(); g.moveTo(x(k), 0); g.lineTo(x(k), cv.height); g.stroke(); } }
   g.fillStyle = "#555"; g.font = "11px sans-serif"; g.fillText(`return per episode (${lo.toFixed(1)}..${hi.toFixed(1)})`, 6, 12);
 }
 
