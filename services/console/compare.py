@@ -53,13 +53,20 @@ class Design:
     alpha: float = 0.05
 
 
-DESIGN = Design()
+FIRST = Design()
+# Declared after FIRST's result (5 of the 6 pairs that differed favoured DQN-TAMER, Wilcoxon p > 0.05: too few
+# pairs and episodes to decide) and before any of its own runs: new pairs, 15 episodes, the two arms of the test.
+CONFIRM = Design(pairs=tuple((2 * k, 10 + k) for k in range(9, 21)), arms=FIRST.arms[:2], episodes=15)
+DESIGNS = {"first": FIRST, "confirm": CONFIRM}
+DESIGN = FIRST  # the design being run (set by main)
 
 
 @dataclass(frozen=True)
 class CompareConfig:
     """Run the declared comparison (DESIGN in this module) and write its table, figure and verdict."""
 
+    design: str = option("first", "which declared design: first (8 pairs, 10 episodes, 3 arms) or confirm (12 new "
+                                  "pairs, 15 episodes, DQN-TAMER and DQN)", choices=tuple(DESIGNS))
     out: str = option("runs/compare", "directory of the runs and results")
     parallel: int = option(8, "runs at once")
     pairs: int | None = option(None, "only the first N pairs (a trial of the machinery; no verdict is written)")
@@ -129,7 +136,7 @@ def figure(rows: list[dict], path: Path) -> None:
                   [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p)) for p in DESIGN.pairs],
                   marker="o", linestyle="none", label=a.name)
     left.set(xlabel="layout/seed", ylabel=f"first episode within {DESIGN.good_factor:g}x shortest path",
-             title="episodes to reach the goal (never = 11)")
+             title=f"episodes to reach the goal (never = {DESIGN.episodes + 1})")
     right.set(xlabel="episode", ylabel="steps (median over pairs)", yscale="log", title="steps per episode")
     left.legend(fontsize=8)
     fig.tight_layout()
@@ -138,6 +145,8 @@ def figure(rows: list[dict], path: Path) -> None:
 
 
 def main(cfg: CompareConfig) -> int:
+    global DESIGN
+    DESIGN = DESIGNS[cfg.design]
     pairs = DESIGN.pairs[:cfg.pairs] if cfg.pairs else DESIGN.pairs
     jobs = [(a, l, s) for l, s in pairs for a in DESIGN.arms]
     print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {DESIGN.episodes} episodes at {DESIGN.rate} steps/s",
