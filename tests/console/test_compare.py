@@ -1,0 +1,23 @@
+"""The console comparison's declared test (`services.console.compare`): paired episodes-to-goal differences, an
+agent that never reached the goal scored episodes + 1, the Wilcoxon verdict."""
+import pytest
+
+from services.console import compare
+
+
+def rows(dqn: list, tamer: list) -> list[dict]:
+    pairs = compare.FIRST.pairs
+    out = []
+    for (layout, seed), d, t in zip(pairs, dqn, tamer):
+        out += [{"arm": "DQN", "layout": layout, "seed": seed, "first_good_episode": d},
+                {"arm": "DQN-TAMER", "layout": layout, "seed": seed, "first_good_episode": t}]
+    return out
+
+
+def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_wilcoxon(monkeypatch):
+    monkeypatch.setattr(compare, "DESIGN", compare.FIRST)
+    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]))
+    assert clear["differences"][0] == 11 - 2 and clear["wins"] == 8 and clear["verdict"] == "fewer episodes"
+    assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
+    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]))
+    assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
