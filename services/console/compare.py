@@ -54,7 +54,7 @@ class Design:
 
 
 FIRST = Design()
-# Declared after FIRST's result (5 of the 6 pairs that differed favoured DQN-TAMER, Wilcoxon p > 0.05: too few
+# Declared after FIRST's result (4 of the 5 pairs that differed favoured DQN-TAMER, Wilcoxon p 0.19: too few
 # pairs and episodes to decide) and before any of its own runs: new pairs, 15 episodes, the two arms of the test.
 CONFIRM = Design(pairs=tuple((2 * k, 10 + k) for k in range(9, 21)), arms=FIRST.arms[:2], episodes=15)
 DESIGNS = {"first": FIRST, "confirm": CONFIRM}
