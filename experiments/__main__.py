@@ -133,8 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     p_rep = sub.add_parser("reproduce", help="every condition of the paper with all four agents: figures, "
                            "claims with computed verdicts, timing (cached: re-running only re-plots)")
     p_rep.add_argument("--quick", action="store_true", help="the small form (8 layouts, 40 maze episodes, 4 Taxi "
-                       "trials x 40 episodes; about 2 minutes), written to runs/reproduce-quick unless --out is given")
-    p_rep.add_argument("--layouts", type=int, help="maze layouts (default 40: 20 honest, 20 misleading, of the 60 "
+                       "trials x 40 episodes; about 2 minutes on 2 free cores), written to runs/reproduce-quick unless --out is given")
+    p_rep.add_argument("--layouts", type=int, help="maze layouts (default 60: 30 honest, 30 misleading, all "
                        "generated)")
     p_rep.add_argument("--reps", type=int, help="seeds per layout (default 1)")
     p_rep.add_argument("--maze-episodes", type=int, help="episodes per maze trial")

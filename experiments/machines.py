@@ -66,7 +66,9 @@ def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
                "(rounding in the matrix products, amplified by training). Verdicts computed with B's trials in "
                "place of A's: " + ("no verdict changes." if not changed else "changed: " + "; ".join(
                    f"{k}: {a} -> {b}" for k, (a, b) in changed.items()) + "."))
-    return {"summary": summary, "rows": rows, "changed": changed, "estimates": est, "env_a": env_a, "env_b": env_b}
+    timing_a = json.load(open(os.path.join(dir_a, "timing.json")))
+    return {"summary": summary, "rows": rows, "changed": changed, "estimates": est, "env_a": env_a, "env_b": env_b,
+            "commit": timing_a.get("commit"), "scale": timing_a.get("scale")}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -161,14 +161,18 @@ def lag_lines(result: dict) -> list[str]:
     return lines + [""]
 
 
-def machines_lines(out: str) -> list[str]:
+def machines_lines(out: str, timing: dict) -> list[str]:
     import json
     import os
     path = os.path.join(out, "machines.json")
     if not os.path.exists(path):
         return ["## Across machines", "", "(no comparison recorded: `python -m experiments.machines DIR_A DIR_B` compares two runs' trials and verdicts)", ""]
     m = json.load(open(path))
-    lines = ["## Across machines (BLAS code path)", "", m["summary"], "",
+    stale = m.get("scale") != timing.get("scale") or m.get("commit") is None
+    note = (f" (Compared at commit `{m.get('commit', '?')}` on a run of scale {m.get('scale')}: "
+            "NOT this report's trials; re-run the comparison: docs/hyperparameters.md, \"Across machines\".)" if stale else
+            f" (Compared at commit `{m.get('commit')}`, this report's scale.)")
+    lines = ["## Across machines (BLAS code path)", "", m["summary"] + note, "",
              "| condition | arm | trials | trials that differ |", "|---|---|---|---|"]
     for row in m["rows"]:
         lines.append(f"| {row['cond']} | {row['arm']} | {row['trials']} | {row['differ']} |")
@@ -216,7 +220,7 @@ def body(result: dict, conds, timing: dict, argv: list[str], drawn: dict, out: s
     for cid, c in claims.items():
         lines += claim_section(cid, c)
     lines += layouts_lines(drawn) + horizon_lines(result, conds) + who_lines(result) + lag_lines(result)
-    lines += machines_lines(out) + ["## Conditions", ""]
+    lines += machines_lines(out, timing) + ["## Conditions", ""]
     for c in conds:
         lines += panel_lines(c.name, c.title, c.figure, result["panels"][c.name], result["horizons"][c.name])
     cpu = ", ".join(f"{v:.0f}" for v in timing.get("cpu_s_per_worker", {}).values())

@@ -23,11 +23,12 @@ from dataclasses import dataclass, field
 from experiments.conditions import Condition, Scale, n_trials, trial_spec
 from experiments.runner import TrialResult, TrialSpec
 
-RESULTS_VERSION = 2
+RESULTS_VERSION = 3
 """Bump when a change to the core changes results, so cached trials are recomputed."""
 
 # Environments that can share a lockstep batch (same observation and action spaces).
-FAMILY = {"maze": "maze", "maze-pomdp": "maze-pomdp", "taxi": "taxi", "taxi-fixed": "taxi"}
+FAMILY = {"maze": "maze", "maze-pomdp": "maze-pomdp", "taxi": "taxi", "taxi-fixed": "taxi", "taxi-s": "taxi-s",
+          "taxi-fixed-s": "taxi-s"}
 
 
 def _record(obj) -> dict:
@@ -134,7 +135,8 @@ def plan(conds: list[Condition], scale: Scale, cache_dir: str) -> tuple[dict, li
 # environment steps per episode averaged over a run (Maze about 150, POMDP about 80, Taxi about 1000 as
 # no agent learns Taxi within the run) times the relative cost of a step (Taxi: larger observation,
 # updates every 4 steps). Measured from full runs (docs/results/timing.json).
-EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6, "taxi-fixed": 300.0}
+EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6, "taxi-fixed": 300.0, "taxi-s": 300.0,
+                "taxi-fixed-s": 100.0}
 
 
 def job_cost(tasks: list[Task]) -> float:

@@ -50,6 +50,10 @@ ENVS: dict[str, EnvSpec] = {
     "maze-pomdp": EnvSpec("maze-pomdp", lambda layout=0: MazeEnv(layout, "pomdp"), progress_rule, True),
     "taxi": EnvSpec("taxi", lambda layout=0: TaxiEnv(), progress_rule, False),
     "taxi-fixed": EnvSpec("taxi-fixed", lambda layout=0: TaxiEnv(fixed_task=layout), progress_rule, True),
+    # The same with the state one-hot appended to the observation (common/envs/taxi.py; the reproduction's).
+    "taxi-s": EnvSpec("taxi-s", lambda layout=0: TaxiEnv(state_onehot=True), progress_rule, False),
+    "taxi-fixed-s": EnvSpec("taxi-fixed-s", lambda layout=0: TaxiEnv(fixed_task=layout, state_onehot=True),
+                            progress_rule, True),
     "minigrid-empty": EnvSpec("minigrid-empty", _gym("MiniGrid-Empty-5x5-v0", MINIGRID_TURN_FORWARD),
                               progress_rule, False),
 }

@@ -9,6 +9,11 @@ action, and `subgoal_reached` for a successful pick-up or drop-off.
 the 12 pairs of distinct stands), the taxi's start stays random: one initial condition per k, as the
 paper's observation (coordinates and an in-taxi flag) suggests. None (default) is Gymnasium's Taxi:
 passenger and destination drawn afresh every episode.
+
+`state_onehot=True` appends a one-hot of Gymnasium's 500 states to the 19 values (519 in all; the first 19
+are unchanged, so anything that reads them, e.g. the console's scene, still works). The reproduction's
+Taxi uses it: with the 19 factored values alone DQN did not learn Gymnasium's Taxi in 400 episodes
+(docs/hyperparameters.md "Taxi"), as Q must combine taxi position, passenger and destination.
 """
 from __future__ import annotations
 
@@ -18,20 +23,23 @@ from gymnasium.envs.toy_text.taxi import TaxiEnv as _GymTaxi
 
 MAX_STEPS = 1000
 OBS_DIM = 5 + 5 + 5 + 4
+N_STATES = 500
 FIXED_TASKS = tuple((p, d) for p in range(4) for d in range(4) if p != d)
 
 
 class TaxiEnv(gym.Env):
     metadata = {"render_modes": ["ansi"]}
 
-    def __init__(self, max_steps: int = MAX_STEPS, fixed_task: int | None = None):
+    def __init__(self, max_steps: int = MAX_STEPS, fixed_task: int | None = None, state_onehot: bool = False):
         if fixed_task is not None and not 0 <= fixed_task < len(FIXED_TASKS):
             raise ValueError(f"fixed_task must be in 0..{len(FIXED_TASKS) - 1}, got {fixed_task}")
         self.fixed_task = fixed_task
         self._env = _GymTaxi()
         self.locs = self._env.locs
         self.max_steps = max_steps
-        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(OBS_DIM,), dtype=np.float32)
+        self.state_onehot = state_onehot
+        self.obs_dim = OBS_DIM + (N_STATES if state_onehot else 0)
+        self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(self.obs_dim,), dtype=np.float32)
         self.action_space = gym.spaces.Discrete(6)
         self.state = 0
         self.steps = 0
@@ -42,11 +50,13 @@ class TaxiEnv(gym.Env):
 
     def _obs(self) -> np.ndarray:
         row, col, passenger, dest = self._decode(self.state)
-        obs = np.zeros(OBS_DIM, dtype=np.float32)
+        obs = np.zeros(self.obs_dim, dtype=np.float32)
         obs[row] = 1.0
         obs[5 + col] = 1.0
         obs[10 + passenger] = 1.0
         obs[15 + dest] = 1.0
+        if self.state_onehot:
+            obs[OBS_DIM + self.state] = 1.0
         return obs
 
     def _target_distance(self, state: int, target_from: int | None = None) -> int:
