@@ -9,6 +9,9 @@ from experiments.claims import MARGIN
 from experiments.evaluate import SUBSETS, ArmData, subset_mask
 
 FLAT_WINDOW = 20
+CONVERGED_STEPS = 100.0
+"""DQN has converged when its curve is flat and its final geometric-mean episode is below this: a tenth of
+the 1000-step limit of Maze and Taxi (their optima are 5-15 and about 13 steps, plus epsilon's detours)."""
 
 
 def arm_summary(a: ArmData, extras: dict, mask: np.ndarray, n_boot: int) -> dict:
@@ -71,9 +74,14 @@ def horizon(arms: dict[str, ArmData], stop: int | None) -> dict:
         out["dqn_within_margin_episode"] = int(hit[0] + 5) if len(hit) else None
         out["dqn_final_steps_geomean"] = float(np.exp(final))
         out["dqn_steps_total_mean"] = float(arms["dqn"].steps.sum(axis=1).mean())
+        at = out["dqn_within_margin_episode"]  # mean environment steps a DQN trial took to get there
+        out["dqn_steps_to_level_mean"] = float(arms["dqn"].steps[:, :at].sum(axis=1).mean()) if at else None
         dfit = sps.linregress(np.arange(w), c[-w:])
         out["dqn_change_last"] = float(dfit.slope * (w - 1))
         out["dqn_flat"] = bool(abs(dfit.slope * (w - 1)) < MARGIN)
+        # Converged: flat at the end, at a level far below the step limit (a flat curve of 1000-step
+        # episodes is a failure to learn, not convergence).
+        out["dqn_converged"] = bool(out["dqn_flat"] and np.exp(final) < CONVERGED_STEPS)
     return out
 
 

@@ -118,13 +118,19 @@ def layouts_lines(drawn: dict) -> list[str]:
 
 
 def horizon_lines(result: dict, conds) -> list[str]:
-    lines = ["## Horizons", "", "| condition | episodes | best arm | change of its mean ln steps, last 20 | flat | "
-             "DQN within the margin of its final level from episode | DQN final steps (geo. mean) | DQN steps per trial |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["## Horizons", "", "DQN converged: its curve flat over the last 20 episodes and its final geometric-mean "
+             "episode below 100 steps (a tenth of the step limit). Steps to its level: mean environment steps of a "
+             "DQN trial up to the episode at which its curve (5-episode moving average) first comes within the margin of its final level.", "",
+             "| condition | episodes | best arm | change of its mean ln steps, last 20 | flat | "
+             "DQN within the margin of its final level from episode | steps to that level | DQN final steps "
+             "(geo. mean) | DQN converged | DQN steps per trial |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for c in conds:
         h = result["horizons"][c.name]
-        dq = (f"{h.get('dqn_within_margin_episode') or 'never'} | {h['dqn_final_steps_geomean']:.0f} | "
-              f"{h['dqn_steps_total_mean']:.0f}") if "dqn_final_steps_geomean" in h else " | | "
+        to = h.get("dqn_steps_to_level_mean")
+        dq = (f"{h.get('dqn_within_margin_episode') or 'never'} | {f'{to:,.0f}' if to else ''} | "
+              f"{h['dqn_final_steps_geomean']:.0f} | {'yes' if h.get('dqn_converged') else 'no'} | "
+              f"{h['dqn_steps_total_mean']:,.0f}") if "dqn_final_steps_geomean" in h else " | | | | "
         lines.append(f"| {c.name} | {h['episodes']} | {AGENT_NAMES.get(h['best_arm'], h['best_arm'])} | "
                      f"{h['change_last']:+.3f} | {'yes' if h['flat'] else 'no'} | {dq} |")
     return lines + [""]
