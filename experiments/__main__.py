@@ -161,7 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
                          "torch MLP, on the first condition's trials)")
     p_cmp = sub.add_parser("bench-compare", help="`bench` of this checkout against another (a worktree of an "
-                           "earlier commit), alternating, round after round: times and speed ratios per round, "
+                           "earlier commit), alternating, round after round: times and speed ratios (environment "
+                           "steps per second) per round, "
                            "the median ratio")
     p_cmp.add_argument("--against", required=True, help="the other checkout's directory")
     p_cmp.add_argument("--rounds", type=int, default=3, help="rounds; each runs both, alternating who goes first "

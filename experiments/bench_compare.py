@@ -2,8 +2,11 @@
 (e.g. a worktree of an earlier commit), alternating which goes first, round after round, in one run.
 
 Each run is `python -m experiments bench` in its own checkout (its own code first on the path, a fresh process).
-Printed per round and mode (plain loop, batched, parallel): both times and the speed ratio other_s / this_s
-(above 1: this checkout is faster); last, the median ratio per mode. On a shared, noisy machine only ratios
+Printed per round and mode (plain loop, batched, parallel): both times and the speed ratio in environment steps
+per second, this / other (above 1: this checkout is faster; steps per second, not seconds, because the two
+checkouts may define the same condition with other layouts or lengths, so the same trials need not take the
+same number of steps); last, the median ratio per mode. Pass the same `--conditions` to both where the
+checkouts list different ones. On a shared, noisy machine only ratios
 taken within one run mean anything; the load average at the start and the end is printed beside them.
 """
 from __future__ import annotations
@@ -43,7 +46,8 @@ def bench_compare(against: str, rounds: int, bench_args: list[str]) -> dict:
         raise ValueError(f"--against {against!r}: not a checkout of this project")
     print(f"experiments bench: this checkout ({ROOT}) against {other}; bench args {' '.join(bench_args)}; "
           f"load average at start {load()}", flush=True)
-    print(f"{'round':<6}{'mode':<12}{'other s':>10}{'this s':>10}{'ratio other/this':>18}", flush=True)
+    print(f"{'round':<6}{'mode':<12}{'other s':>10}{'this s':>10}{'other steps/s':>15}{'this steps/s':>14}"
+          f"{'ratio this/other':>18}", flush=True)
     ratios: dict[str, list[float]] = {m: [] for m in MODES}
     runs = []
     for r in range(rounds):
@@ -51,10 +55,13 @@ def bench_compare(against: str, rounds: int, bench_args: list[str]) -> dict:
         got = {label: run_bench(checkout, bench_args) for label, checkout in order}
         runs.append(got)
         for m in MODES:
-            ratio = got["other"][m] / got["this"][m]
+            speed = {k: got[k]["env_steps"] / got[k][m] for k in got}
+            ratio = speed["this"] / speed["other"]
             ratios[m].append(ratio)
-            print(f"{r + 1:<6}{m[:-2]:<12}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{ratio:>18.3f}", flush=True)
+            print(f"{r + 1:<6}{m[:-2]:<12}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{speed['other']:>15.0f}"
+                  f"{speed['this']:>14.0f}{ratio:>18.3f}", flush=True)
     medians = {m: statistics.median(v) for m, v in ratios.items()}
-    print("median ratio other/this (above 1: this checkout is faster): "
+    print(f"environment steps per run: other {runs[0]['other']['env_steps']}, this {runs[0]['this']['env_steps']}")
+    print("median speed ratio this/other (above 1: this checkout is faster): "
           + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in medians.items()) + f"; load average at end {load()}")
     return {"against": str(other), "bench_args": bench_args, "runs": runs, "ratios": ratios, "medians": medians}
