@@ -108,11 +108,8 @@ def cmd_bench_compare(args, parser) -> int:
 
     if args.rounds < 1 or args.trials < 1 or args.episodes < 1:
         parser.error("--rounds, --trials and --episodes must be positive")
-    bench_args = ["--trials", str(args.trials), "--episodes", str(args.episodes), "--workers", str(args.workers)]
-    if args.conditions:
-        bench_args += ["--conditions", *args.conditions]
     try:
-        result = bench_compare(args.against, args.rounds, bench_args)
+        result = bench_compare(args.against, args.rounds, args.envs, args.trials, args.episodes)
     except (ValueError, RuntimeError) as exc:
         parser.error(str(exc))
     if args.out:
@@ -160,18 +157,15 @@ def main(argv: list[str] | None = None) -> int:
     p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
     p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
                          "torch MLP, on the first condition's trials)")
-    p_cmp = sub.add_parser("bench-compare", help="`bench` of this checkout against another (a worktree of an "
-                           "earlier commit), alternating, round after round: times and speed ratios (environment "
-                           "steps per second) per round, "
-                           "the median ratio")
+    p_cmp = sub.add_parser("bench-compare", help="the in-process runner of this checkout against another (a "
+                           "worktree of an earlier commit), plain and batched, alternating, round after round: "
+                           "steps/s ratios per round, the median ratio")
     p_cmp.add_argument("--against", required=True, help="the other checkout's directory")
     p_cmp.add_argument("--rounds", type=int, default=3, help="rounds; each runs both, alternating who goes first "
                        "(default: 3)")
-    p_cmp.add_argument("--conditions", nargs="+", default=None, choices=list(BY_NAME),
-                       help="passed to bench (default: bench's own, all)")
-    p_cmp.add_argument("--trials", type=int, default=1, help="passed to bench (default: 1)")
-    p_cmp.add_argument("--episodes", type=int, default=10, help="passed to bench (default: 10)")
-    p_cmp.add_argument("--workers", type=int, default=2, help="passed to bench (default: 2)")
+    p_cmp.add_argument("--envs", nargs="+", default=["maze", "taxi"], help="environments (default: maze taxi)")
+    p_cmp.add_argument("--trials", type=int, default=1, help="trials per agent and environment (default: 1)")
+    p_cmp.add_argument("--episodes", type=int, default=10, help="episodes per trial (default: 10)")
     p_cmp.add_argument("--out", default=None, help="also write every run's figures and the ratios to this JSON file")
     args = parser.parse_args(argv)
     if args.command == "bench-compare":

@@ -1,13 +1,16 @@
-"""`python -m experiments bench-compare --against DIR`: `experiments bench` of this checkout and of another one
+"""`python -m experiments bench-compare --against DIR`: the in-process runner of this checkout against another one
 (e.g. a worktree of an earlier commit), alternating which goes first, round after round, in one run.
 
-Each run is `python -m experiments bench` in its own checkout (its own code first on the path, a fresh process).
-Printed per round and mode (plain loop, batched, parallel): both times and the speed ratio in environment steps
-per second, this / other (above 1: this checkout is faster; steps per second, not seconds, because the two
-checkouts may define the same condition with other layouts or lengths, so the same trials need not take the
-same number of steps); last, the median ratio per mode. Pass the same `--conditions` to both where the
-checkouts list different ones. On a shared, noisy machine only ratios
-taken within one run mean anything; the load average at the start and the end is printed beside them.
+Each run is a fresh process in its own checkout (its code first on the path) that builds the same trials from
+the interfaces every commit has (`TrialSpec` of an environment name, `agent_config(algo)`, the default
+`ObserverConfig`, a seed, a maze layout, a length) and runs them with its own `run_trials` two ways, as
+`experiments bench` does: plain (each trial alone, one after another) and batched (one lockstep batch per
+environment). The maze layouts and agents' defaults may differ between commits, so the trials need not take
+the same number of environment steps: the ratio is of environment steps per second, this / other (above 1:
+this checkout is faster). The parallel mode of `experiments bench` is the batched arithmetic on a process pool
+whose interface differs between commits, so it is left out. Printed per round and mode: both times, steps/s
+and the ratio; last, the median ratio per mode and the load average at the start and the end (on a shared,
+noisy machine only ratios taken within one run mean anything).
 """
 from __future__ import annotations
 
@@ -16,52 +19,71 @@ import os
 import statistics
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-MODES = ("plain_s", "batched_s", "parallel_s")
+MODES = ("plain_s", "batched_s")
+
+# Run inside the checkout under test: only the interfaces both old and new checkouts have.
+_TIMED_RUN = """
+import json, sys, time
+from common.agents import agent_config
+from common.observer import ObserverConfig
+from experiments.runner import TrialSpec, run_trials
+envs, trials, episodes = json.loads(sys.argv[1])
+specs = [TrialSpec(env, agent_config(algo), ObserverConfig(), seed=k, layout=k % 10 if env == "maze" else 0,
+                   episodes=episodes)
+         for env in envs for algo in ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer") for k in range(trials)]
+t0 = time.perf_counter()
+plain = [run_trials([s])[0] for s in specs]
+t_plain = time.perf_counter() - t0
+t0 = time.perf_counter()
+for env in envs:
+    run_trials([s for s in specs if s.env == env])
+t_batched = time.perf_counter() - t0
+print(json.dumps({"trials": len(specs), "env_steps": int(sum(r.total_steps for r in plain)), "plain_s": t_plain,
+                  "batched_s": t_batched}))
+"""
 
 
-def run_bench(checkout: Path, bench_args: list[str]) -> dict:
-    """One `experiments bench` run with `checkout`'s own code; its JSON report."""
-    with tempfile.TemporaryDirectory() as tmp:
-        out = Path(tmp) / "bench.json"
-        cmd = [sys.executable, "-m", "experiments", "bench", *bench_args, "--out", str(out)]
-        done = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)},
-                              capture_output=True, text=True)
-        if done.returncode != 0 or not out.is_file():
-            raise RuntimeError(f"{checkout}: bench failed (exit {done.returncode}): {done.stderr[-600:]}")
-        return json.loads(out.read_text())
+def timed_run(checkout: Path, envs: list[str], trials: int, episodes: int) -> dict:
+    """The trials run plain and batched with `checkout`'s own code: its times and environment steps."""
+    arg = json.dumps([envs, trials, episodes])
+    done = subprocess.run([sys.executable, "-c", _TIMED_RUN, arg], cwd=checkout,
+                          env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"{checkout}: the timed run failed (exit {done.returncode}): {done.stderr[-600:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def load() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
-def bench_compare(against: str, rounds: int, bench_args: list[str]) -> dict:
+def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episodes: int) -> dict:
     """Alternate `rounds` runs of both checkouts; print and return the times and ratios."""
     other = Path(against).resolve()
-    if not (other / "experiments" / "bench.py").is_file():
+    if not (other / "experiments" / "runner.py").is_file():
         raise ValueError(f"--against {against!r}: not a checkout of this project")
-    print(f"experiments bench: this checkout ({ROOT}) against {other}; bench args {' '.join(bench_args)}; "
-          f"load average at start {load()}", flush=True)
-    print(f"{'round':<6}{'mode':<12}{'other s':>10}{'this s':>10}{'other steps/s':>15}{'this steps/s':>14}"
+    print(f"in-process runner: this checkout ({ROOT}) against {other}; environments {' '.join(envs)}, the four "
+          f"agents, {trials} trial(s) each, {episodes} episodes; load average at start {load()}", flush=True)
+    print(f"{'round':<6}{'mode':<10}{'other s':>10}{'this s':>10}{'other steps/s':>15}{'this steps/s':>14}"
           f"{'ratio this/other':>18}", flush=True)
     ratios: dict[str, list[float]] = {m: [] for m in MODES}
     runs = []
     for r in range(rounds):
         order = [("other", other), ("this", ROOT)] if r % 2 == 0 else [("this", ROOT), ("other", other)]
-        got = {label: run_bench(checkout, bench_args) for label, checkout in order}
+        got = {label: timed_run(checkout, envs, trials, episodes) for label, checkout in order}
         runs.append(got)
         for m in MODES:
             speed = {k: got[k]["env_steps"] / got[k][m] for k in got}
-            ratio = speed["this"] / speed["other"]
-            ratios[m].append(ratio)
-            print(f"{r + 1:<6}{m[:-2]:<12}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{speed['other']:>15.0f}"
-                  f"{speed['this']:>14.0f}{ratio:>18.3f}", flush=True)
+            ratios[m].append(speed["this"] / speed["other"])
+            print(f"{r + 1:<6}{m[:-2]:<10}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{speed['other']:>15.0f}"
+                  f"{speed['this']:>14.0f}{ratios[m][-1]:>18.3f}", flush=True)
     medians = {m: statistics.median(v) for m, v in ratios.items()}
-    print(f"environment steps per run: other {runs[0]['other']['env_steps']}, this {runs[0]['this']['env_steps']}")
-    print("median speed ratio this/other (above 1: this checkout is faster): "
+    print(f"{runs[0]['this']['trials']} trials a run; environment steps: other {runs[0]['other']['env_steps']}, "
+          f"this {runs[0]['this']['env_steps']}")
+    print("median ratio this/other, steps/s (above 1: this checkout is faster): "
           + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in medians.items()) + f"; load average at end {load()}")
-    return {"against": str(other), "bench_args": bench_args, "runs": runs, "ratios": ratios, "medians": medians}
+    return {"against": str(other), "envs": envs, "trials": trials, "episodes": episodes, "runs": runs,
+            "ratios": ratios, "medians": medians}
