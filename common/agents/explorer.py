@@ -27,13 +27,18 @@ class Mixture:
         self.alpha_h_decay = np.array([c.alpha_h_decay for c in configs], np.float64)
         self.adapt = np.array([getattr(c, "alpha_h_adapt", 0.0) for c in configs], np.float64)
         self.agree = np.ones(len(configs), np.float64)
+        self.adapting = bool((self.adapt > 0).any())  # none adapts (the paper): skip the per-step work
 
     def alpha_h(self, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
         sched = self.alpha_h0[rows] * self.alpha_h_decay[rows] ** steps.astype(np.float64)
+        if not self.adapting:
+            return sched
         return np.where(self.adapt[rows] > 0, sched * self.agree[rows], sched)
 
     def observe(self, rows: np.ndarray, agree: np.ndarray) -> None:
         """Trials `rows` chose with argmax H == argmax Q (`agree`, bool) at this step."""
+        if not self.adapting:
+            return
         a = self.adapt[rows] > 0
         if a.any():
             r = rows[a]
@@ -54,6 +59,7 @@ class Mixture:
     def select(self, rows: np.ndarray) -> None:
         for name in self._ROWS:
             setattr(self, name, getattr(self, name)[rows])
+        self.adapting = bool((self.adapt > 0).any())
 
 
 class EpsilonGreedy:
