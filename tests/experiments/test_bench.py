@@ -24,3 +24,22 @@ def test_cli_wiring(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "experiments", "bench", "--trials", "0"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "must be positive" in proc.stderr
+
+
+def test_bench_compare_alternates_two_checkouts_and_prints_ratios(tmp_path):
+    """Against itself (the same checkout twice): every round prints both modes, the median is printed and
+    written; a directory that is not a checkout is a one-line error."""
+    from experiments.bench_compare import ROOT
+
+    out = tmp_path / "compare.json"
+    proc = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--against", str(ROOT), "--rounds",
+                           "2", "--envs", "maze", "--episodes", "1", "--out", str(out)],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.count("plain") >= 2 and "median ratio this/other" in proc.stdout
+    result = json.loads(out.read_text())
+    assert len(result["runs"]) == 2 and set(result["medians"]) == {"plain_s", "batched_s"}
+    assert result["runs"][0]["this"]["env_steps"] == result["runs"][0]["other"]["env_steps"] > 0
+    proc = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--against", str(tmp_path)],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert proc.returncode == 2 and "not a checkout of this project" in proc.stderr
