@@ -81,7 +81,7 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     t0 = time.monotonic()
     try:
         url = None
-        while url is None and up.poll() is None and time.monotonic() - t0 < 120:
+        while url is None and up.poll() is None and time.monotonic() - t0 < 300:  # a loaded machine starts slowly
             m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/)", "".join(lines))
             url = m.group(1) if m and _listening(int(m.group(2))) else None
             time.sleep(0.1)
