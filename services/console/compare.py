@@ -17,6 +17,7 @@ the arm with the assumed delay matched to this person (uniform 0.3-1.5 s).
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import time
@@ -87,6 +88,7 @@ def run_arm(cfg: CompareConfig, arm: Arm, layout: int, seed: int) -> dict:
     tag = f"{arm.algo}-{arm.screen_delay.replace(':', '').replace(',', '-')}-l{layout}-s{seed}"
     result = Path(cfg.out) / "results" / f"{tag}.json"
     if not result.exists():
+        shutil.rmtree(Path(cfg.out) / "runs" / tag, ignore_errors=True)  # a failed attempt's: run it again
         result.parent.mkdir(parents=True, exist_ok=True)
         cmd = [sys.executable, "-m", "services.console.scripted", "--algo", arm.algo, "--layout", str(layout),
                "--seed", str(seed), "--episodes", str(DESIGN.episodes), "--rate", str(DESIGN.rate),
