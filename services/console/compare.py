@@ -1,7 +1,7 @@
 """`python -m services.console.compare`: does the scripted person at 2 steps/s make DQN-TAMER reach the goal in
 fewer episodes than DQN alone?
 
-The comparison is declared here, in `DESIGN`, before any of its runs (the two pilot sessions in docs/console.md,
+The comparison is declared here, in `DESIGNS`, before any of its runs (the two pilot sessions in docs/console.md,
 layout 0 with seeds 0 and 1, are not part of it). Each pair is an honest maze layout with its own seed; in each
 pair the same scripted person (`static/scripted_person.js`: the paper's rule, pressing on half the steps it saw,
 0.3-1.5 s after the paint) teaches every arm through the real console in headless Chromium, one
@@ -67,12 +67,11 @@ MATCHED = Design(pairs=tuple((2 * k, 10 + k) for k in range(21, 30)),
                  arms=(Arm("DQN-TAMER, matched delay", "dqn-tamer", "uniform:0.3,1.5"), FIRST.arms[1]),
                  primary=("DQN", "DQN-TAMER, matched delay"), episodes=15)
 DESIGNS = {"first": FIRST, "confirm": CONFIRM, "matched": MATCHED}
-DESIGN = FIRST  # the design being run (set by main)
 
 
 @dataclass(frozen=True)
 class CompareConfig:
-    """Run the declared comparison (DESIGN in this module) and write its table, figure and verdict."""
+    """Run a declared comparison (DESIGNS in this module) and write its table, figure and verdict."""
 
     design: str = option("first", "which declared design: first (8 pairs, 10 episodes, 3 arms), confirm (12 new "
                                   "pairs, 15 episodes, DQN-TAMER and DQN) or matched (9 new pairs, 15 episodes, "
@@ -83,7 +82,7 @@ class CompareConfig:
     timeout: float = option(2400.0, "seconds a run may take")
 
 
-def run_arm(cfg: CompareConfig, arm: Arm, layout: int, seed: int) -> dict:
+def run_arm(cfg: CompareConfig, design: Design, arm: Arm, layout: int, seed: int) -> dict:
     """One scripted session (its own process); its result dict, reused when it already exists."""
     tag = f"{arm.algo}-{arm.screen_delay.replace(':', '').replace(',', '-')}-l{layout}-s{seed}"
     result = Path(cfg.out) / "results" / f"{tag}.json"
@@ -91,9 +90,9 @@ def run_arm(cfg: CompareConfig, arm: Arm, layout: int, seed: int) -> dict:
         shutil.rmtree(Path(cfg.out) / "runs" / tag, ignore_errors=True)  # a failed attempt's: run it again
         result.parent.mkdir(parents=True, exist_ok=True)
         cmd = [sys.executable, "-m", "services.console.scripted", "--algo", arm.algo, "--layout", str(layout),
-               "--seed", str(seed), "--episodes", str(DESIGN.episodes), "--rate", str(DESIGN.rate),
-               "--episode-steps", str(DESIGN.episode_steps), "--screen-delay", arm.screen_delay,
-               "--good-factor", str(DESIGN.good_factor), "--out", str(Path(cfg.out) / "runs"), "--run", tag,
+               "--seed", str(seed), "--episodes", str(design.episodes), "--rate", str(design.rate),
+               "--episode-steps", str(design.episode_steps), "--screen-delay", arm.screen_delay,
+               "--good-factor", str(design.good_factor), "--out", str(Path(cfg.out) / "runs"), "--run", tag,
                "--timeout", str(cfg.timeout), "--result", str(result)]
         log = (Path(cfg.out) / "results" / f"{tag}.log").open("w")
         subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, check=False)
@@ -103,51 +102,52 @@ def run_arm(cfg: CompareConfig, arm: Arm, layout: int, seed: int) -> dict:
     return {"arm": arm.name, "layout": layout, "seed": seed, **row}
 
 
-def episodes_to_goal(row: dict) -> int:
-    return row["first_good_episode"] or DESIGN.episodes + 1
+def episodes_to_goal(row: dict, design: Design) -> int:
+    return row["first_good_episode"] or design.episodes + 1
 
 
-def primary_test(rows: list[dict]) -> dict:
+def primary_test(rows: list[dict], design: Design) -> dict:
     """The declared test: paired differences (first arm minus second) of the episode that first reached the goal."""
     from scipy import stats
 
     by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
-    first, second = DESIGN.primary
-    d = np.array([episodes_to_goal(by[first, l, s]) - episodes_to_goal(by[second, l, s]) for l, s in DESIGN.pairs])
+    first, second = design.primary
+    d = np.array([episodes_to_goal(by[first, l, s], design) - episodes_to_goal(by[second, l, s], design)
+                  for l, s in design.pairs])
     nonzero = d[d != 0]
     p = float(stats.wilcoxon(nonzero, alternative="greater").pvalue) if len(nonzero) else 1.0
     sign = stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue if len(nonzero) else 1.0
     return {"differences": d.tolist(), "mean": float(d.mean()), "wins": int((d > 0).sum()),
             "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p, "sign_p": float(sign),
-            "verdict": "fewer episodes" if p < DESIGN.alpha and d.mean() > 0 else "not shown"}
+            "verdict": "fewer episodes" if p < design.alpha and d.mean() > 0 else "not shown"}
 
 
-def table(rows: list[dict]) -> str:
-    lines = ["| layout | seed | " + " | ".join(a.name for a in DESIGN.arms) + " |",
-             "|---|---|" + "---|" * len(DESIGN.arms)]
+def table(rows: list[dict], design: Design) -> str:
+    lines = ["| layout | seed | " + " | ".join(a.name for a in design.arms) + " |",
+             "|---|---|" + "---|" * len(design.arms)]
     by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
-    for l, s in DESIGN.pairs:
+    for l, s in design.pairs:
         cells = [f"{by[a.name, l, s]['first_good_episode'] or 'never'} ({by[a.name, l, s]['total_steps']} steps)"
-                 for a in DESIGN.arms]
+                 for a in design.arms]
         lines.append(f"| {l} | {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
-def figure(rows: list[dict], path: Path) -> None:
+def figure(rows: list[dict], design: Design, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
-    for a in DESIGN.arms:
+    for a in design.arms:
         mine = [r for r in rows if r["arm"] == a.name]
-        steps = np.array([r["steps_per_episode"][:DESIGN.episodes] for r in mine], float)
+        steps = np.array([r["steps_per_episode"][:design.episodes] for r in mine], float)
         right.plot(np.arange(1, steps.shape[1] + 1), np.median(steps, axis=0), marker="o", label=a.name)
-        left.plot([f"{l}/{s}" for l, s in DESIGN.pairs],
-                  [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p)) for p in DESIGN.pairs],
+        left.plot([f"{l}/{s}" for l, s in design.pairs],
+                  [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p), design) for p in design.pairs],
                   marker="o", linestyle="none", label=a.name)
-    left.set(xlabel="layout/seed", ylabel=f"first episode within {DESIGN.good_factor:g}x shortest path",
-             title=f"episodes to reach the goal (never = {DESIGN.episodes + 1})")
+    left.set(xlabel="layout/seed", ylabel=f"first episode within {design.good_factor:g}x shortest path",
+             title=f"episodes to reach the goal (never = {design.episodes + 1})")
     right.set(xlabel="episode", ylabel="steps (median over pairs)", yscale="log", title="steps per episode")
     left.legend(fontsize=8)
     fig.tight_layout()
@@ -156,15 +156,14 @@ def figure(rows: list[dict], path: Path) -> None:
 
 
 def main(cfg: CompareConfig) -> int:
-    global DESIGN
-    DESIGN = DESIGNS[cfg.design]
-    pairs = DESIGN.pairs[:cfg.pairs] if cfg.pairs else DESIGN.pairs
-    jobs = [(a, l, s) for l, s in pairs for a in DESIGN.arms]
-    print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {DESIGN.episodes} episodes at {DESIGN.rate} steps/s",
+    design = DESIGNS[cfg.design]
+    pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
+    jobs = [(a, l, s) for l, s in pairs for a in design.arms]
+    print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {design.episodes} episodes at {design.rate} steps/s",
           file=sys.stderr, flush=True)
     t0, rows = time.monotonic(), []
     with ThreadPoolExecutor(cfg.parallel) as pool:
-        for row in pool.map(lambda j: run_arm(cfg, *j), jobs):
+        for row in pool.map(lambda j: run_arm(cfg, design, *j), jobs):
             rows.append(row)
             print(f"[compare] {row['arm']} layout {row['layout']} seed {row['seed']}: first good episode "
                   f"{row['first_good_episode'] or 'never'}, {row['total_steps']} steps "
@@ -173,12 +172,12 @@ def main(cfg: CompareConfig) -> int:
     if cfg.pairs:
         print(json.dumps(rows, indent=1))
         return 0
-    test = primary_test(rows)
-    figure(rows, out / "compare.png")
-    (out / "compare.json").write_text(json.dumps({"design": asdict(DESIGN), "primary": test, "runs": rows}, indent=1))
-    (out / "compare.md").write_text(table(rows) + "\n")
-    print(table(rows))
-    print(f"primary ({DESIGN.primary[0]} minus {DESIGN.primary[1]}, episodes to the goal): mean {test['mean']:+.2f}, "
+    test = primary_test(rows, design)
+    figure(rows, design, out / "compare.png")
+    (out / "compare.json").write_text(json.dumps({"design": asdict(design), "primary": test, "runs": rows}, indent=1))
+    (out / "compare.md").write_text(table(rows, design) + "\n")
+    print(table(rows, design))
+    print(f"primary ({design.primary[0]} minus {design.primary[1]}, episodes to the goal): mean {test['mean']:+.2f}, "
           f"{test['wins']} wins / {test['ties']} ties / {test['losses']} losses, Wilcoxon p {test['wilcoxon_p']:.4f}, "
           f"sign p {test['sign_p']:.4f}: {test['verdict']}")
     print(f"wrote {out / 'compare.json'}, compare.md, compare.png")

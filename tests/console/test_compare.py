@@ -14,10 +14,9 @@ def rows(dqn: list, tamer: list) -> list[dict]:
     return out
 
 
-def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_wilcoxon(monkeypatch):
-    monkeypatch.setattr(compare, "DESIGN", compare.FIRST)
-    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]))
+def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_wilcoxon():
+    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.FIRST)
     assert clear["differences"][0] == 11 - 2 and clear["wins"] == 8 and clear["verdict"] == "fewer episodes"
     assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
-    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]))
+    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.FIRST)
     assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
