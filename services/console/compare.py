@@ -8,11 +8,11 @@ pair the same scripted person (`static/scripted_person.js`: the paper's rule, pr
 `python -m services.console.scripted` process per run, several at once (the runs are paced by the clock, not the
 CPU).
 
-Primary measure: the episode in which the agent first reached the goal within twice the shortest path (an agent
-that never did scores episodes + 1). Primary test, the only one that decides: DQN's episode minus DQN-TAMER's
-(default assumed delay, Deep TAMER's uniform 0.2-4 s), one-sided Wilcoxon signed-rank over the pairs (zero
-differences dropped), at 0.05. Secondary, shown and never deciding: the sign test, steps over all episodes, and
-the arm with the assumed delay matched to this person (uniform 0.3-1.5 s).
+Primary measure (per design, `Design.measure`): the episode in which the agent first reached the goal within twice
+the shortest path (never = episodes + 1), or, in the fourth design, the episode in which it reached the goal for
+the tenth time. Primary test, the only one that decides: DQN's measure minus DQN-TAMER's, one-sided Wilcoxon
+signed-rank over the pairs (zero differences dropped), at 0.05 divided by the number of designs tested so far.
+Secondary, shown and never deciding: the sign test, steps over all episodes, other arms.
 """
 from __future__ import annotations
 
@@ -52,6 +52,12 @@ class Design:
     episode_steps: int = 200  # bounds a run's wall time (an uncut maze episode may take 1000 steps = 500 s)
     good_factor: float = 2.0
     alpha: float = 0.05
+    measure: str = "first_good"
+    """first_good: the first episode within good_factor x the shortest path (never = episodes + 1); goals: the
+    episode in which the agent reached the goal for the `goals`-th time (short of it: episodes + goals missing)."""
+    goals: int = 10
+    looks: int = 1
+    """Designs tested so far for the same claim, this one included: the verdict is taken at alpha / looks."""
 
 
 FIRST = Design()
@@ -66,7 +72,15 @@ CONFIRM = Design(pairs=tuple((2 * k, 10 + k) for k in range(9, 21)), arms=FIRST.
 MATCHED = Design(pairs=tuple((2 * k, 10 + k) for k in range(21, 30)),
                  arms=(Arm("DQN-TAMER, matched delay", "dqn-tamer", "uniform:0.3,1.5"), FIRST.arms[1]),
                  primary=("DQN", "DQN-TAMER, matched delay"), episodes=15)
-DESIGNS = {"first": FIRST, "confirm": CONFIRM, "matched": MATCHED}
+# Declared after MATCHED's result and before any of its own runs. Looking at FIRST's and MATCHED's runs (not a
+# test): with the matched delay DQN-TAMER lost fewer whole episodes at the 200-step cut than DQN (pairs 14 of 16
+# that differed) and took about a third fewer steps, while "first episode near the shortest path" rewards DQN's
+# early lucky episodes. The hypothesis is tested on new pairs (honest layouts reused, seeds never used before),
+# by a measure of reaching the goal itself: the episodes needed to reach it 10 times. Fourth look at the claim:
+# decided at 0.05 / 4 (Bonferroni over the four designs).
+GOALS = Design(pairs=tuple((2 * k, 40 + k) for k in range(12)), arms=MATCHED.arms, primary=MATCHED.primary,
+               episodes=15, measure="goals", goals=10, looks=4)
+DESIGNS = {"first": FIRST, "confirm": CONFIRM, "matched": MATCHED, "goals": GOALS}
 
 
 @dataclass(frozen=True)
@@ -74,8 +88,9 @@ class CompareConfig:
     """Run a declared comparison (DESIGNS in this module) and write its table, figure and verdict."""
 
     design: str = option("first", "which declared design: first (8 pairs, 10 episodes, 3 arms), confirm (12 new "
-                                  "pairs, 15 episodes, DQN-TAMER and DQN) or matched (9 new pairs, 15 episodes, "
-                                  "DQN-TAMER with the person's delay and DQN)", choices=tuple(DESIGNS))
+                                  "pairs, 15 episodes, DQN-TAMER and DQN), matched (9 new pairs, 15 episodes, "
+                                  "DQN-TAMER with the person's delay and DQN) or goals (matched's arms, 12 new "
+                                  "pairs, episodes to reach the goal 10 times)", choices=tuple(DESIGNS))
     out: str = option("runs/compare", "directory of the runs and results")
     parallel: int = option(8, "runs at once")
     pairs: int | None = option(None, "only the first N pairs (a trial of the machinery; no verdict is written)")
@@ -103,7 +118,17 @@ def run_arm(cfg: CompareConfig, design: Design, arm: Arm, layout: int, seed: int
 
 
 def episodes_to_goal(row: dict, design: Design) -> int:
+    """The declared measure of one run (fewer is better)."""
+    if design.measure == "goals":
+        reached = np.flatnonzero(row["reached_goal"][:design.episodes])
+        if len(reached) >= design.goals:
+            return int(reached[design.goals - 1]) + 1
+        return design.episodes + design.goals - len(reached)
     return row["first_good_episode"] or design.episodes + 1
+
+
+MEASURE_TITLES = {"first_good": "first episode within {f:g}x shortest path (never = {n})",
+                  "goals": "episodes to reach the goal {k} times"}
 
 
 def primary_test(rows: list[dict], design: Design) -> dict:
@@ -119,7 +144,15 @@ def primary_test(rows: list[dict], design: Design) -> dict:
     sign = stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue if len(nonzero) else 1.0
     return {"differences": d.tolist(), "mean": float(d.mean()), "wins": int((d > 0).sum()),
             "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p, "sign_p": float(sign),
-            "verdict": "fewer episodes" if p < design.alpha and d.mean() > 0 else "not shown"}
+            "alpha": design.alpha / design.looks,
+            "verdict": "fewer episodes" if p < design.alpha / design.looks and d.mean() > 0 else "not shown"}
+
+
+def cell(row: dict, design: Design) -> str:
+    first_good = row["first_good_episode"] or "never"
+    if design.measure == "goals":
+        return f"{episodes_to_goal(row, design)} ({row['total_steps']} steps; first near-shortest: {first_good})"
+    return f"{first_good} ({row['total_steps']} steps)"
 
 
 def table(rows: list[dict], design: Design) -> str:
@@ -127,8 +160,7 @@ def table(rows: list[dict], design: Design) -> str:
              "|---|---|" + "---|" * len(design.arms)]
     by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
     for l, s in design.pairs:
-        cells = [f"{by[a.name, l, s]['first_good_episode'] or 'never'} ({by[a.name, l, s]['total_steps']} steps)"
-                 for a in design.arms]
+        cells = [cell(by[a.name, l, s], design) for a in design.arms]
         lines.append(f"| {l} | {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -146,8 +178,8 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
         left.plot([f"{l}/{s}" for l, s in design.pairs],
                   [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p), design) for p in design.pairs],
                   marker="o", linestyle="none", label=a.name)
-    left.set(xlabel="layout/seed", ylabel=f"first episode within {design.good_factor:g}x shortest path",
-             title=f"episodes to reach the goal (never = {design.episodes + 1})")
+    title = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
+    left.set(xlabel="layout/seed", ylabel="episodes (fewer is better)", title=title)
     right.set(xlabel="episode", ylabel="steps (median over pairs)", yscale="log", title="steps per episode")
     left.legend(fontsize=8)
     fig.tight_layout()
@@ -177,9 +209,12 @@ def main(cfg: CompareConfig) -> int:
     (out / "compare.json").write_text(json.dumps({"design": asdict(design), "primary": test, "runs": rows}, indent=1))
     (out / "compare.md").write_text(table(rows, design) + "\n")
     print(table(rows, design))
-    print(f"primary ({design.primary[0]} minus {design.primary[1]}, episodes to the goal): mean {test['mean']:+.2f}, "
-          f"{test['wins']} wins / {test['ties']} ties / {test['losses']} losses, Wilcoxon p {test['wilcoxon_p']:.4f}, "
-          f"sign p {test['sign_p']:.4f}: {test['verdict']}")
+    measure = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
+    print(f"primary ({design.primary[0]} minus {design.primary[1]}, {measure}): mean {test['mean']:+.2f}, "
+          f"{test['wins']} wins / {test['ties']} ties / {test['losses']} losses, Wilcoxon p {test['wilcoxon_p']:.4f} "
+          f"(decides at {test['alpha']:.4f}), sign p {test['sign_p']:.4f}: {test['verdict']}")
+    for a in design.arms:
+        print(f"  {a.name}: {sum(r['total_steps'] for r in rows if r['arm'] == a.name)} steps in all")
     print(f"wrote {out / 'compare.json'}, compare.md, compare.png")
     return 0
 

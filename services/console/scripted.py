@@ -145,7 +145,8 @@ def report(cfg: ScriptedConfig, result: dict) -> dict:
     from common.envs.maze import make_layout
 
     s = result["summary"]
-    steps = [e["steps"] for e in s.get("episodes", []) if not e.get("aborted")]
+    episodes = [e for e in s.get("episodes", []) if not e.get("aborted")]
+    steps = [e["steps"] for e in episodes]
     shortest = make_layout(cfg.layout).shortest_path() if cfg.env.startswith("maze") else None
     good = None
     if shortest is not None:
@@ -153,6 +154,7 @@ def report(cfg: ScriptedConfig, result: dict) -> dict:
     fb = s.get("feedback_credited", 0)
     return {"algo": result["algo"], "run": result["run"], "episodes": len(steps), "steps_per_episode": steps,
             "total_steps": sum(steps), "first_good_episode": good, "shortest_path": shortest,
+            "reached_goal": [bool(e.get("reached_goal")) for e in episodes],
             "feedback_credited": fb, "wall_s": s.get("wall_s")}
 
 

@@ -20,3 +20,21 @@ def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_w
     assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
     mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.FIRST)
     assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
+
+
+def test_goals_measure_counts_episodes_to_the_tenth_goal_and_decides_at_alpha_over_the_looks():
+    design = compare.GOALS
+    early = {"reached_goal": [True] * 15, "first_good_episode": 1}
+    late = {"reached_goal": [False, False, False] + [True] * 12, "first_good_episode": 5}
+    short = {"reached_goal": [True, False] * 7 + [True], "first_good_episode": 1}  # 8 goals: 15 + 2 missing
+    assert compare.episodes_to_goal(early, design) == 10
+    assert compare.episodes_to_goal(late, design) == 13
+    assert compare.episodes_to_goal(short, design) == 17
+    rows = []
+    for (layout, seed), dqn in zip(design.pairs, [late] * 5 + [early] * 7):
+        rows += [{"arm": "DQN", "layout": layout, "seed": seed, **dqn},
+                 {"arm": design.primary[1], "layout": layout, "seed": seed, **early}]
+    test = compare.primary_test(rows, design)
+    # 5 wins and 7 ties: Wilcoxon p = 1/32 = 0.031 < 0.05, but the fourth look decides at 0.0125
+    assert test["wilcoxon_p"] == pytest.approx(1 / 32) and test["alpha"] == pytest.approx(0.0125)
+    assert test["verdict"] == "not shown"
