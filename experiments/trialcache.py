@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import json
 import os
 from dataclasses import dataclass, field
@@ -131,35 +132,54 @@ def plan(conds: list[Condition], scale: Scale, cache_dir: str) -> tuple[dict, li
     return cached, todo, reused
 
 
-# Rough cost of an episode (CPU, arbitrary units) by environment, to balance jobs between workers:
-# environment steps per episode averaged over a run (Maze about 150, POMDP about 80, Taxi about 1000 as
-# no agent learns Taxi within the run) times the relative cost of a step (Taxi: larger observation,
-# updates every 4 steps). Measured from full runs (docs/results/timing.json).
+# Rough CPU cost of an episode (arbitrary units), by environment: environment steps per episode averaged
+# over a run times the relative cost of a step, to balance jobs between workers. Checked against the jobs
+# of full runs (timing.json: each job's env, trials and cpu_s).
 EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6, "taxi-fixed": 300.0,
                 # the reproduction's Taxi: 519 inputs and b = 1 cost about ten times a factored b = 4 step
                 "taxi-s": 1000.0 * 6, "taxi-fixed-s": 500.0 * 6}
+ALGO_COST = {"dqn-tamer": 1.5}
+"""DQN-TAMER trains Q and H every step; the other agents one network."""
+JOBS_PER_WORKER = 4
+"""Jobs are cut so that there are about this many per worker: small enough that the workers, taking the
+next job as they finish one (longest first), end within a small job of each other."""
+
+
+def trial_cost(spec: TrialSpec) -> float:
+    return spec.episodes * EPISODE_COST.get(spec.env, 300.0) * ALGO_COST.get(spec.agent.algo, 1.0)
 
 
 def job_cost(tasks: list[Task]) -> float:
-    return sum(t.spec.episodes * EPISODE_COST.get(t.spec.env, 300.0) for t in tasks)
+    return sum(trial_cost(t.spec) for t in tasks)
 
 
-def make_jobs(tasks: list[Task], workers: int) -> list[list[Task]]:
-    """Batches for the workers, largest first.
+def _batch_group(spec: TrialSpec) -> tuple:
+    """Trials that can share a lockstep batch: same observation and action spaces, same structural settings."""
+    from common.agents.build import SHARED_FIELDS
 
-    All trials of one environment kind form one batch (one lockstep tail: the few trials stuck in
-    1000-step episodes then share ticks instead of each batch paying for its own). A kind is split
-    into interleaved parts (each with a similar mix of conditions and agents) only when it is more
-    than a worker's fair share of the work, so that all workers stay busy."""
-    by_env: dict[str, list[Task]] = {}
+    return (FAMILY.get(spec.env, spec.env),) + tuple(getattr(spec.agent, f) for f in SHARED_FIELDS)
+
+
+def make_jobs(tasks: list[Task], workers: int, per_worker: int = JOBS_PER_WORKER) -> list[list[Task]]:
+    """Batches for the workers, in the order they are handed out: longest (estimated) first.
+
+    Trials that can share a lockstep batch (`_batch_group`) are cut into interleaved parts, each with a
+    similar mix of conditions and agents (so parts of one group cost about the same even where the
+    estimate is off), of about total / (workers x per_worker) estimated cost each. The pool hands the next
+    job to whichever worker is free (longest-processing-time-first list scheduling), so the workers finish
+    within about one small job of each other instead of one running a whole environment kind alone. Larger
+    batches would amortise more per-tick overhead, but at these sizes (a hundred or more Maze trials per
+    part, four or more Taxi trials with 1000-step episodes) the per-trial arithmetic dominates."""
+    groups: dict[tuple, list[Task]] = {}
     for t in tasks:
-        by_env.setdefault(FAMILY.get(t.spec.env, t.spec.env), []).append(t)
-    total = sum(job_cost(ts) for ts in by_env.values())
-    share = total / max(workers, 1)
+        groups.setdefault(_batch_group(t.spec), []).append(t)
+    total = sum(job_cost(ts) for ts in groups.values())
+    target = total / max(workers * per_worker, 1) if workers > 1 else float("inf")
     jobs = []
-    for env, ts in by_env.items():
-        ts = sorted(ts, key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "", t.slots[0].trial if t.slots else 0))
-        parts = max(1, min(workers, len(ts), int(round(job_cost(ts) / max(share, 1e-9)))))
+    for ts in groups.values():
+        ts = sorted(ts, key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "", t.slots[0].trial if t.slots else 0,
+                                       t.key))
+        parts = max(1, min(len(ts), int(math.ceil(job_cost(ts) / max(target, 1e-9) - 1e-9))))
         jobs.extend([ts[i::parts] for i in range(parts)])
     jobs.sort(key=lambda j: -job_cost(j))
     return jobs

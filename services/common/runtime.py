@@ -314,10 +314,15 @@ def wait_alive(session: Any, run: str, names: tuple[str, ...] | list[str], timeo
 
 
 def apply_torch_threads() -> None:
-    """One torch thread: the same arithmetic live and in retrain (and room on small machines)."""
+    """One torch thread and one BLAS thread: the same arithmetic live and in retrain (and room on small
+    machines). numpy's OpenBLAS starts threads for products above about 10^5 multiply-adds (a minibatch of
+    the one-hot Taxi's 519 inputs), which on a loaded 2-core machine thrash (docs/hyperparameters.md); the
+    in-process runner limits them the same way."""
     import torch
+    from threadpoolctl import threadpool_limits
 
     torch.set_num_threads(1)
+    threadpool_limits(1, user_api="blas")  # called, not entered: the limit holds for the process
 
 
 def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, prog: str) -> int:

@@ -3,6 +3,7 @@ import pytest
 
 from common.envs import LAYOUT_COUNT, MazeEnv, TaxiEnv, make_env, make_layout, progress_rule
 from common.envs.maze import MAX_STEPS, NEIGHBOURS, manhattan
+from common.envs.taxi import FIXED_TASKS
 
 
 @pytest.mark.parametrize("index", range(LAYOUT_COUNT))
@@ -132,3 +133,30 @@ def test_taxi_observation_and_teacher_signals():
 def test_make_env_rejects_unknown_name():
     with pytest.raises(ValueError, match="unknown env 'nope'"):
         make_env("nope")
+
+
+@pytest.mark.parametrize("name,layout", [("taxi-s", 0), ("taxi-fixed-s", 7)])
+def test_taxi_state_onehot_observation(name, layout):
+    """The reproduction's Taxi observation: the 19 factored values unchanged, then a one-hot of Gymnasium's
+    500 states at 19 + state, through resets and steps (pick-up included)."""
+    env, _ = make_env(name, layout)
+    plain = TaxiEnv(fixed_task=env.fixed_task)
+    assert env.observation_space.shape == (519,)
+    for seed in range(5):
+        obs, _ = env.reset(seed=seed)
+        ref, _ = plain.reset(seed=seed)
+        for action in [4, 0, 1, 2, 3, 5, 4]:
+            assert obs.shape == (519,) and obs.dtype == np.float32
+            np.testing.assert_array_equal(obs[:19], ref)
+            assert obs[19:].sum() == 1.0 and obs[19 + env.state] == 1.0
+            row, col, passenger, dest = env._decode(env.state)
+            assert obs[row] == obs[5 + col] == obs[10 + passenger] == obs[15 + dest] == 1.0
+            obs, *_ = env.step(action)
+            ref, *_ = plain.step(action)
+    if env.fixed_task is not None:
+        state = int(env.reset(seed=11)[0][19:].argmax())
+        assert env._decode(state)[2:] == FIXED_TASKS[layout]
+    _taxi_at(env, *env.locs[0], 0, 2)
+    obs, _, _, _, info = env.step(4)  # pick-up at R: the passenger is now in the taxi (4), and the one-hot moves
+    assert info["subgoal_reached"] == 1.0 and obs[10 + 4] == 1.0
+    assert obs[19:].argmax() == env._env.encode(*env.locs[0], 4, 2)

@@ -1,0 +1,127 @@
+"""`python -m experiments.taxi_pilot`: DQN alone on Taxi, on pilot seeds, until it converges (or not).
+
+What it is for: choosing the reproduction's Taxi horizon and settings WITHOUT looking at the trials that
+decide a verdict. The pilot's seeds (`PILOT_SEED0 + k`) are never the reproduction's (those are
+`experiments.conditions.trial_seed(layout, rep)`, and its fixed-task trials run the 12 tasks in order),
+and it runs DQN only: no claim is computed from it. It also measures how many episodes and environment
+steps DQN needs to converge on Taxi, whatever the reproduction's budget (docs/hyperparameters.md "Taxi").
+
+Convergence, the reproduction's rule (experiments/panels.py `horizon`): the mean ln-steps curve over the
+trials is flat over its last 20 episodes (change below ln 1.1) and its last 10 episodes' geometric mean
+is below 100 steps; the episode of convergence is the first at which the 5-episode moving average comes
+within ln 1.1 of the final level. Per trial it also prints the first episode from which the 10-episode
+median stays below 100 steps.
+
+    python -m experiments.taxi_pilot --env taxi-s --episodes 300 --trials 3 --set replay_size=50000
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+from experiments.claims import MARGIN
+from experiments.conditions import AGENT_OVERRIDES
+from experiments.panels import CONVERGED_STEPS, FLAT_WINDOW
+
+PILOT_SEED0 = 9000
+"""Pilot seeds are 9000, 9001, ...: never a reproduction trial's seed (those come from trial_seed)."""
+
+
+def _value(text: str):
+    for cast in (int, float):
+        try:
+            return cast(text)
+        except ValueError:
+            pass
+    return text
+
+
+def specs(env: str, episodes: int, trials: int, changes: dict, seed0: int = PILOT_SEED0):
+    from common.agents import agent_config
+    from common.observer import ObserverConfig
+    from experiments.runner import TrialSpec
+
+    agent = agent_config("dqn", **{**AGENT_OVERRIDES.get(env, {}), **changes})
+    # fixed task: pilot k runs task (k * 5 + 3) % 12, a different order from the reproduction's 0, 1, 2, ...
+    layouts = [(k * 5 + 3) % 12 if env.startswith("taxi-fixed") else 0 for k in range(trials)]
+    return [TrialSpec(env, agent, ObserverConfig(), seed=seed0 + k, layout=layouts[k], episodes=episodes)
+            for k in range(trials)]
+
+
+def convergence(steps: np.ndarray) -> dict:
+    """The reproduction's convergence rule on a [trials, episodes] array of episode lengths."""
+    curve = np.log(steps).mean(axis=0)
+    E = curve.shape[0]
+    w = min(FLAT_WINDOW, E)
+    change = float(np.polyfit(np.arange(w), curve[-w:], 1)[0] * (w - 1))
+    final = float(curve[-10:].mean())
+    ma = np.convolve(curve, np.ones(5) / 5, mode="valid")
+    hit = np.nonzero(ma <= final + MARGIN)[0]
+    at = int(hit[0] + 5) if len(hit) else None
+    per_trial = []
+    for row in steps:
+        med = np.array([np.median(row[max(0, e - 9):e + 1]) for e in range(E)])
+        bad = np.nonzero(med >= CONVERGED_STEPS)[0]
+        first = 0 if not len(bad) else int(bad[-1] + 1)
+        per_trial.append(first + 1 if first < E else None)
+    return {"episodes": E, "change_last": change, "flat": bool(abs(change) < MARGIN),
+            "final_steps_geomean": float(np.exp(final)), "converged": bool(abs(change) < MARGIN and np.exp(final) < CONVERGED_STEPS),
+            "within_margin_episode": at,
+            "steps_to_level_mean": float(steps[:, :at].sum(axis=1).mean()) if at else None,
+            "steps_total_mean": float(steps.sum(axis=1).mean()),
+            "trial_median_below_100_from_episode": per_trial}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m experiments.taxi_pilot", description=__doc__.splitlines()[0])
+    ap.add_argument("--env", default="taxi-s", help="taxi-s (Gymnasium's, one-hot), taxi-fixed-s, taxi, taxi-fixed")
+    ap.add_argument("--episodes", type=int, default=300)
+    ap.add_argument("--trials", type=int, default=3)
+    ap.add_argument("--seed0", type=int, default=PILOT_SEED0)
+    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
+                    help="an AgentConfig field changed from the reproduction's Taxi settings (repeatable)")
+    ap.add_argument("--out", help="write the per-episode steps and the summary as JSON here")
+    args = ap.parse_args(argv)
+    if args.seed0 < PILOT_SEED0:
+        ap.error(f"--seed0 must be >= {PILOT_SEED0}: lower seeds may be the reproduction's")
+    try:
+        changes = {k.replace("-", "_"): _value(v) for k, v in (s.split("=", 1) for s in args.set)}
+        trial_specs = specs(args.env, args.episodes, args.trials, changes, args.seed0)
+    except (ValueError, TypeError) as exc:
+        ap.error(str(exc))
+    from threadpoolctl import threadpool_limits
+
+    from experiments.runner import run_trials
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    seen: dict[int, list[int]] = {}
+
+    def on_episode(i: int, rec: dict) -> None:  # progress on stderr: a long pilot can be read as it goes
+        seen.setdefault(i, []).append(rec["steps"])
+        if len(seen[i]) % 10 == 0:
+            print(f"trial {i} episodes {len(seen[i])}: median steps of the last 10 {int(np.median(seen[i][-10:]))}, "
+                  f"{sum(seen[i])} steps, {time.process_time() - c0:.0f} CPU s", file=sys.stderr, flush=True)
+
+    with threadpool_limits(1, user_api="blas"):
+        results = run_trials(trial_specs, on_episode=on_episode)
+    steps = np.array([[e["steps"] for e in r.episodes] for r in results], np.float64)
+    summary = {"env": args.env, "changes": changes, "seeds": [s.seed for s in trial_specs],
+               "layouts": [s.layout for s in trial_specs], **convergence(steps),
+               "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+               "env_steps": int(steps.sum())}
+    print(json.dumps(summary))
+    for k, row in enumerate(steps):
+        med = [int(np.median(row[i:i + 10])) for i in range(0, len(row), 10)]
+        print(f"trial {k} (seed {trial_specs[k].seed}): median steps per 10 episodes {med}", file=sys.stderr)
+    if args.out:
+        with open(args.out, "w") as fh:
+            json.dump({**summary, "steps": steps.tolist()}, fh)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
