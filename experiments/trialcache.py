@@ -136,13 +136,20 @@ def plan(conds: list[Condition], scale: Scale, cache_dir: str) -> tuple[dict, li
 # over a run times the relative cost of a step, to balance jobs between workers. Checked against the jobs
 # of full runs (timing.json: each job's env, trials and cpu_s).
 EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6, "taxi-fixed": 300.0,
-                # the reproduction's Taxi: 519 inputs and b = 1 cost about ten times a factored b = 4 step
-                "taxi-s": 1000.0 * 6, "taxi-fixed-s": 500.0 * 6}
+                # the reproduction's Taxi: 519 inputs and b = 1 cost about ten times a factored b = 4 step;
+                # at commit 5d2c95e its 48 trials x 100 episodes took about 1080 CPU s, the Maze's 1764 trials
+                # x 60 episodes and the POMDP's 240 about 500: a Taxi episode costs about 50 Maze episodes.
+                "taxi-s": 800.0 * 10, "taxi-fixed-s": 600.0 * 10}
 ALGO_COST = {"dqn-tamer": 1.5}
 """DQN-TAMER trains Q and H every step; the other agents one network."""
 JOBS_PER_WORKER = 4
 """Jobs are cut so that there are about this many per worker: small enough that the workers, taking the
 next job as they finish one (longest first), end within a small job of each other."""
+MIN_PART_TRIALS = {"maze": 100, "maze-pomdp": 100}
+"""A Maze batch is not cut below this many trials: its steps are cheap (about 30 us of arithmetic per trial),
+so each part's own tail (a few trials stuck in 1000-step episodes, ticking with a per-tick overhead of
+several trials' arithmetic) would cost more than the balance gains. A Taxi step costs about ten times more,
+so a few trials per part lose little."""
 
 
 def trial_cost(spec: TrialSpec) -> float:
@@ -168,8 +175,7 @@ def make_jobs(tasks: list[Task], workers: int, per_worker: int = JOBS_PER_WORKER
     estimate is off), of about total / (workers x per_worker) estimated cost each. The pool hands the next
     job to whichever worker is free (longest-processing-time-first list scheduling), so the workers finish
     within about one small job of each other instead of one running a whole environment kind alone. Larger
-    batches would amortise more per-tick overhead, but at these sizes (a hundred or more Maze trials per
-    part, four or more Taxi trials with 1000-step episodes) the per-trial arithmetic dominates."""
+    batches amortise more per-tick overhead, so a Maze part keeps at least MIN_PART_TRIALS trials."""
     groups: dict[tuple, list[Task]] = {}
     for t in tasks:
         groups.setdefault(_batch_group(t.spec), []).append(t)
@@ -179,7 +185,8 @@ def make_jobs(tasks: list[Task], workers: int, per_worker: int = JOBS_PER_WORKER
     for ts in groups.values():
         ts = sorted(ts, key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "", t.slots[0].trial if t.slots else 0,
                                        t.key))
-        parts = max(1, min(len(ts), int(math.ceil(job_cost(ts) / max(target, 1e-9) - 1e-9))))
+        most = max(1, len(ts) // MIN_PART_TRIALS.get(FAMILY.get(ts[0].spec.env, ts[0].spec.env), 1))
+        parts = max(1, min(most, int(math.ceil(job_cost(ts) / max(target, 1e-9) - 1e-9))))
         jobs.extend([ts[i::parts] for i in range(parts)])
     jobs.sort(key=lambda j: -job_cost(j))
     return jobs

@@ -128,3 +128,20 @@ def test_machines_comparison_of_identical_runs_finds_no_difference(tmp_path):
     out = machines.compare(str(tmp_path / "a"), str(tmp_path / "b"), n_boot=50)
     assert sum(r["trials"] for r in out["rows"]) == 5 * 4 and sum(r["differ"] for r in out["rows"]) == 0
     assert out["changed"] == {} and "no verdict changes" in out["summary"]
+
+
+def test_full_run_jobs_are_small_longest_first_and_never_mix_batch_groups(tmp_path):
+    """The full reproduction's trials are cut into about 4 jobs per worker, handed out longest first, each
+    job one batch group (same environment family and structural agent settings), every trial once."""
+    _, todo, _ = trialcache.plan(list(CONDITIONS), FULL, str(tmp_path / "cache"))
+    jobs = trialcache.make_jobs(todo, workers=2)
+    costs = [trialcache.job_cost(j) for j in jobs]
+    assert costs == sorted(costs, reverse=True)
+    assert sorted(t.key for j in jobs for t in j) == sorted(t.key for t in todo)
+    assert all(len({trialcache._batch_group(t.spec) for t in j}) == 1 for j in jobs)
+    assert 6 <= len(jobs) <= 14 and max(costs) <= sum(costs) / 2 / 3  # no job is more than a third of a worker's share
+    # a family whose trials differ in a structural setting (replay size) is never batched together
+    mixed = [dataclasses.replace(t, spec=dataclasses.replace(t.spec, agent=dataclasses.replace(t.spec.agent, replay_size=50_000)))
+             if k % 2 else t for k, t in enumerate(todo)]
+    assert all(len({t.spec.agent.replay_size for t in j}) == 1 for j in trialcache.make_jobs(mixed, workers=2))
+    assert len(trialcache.make_jobs(todo, workers=1)) == len({trialcache._batch_group(t.spec) for t in todo})
