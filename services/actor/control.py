@@ -10,12 +10,14 @@ from common.protocol import Control, ProtocolError
 class RunControl:
     """The actor's pace and pause state, fed by a Control inbox (a `common.transport` subscription)."""
 
-    def __init__(self, rate: float, counters, log):
+    def __init__(self, rate: float, counters, log, paused: bool = False):
         self.period = 1.0 / rate if rate > 0 else 0.0
-        self.paused = False
+        self.paused = paused
         self.end = False
         self.counters, self.log = counters, log
-        self._paused_at: float | None = None
+        self._paused_at: float | None = time.monotonic() if paused else None
+        if paused:
+            self.log("paused until a resume (a console resumes when its first page opens)")
 
     def take(self, inbox) -> bool:
         """Apply what arrived. True if the pace or the pause state changed (the caller restarts its tick)."""

@@ -247,7 +247,7 @@ class Actor:
         config, rt, slot = self.config, self.rt, self.slot
         env_seed = derive_seed(config.seed, "env" if not self.restart else f"env-restart-{self.restarts}")
         obs = self.env.reset(seed=env_seed % (2**31))[0]
-        control = RunControl(config.rate, rt.counters, rt.log)
+        control = RunControl(config.rate, rt.counters, rt.log, paused=config.start_paused and not self.restart)
         next_tick = time.perf_counter()
         t_prev = 0.0
         t_in_episode = 0

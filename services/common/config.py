@@ -93,6 +93,9 @@ class ActorConfig(TaskConfig):
     episode_steps: int | None = option(None, "cut an episode (truncated) after this many steps (none = the env's own "
                                              "limit: 1000 for the maze and Taxi)")
     rate: float = option(0.0, "steps per second; 0 = as fast as possible")
+    start_paused: bool = option(False, "wait paused, with no time limit, for a Control resume before the first step "
+                                       "(a run taught in the console starts when its first page opens; a restarted "
+                                       "actor does not wait)")
     max_ahead: int | None = option(0, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
                                       "(0 = lockstep with the learner, as the in-process runner, learns best; more "
                                       "trades fidelity for throughput; none = never wait)")

@@ -57,6 +57,8 @@ class Hub:
         self.curve: list[dict] = []
         self.trail: collections.deque = collections.deque(maxlen=64)
         self.paused, self.rate = False, config.rate
+        self.awaiting_start = config.start_on_first_page  # until the first step or a person's own control
+        self.start_sent_at = 0.0
         self.actor_stopped = self.learner_stopped = False
         self.weights_version = 0
         self.control_seq = 0
@@ -108,6 +110,7 @@ class Hub:
             person.send(payload)
 
     def _step(self, step: Step, t_recv: float) -> None:
+        self.awaiting_start = False
         scene = self.tracker.after(step.t_in_episode, step.action, step.next_obs)
         self.obs = np.asarray(step.next_obs, np.float32)
         self.recent[(step.incarnation, step.seq)] = step.t_action
@@ -248,9 +251,18 @@ class Hub:
                 "steps_listed": len(shown)}
 
     def control(self, person: Person, m: dict) -> None:
+        self.awaiting_start = False  # a person took charge
         self.control_pub.put(Control(run=self.config.run, source=person.teacher_id, seq=self.control_seq,
                                      t=time.time(), command=m["command"], rate=m["rate"]))
         self.control_seq += 1
+
+    def start_when_watched(self) -> None:
+        """Resume the actor waiting for the first page, again every 0.5 s until its first step arrives (the page
+        may open before the actor subscribed to controls, and a control is not kept for late subscribers)."""
+        if not self.awaiting_start or not self.people or time.monotonic() - self.start_sent_at < 0.5:
+            return
+        self.control(next(iter(self.people.values())), {"command": "resume", "rate": None})
+        self.awaiting_start, self.start_sent_at = True, time.monotonic()
 
     def frame(self, person: Person, t_capture: float, jpeg: bytes) -> None:
         if self.camera_pub is None:

@@ -28,6 +28,8 @@ class ConsoleConfig(TaskConfig):
                                         "the page (or <prefix>-<name> with ?name=NAME)")
     rate: float = option(2.0, "the actor's pace at start (steps per second), shown on the page")
     episodes: int = option(50, "episodes of the run (the learning curve's width)")
+    start_on_first_page: bool = option(False, "the actor waits paused (its --start-paused) until the first page "
+                                              "opens; then this console resumes it")
     screen_delay: str = option("uniform:0.2,4", "the learner's assumed delay in seconds (its longest lag sets how "
                                                 "far back a feedback lists the steps shown)")
     camera: str | None = option(None, "camera id to publish webcam frames on (hitl/<run>/camera/<camera>) for the "

@@ -11,7 +11,7 @@ def console_defaults(up: Any) -> dict:
     """A person watches: pace 2 steps/s unless the user chose one, and time for the last presses to land."""
     from common.envs.scene import static_scene
 
-    out = {}
+    out = {"start_paused": True}  # nobody misses the first steps: the first page to open starts the run
     if static_scene(up.env, up.layout) is None:  # no drawing of ours: show the env's own picture
         out["render_frames"] = True
     if up.idle_updates == 0:  # at a person's pace the learner has time to spare between steps
@@ -33,9 +33,11 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
     console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), task=up.task, algo=up.algo,
                             agent=up.agent, host=host, port=port, teacher_prefix=prefix, rate=up.rate,
-                            episodes=up.episodes, screen_delay=up.screen_delay, camera=WEBCAM if up.webcam else None)
+                            episodes=up.episodes, screen_delay=up.screen_delay, camera=WEBCAM if up.webcam else None,
+                            start_on_first_page=up.start_paused)
     scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
-    up.banners = getattr(up, "banners", []) + [f"console: {scheme}://{host}:{port}/"]
+    waits = " (the run starts when the first page opens)" if up.start_paused else ""
+    up.banners = getattr(up, "banners", []) + [f"console: {scheme}://{host}:{port}/{waits}"]
     procs = [(f"teacher.{prefix}", "services.console", console)]
     if up.webcam:
         from services.perception.config import PerceptionLiveConfig

@@ -174,6 +174,7 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
         while not rt.stop.is_set():
             await asyncio.sleep(0.1)
             rt.tick()
+            hub.start_when_watched()
             if time.monotonic() - last_announce >= config.status_period:
                 hub.announce()
                 last_announce = time.monotonic()

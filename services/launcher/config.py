@@ -39,6 +39,8 @@ class UpConfig:
     out: str = option("runs", "parent directory of the run's directory")
     run: str | None = option(None, "run name (default: live-<date>-<time>-<random>, unique)")
     rate: float = option(0.0, "actor steps per second; 0 = as fast as possible")
+    start_paused: bool = option(False, "the actor waits, paused, for a resume before its first step (--teacher web: "
+                                       "always; the console resumes when the first page opens)")
     max_ahead: int | None = option(0, "steps the actor may run ahead of the weights it holds (0 = lockstep, as the "
                                       "in-process runner; more trades learning fidelity for throughput; none = never "
                                       "wait)")
@@ -164,6 +166,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
                         episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
+                        start_paused=c.start_paused,
                         start_timeout=c.start_timeout, max_lag=c.max_lag, render_frames=c.render_frames,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights
                         weights_timeout=120.0 if c.restart_limit else 30.0)

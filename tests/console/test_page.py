@@ -1,6 +1,6 @@
 """The console page in a real headless Chromium, against a real live run (`services up --teacher web`):
-the page draws the maze, key presses become feedback credited to the steps shown 0.2-4 s before each press,
-pause stops the actor, and the run's log holds every press with its page time and its system time."""
+the run waits for its first page, the page draws the maze, key presses become feedback credited to the steps
+shown 0.2-4 s before each press, pause stops the actor, and the run's log holds every press with its page time and its system time."""
 from __future__ import annotations
 
 import json
@@ -31,6 +31,8 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
         with sync_playwright() as pw:
             ctx = browser(pw, tmp_path / "profile")
             page = open_console(ctx, url)
+
+            assert "the run starts when the first page opens" in run.out
 
             # 1. The maze as drawn: each cell's colour (away from the agent and goal marks) against the layout.
             pixels = canvas_pixels(page)
@@ -130,6 +132,8 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             shown_log.append(m)
         elif isinstance(m, Step):
             steps.append(m)
+    # The actor waited for the first page: its very first step was painted on that page.
+    assert min(s.seq for s in shown_log if s.screen == "web-1") == 0
     assert sorted(feedback) == list(range(len(presses)))
     for press, seq in zip(presses, sorted(feedback)):
         fb = feedback[seq]

@@ -122,3 +122,20 @@ def test_security_login_and_tls_and_loopback_only_without_it(tmp_path):
     assert tls_context(cfg) is not None  # HTTPS with the router's certificate
     assert tls_context(ConsoleConfig(run="r")) is None
     assert main(ConsoleConfig(run="r", host="0.0.0.0")) == 2  # other machines only with --security
+
+
+def test_an_actor_started_paused_waits_for_a_resume_and_counts_the_wait():
+    from collections import Counter
+
+    from common.inbox import Inbox, Received
+    from common.protocol import Control, control_key
+    from services.actor.control import RunControl
+
+    counters, said = Counter(), []
+    control = RunControl(2.0, counters, said.append, paused=True)
+    inbox = Inbox(8)
+    assert control.paused and not control.take(inbox) and "paused until a resume" in said[0]
+    msg = Control(run="r", source="web-1", seq=0, t=NOW, command="resume")
+    inbox.put(Received(control_key("r"), msg.encode(), NOW, None))
+    assert control.take(inbox) and not control.paused
+    assert counters["control_resume"] == 1 and counters["paused_ms"] >= 0 and said[-1] == "resumed by web-1"
