@@ -52,11 +52,10 @@ def credit_weights(t_feedback, starts, delay, ends=None, episodes=None) -> tuple
         return np.zeros(starts.shape), np.ones(t_f.shape) if t_f.ndim else 1.0
     if np.any(starts[..., 1:] < starts[..., :-1]):
         raise ValueError("step start times must be ascending")
-    if ends is None:
-        ends = np.concatenate([starts[..., 1:], np.full(starts.shape[:-1] + (1,), np.inf)], axis=-1)
-    ends = np.asarray(ends, np.float64)
-    if np.any(ends < starts):
-        raise ValueError("a step cannot end before it starts")
+    if ends is not None:
+        ends = np.asarray(ends, np.float64)
+        if np.any(ends < starts):
+            raise ValueError("a step cannot end before it starts")
     t = t_f[..., None]
     shown_before = starts <= t  # steps already on screen at t_f (a reaction cannot precede its cause)
     if episodes is not None:
@@ -64,6 +63,37 @@ def credit_weights(t_feedback, starts, delay, ends=None, episodes=None) -> tuple
         newest = shown_before.sum(axis=-1) - 1
         current = np.take_along_axis(episodes, np.maximum(newest, 0)[..., None], axis=-1)
         shown_before &= (episodes == current) & (newest >= 0)[..., None]
-    weights = np.where(shown_before, interval_mass(delay, t - ends, t - starts), 0.0)
+    mass = _point_mass_on_steps(delay, t - starts) if ends is None else None
+    if mass is None:
+        if ends is None:
+            ends = np.concatenate([starts[..., 1:], np.full(starts.shape[:-1] + (1,), np.inf)], axis=-1)
+        mass = interval_mass(delay, t - ends, t - starts)
+    weights = np.where(shown_before, mass, 0.0)
     lost = np.maximum(0.0, 1.0 - weights.sum(axis=-1))
     return weights, (float(lost) if lost.ndim == 0 else lost)
+
+
+def _point_mass_on_steps(delay, since_start: np.ndarray) -> np.ndarray | None:
+    """The fast path of `interval_mass` for steps that last until the next one starts (ends None) and a
+    point-mass delay (`point_masses()`: lags [L] ascending, probs [..., L]), where each step gets at most one
+    point mass (the step clock, one lag a step): the same numbers, without comparing every lag with every
+    interval's two ends. None where it does not apply (the caller takes the general path).
+
+    since_start = t_f - start_k [..., K], non-increasing along K. Mass at lag d falls in (t_f - end_k,
+    t_f - start_k] for the one k with d <= t_f - start_k and not d <= t_f - start_(k+1) (end_k = start_(k+1),
+    the same numbers compared): k = c - 1 where c counts the steps with d <= t_f - start_k."""
+    point_masses = getattr(delay, "point_masses", None)
+    if point_masses is None:
+        return None
+    lags, probs = point_masses()
+    c = (lags <= since_start[..., :, None]).sum(axis=-2)  # [..., L], non-increasing in the lag
+    if probs.ndim > 1 and probs.shape[:-1] != c.shape[:-1]:
+        return None
+    if np.any((c[..., 1:] == c[..., :-1]) & (c[..., 1:] > 0)):
+        return None  # two point masses on one step: their sum is the general path's (its order of additions)
+    K = since_start.shape[-1]
+    rows = int(np.prod(c.shape[:-1], dtype=np.int64))
+    out = np.zeros((rows, K + 1))  # column K takes the mass of lags before the oldest step (dropped)
+    values = np.broadcast_to(probs, c.shape).reshape(rows, -1)
+    out[np.arange(rows)[:, None], np.where(c > 0, c - 1, K).reshape(rows, -1)] = values
+    return out[:, :K].reshape(since_start.shape)

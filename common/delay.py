@@ -56,6 +56,10 @@ class DelayModel:
         out = np.where(inside, self._probs, 0.0).sum(axis=-1)
         return float(out) if out.ndim == 0 else out
 
+    def point_masses(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lags, their probabilities), for credit's fast path."""
+        return self._lags, self._probs
+
     def cdf(self, x):
         """P(lag <= x), elementwise."""
         return self.mass_between(np.full(np.shape(x), -np.inf), x)

@@ -136,6 +136,9 @@ class RowDelays:
         p = self.probs.reshape(self.probs.shape[:1] + (1,) * (low.ndim - 2) + self.probs.shape[1:])
         return np.where(inside, p, 0.0).sum(axis=-1)
 
+    def point_masses(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.lags, self.probs
+
     def cdf(self, x):
         return self.mass_between(np.full(np.shape(x), -np.inf), x)
 

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.agents.agent import TrialBatchAgent
+from common.agents.screen_feedback import give_screen_feedback
 
 
 @dataclass
@@ -51,7 +52,7 @@ class StepLoop:
     def credit_screen(self, row: int, t_feedback: float, value: int, step_times, starts, ends, delay):
         """A person's feedback (the console): held steps recorded at `step_times` were on their screen during
         [starts, ends) seconds; credit in seconds with `delay`. Returns (agent.FeedbackOutcome, weights)."""
-        return self.agent.give_screen_feedback(row, t_feedback, value, step_times, starts, ends, delay)
+        return give_screen_feedback(self.agent, row, t_feedback, value, step_times, starts, ends, delay)
 
     def step(self, rows: np.ndarray, obs, actions, rewards, next_obs, terminated, t_action,
              episodes) -> None:

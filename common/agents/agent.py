@@ -30,9 +30,9 @@ import numpy as np
 
 from common.agents.build import SHARED_FIELDS, AgentParts, build_parts
 from common.agents.config import AgentConfig
+from common.agents.history import BatchCredit
 from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max
 from common.agents.streams import to_integers
-from common.credit import credit_weights
 from common.delay_learning import TrialLags
 from common.util import nz
 
@@ -86,12 +86,14 @@ class TrialBatchAgent:
         self.shaping = np.array([c.reward_shaping for c in configs])
         B = len(configs)
         self.steps = np.zeros(B, dtype=np.int64)  # steps taken so far, per trial
-        self.q_updates = np.zeros(B, dtype=np.int64)
-        self.h_updates = np.zeros(B, dtype=np.int64)
+        self.q_updates, self.h_updates = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64)
         # Who decides (read and reset by the runner per episode): steps of trials with Q and H, and those
         # where the mixture's greedy action differed from Q's own (H overruled Q).
         self.greedy_count = np.zeros(B, dtype=np.int64)
         self.h_decided_count = np.zeros(B, dtype=np.int64)
+        # The latest feedback round's credit of its H trials (their indices into its rows, the credit): what the
+        # live learner reports in Credit messages, so it never computes a feedback's credit twice.
+        self.last_credit: tuple[np.ndarray, BatchCredit] | None = None
 
     @property
     def B(self) -> int:
@@ -136,10 +138,15 @@ class TrialBatchAgent:
         obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
         x = obs[rows].reshape(len(rows), 1, self.obs_dim)
         aq, ah = self.mixture.weights(rows, self.steps[rows])
-        q, h = self.q.values(rows, x), self.h.values(rows, x)
-        greedy = (aq * q + ah * h)[:, 0, :].argmax(axis=1)
         both = self.train_q[rows] & self.train_h[rows]
-        if both.any():
+        compare = both.any()
+        # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
+        # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
+        q = self.q.values(rows, x) if compare or aq.any() or not ah.any() else None
+        h = self.h.values(rows, x) if compare or ah.any() else None
+        scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
+        greedy = scores[:, 0, :].argmax(axis=1)
+        if compare:
             q_best = q[:, 0, :].argmax(axis=1)
             self.greedy_count[rows] += both
             self.h_decided_count[rows] += both & (greedy != q_best)
@@ -206,6 +213,7 @@ class TrialBatchAgent:
         by timestamp (computed once: nothing is recorded between rounds), grow D_global and update H on
         D_local, one update per round, in order. Returns (status, steps, lost mass) per trial."""
         n = len(rows)
+        self.last_credit = None
         status = np.full(n, IGNORED, np.int64)
         steps = np.zeros(n, np.int64)
         lost = np.zeros(n, np.float64)
@@ -238,6 +246,7 @@ class TrialBatchAgent:
                 self._learn_delay(r, t_feedback[k], values[k, 0])
             delay = delay.rows(r)
         credit = self.history.credit(r, t_feedback[k], delay, self.local_width)
+        self.last_credit = (k, credit)
         ok = credit.counts > 0
         status[k] = np.where(ok, CREDITED, STALE)
         steps[k] = credit.counts
@@ -272,44 +281,6 @@ class TrialBatchAgent:
         self.feedback_memory.add_many(rows, counts, obs=obs, action=act, feedback=fb, weight=w32)
         self.h.fit(FitJob(self.h, rows, obs, act, fb, w32, SQUARED_SUM))
         self.h_updates[rows] += 1
-
-    def give_screen_feedback(self, i: int, t_feedback: float, value: int, step_times, starts, ends,
-                             delay) -> tuple[FeedbackOutcome, np.ndarray]:
-        """Feedback from a person who watched the steps on a screen (the console): the held steps recorded at
-        `step_times` were on screen during [starts, ends) seconds, oldest first; credit them in seconds with
-        `delay` (any distribution with a CDF), by the same credit function. Mass on steps no longer held is
-        lost. Returns the outcome and the weight given to each listed step."""
-        if value not in (-1, 1):
-            raise ValueError(f"feedback must be -1 or +1, got {value!r}")
-        step_times = np.asarray(step_times, np.float64)
-        weights = np.zeros(len(step_times), np.float64)
-        row = np.array([i], np.int64)
-        pos, times = self.history._chronological(row)
-        held = {float(t): int(p) for t, p in zip(times[0], pos[0]) if np.isfinite(t)}
-        at = np.array([held.get(float(t), -1) for t in step_times], np.int64)
-        if self.shaping[i]:  # naive shaping: the newest step shown at or before the feedback, if still held
-            on = np.flatnonzero((np.asarray(starts) <= t_feedback) & (at >= 0))
-            if not len(on):
-                return FeedbackOutcome("stale", 0, 1.0), weights
-            weights[on[-1]] = 1.0
-            self.replay.add_reward(row, self.history.slot[row, at[on[-1:]]], np.array([value], np.float32))
-            return FeedbackOutcome("credited", 1, 0.0), weights
-        if not self.train_h[i]:
-            return FeedbackOutcome("ignored"), weights
-        if not len(step_times):
-            return FeedbackOutcome("stale", 0, 1.0), weights
-        episodes = np.where(at >= 0, self.history.episode[i, np.maximum(at, 0)], -1)
-        w, _ = credit_weights(t_feedback, starts, delay, ends=ends, episodes=episodes)
-        weights = np.where(at >= 0, w, 0.0)
-        k = np.flatnonzero(weights > 0)
-        lost = max(0.0, 1.0 - float(weights.sum()))
-        if not len(k):
-            return FeedbackOutcome("stale", 0, lost), weights
-        p = at[k][None, :]
-        obs, act = self.history.obs[row[:, None], p], self.history.action[row[:, None], p]
-        self._learn_local(row, np.array([len(k)]), obs, act, np.full((1, len(k)), value, np.float32),
-                          weights[k][None, :].astype(np.float32))
-        return FeedbackOutcome("credited", int(len(k)), lost), weights
 
     # ---------------------------------------------------------------------------------- learning
     def update(self, active: np.ndarray | None = None) -> None:

@@ -267,18 +267,19 @@ class LearnerCore:
             result.feedback, result.credited = fb, credited
             return result
         tau = self.clock.to_steps(fb.t_reaction)
-        credited = self._steps_credited(tau)  # before the update (which leaves the held steps as they are)
         out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]))
         result = self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
         # What became of it, for people and viewers (a Credit message; the log's scene draws it).
-        result.feedback, result.credited = fb, credited if result.status == "credited" else []
+        result.feedback, result.credited = fb, self._steps_credited() if result.status == "credited" else []
         return result
 
-    def _steps_credited(self, tau: float) -> list[tuple[int, float]]:
-        """[(Step.seq, weight)] of the held steps a feedback at step-clock time tau is credited to (the agent's
-        own credit of its history; read only)."""
+    def _steps_credited(self) -> list[tuple[int, float]]:
+        """[(Step.seq, weight)] of the held steps the feedback just credited went to: the agent's own credit of
+        it (`agent.last_credit`), not computed again."""
         agent = self.loop.agent
-        c = agent.history.credit(ROW, np.array([tau]), agent.assumed_delay, agent.local_width)
+        if agent.last_credit is None:
+            return []
+        c = agent.last_credit[1]
         n = int(c.counts[0])
         seq_of = {i: q for q, i in self.screen.index.items()}  # step-clock index -> Step.seq (recent steps)
         times = agent.history.times[0, c.positions[0, :n]]
