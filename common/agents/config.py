@@ -8,6 +8,15 @@ from dataclasses import dataclass, fields, replace
 from common.config import option
 from common.delay import parse_probs
 
+NETWORKS = ("auto", "mlp", "torch-mlp", "cnn")  # the built-in networks (common/agents/torch_net.py builds them)
+
+
+def resolve_network(name: str, obs_shape: tuple[int, ...]) -> str:
+    """`auto` made concrete: cnn for image observations (3-d), else mlp (the numpy MLP: no torch)."""
+    if name == "auto":
+        return "cnn" if len(obs_shape) == 3 else "mlp"
+    return name
+
 
 @dataclass(frozen=True)
 class AgentConfig:
@@ -76,9 +85,9 @@ class AgentConfig:
             raise ValueError(f"lr must be positive, got {self.lr}")
         if self.algo not in AGENT_CONFIGS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(AGENT_CONFIGS)}")
-        from common.agents.torch_net import NETWORKS, network_factory
+        if self.network not in NETWORKS:  # torch only for a module:factory (configs stay torch-free)
+            from common.agents.torch_net import network_factory
 
-        if self.network not in NETWORKS:
             network_factory(self.network)  # a one-line error naming a bad name or module:factory
 
     def with_(self, **changes) -> "AgentConfig":

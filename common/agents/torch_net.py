@@ -26,9 +26,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from common.agents.config import NETWORKS, resolve_network  # noqa: F401 (resolve_network: re-exported)
 from common.agents.networks import init_mlp
-
-NETWORKS = ("auto", "mlp", "torch-mlp", "cnn")
 
 
 class PaperMLP(nn.Module):
@@ -64,13 +63,6 @@ class GridCNN(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         image = x.reshape(-1, *self.shape).permute(0, 3, 1, 2)
         return self.head(self.conv(image))
-
-
-def resolve_network(name: str, obs_shape: tuple[int, ...]) -> str:
-    """`auto` made concrete: cnn for image observations (3-d), else mlp."""
-    if name == "auto":
-        return "cnn" if len(obs_shape) == 3 else "mlp"
-    return name
 
 
 def network_factory(name: str) -> Callable[[tuple[int, ...], int, int], nn.Module]:

@@ -200,10 +200,14 @@ def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
 
 def check_task_and_agent(cfg: UpConfig) -> None:
     """The env and the agent's networks can be built: else one line now, not a dying service later."""
-    from common.agents.torch_agent import check_agent
-    from common.envs import make_env
+    from common.agents.config import resolve_network
+    from common.envs import make_env, obs_shape
 
-    check_agent(cfg.agent, make_env(cfg.env, cfg.layout, cfg.task.teacher_rule)[0])
+    env = make_env(cfg.env, cfg.layout, cfg.task.teacher_rule)[0]
+    if resolve_network(cfg.agent.network, obs_shape(env)) != "mlp":  # the numpy MLP has nothing to check (no torch)
+        from common.agents.torch_agent import check_agent
+
+        check_agent(cfg.agent, env)
 
 
 def up(cfg: UpConfig) -> int:
