@@ -66,6 +66,7 @@ def cmd_reproduce(args, argv: list[str]) -> int:
     scale = QUICK if args.quick else FULL
     changes = {k: v for k, v in (("layouts", args.layouts), ("reps", args.reps),
                                  ("maze_episodes", args.maze_episodes), ("taxi_episodes", args.taxi_episodes),
+                                 ("taxi_random_episodes", args.taxi_random_episodes or args.taxi_episodes),
                                  ("taxi_trials", args.taxi_trials)) if v is not None}
     scale = replace(scale, **changes)
     out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
@@ -96,7 +97,7 @@ def cmd_bench(args) -> int:
         report = bench(args.conditions, args.trials, args.episodes, workers=args.workers, out=args.out)
         print(format_report(report))
     first = select(args.conditions)[:1]  # the torch path is slower: one condition's trials
-    scale = replace(QUICK, maze_episodes=args.episodes, taxi_episodes=args.episodes)
+    scale = replace(QUICK, maze_episodes=args.episodes, taxi_episodes=args.episodes, taxi_random_episodes=args.episodes)
     specs = [trial_spec(c, algo, k, scale) for c in first for algo in ALGOS if algo in c.arms
              for k in range(args.trials)]
     print(format_paths(bench_paths(specs)))
@@ -138,7 +139,9 @@ def main(argv: list[str] | None = None) -> int:
                        "generated)")
     p_rep.add_argument("--reps", type=int, help="seeds per layout (default 1)")
     p_rep.add_argument("--maze-episodes", type=int, help="episodes per maze trial")
-    p_rep.add_argument("--taxi-episodes", type=int, help="episodes per Taxi trial")
+    p_rep.add_argument("--taxi-episodes", type=int, help="episodes per Taxi trial (both Taxi variants)")
+    p_rep.add_argument("--taxi-random-episodes", type=int,
+                       help="episodes per trial of Gymnasium's Taxi (random passenger and destination) only")
     p_rep.add_argument("--taxi-trials", type=int, help="Taxi trials per arm")
     p_rep.add_argument("--only", nargs="+", metavar="NAME", choices=list(BY_NAME),
                        help=f"run only these conditions ({', '.join(BY_NAME)})")

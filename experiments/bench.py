@@ -25,7 +25,7 @@ from experiments.trialcache import Task, make_jobs, trial_key
 
 def bench(conditions: list[str], trials: int, episodes: int, workers: int = 2, out: str | None = None) -> dict:
     conds = select(conditions)
-    scale = replace(QUICK, maze_episodes=episodes, taxi_episodes=episodes)
+    scale = replace(QUICK, maze_episodes=episodes, taxi_episodes=episodes, taxi_random_episodes=episodes)
     specs = [trial_spec(c, algo, k, scale) for c in conds for algo in ALGOS if algo in c.arms for k in range(trials)]
 
     t0 = time.perf_counter()

@@ -136,10 +136,11 @@ def plan(conds: list[Condition], scale: Scale, cache_dir: str) -> tuple[dict, li
 # over a run times the relative cost of a step, to balance jobs between workers. Checked against the jobs
 # of full runs (timing.json: each job's env, trials and cpu_s).
 EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6, "taxi-fixed": 300.0,
-                # the reproduction's Taxi: 519 inputs and b = 1 cost about ten times a factored b = 4 step;
-                # at commit 5d2c95e its 48 trials x 100 episodes took about 1080 CPU s, the Maze's 1764 trials
-                # x 60 episodes and the POMDP's 240 about 500: a Taxi episode costs about 50 Maze episodes.
-                "taxi-s": 800.0 * 10, "taxi-fixed-s": 600.0 * 10}
+                # the reproduction's Taxi: 519 inputs and b = 1 cost about ten times a Maze step (commit 5d2c95e:
+                # its 48 trials x 100 episodes took about 1080 CPU s, the Maze's 1764 x 60 and the POMDP's 240
+                # about 500). Steps per episode: DQN's pilot and 5d2c95e's trials (Gymnasium's Taxi over 200
+                # episodes: about 85 000 steps per learning trial, 1000 per episode for a collapsed Deep TAMER).
+                "taxi-s": 560.0 * 10, "taxi-fixed-s": 450.0 * 10}
 ALGO_COST = {"dqn-tamer": 1.5}
 """DQN-TAMER trains Q and H every step; the other agents one network."""
 JOBS_PER_WORKER = 4

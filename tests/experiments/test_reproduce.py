@@ -10,7 +10,7 @@ from experiments import trialcache
 from experiments.sweeps import execute
 from experiments.conditions import BY_NAME, CONDITIONS, FULL, Scale, n_trials, trial_spec
 
-TINY = Scale(layouts=4, reps=1, maze_episodes=3, taxi_episodes=2, taxi_trials=2)
+TINY = Scale(layouts=4, reps=1, maze_episodes=3, taxi_episodes=2, taxi_random_episodes=2, taxi_trials=2)
 
 
 class Stop(Exception):
@@ -145,3 +145,14 @@ def test_full_run_jobs_are_small_longest_first_and_never_mix_batch_groups(tmp_pa
              if k % 2 else t for k, t in enumerate(todo)]
     assert all(len({t.spec.agent.replay_size for t in j}) == 1 for j in trialcache.make_jobs(mixed, workers=2))
     assert len(trialcache.make_jobs(todo, workers=1)) == len({trialcache._batch_group(t.spec) for t in todo})
+
+
+def test_gymnasium_taxi_runs_its_own_episode_count():
+    """Gymnasium's Taxi (random passenger and destination) runs REPRO_TAXI_RANDOM_EPISODES, the fixed task
+    REPRO_TAXI_EPISODES, the Maze REPRO_MAZE_EPISODES (declared in experiments/conditions.py)."""
+    from experiments.conditions import REPRO_MAZE_EPISODES, REPRO_TAXI_EPISODES, REPRO_TAXI_RANDOM_EPISODES
+
+    assert trial_spec(BY_NAME["taxi-stop"], "dqn", 0, FULL).episodes == REPRO_TAXI_RANDOM_EPISODES == 200
+    assert trial_spec(BY_NAME["taxi-fixed-stop"], "dqn", 0, FULL).episodes == REPRO_TAXI_EPISODES
+    assert trial_spec(BY_NAME["maze-stop"], "dqn", 0, FULL).episodes == REPRO_MAZE_EPISODES
+    assert trial_spec(BY_NAME["taxi-stop"], "dqn", 0, TINY).episodes == 2
