@@ -86,14 +86,8 @@ def _point_mass_on_steps(delay, since_start: np.ndarray) -> np.ndarray | None:
     if point_masses is None:
         return None
     lags, probs = point_masses()
-    c = (lags <= since_start[..., :, None]).sum(axis=-2)  # [..., L], non-increasing in the lag
-    if probs.ndim > 1 and probs.shape[:-1] != c.shape[:-1]:
-        return None
+    c = (lags <= since_start[..., None]).sum(axis=-2)  # [..., L], non-increasing along the lags
     if np.any((c[..., 1:] == c[..., :-1]) & (c[..., 1:] > 0)):
         return None  # two point masses on one step: their sum is the general path's (its order of additions)
-    K = since_start.shape[-1]
-    rows = int(np.prod(c.shape[:-1], dtype=np.int64))
-    out = np.zeros((rows, K + 1))  # column K takes the mass of lags before the oldest step (dropped)
-    values = np.broadcast_to(probs, c.shape).reshape(rows, -1)
-    out[np.arange(rows)[:, None], np.where(c > 0, c - 1, K).reshape(rows, -1)] = values
-    return out[:, :K].reshape(since_start.shape)
+    on_step = np.arange(1, since_start.shape[-1] + 1)[:, None] == c[..., None, :]  # [..., K, L]
+    return np.where(on_step, probs[..., None, :], 0.0).sum(axis=-1)  # one mass (or none) a step: exact

@@ -8,9 +8,10 @@ the interfaces every commit has (`TrialSpec` of an environment name, `agent_conf
 environment). The maze layouts and agents' defaults may differ between commits, so the trials need not take
 the same number of environment steps: the ratio is of environment steps per second, this / other (above 1:
 this checkout is faster). The parallel mode of `experiments bench` is the batched arithmetic on a process pool
-whose interface differs between commits, so it is left out. Printed per round and mode: both times, steps/s
-and the ratio; last, the median ratio per mode and the load average at the start and the end (on a shared,
-noisy machine only ratios taken within one run mean anything).
+whose interface differs between commits, so it is left out. Printed per round and mode: both times, steps/s,
+the ratio, and the ratio of steps per CPU second of the run's process (others' load lengthens wall time far
+more than CPU time); last, the median ratios per mode and the load average at the start and the end (on a
+shared, noisy machine only ratios taken within one run mean anything).
 """
 from __future__ import annotations
 
@@ -34,15 +35,15 @@ envs, trials, episodes = json.loads(sys.argv[1])
 specs = [TrialSpec(env, agent_config(algo), ObserverConfig(), seed=k, layout=k % 10 if env == "maze" else 0,
                    episodes=episodes)
          for env in envs for algo in ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer") for k in range(trials)]
-t0 = time.perf_counter()
+t0, c0 = time.perf_counter(), time.process_time()
 plain = [run_trials([s])[0] for s in specs]
-t_plain = time.perf_counter() - t0
-t0 = time.perf_counter()
+t_plain, c_plain = time.perf_counter() - t0, time.process_time() - c0
+t0, c0 = time.perf_counter(), time.process_time()
 for env in envs:
     run_trials([s for s in specs if s.env == env])
-t_batched = time.perf_counter() - t0
+t_batched, c_batched = time.perf_counter() - t0, time.process_time() - c0
 print(json.dumps({"trials": len(specs), "env_steps": int(sum(r.total_steps for r in plain)), "plain_s": t_plain,
-                  "batched_s": t_batched}))
+                  "batched_s": t_batched, "plain_cpu_s": c_plain, "batched_cpu_s": c_batched}))
 """
 
 
@@ -68,8 +69,9 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
     print(f"in-process runner: this checkout ({ROOT}) against {other}; environments {' '.join(envs)}, the four "
           f"agents, {trials} trial(s) each, {episodes} episodes; load average at start {load()}", flush=True)
     print(f"{'round':<6}{'mode':<10}{'other s':>10}{'this s':>10}{'other steps/s':>15}{'this steps/s':>14}"
-          f"{'ratio this/other':>18}", flush=True)
+          f"{'ratio this/other':>18}{'CPU ratio':>12}", flush=True)
     ratios: dict[str, list[float]] = {m: [] for m in MODES}
+    cpu_ratios: dict[str, list[float]] = {m: [] for m in MODES}  # steps per CPU second: less hurt by others' load
     runs = []
     for r in range(rounds):
         order = [("other", other), ("this", ROOT)] if r % 2 == 0 else [("this", ROOT), ("other", other)]
@@ -78,12 +80,17 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
         for m in MODES:
             speed = {k: got[k]["env_steps"] / got[k][m] for k in got}
             ratios[m].append(speed["this"] / speed["other"])
+            cpu = {k: got[k]["env_steps"] / got[k][m[:-2] + "_cpu_s"] for k in got}
+            cpu_ratios[m].append(cpu["this"] / cpu["other"])
             print(f"{r + 1:<6}{m[:-2]:<10}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{speed['other']:>15.0f}"
-                  f"{speed['this']:>14.0f}{ratios[m][-1]:>18.3f}", flush=True)
+                  f"{speed['this']:>14.0f}{ratios[m][-1]:>18.3f}{cpu_ratios[m][-1]:>12.3f}", flush=True)
     medians = {m: statistics.median(v) for m, v in ratios.items()}
+    cpu_medians = {m: statistics.median(v) for m, v in cpu_ratios.items()}
     print(f"{runs[0]['this']['trials']} trials a run; environment steps: other {runs[0]['other']['env_steps']}, "
           f"this {runs[0]['this']['env_steps']}")
     print("median ratio this/other, steps/s (above 1: this checkout is faster): "
           + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in medians.items()) + f"; load average at end {load()}")
+    print("median ratio this/other, steps per CPU second of the run's process: "
+          + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in cpu_medians.items()))
     return {"against": str(other), "envs": envs, "trials": trials, "episodes": episodes, "runs": runs,
-            "ratios": ratios, "medians": medians}
+            "ratios": ratios, "medians": medians, "cpu_ratios": cpu_ratios, "cpu_medians": cpu_medians}

@@ -32,32 +32,38 @@ class BenchCompareConfig:
             raise ValueError(f"--against {self.against!r}: not a checkout of this project")
 
 
-def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> tuple[float | None, bool]:
-    """Run one phase with `checkout`'s own code: its steps/s (None if it did not run) and whether it lost nothing."""
+def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> tuple[float | None, bool, float | None]:
+    """Run one phase with `checkout`'s own code: its steps/s (None if it did not run), whether it lost nothing, and
+    the CPU ms per step of all its services together (after start-up; less hurt by others' load than steps/s)."""
     cmd = [sys.executable, "-m", "services", "bench", "--phases", phase, "--steps", str(cfg.steps), "--out", str(out)]
     done = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True,
                           text=True)
     files = sorted(out.glob("bench-*.json"))
     if not files:
         print(f"  {checkout}: {phase} did not run (exit {done.returncode}): {done.stderr[-400:]}", file=sys.stderr)
-        return None, False
+        return None, False, None
     res = json.loads(files[-1].read_text())["phases"][phase]
-    return res["steps_per_s"], bool(res["zero_loss"] and res["exit_code"] == 0)
+    cpu = res.get("cpu_ms_per_step") or {}
+    return (res["steps_per_s"], bool(res["zero_loss"] and res["exit_code"] == 0),
+            round(sum(cpu.values()), 3) if cpu else None)
 
 
 def bench_compare(cfg: BenchCompareConfig) -> int:
     other, out = Path(cfg.against).resolve(), Path(cfg.out) / time.strftime("%Y%m%d-%H%M%S")
     rows: dict[str, dict[str, list]] = {p: {"this": [], "other": []} for p in cfg.phases}
+    cpu: dict[str, dict[str, list]] = {p: {"this": [], "other": []} for p in cfg.phases}
     for r in range(cfg.repeats):
         for phase in cfg.phases:
             order = [("other", other), ("this", ROOT)] if r % 2 == 0 else [("this", ROOT), ("other", other)]
             for label, checkout in order:
-                sps, clean = one(checkout, phase, cfg, out / f"{label}-{phase}-{r}")
+                sps, clean, cpu_ms = one(checkout, phase, cfg, out / f"{label}-{phase}-{r}")
                 rows[phase][label].append(sps)
-                print(f"round {r + 1} {phase:<8} {label:<5} {sps} steps/s{'' if clean else ' (NOT zero loss / exit != 0)'}",
-                      file=sys.stderr, flush=True)
+                cpu[phase][label].append(cpu_ms)
+                print(f"round {r + 1} {phase:<8} {label:<5} {sps} steps/s, {cpu_ms} CPU ms/step"
+                      f"{'' if clean else ' (NOT zero loss / exit != 0)'}", file=sys.stderr, flush=True)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "compare.json").write_text(json.dumps({"against": str(other), "rows": rows}, indent=2))
+    (out / "compare.json").write_text(json.dumps({"against": str(other), "rows": rows, "cpu_ms_per_step": cpu},
+                                                 indent=2))
     print(f"steps/s, this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved "
           f"(load average now {' '.join(f'{x:.2f}' for x in os.getloadavg())}):")
     print(f"{'phase':<10}{'other':>24}{'this':>24}{'ratio this/other':>18}{'per round':>24}{'median':>8}")
@@ -67,5 +73,11 @@ def bench_compare(cfg: BenchCompareConfig) -> int:
         rounds = [t / o for o, t in zip(r["other"], r["this"]) if o and t]  # both ran in that round
         median = statistics.median(rounds) if rounds else float("nan")
         print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}{ratio:>18.3f}"
+              f"{', '.join(f'{x:.3f}' for x in rounds):>24}{median:>8.3f}")
+    print("CPU ms per step of all services together, and the ratio other/this (above 1: this checkout needs less):")
+    for phase, r in cpu.items():
+        rounds = [o / t for o, t in zip(r["other"], r["this"]) if o and t]
+        median = statistics.median(rounds) if rounds else float("nan")
+        print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}"
               f"{', '.join(f'{x:.3f}' for x in rounds):>24}{median:>8.3f}")
     return 0

@@ -150,7 +150,8 @@ class TrialBatchAgent:
             q_best = q[:, 0, :].argmax(axis=1)
             self.greedy_count[rows] += both
             self.h_decided_count[rows] += both & (greedy != q_best)
-            self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1))
+            if self.mixture.adapting:  # (H's own argmax is needed only then)
+                self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1))
         actions[rows] = self.explorer.choose(rows, self.steps[rows], greedy)
         return actions
 

@@ -72,9 +72,10 @@ def with_ones(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def mlp_forward(p: dict[str, np.ndarray], x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(hidden activations, outputs) for x: [n, N, in] -> [n, N, hidden], [n, N, out]."""
-    h = with_ones(x) @ p["a1"]
+def mlp_forward(p: dict[str, np.ndarray], x: np.ndarray, x1: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(hidden activations, outputs) for x: [n, N, in] -> [n, N, hidden], [n, N, out]. x1: `with_ones(x)`
+    if the caller has it already."""
+    h = (with_ones(x) if x1 is None else x1) @ p["a1"]
     np.tanh(h, out=h)
     out = h @ p["w2"]
     out += p["b2"]
@@ -89,12 +90,13 @@ def row_max(q: np.ndarray) -> np.ndarray:
     return m
 
 
-def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: np.ndarray) -> np.ndarray:
+def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: np.ndarray,
+                 x1: np.ndarray | None = None) -> np.ndarray:
     """Gradient of sum(d_out * out) with respect to each trial's weights, flat [n, P] (w1, b1, w2, b2).
 
-    h is `mlp_forward`'s first output. Bias gradients are sums over the N rows, written as products
-    (with the ones column of the augmented input, or a row of ones) so that every reduction is a
-    per-trial matrix product."""
+    h is `mlp_forward`'s first output (x1: `with_ones(x)` if the caller has it). Bias gradients are sums over
+    the N rows, written as products (with the ones column of the augmented input, or a row of ones) so that
+    every reduction is a per-trial matrix product."""
     n, N = x.shape[:2]
     g_w2 = h.transpose(0, 2, 1) @ d_out                              # [n, hidden, out]
     g_b2 = np.ones((n, 1, N), np.float32) @ d_out                    # [n, 1, out]
@@ -102,7 +104,7 @@ def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: 
     slope = h * h
     np.subtract(np.float32(1), slope, out=slope)                     # tanh' = 1 - tanh^2
     d_pre *= slope
-    g1 = with_ones(x).transpose(0, 2, 1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
+    g1 = (with_ones(x) if x1 is None else x1).transpose(0, 2, 1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
     return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1)
 
 
@@ -213,7 +215,9 @@ class StackedMLP:
         self.params = views(flat, self.shapes, names=True)
 
     def values(self, rows: np.ndarray | None, x: np.ndarray) -> np.ndarray:
-        return mlp_forward(self.rows(row_index(rows, self.trials)), np.asarray(x, np.float32))[1]
+        if rows is None or len(rows) == self.flat.shape[0]:
+            return mlp_forward(self.params, np.asarray(x, np.float32))[1]
+        return mlp_forward(self.rows(row_index(rows, self.flat.shape[0])), np.asarray(x, np.float32))[1]
 
     def fit(self, job: FitJob) -> None:
         fit_together([job])
@@ -270,21 +274,34 @@ def fit_together(jobs: list[FitJob]) -> None:
         for j in jobs:
             j.net.fit(j)
         return
-    idx = [row_index(j.rows, j.net.trials) for j in jobs]
-    flats = [j.net.flat if r is None else j.net.flat[r] for j, r in zip(jobs, idx)]
-    x = jobs[0].x if len(jobs) == 1 else np.concatenate([j.x for j in jobs])
-    params = views(flats[0] if len(flats) == 1 else np.concatenate(flats), jobs[0].net.shapes)
-    hidden, out = mlp_forward(params, x)
-    d_out = np.empty_like(out)
+    if len(jobs) == 1:  # (the common case, with as few calls as possible: the same arithmetic)
+        j = jobs[0]
+        r = row_index(j.rows, j.net.flat.shape[0])
+        params, x = j.net.params if r is None else views(j.net.flat[r], j.net.shapes), j.x
+    else:
+        idx = [row_index(j.rows, j.net.flat.shape[0]) for j in jobs]
+        x = np.concatenate([j.x for j in jobs])
+        params = views(np.concatenate([j.net.flat if r is None else j.net.flat[r] for j, r in zip(jobs, idx)]),
+                       jobs[0].net.shapes)
+    x1 = with_ones(x)
+    hidden, out = mlp_forward(params, x, x1)
     arange_a = np.arange(out.shape[-1])
+    d_out = np.empty_like(out) if len(jobs) > 1 else None
     start = 0
     for j in jobs:
         n = len(j.rows)
         a = j.actions.reshape(n, -1, 1)
         d_pred = j.loss.grad(pick(out[start:start + n], a), j.targets, j.weights)
-        d_out[start:start + n] = np.where(a == arange_a, d_pred[:, :, None], np.float32(0))
+        d_j = np.where(a == arange_a, d_pred[:, :, None], np.float32(0))
+        if d_out is None:
+            d_out = d_j
+        else:
+            d_out[start:start + n] = d_j
         start += n
-    grad = mlp_backward(params, x, hidden, d_out)
+    grad = mlp_backward(params, x, hidden, d_out, x1)
+    if len(jobs) == 1:
+        jobs[0].net.opt.step_rows(jobs[0].net.flat, r, grad)
+        return
     start = 0
     for j, r in zip(jobs, idx):
         n = len(j.rows)
