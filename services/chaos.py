@@ -43,6 +43,8 @@ class ChaosConfig:
     first_kill: float = option(5.0, "seconds after the first step before the first kill")
     gap: float = option(3.0, "seconds after a killed service is back before the next kill")
     baseline: bool = option(True, "also run the undisturbed run (for the return comparison)")
+    alongside: bool = option(False, "run the undisturbed run at the same time as the chaos run, not before it "
+                                    "(quicker; the two share the machine)")
     timeout: float = option(240.0, "seconds each run may take")
 
     def __post_init__(self):
@@ -90,9 +92,11 @@ def wait_for(pred, timeout: float, period: float = 0.05) -> bool:
 
 
 def alive_tokens(rundir: Path) -> Any:
-    """A client of the run's router that records liveliness PUT times per service (to time recoveries)."""
+    """A client of the run's router that records liveliness PUT times per service (to time recoveries) and
+    counts the steps it sees (under `"steps"`: when steps flow)."""
     import zenoh
 
+    from common.protocol import step_key
     from common.transport import client_config
 
     run_json = json.loads((rundir / "config" / "run.json").read_text())
@@ -105,21 +109,27 @@ def alive_tokens(rundir: Path) -> Any:
         if sample.kind == zenoh.SampleKind.PUT:
             puts.setdefault(str(sample.key_expr).rsplit("/", 1)[-1], []).append(time.time())
 
+    def on_step(sample):
+        puts.setdefault("steps", []).append(time.time())
+
     try:
         sub = session.liveliness().declare_subscriber(f"hitl/{run}/alive/*", on, history=True)
+        steps = session.declare_subscriber(step_key(run), on_step)
     except BaseException:
         session.close()
         raise
-    return session, sub, puts
+    return session, (sub, steps), puts
 
 
 def kill_in_turn(cfg: ChaosConfig, rundir: Path, proc: subprocess.Popen) -> list[dict[str, Any]]:
-    log = rundir / "session.mcap"
-    if not wait_for(lambda: (log.exists() and log.stat().st_size > 4000) or proc.poll() is not None, 90):
-        raise RuntimeError("steps never started flowing")
-    session, sub, puts = alive_tokens(rundir)
+    run_json = rundir / "config" / "run.json"
+    if not wait_for(lambda: run_json.exists() or proc.poll() is not None, 90):
+        raise RuntimeError("the run never started")
+    session, subs, puts = alive_tokens(rundir)
     kills = []
     try:
+        if not wait_for(lambda: len(puts.get("steps", ())) >= 1 or proc.poll() is not None, 120):
+            raise RuntimeError("steps never started flowing")
         time.sleep(cfg.first_kill)
         for name in cfg.kill:
             if proc.poll() is not None:
@@ -137,7 +147,8 @@ def kill_in_turn(cfg: ChaosConfig, rundir: Path, proc: subprocess.Popen) -> list
                           "back_after_s": round(t_back - t_kill, 3) if back and t_back else None})
             time.sleep(cfg.gap)
     finally:
-        sub.undeclare()
+        for sub in subs:
+            sub.undeclare()
         session.close()
     return kills
 
@@ -239,26 +250,38 @@ def format_report(r: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _finished(base: subprocess.Popen, timeout: float) -> bool:
+    """The undisturbed run ended well (else its output is printed)."""
+    try:
+        text, _ = base.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(base.pid, signal.SIGKILL)
+        raise
+    if base.returncode != 0:
+        print(text, file=sys.stderr)
+    return base.returncode == 0
+
+
 def chaos(cfg: ChaosConfig) -> int:
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     stamp = time.strftime("%H%M%S")
-    base_dir = None
-    if cfg.baseline:
-        base = start_run(cfg, f"calm-{stamp}")
-        text, _ = base.communicate(timeout=cfg.timeout)
-        if base.returncode != 0:
-            print(text, file=sys.stderr)
-            return 1
-        base_dir = out / f"calm-{stamp}"
+    base = start_run(cfg, f"calm-{stamp}") if cfg.baseline else None
+    if base is not None and not cfg.alongside and not _finished(base, cfg.timeout):
+        return 1
     run = f"chaos-{stamp}"
     proc = start_run(cfg, run)
     try:
         kills = kill_in_turn(cfg, out / run, proc)
         text, _ = proc.communicate(timeout=cfg.timeout)
+        if base is not None and cfg.alongside and not _finished(base, cfg.timeout):
+            return 1
     except BaseException:
-        os.killpg(proc.pid, signal.SIGKILL)
+        for p in (proc, base):
+            if p is not None and p.poll() is None:
+                os.killpg(p.pid, signal.SIGKILL)
         raise
+    base_dir = out / f"calm-{stamp}" if base is not None else None
     r = report(cfg, out / run, base_dir, kills)
     r["launcher_exit"] = proc.returncode
     (out / f"{run}.json").write_text(json.dumps(r, indent=2))

@@ -25,7 +25,8 @@ AGENT_BGR = (185, 128, 41)  # the console's agent colour #2980b9
 @pytest.fixture(scope="module")
 def session_log(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("replay")
-    launch = start_up(tmp, "rp", "--env", "maze", "--layout", "1", "--episodes", "6", "--seed", "2")
+    launch = start_up(tmp, "rp", "--env", "maze", "--layout", "1", "--episodes", "3", "--episode-steps", "150",
+                      "--seed", "2")  # three episodes (cut at 150 steps: the first ones here run to 1000)
     assert launch.wait(timeout=300) == 0, launch.out
     assert_nothing_left(launch.rundir)
     return launch.rundir / "session.mcap"

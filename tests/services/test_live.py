@@ -18,7 +18,7 @@ import pytest
 from common.mcap_log import LogRecoveryWarning, load_log
 from common.protocol import Step
 
-from .live import ROOT, assert_nothing_left, env, processes_mentioning, start_up, wait_for
+from .live import ROOT, assert_nothing_left, env, kill_tree, processes_mentioning, start_up, wait_for
 
 pytestmark = pytest.mark.live
 
@@ -150,7 +150,11 @@ def test_dqn_live_in_lockstep_equals_the_in_process_runner(tmp_path):
 def test_dqn_tamer_live_learns_like_in_process(tmp_path):
     """Learning curves of DQN-TAMER live (lockstep) and in-process over a few seeds: no significant difference
     (Mann-Whitney on per-seed mean return), and both learn. Live feedback reaches the policy 1-2 steps later
-    than on the virtual clock (see docs/live.md), so exact equality is not expected."""
+    than on the virtual clock (see docs/live.md), so exact equality is not expected. A teacher that falls behind
+    (its start-up, a loaded machine) sends reactions late; with the default 32-step history those arriving later
+    are dropped as stale and the live curve sinks below the in-process one for reasons of the machine, not of the
+    live system, so both sides keep 1000 steps of history here (no reaction is dropped for lateness; the
+    in-process runner never delivers one late)."""
     from scipy.stats import mannwhitneyu
 
     from common.agents import agent_config
@@ -158,15 +162,25 @@ def test_dqn_tamer_live_learns_like_in_process(tmp_path):
     from experiments.runner import TrialSpec, run_trials
 
     episodes, live_seeds, ref_seeds = 15, range(4), range(12)
-    agent = agent_config("dqn-tamer", assumed_delay_probs=(0.3333, 0.3333, 0.3334))
+    history = 1000
+    agent = agent_config("dqn-tamer", assumed_delay_probs=(0.3333, 0.3333, 0.3334), history_steps=history)
     ref = run_trials([TrialSpec("maze", agent, ObserverConfig(), s, 0, episodes) for s in ref_seeds])
     ref_curves = np.array([r.returns for r in ref])
     live_curves = []
-    for s in live_seeds:
-        launch = start_up(tmp_path, f"s{s}", "--episodes", str(episodes), "--seed", str(s), "--max-ahead", "0")
-        assert launch.wait(timeout=240) == 0, launch.out
-        live_curves.append(launch.summary()["returns"])
-        assert_nothing_left(launch.rundir)
+    for pair in (live_seeds[:2], live_seeds[2:]):  # two runs at a time: each waits on its own round trips
+        launches = [start_up(tmp_path, f"s{s}", "--episodes", str(episodes), "--seed", str(s), "--max-ahead", "0",
+                             "--agent.history-steps", str(history)) for s in pair]
+        try:
+            for launch in launches:
+                assert launch.wait(timeout=240) == 0, launch.out
+                summary = launch.summary()
+                assert "stale" not in summary["feedback_rejected"], summary["feedback_rejected"]
+                live_curves.append(summary["returns"])
+                assert_nothing_left(launch.rundir)
+        finally:
+            for launch in launches:
+                if launch.popen.poll() is None:
+                    kill_tree(launch.popen.pid)
     live_curves = np.array(live_curves)
     p = mannwhitneyu(live_curves.mean(axis=1), ref_curves.mean(axis=1)).pvalue
     msg = f"live {live_curves.mean(axis=1)}, in-process {ref_curves.mean(axis=1)}, p = {p:.3f}"

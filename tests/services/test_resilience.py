@@ -15,7 +15,7 @@ import pytest
 from common.mcap_log import load_log
 from common.protocol import Ingest, Step
 
-from .live import ROOT, assert_nothing_left, env, start_up, wait_for
+from .live import ROOT, assert_nothing_left, env, kill_tree, start_up, wait_for
 
 pytestmark = pytest.mark.live
 
@@ -27,7 +27,7 @@ def test_chaos_sigkill_each_service_in_turn_loses_nothing(tmp_path):
     undisturbed one of the same seed."""
     from services.chaos import ChaosConfig, chaos
 
-    cfg = ChaosConfig(out=str(tmp_path), seed=0, rate=40.0, max_steps=1000, first_kill=3.0, gap=2.0)
+    cfg = ChaosConfig(out=str(tmp_path), seed=0, rate=40.0, max_steps=1000, first_kill=3.0, gap=2.0, alongside=True)
     assert chaos(cfg) == 0
     report = json.loads(next(tmp_path.glob("chaos-*.json")).read_text())
     print(json.dumps({k: report[k] for k in ("kills", "steps", "feedback", "rejected_inputs", "log", "retrain",
@@ -67,22 +67,27 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     the decoders' own reasons are tested in tests/plumbing); the run acts and learns exactly as the same run
     undisturbed (action for action), and no garbage feedback reaches the learner's core."""
     args = ("--algo", "dqn", "--episodes", "12", "--seed", "2", "--max-ahead", "0")
+    # The two runs at the same time: in lockstep DQN acts and learns the same whatever the timing.
     calm = start_up(tmp_path, "calm", *args)
-    assert calm.wait(timeout=240) == 0, calm.out
-
     noisy = start_up(tmp_path, "noisy", *args)
-    run_json = noisy.rundir / "config" / "run.json"
-    assert wait_for(run_json.exists, 30)
-    endpoint = json.loads(run_json.read_text())["launcher"]["endpoint"]
-    report = tmp_path / "flood.json"
-    flood = subprocess.Popen([sys.executable, "-m", "services.flood", "--connect", endpoint, "--run", "noisy",
-                              "--rate", "400", "--report", str(report)], cwd=ROOT, env=env(),
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        assert noisy.wait(timeout=240) == 0, noisy.out
+        run_json = noisy.rundir / "config" / "run.json"
+        assert wait_for(run_json.exists, 60)
+        endpoint = json.loads(run_json.read_text())["launcher"]["endpoint"]
+        report = tmp_path / "flood.json"
+        flood = subprocess.Popen([sys.executable, "-m", "services.flood", "--connect", endpoint, "--run", "noisy",
+                                  "--rate", "400", "--report", str(report)], cwd=ROOT, env=env(),
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        try:
+            assert noisy.wait(timeout=240) == 0, noisy.out
+        finally:
+            flood.send_signal(signal.SIGTERM)
+            flood_out, _ = flood.communicate(timeout=30)
+        assert calm.wait(timeout=240) == 0, calm.out
     finally:
-        flood.send_signal(signal.SIGTERM)
-        flood_out, _ = flood.communicate(timeout=30)
+        for launch in (calm, noisy):
+            if launch.popen.poll() is None:
+                kill_tree(launch.popen.pid)
     sent = json.loads(report.read_text())
     s, c = noisy.summary(), calm.summary()
     print(f"\nflood: {sum(sent.values())} garbage messages sent; rejected by service and reason:")
