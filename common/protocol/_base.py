@@ -84,6 +84,17 @@ class Message:
             setattr(cls, "_wire_fields_cache", cached)
         return cached
 
+    @classmethod
+    def _decode_tables(cls) -> tuple[dict[str, str], dict[str, Spec], set[str]]:
+        """(wire name -> attribute, wire name -> spec, required wire names), made once per class."""
+        cached = cls.__dict__.get("_decode_tables_cache")
+        if cached is None:
+            fields = cls.wire_fields()
+            cached = ({wf.wire: wf.attr for wf in fields}, {wf.wire: wf.spec for wf in fields},
+                      {wf.wire for wf in fields if not wf.optional})
+            setattr(cls, "_decode_tables_cache", cached)
+        return cached
+
     # -- JSON Schema ---------------------------------------------------------------------------------
     @classmethod
     def json_schema(cls) -> dict:
@@ -113,11 +124,9 @@ class Message:
     def from_json_obj(cls, obj: Any) -> "Message":
         if not isinstance(obj, dict):
             raise ProtocolError("wrong_type", f"top level: expected object, got {type(obj).__name__}")
-        fields = cls.wire_fields()
-        by_wire = {wf.wire: wf for wf in fields}
-        values = check_object(obj, {wf.wire: wf.spec for wf in fields},
-                              required={wf.wire for wf in fields if not wf.optional}, path="")
-        msg = cls(**{by_wire[w].attr: v for w, v in values.items()})  # type: ignore[call-arg]
+        attrs, specs, required = cls._decode_tables()
+        values = check_object(obj, specs, required=required, path="")
+        msg = cls(**{attrs[w]: v for w, v in values.items()})  # type: ignore[call-arg]
         msg._cross_check()
         return msg
 

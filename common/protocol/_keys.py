@@ -7,6 +7,7 @@ to ``hitl/<run>/**`` and uses :func:`parse_key` / :func:`decode` to type what it
 from __future__ import annotations
 
 import dataclasses
+import functools
 import re
 from typing import Any
 
@@ -177,6 +178,11 @@ def parse_key(key: Any) -> ParsedKey:
     """Concrete key expression -> its row of :data:`KEYS`; ``unknown_key`` if it is not one of ours."""
     if not isinstance(key, str):
         raise ProtocolError("unknown_key", f"key is a {type(key).__name__}")
+    return _parse_key(key)
+
+
+@functools.lru_cache(maxsize=4096)  # a run uses a few dozen keys, each parsed for every message (bounded: hostile keys)
+def _parse_key(key: str) -> ParsedKey:
     parts = key.split("/")
     if len(parts) not in (3, 4) or parts[0] != ROOT:
         raise ProtocolError("unknown_key", key[:120])
