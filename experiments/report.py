@@ -186,11 +186,17 @@ def machines_lines(out: str, timing: dict) -> list[str]:
 
 
 def _run_figures(t: dict) -> str:
-    cpu = sum((t.get("cpu_s_per_worker") or {}).values())
+    per_worker = t.get("cpu_s_per_worker") or {}
+    cpu = sum(per_worker.values())
+    split = f" ({' + '.join(f'{v:.0f}' for v in per_worker.values())})" if len(per_worker) > 1 else ""
+    peak = f", up to {t['load_average_max']:.1f} during the run" if t.get("load_average_max") is not None else ""
+    spread = (f"; the workers finished their last jobs {t['worker_end_spread_s']:.0f} s apart"
+              if t.get("worker_end_spread_s") is not None else "")
     return (f"wall {t['total_s']:.0f} s ({t['total_s'] / 60:.1f} min) on {t['workers']} worker process(es) and "
-            f"{t.get('cpus', '?')} CPUs, {cpu:.0f} CPU s in the workers, {t.get('trial_steps', 0):,} environment "
-            f"steps, load average {t.get('load_average_at_start', [0])[0]:.1f} at the start and "
-            f"{t.get('load_average_at_end', [0])[0]:.1f} at the end (a machine shared with other jobs)")
+            f"{t.get('cpus', '?')} CPUs, {cpu:.0f} CPU s in the workers{split}, {t.get('trial_steps', 0):,} "
+            f"environment steps, load average {t.get('load_average_at_start', [0])[0]:.1f} at the start{peak} and "
+            f"{t.get('load_average_at_end', [0])[0]:.1f} at the end (1-minute averages; a machine shared with other "
+            f"jobs){spread}")
 
 
 def timing_sentence(timing: dict) -> str:

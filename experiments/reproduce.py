@@ -13,6 +13,7 @@ import json
 import os
 import platform
 import subprocess
+import threading
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -102,7 +103,8 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
     cache_dir = os.path.join(out, "cache")
     load_start = list(os.getloadavg())
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-    run_plan, run = run_slots(paper_slots(conds, scale), paper_paths(cache_dir), workers, ray, progress, on_progress)
+    with LoadSampler() as load:
+        run_plan, run = run_slots(paper_slots(conds, scale), paper_paths(cache_dir), workers, ray, progress, on_progress)
     cached, infos, total, reused = run_plan.records, run.jobs, run.cell_trials, run.reused
     done0, slots_todo, todo = run.cached, run.filled, run_plan.todo
     run_wall = time.perf_counter() - t_start
@@ -113,7 +115,8 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
               "trials_computed": len(todo), "trials_cached": done0 - reused,
               "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "ray": ray, "cpus": os.cpu_count(),
               "python": platform.python_version(), "commit": git_commit(), "load_average_at_start": load_start,
-              "load_average_at_end": list(os.getloadavg()), "started_utc": started,
+              "load_average_at_end": list(os.getloadavg()), "load_average_max": load.max, "started_utc": started,
+              "worker_end_spread_s": _end_spread(infos),
               "cpu_s_per_worker": _cpu_per_worker(infos), "scale": scale.__dict__,
               "env": {k: os.environ.get(k) for k in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
               "trial_steps": int(sum(info["trial_steps"] for info in infos)),
@@ -142,7 +145,8 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
 def _scratch_summary(timing: dict) -> dict:
     """What the report header says about a run that computed every trial."""
     keys = ("total_s", "run_s", "trials", "trials_computed", "trial_steps", "workers", "cpus", "commit",
-            "load_average_at_start", "load_average_at_end", "cpu_s_per_worker", "scale", "env", "started_utc")
+            "load_average_at_start", "load_average_at_end", "load_average_max", "worker_end_spread_s",
+            "cpu_s_per_worker", "scale", "env", "started_utc")
     return {k: timing.get(k) for k in keys}
 
 
@@ -151,6 +155,39 @@ def _previous_verdicts(old: dict, computed: bool) -> dict:
     if not computed and "previous" in old:
         return old["previous"]
     return {cid: c.get("verdict") for cid, c in old.get("claims", {}).items()}
+
+
+class LoadSampler:
+    """The machine's 1-minute load average, sampled every `every` seconds while the trials run: its maximum
+    goes into timing.json and the report, beside the values at the start and the end."""
+
+    def __init__(self, every: float = 10.0):
+        self.every, self.max = every, os.getloadavg()[0]
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.every):
+            self.max = max(self.max, os.getloadavg()[0])
+
+    def __enter__(self) -> "LoadSampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self.max = max(self.max, os.getloadavg()[0])
+
+
+def _end_spread(infos: list[dict]) -> float | None:
+    """Seconds between the first and the last worker finishing its last job (None for one worker)."""
+    last: dict = {}
+    for info in infos:
+        if "ended_at" in info:
+            key = (info.get("host"), info["pid"])
+            last[key] = max(last.get(key, 0.0), info["ended_at"])
+    return float(max(last.values()) - min(last.values())) if len(last) > 1 else None
 
 
 def _cpu_per_worker(infos: list[dict]) -> dict[str, float]:

@@ -120,11 +120,12 @@ def run_job(job_id: int, items: list[tuple[str, TrialSpec, int]], emit: Emit) ->
         unsent[0] = 0.0
         emit(("trial", items[i][0], result_record(items[i][0], result), reported[i]))
 
-    t0, c0 = time.perf_counter(), time.process_time()
+    t0, c0, started_at = time.perf_counter(), time.process_time(), time.time()
     profile: dict = {}
     results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done, profile=profile)
     return {"job": job_id, "pid": os.getpid(), "host": platform.node(), "env": specs[0].env, "trials": len(specs),
             "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
+            "started_at": started_at, "ended_at": time.time(),  # epoch seconds: how the workers' ends spread
             "trial_steps": int(sum(r.total_steps for r in results)),
             "max_trial_steps": int(max(r.total_steps for r in results)), "by_running_trials": profile}
 
