@@ -28,7 +28,11 @@ class List(Spec):
             raise ProtocolError("wrong_type", f"{path}: expected array, got {_type_name(value)}")
         if not self.min_items <= len(value) <= self.max_items:
             raise ProtocolError("bad_value", f"{path}: {len(value)} items, not in [{self.min_items}, {self.max_items}]")
-        return [self.item.check(v, f"{path}[{i}]") for i, v in enumerate(value)]
+        check = self.item.check
+        try:  # (the item's path is only spelled out for the error: checks are pure, so the second pass fails alike)
+            return [check(v, path) for v in value]
+        except ProtocolError:
+            return [check(v, f"{path}[{i}]") for i, v in enumerate(value)]
 
     def to_json(self, value: Any) -> Any:
         if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):

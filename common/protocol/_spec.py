@@ -176,6 +176,8 @@ class Int(Spec):
         return value
 
     def to_json(self, value: Any) -> Any:
+        if type(value) is int:
+            return value
         if isinstance(value, numbers.Integral) and not isinstance(value, bool):
             return int(value)  # numpy integers
         return value
@@ -204,6 +206,8 @@ class Float(Spec):
         return s
 
     def check(self, value: Any, path: str) -> float:
+        if type(value) is float and self.minimum is None and self.maximum is None and math.isfinite(value):
+            return value  # (the common case, decided at once)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ProtocolError("wrong_type", f"{path}: expected number, got {_type_name(value)}")
         try:
@@ -217,6 +221,8 @@ class Float(Spec):
         return value
 
     def to_json(self, value: Any) -> Any:
+        if type(value) is float:
+            return value
         if isinstance(value, numbers.Real) and not isinstance(value, (bool, numbers.Integral)):
             return float(value)  # numpy floats
         if isinstance(value, numbers.Integral) and not isinstance(value, bool):
