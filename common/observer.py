@@ -144,7 +144,7 @@ class SimulatedObserver:
         self.rule = rule
         self.delay = DelayModel(config.delay_probs, step_unit)
         self.step_unit = step_unit
-        self._batch = ObserverBatch([config], [seed], block=1)
+        self._batch = ObserverBatch([config], [seed], block=64)  # (the same draws as one at a time, fewer calls)
         self._row = np.zeros(1, np.int64)
         self.emitted = 0
         self.flipped = 0

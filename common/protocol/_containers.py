@@ -103,6 +103,7 @@ class Obj(Spec):
 
     def __init__(self, fields: dict[str, Spec], *, cls: type | None = None, description: str = ""):
         self.fields = fields
+        self.required = set(fields)
         self.cls = cls
         self.description = description
 
@@ -113,7 +114,7 @@ class Obj(Spec):
     def check(self, value: Any, path: str) -> dict:
         if not isinstance(value, dict):
             raise ProtocolError("wrong_type", f"{path}: expected object, got {_type_name(value)}")
-        out = check_object(value, self.fields, required=set(self.fields), path=path)
+        out = check_object(value, self.fields, required=self.required, path=path)
         return self.cls(**out) if self.cls is not None else out
 
     def to_json(self, value: Any) -> Any:
@@ -169,11 +170,12 @@ class AnyJSON(Spec):
 
 def check_object(value: dict, fields: dict[str, Spec], *, required: set[str], path: str) -> dict:
     """Validate a JSON object against named field specs; return {name: python value}."""
-    extra = [k for k in value if k not in fields]
-    if extra:
+    if not fields.keys() >= value.keys():  # (set operations first: the loops below only name the culprit)
+        extra = [k for k in value if k not in fields]
         raise ProtocolError("extra_field", f"{path}: unexpected field {str(extra[0])[:40]!r}")
-    for name in fields:
-        if name in required and name not in value:
-            raise ProtocolError("missing_field", f"{path}.{name}" if path else name)
+    if not required <= value.keys():
+        for name in fields:
+            if name in required and name not in value:
+                raise ProtocolError("missing_field", f"{path}.{name}" if path else name)
     prefix = f"{path}." if path else ""
     return {name: spec.check(value[name], prefix + name) for name, spec in fields.items() if name in value}
