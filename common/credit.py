@@ -61,7 +61,8 @@ def credit_weights(t_feedback, starts, delay, ends=None, episodes=None) -> tuple
     if episodes is not None:
         episodes = np.asarray(episodes)
         newest = shown_before.sum(axis=-1) - 1
-        current = np.take_along_axis(episodes, np.maximum(newest, 0)[..., None], axis=-1)
+        at = np.maximum(newest, 0).reshape(-1)  # (a plain gather: np.take_along_axis costs more at these sizes)
+        current = episodes.reshape(-1, episodes.shape[-1])[np.arange(len(at)), at].reshape(newest.shape + (1,))
         shown_before &= (episodes == current) & (newest >= 0)[..., None]
     mass = _point_mass_on_steps(delay, t - starts) if ends is None else None
     if mass is None:
@@ -75,19 +76,19 @@ def credit_weights(t_feedback, starts, delay, ends=None, episodes=None) -> tuple
 
 def _point_mass_on_steps(delay, since_start: np.ndarray) -> np.ndarray | None:
     """The fast path of `interval_mass` for steps that last until the next one starts (ends None) and a
-    point-mass delay (`point_masses()`: lags [L] ascending, probs [..., L]), where each step gets at most one
-    point mass (the step clock, one lag a step): the same numbers, without comparing every lag with every
-    interval's two ends. None where it does not apply (the caller takes the general path).
+    point-mass delay (`point_masses()`: lags [L], probs [..., L]; the step clock's `DelayModel`): the same
+    numbers with a third of the array operations. None where it does not apply (the general path then).
 
-    since_start = t_f - start_k [..., K], non-increasing along K. Mass at lag d falls in (t_f - end_k,
-    t_f - start_k] for the one k with d <= t_f - start_k and not d <= t_f - start_(k+1) (end_k = start_(k+1),
-    the same numbers compared): k = c - 1 where c counts the steps with d <= t_f - start_k."""
+    since_start = t_f - start_k [..., K]. The general path asks, of lag d and step k, t_f - end_k < d <=
+    t_f - start_k, where t_f - end_k is t_f - start_(k+1), the same subtraction (-inf for the newest step): so
+    "d <= t_f - start_k, and not d <= t_f - start_(k+1)" is the same test of the same numbers, and the masses
+    are summed over the same [..., K, L] array in the same order (bit for bit; tests/core/test_credit.py)."""
     point_masses = getattr(delay, "point_masses", None)
     if point_masses is None:
         return None
     lags, probs = point_masses()
-    c = (lags <= since_start[..., None]).sum(axis=-2)  # [..., L], non-increasing along the lags
-    if np.any((c[..., 1:] == c[..., :-1]) & (c[..., 1:] > 0)):
-        return None  # two point masses on one step: their sum is the general path's (its order of additions)
-    on_step = np.arange(1, since_start.shape[-1] + 1)[:, None] == c[..., None, :]  # [..., K, L]
-    return np.where(on_step, probs[..., None, :], 0.0).sum(axis=-1)  # one mass (or none) a step: exact
+    if probs.ndim > 1 and probs.shape[:-1] != since_start.shape[:-1]:
+        return None
+    inside = lags <= since_start[..., None]  # [..., K, L]: the lag reaches back to step k's start
+    inside[..., :-1, :] &= ~inside[..., 1:, :]  # ... but not to the next step's
+    return np.where(inside, probs[..., None, :], 0.0).sum(axis=-1)
