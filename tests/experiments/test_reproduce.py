@@ -156,3 +156,11 @@ def test_gymnasium_taxi_runs_its_own_episode_count():
     assert trial_spec(BY_NAME["taxi-fixed-stop"], "dqn", 0, FULL).episodes == REPRO_TAXI_EPISODES
     assert trial_spec(BY_NAME["maze-stop"], "dqn", 0, FULL).episodes == REPRO_MAZE_EPISODES
     assert trial_spec(BY_NAME["taxi-stop"], "dqn", 0, TINY).episodes == 2
+
+
+def test_a_small_lone_group_is_still_split_over_the_workers(tmp_path):
+    """Fewer Maze trials than MIN_PART_TRIALS per worker (a benchmark): still one part per worker."""
+    conds = [BY_NAME["maze-high-delay"]]
+    _, todo, _ = trialcache.plan(conds, TINY, str(tmp_path / "cache"))
+    jobs = trialcache.make_jobs(todo, workers=2)
+    assert len(jobs) == 2 and sorted(t.key for j in jobs for t in j) == sorted(t.key for t in todo)
