@@ -65,23 +65,39 @@ class DelayModel:
         return self.mass_between(np.full(np.shape(x), -np.inf), x)
 
 
-def delay_from_spec(spec: str, unit: float = 1.0):
-    """A delay distribution from text: ``steps:0.3,0.6,0.1`` (point masses at 0, 1, 2 units), ``uniform:LOW,HIGH``
-    (seconds; Deep TAMER's default is ``uniform:0.2,4``) or ``NAME:ARG,...`` for any scipy.stats distribution
-    (``gamma:2.0,0,0.4`` = shape 2, loc 0, scale 0.4). Errors are one-line ValueErrors."""
-    import scipy.stats
-
+def _parse_spec(spec: str) -> tuple[str, str, list[float]]:
+    """(name, the raw arguments, them as numbers: empty for ``steps``); checks what needs no scipy."""
     name, _, args = spec.partition(":")
     name = name.strip()
     if name == "steps":
-        return DelayModel(parse_probs(args, "delay steps"), unit)
+        parse_probs(args, "delay steps")
+        return name, args, []
     try:
         values = [float(a) for a in args.split(",") if a.strip()]
     except ValueError:
         raise ValueError(f"delay {spec!r}: arguments must be numbers") from None
+    if name == "uniform" and (len(values) != 2 or not 0 <= values[0] < values[1]):
+        raise ValueError(f"delay {spec!r}: uniform needs 0 <= LOW < HIGH")
+    return name, args, values
+
+
+def check_delay_spec(spec: str) -> None:
+    """The one-line ValueError `delay_from_spec` would raise; scipy is imported only for a scipy.stats name (a
+    config check at start-up stays cheap)."""
+    if _parse_spec(spec)[0] not in ("steps", "uniform"):
+        delay_from_spec(spec)
+
+
+def delay_from_spec(spec: str, unit: float = 1.0):
+    """A delay distribution from text: ``steps:0.3,0.6,0.1`` (point masses at 0, 1, 2 units), ``uniform:LOW,HIGH``
+    (seconds; Deep TAMER's default is ``uniform:0.2,4``) or ``NAME:ARG,...`` for any scipy.stats distribution
+    (``gamma:2.0,0,0.4`` = shape 2, loc 0, scale 0.4). Errors are one-line ValueErrors."""
+    name, args, values = _parse_spec(spec)
+    if name == "steps":
+        return DelayModel(parse_probs(args, "delay steps"), unit)
+    import scipy.stats
+
     if name == "uniform":
-        if len(values) != 2 or not 0 <= values[0] < values[1]:
-            raise ValueError(f"delay {spec!r}: uniform needs 0 <= LOW < HIGH")
         return scipy.stats.uniform(loc=values[0], scale=values[1] - values[0])
     dist = getattr(scipy.stats, name, None)
     if not isinstance(dist, scipy.stats.rv_continuous):

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import nested, option
-from common.delay import delay_from_spec
+from common.delay import check_delay_spec
 from common.observer import ObserverConfig
 from common.protocol import teacher_service_name, validate_name
 from common.task import Task
@@ -197,7 +197,7 @@ class LearnerConfig(TaskConfig):
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
-        delay_from_spec(self.screen_delay)  # a one-line ValueError if malformed
+        check_delay_spec(self.screen_delay)  # a one-line ValueError if malformed
         if self.weights_every < 1:
             raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
         if self.idle_updates < 0:

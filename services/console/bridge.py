@@ -22,7 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from common.agents import make_agent
 from common.envs import make_env, obs_shape
 from common.envs.scene import SceneTracker, static_scene
 from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary, ExpressionPrediction, Feedback,
@@ -39,6 +38,7 @@ class Hub:
     """Run state for the pages, and the publishers that carry the people's input into the run."""
 
     def __init__(self, config: ConsoleConfig, rt: Any, session: Any, loop: asyncio.AbstractEventLoop):
+        from common.agents import make_agent  # torch: only a live console needs it, not `--replay`
         from common.transport import MessagePublisher
 
         self.config, self.rt, self.session, self.loop = config, rt, session, loop

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import option
-from common.delay import delay_from_spec
+from common.delay import check_delay_spec, delay_from_spec
 from common.protocol import MAX_RATE
 from services.common.config import TaskConfig, _check_name
 
@@ -60,7 +60,7 @@ class ConsoleConfig(TaskConfig):
                 raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
         if self.max_people < 1 or self.max_frame_bytes < 1:
             raise ValueError("max-people and max-frame-bytes must be >= 1")
-        delay_from_spec(self.screen_delay)
+        check_delay_spec(self.screen_delay)
 
     @property
     def span(self) -> float:

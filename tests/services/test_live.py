@@ -18,7 +18,7 @@ import pytest
 from common.mcap_log import LogRecoveryWarning, load_log
 from common.protocol import Step
 
-from .live import ROOT, assert_nothing_left, env, kill_tree, processes_mentioning, start_up, wait_for
+from .live import ROOT, assert_nothing_left, env, processes_mentioning, start_up, wait_for
 
 pytestmark = pytest.mark.live
 
@@ -161,26 +161,22 @@ def test_dqn_tamer_live_learns_like_in_process(tmp_path):
     from common.observer import ObserverConfig
     from experiments.runner import TrialSpec, run_trials
 
-    episodes, live_seeds, ref_seeds = 15, range(4), range(12)
+    # 20 episodes: by 15, one seed in seven (in-process, 100 seeds) has not yet settled, so "4 seeds' last 5 > 0.7"
+    # failed for 23% of seed draws; by 20, for 6% (live timing makes the live seeds such draws).
+    episodes, live_seeds, ref_seeds = 20, range(4), range(12)
     history = 1000
     agent = agent_config("dqn-tamer", assumed_delay_probs=(0.3333, 0.3333, 0.3334), history_steps=history)
     ref = run_trials([TrialSpec("maze", agent, ObserverConfig(), s, 0, episodes) for s in ref_seeds])
     ref_curves = np.array([r.returns for r in ref])
     live_curves = []
-    for pair in (live_seeds[:2], live_seeds[2:]):  # two runs at a time: each waits on its own round trips
-        launches = [start_up(tmp_path, f"s{s}", "--episodes", str(episodes), "--seed", str(s), "--max-ahead", "0",
-                             "--agent.history-steps", str(history)) for s in pair]
-        try:
-            for launch in launches:
-                assert launch.wait(timeout=240) == 0, launch.out
-                summary = launch.summary()
-                assert "stale" not in summary["feedback_rejected"], summary["feedback_rejected"]
-                live_curves.append(summary["returns"])
-                assert_nothing_left(launch.rundir)
-        finally:
-            for launch in launches:
-                if launch.popen.poll() is None:
-                    kill_tree(launch.popen.pid)
+    for s in live_seeds:  # one at a time: a second run's load makes the lockstep actor outrun the teacher
+        launch = start_up(tmp_path, f"s{s}", "--episodes", str(episodes), "--seed", str(s), "--max-ahead", "0",
+                          "--agent.history-steps", str(history))
+        assert launch.wait(timeout=240) == 0, launch.out
+        summary = launch.summary()
+        assert "stale" not in summary["feedback_rejected"], summary["feedback_rejected"]
+        live_curves.append(summary["returns"])
+        assert_nothing_left(launch.rundir)
     live_curves = np.array(live_curves)
     p = mannwhitneyu(live_curves.mean(axis=1), ref_curves.mean(axis=1)).pvalue
     msg = f"live {live_curves.mean(axis=1)}, in-process {ref_curves.mean(axis=1)}, p = {p:.3f}"

@@ -42,8 +42,8 @@ def assert_complete(s: dict, episodes: int | None = None) -> None:
 
 def test_hang_learner_stopped_longer_than_its_lease_is_restarted_and_nothing_is_lost(tmp_path):
     """In lockstep the actor waits for the stopped learner, so the run cannot end before the hang is caught:
-    600 steps leave about 450 (11 s at 40 steps/s) after the restart to show that nothing is lost."""
-    launch = start_up(tmp_path, "hang", "--episodes", "100000", "--max-steps", "600", "--rate", "40", "--seed", "2")
+    400 steps leave about 250 (6 s at 40 steps/s) after the restart to show that nothing is lost."""
+    launch = start_up(tmp_path, "hang", "--episodes", "100000", "--max-steps", "400", "--rate", "40", "--seed", "2")
     try:
         assert wait_for(lambda: log_size(launch.rundir) > 50_000, 120), "the run never got going"
         learner = service_process(launch.rundir, "services.learner")
@@ -60,7 +60,7 @@ def test_hang_learner_stopped_longer_than_its_lease_is_restarted_and_nothing_is_
     assert_nothing_left(launch.rundir)
     s = launch.summary()
     assert_complete(s)
-    assert s["steps_sent"] == 600
+    assert s["steps_sent"] == 400
     kills = [r for r in s["restarts"] if r["service"] == "learner"]
     assert kills and kills[0]["how"] == "signal SIGKILL" and kills[0]["recovered_s"] is not None, s["restarts"]
     assert "is hung" in launch.out and took < 60, (took, launch.out[-2000:])
