@@ -288,9 +288,11 @@ class TrialBatchAgent:
         """Every b steps: a Q minibatch update and a D_global minibatch update (where they apply), then the
         target network's sync when due. When few rows are due (the per-call overhead dominates) both
         minibatch steps run together (`fit_together`)."""
-        active = np.ones(self.B, bool) if active is None else active
         c = self.base
-        due = active & (self.steps > 0) & (self.steps % c.update_interval == 0)
+        started = self.steps > 0
+        due = started if c.update_interval == 1 else started & (self.steps % c.update_interval == 0)
+        if active is not None:
+            due = due & active
         q_rows = nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
         h_rows = nz(due & self.train_h & (self.feedback_memory.size > 0))
         jobs = ([self._q_job(q_rows)] if len(q_rows) else []) + ([self._h_job(h_rows)] if len(h_rows) else [])
@@ -303,7 +305,8 @@ class TrialBatchAgent:
             self.q_updates[q_rows] += 1
         if len(h_rows):
             self.h_updates[h_rows] += 1
-        sync = nz(active & self.train_q & (self.steps % c.target_update_interval == 0) & (self.steps > 0))
+        sync = self.train_q & (self.steps % c.target_update_interval == 0) & started
+        sync = nz(sync if active is None else sync & active)
         if len(sync):
             self.q_target.sync_from(self.q, sync)
 

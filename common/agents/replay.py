@@ -33,6 +33,8 @@ class _Ring:
                      for name, w in self.fields.items()}
 
     def _record(self, n: int, values: dict) -> np.ndarray:
+        if values.keys() == self.fields.keys():  # every field: one concatenation in column order
+            return np.concatenate([np.asarray(values[name], np.float32).reshape(n, -1) for name in self.fields], axis=1)
         row = np.zeros((n, self.width), np.float32)
         for name, value in values.items():
             row[:, self.columns[name]] = np.asarray(value, np.float32).reshape(n, -1)
