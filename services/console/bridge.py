@@ -257,11 +257,13 @@ class Hub:
         self.control_seq += 1
 
     def start_when_watched(self) -> None:
-        """Resume the actor waiting for the first page, again every 0.5 s until its first step arrives (the page
-        may open before the actor subscribed to controls, and a control is not kept for late subscribers)."""
-        if not self.awaiting_start or not self.people or time.monotonic() - self.start_sent_at < 0.5:
+        """Resume the actor waiting for the first page once that page is ready: open, and its clock estimated (a
+        step painted before that would not be shown to the person). Again every 0.5 s until the first step arrives
+        (the actor may subscribe to controls late, and a control is not kept for late subscribers)."""
+        ready = [p for p in self.people.values() if p.clock_ready]
+        if not self.awaiting_start or not ready or time.monotonic() - self.start_sent_at < 0.5:
             return
-        self.control(next(iter(self.people.values())), {"command": "resume", "rate": None})
+        self.control(ready[0], {"command": "resume", "rate": None})
         self.awaiting_start, self.start_sent_at = True, time.monotonic()
 
     def frame(self, person: Person, t_capture: float, jpeg: bytes) -> None:

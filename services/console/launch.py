@@ -11,7 +11,7 @@ def console_defaults(up: Any) -> dict:
     """A person watches: pace 2 steps/s unless the user chose one, and time for the last presses to land."""
     from common.envs.scene import static_scene
 
-    out = {"start_paused": True}  # nobody misses the first steps: the first page to open starts the run
+    out = {}
     if static_scene(up.env, up.layout) is None:  # no drawing of ours: show the env's own picture
         out["render_frames"] = True
     if up.idle_updates == 0:  # at a person's pace the learner has time to spare between steps

@@ -57,6 +57,7 @@ class Person:
     frames_sent: int = 0
     offset: float = 0.0  # the page's latest estimate: system time - page time (s)
     rtt: float = 0.0
+    clock_ready: bool = False  # the page says its clock offset is estimated (static/console.js)
     incarnation: str = ""
     send: Any = None  # coroutine function: send one JSON-able dict to this page
 
@@ -104,7 +105,7 @@ class PageGate:
         if kind not in KINDS:
             raise PageError("unknown_kind", str(kind)[:40])
         if kind == "ping":
-            return {"type": "ping", "t0": _number(msg, "t0")}
+            return {"type": "ping", "t0": _number(msg, "t0"), "ready": msg.get("ready") is True}
         if kind == "shown":
             seq = msg.get("seq")
             actor = msg.get("actor")

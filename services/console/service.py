@@ -138,6 +138,7 @@ def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Applica
             page.send({"type": "rejected", "reason": e.reason})
             return
         if m["type"] == "ping":
+            person.clock_ready = person.clock_ready or m["ready"]
             page.send({"type": "pong", "t0": m["t0"], "t1": t1, "t2": time.time()})
         elif m["type"] == "shown":
             hub.shown(person, m)

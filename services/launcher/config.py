@@ -39,8 +39,9 @@ class UpConfig:
     out: str = option("runs", "parent directory of the run's directory")
     run: str | None = option(None, "run name (default: live-<date>-<time>-<random>, unique)")
     rate: float = option(0.0, "actor steps per second; 0 = as fast as possible")
-    start_paused: bool = option(False, "the actor waits, paused, for a resume before its first step (--teacher web: "
-                                       "always; the console resumes when the first page opens)")
+    start_paused: bool = option(False, "the actor waits, paused, for a resume before its first step (with --teacher "
+                                       "web the console resumes it once the first page is open and has estimated "
+                                       "its clock)")
     max_ahead: int | None = option(0, "steps the actor may run ahead of the weights it holds (0 = lockstep, as the "
                                       "in-process runner; more trades learning fidelity for throughput; none = never "
                                       "wait)")

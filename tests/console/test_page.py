@@ -25,7 +25,7 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     from playwright.sync_api import sync_playwright
 
     run = WebRun(tmp_path, "page", "--env", "maze", "--layout", str(LAYOUT), "--algo", "dqn-tamer",
-                 "--episodes", "200", "--rate", "4", "--seed", "1")
+                 "--episodes", "200", "--rate", "4", "--seed", "1", "--start-paused", "true")
     try:
         url = run.url()
         with sync_playwright() as pw:

@@ -46,6 +46,8 @@ def test_page_gate_accepts_good_input_and_names_the_reason_for_bad():
         json.dumps({"type": "shown", "seq": -1, "actor": "a", "t_page": NOW, "offset": 0, "rtt": 0}): "bad_value",
         "x" * 5000: "oversized",
     }
+    assert gate.text(json.dumps({"type": "ping", "t0": NOW, "ready": True}), p)["ready"] is True
+    assert gate.text(json.dumps({"type": "ping", "t0": NOW, "ready": "yes"}), p)["ready"] is False
     for text, why in cases.items():
         assert reason(gate.text, text, p) == why, text[:60]
     frame = struct.pack("<d", NOW - 0.1) + b"\xff\xd8" + b"\0" * 100

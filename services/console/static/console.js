@@ -16,7 +16,12 @@ const hitl = window.hitl = {
 function send(obj) { if (hitl.ws && hitl.ws.readyState === 1) hitl.ws.send(JSON.stringify(obj)); }
 
 // ---------------------------------------------------------------- clock
-function ping() { send({ type: "ping", t0: pageNow() }); }
+// The clock is ready once one round trip took at most CLOCK_GOOD_RTT (its offset is then within half of it), or
+// after CLOCK_SAMPLES tries on a slow network. A page busy loading answers its first pings late (0.34-0.44 s round
+// trips measured), and an offset taken from them is corrected by 0.2 s a second later: the paints around the
+// correction would go back in time and be dropped.
+const CLOCK_GOOD_RTT = 0.05, CLOCK_SAMPLES = 16;
+function ping() { send({ type: "ping", t0: pageNow(), ready: hitl.clock.ready }); }
 function onPong(m) {
   const t3 = pageNow();
   const rtt = (t3 - m.t0) - (m.t2 - m.t1);
@@ -25,7 +30,11 @@ function onPong(m) {
   c.samples.push({ offset, rtt });
   if (c.samples.length > 16) c.samples.shift();
   const best = c.samples.reduce((a, b) => (b.rtt < a.rtt ? b : a));
-  c.offset = best.offset; c.rtt = Math.max(0, best.rtt); c.ready = true;
+  c.offset = best.offset; c.rtt = Math.max(0, best.rtt);
+  if (!c.ready && (c.rtt <= CLOCK_GOOD_RTT || c.samples.length >= CLOCK_SAMPLES)) {
+    c.ready = true;
+    ping();  // tells the console (a run waiting for its first page starts now)
+  }
   document.getElementById("clock").textContent =
     `clock offset ${(c.offset * 1000).toFixed(1)} ms (round trip ${(c.rtt * 1000).toFixed(1)} ms)`;
 }
@@ -253,9 +262,12 @@ async function connect() {
   }
   const ws = hitl.ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws?${params}`);
   ws.binaryType = "arraybuffer";
-  ws.onopen = () => { for (let i = 0; i < 8; i++) setTimeout(ping, 60 * i); hitl.pinger = setInterval(ping, 2000); };
+  ws.onopen = () => {  // a burst until the clock is ready, then a ping every 2 s
+    hitl.burst = setInterval(() => (hitl.clock.ready ? clearInterval(hitl.burst) : ping()), 60);
+    hitl.pinger = setInterval(ping, 2000);
+  };
   ws.onmessage = (ev) => onMessage(JSON.parse(ev.data));
-  ws.onclose = () => { clearInterval(hitl.pinger); hitl.closed = true;
+  ws.onclose = () => { clearInterval(hitl.pinger); clearInterval(hitl.burst); hitl.closed = true;
     document.getElementById("who").textContent += " (disconnected)"; };
 }
 connect();
