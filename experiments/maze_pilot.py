@@ -103,9 +103,10 @@ def run_condition(cond: Condition, episodes: int, seed0: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.maze_pilot", description=__doc__.splitlines()[0])
-    ap.add_argument("conditions", nargs="*", default=list(DEFAULT_CONDITIONS))
-    ap.add_argument("--episodes", type=int, default=150)
-    ap.add_argument("--seed0", type=int, default=PILOT_SEED0)
+    ap.add_argument("conditions", nargs="*", default=list(DEFAULT_CONDITIONS),
+                    help="maze MDP conditions of experiments/conditions.py (default: the 7 that were not flat at 60)")
+    ap.add_argument("--episodes", type=int, default=150, help="episodes per trial (checkpoints from 60, every 10)")
+    ap.add_argument("--seed0", type=int, default=PILOT_SEED0, help=f"first pilot seed (>= {PILOT_SEED0})")
     ap.add_argument("--out", help="write every condition's summary and mean curves as JSON here")
     args = ap.parse_args(argv)
     if args.seed0 < PILOT_SEED0:

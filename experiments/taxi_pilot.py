@@ -23,9 +23,8 @@ import time
 
 import numpy as np
 
-from experiments.claims import MARGIN
 from experiments.conditions import AGENT_OVERRIDES
-from experiments.panels import CONVERGED_STEPS, FLAT_WINDOW
+from experiments.panels import CONVERGED_STEPS
 
 PILOT_SEED0 = 9000
 """Pilot seeds are 9000, 9001, ...: never a reproduction trial's seed (those come from trial_seed)."""
@@ -53,35 +52,33 @@ def specs(env: str, episodes: int, trials: int, changes: dict, seed0: int = PILO
 
 
 def convergence(steps: np.ndarray) -> dict:
-    """The reproduction's convergence rule on a [trials, episodes] array of episode lengths."""
-    curve = np.log(steps).mean(axis=0)
-    E = curve.shape[0]
-    w = min(FLAT_WINDOW, E)
-    change = float(np.polyfit(np.arange(w), curve[-w:], 1)[0] * (w - 1))
-    final = float(curve[-10:].mean())
-    ma = np.convolve(curve, np.ones(5) / 5, mode="valid")
-    hit = np.nonzero(ma <= final + MARGIN)[0]
-    at = int(hit[0] + 5) if len(hit) else None
+    """The reproduction's convergence rule (experiments/panels.py `horizon`, the same function the report uses) on
+    a [trials, episodes] array of DQN's episode lengths, and per trial the first episode from which the 10-episode
+    median stays below CONVERGED_STEPS."""
+    from experiments.evaluate import ArmData
+    from experiments.panels import horizon
+
+    n, E = steps.shape
+    h = horizon({"dqn": ArmData(steps, -steps, np.zeros(n), np.arange(n), None, taxi=True)}, None)
     per_trial = []
     for row in steps:
         med = np.array([np.median(row[max(0, e - 9):e + 1]) for e in range(E)])
         bad = np.nonzero(med >= CONVERGED_STEPS)[0]
         first = 0 if not len(bad) else int(bad[-1] + 1)
         per_trial.append(first + 1 if first < E else None)
-    return {"episodes": E, "change_last": change, "flat": bool(abs(change) < MARGIN),
-            "final_steps_geomean": float(np.exp(final)), "converged": bool(abs(change) < MARGIN and np.exp(final) < CONVERGED_STEPS),
-            "within_margin_episode": at,
-            "steps_to_level_mean": float(steps[:, :at].sum(axis=1).mean()) if at else None,
-            "steps_total_mean": float(steps.sum(axis=1).mean()),
+    return {"episodes": E, "change_last": h["dqn_change_last"], "flat": h["dqn_flat"],
+            "final_steps_geomean": h["dqn_final_steps_geomean"], "converged": h["dqn_converged"],
+            "within_margin_episode": h["dqn_within_margin_episode"],
+            "steps_to_level_mean": h["dqn_steps_to_level_mean"], "steps_total_mean": h["dqn_steps_total_mean"],
             "trial_median_below_100_from_episode": per_trial}
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.taxi_pilot", description=__doc__.splitlines()[0])
     ap.add_argument("--env", default="taxi-s", help="taxi-s (Gymnasium's, one-hot), taxi-fixed-s, taxi, taxi-fixed")
-    ap.add_argument("--episodes", type=int, default=300)
-    ap.add_argument("--trials", type=int, default=3)
-    ap.add_argument("--seed0", type=int, default=PILOT_SEED0)
+    ap.add_argument("--episodes", type=int, default=300, help="episodes per trial")
+    ap.add_argument("--trials", type=int, default=3, help="DQN trials (seeds seed0, seed0 + 1, ...)")
+    ap.add_argument("--seed0", type=int, default=PILOT_SEED0, help=f"first pilot seed (>= {PILOT_SEED0})")
     ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
                     help="an AgentConfig field changed from the reproduction's Taxi settings (repeatable)")
     ap.add_argument("--out", help="write the per-episode steps and the summary as JSON here")
