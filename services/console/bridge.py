@@ -252,8 +252,11 @@ class Hub:
 
     def control(self, person: Person, m: dict) -> None:
         self.awaiting_start = False  # a person took charge
-        self.control_pub.put(Control(run=self.config.run, source=person.teacher_id, seq=self.control_seq,
-                                     t=time.time(), command=m["command"], rate=m["rate"]))
+        self._publish_control(person.teacher_id, m["command"], m["rate"])
+
+    def _publish_control(self, source: str, command: str, rate: float | None) -> None:
+        self.control_pub.put(Control(run=self.config.run, source=source, seq=self.control_seq, t=time.time(),
+                                     command=command, rate=rate))
         self.control_seq += 1
 
     def start_when_watched(self) -> None:
@@ -263,8 +266,8 @@ class Hub:
         ready = [p for p in self.people.values() if p.clock_ready]
         if not self.awaiting_start or not ready or time.monotonic() - self.start_sent_at < 0.5:
             return
-        self.control(ready[0], {"command": "resume", "rate": None})
-        self.awaiting_start, self.start_sent_at = True, time.monotonic()
+        self._publish_control(ready[0].teacher_id, "resume", None)
+        self.start_sent_at = time.monotonic()
 
     def frame(self, person: Person, t_capture: float, jpeg: bytes) -> None:
         if self.camera_pub is None:
