@@ -36,7 +36,8 @@ from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
 from common.seeding import derive_seed
 from services.common.config import ActorConfig
-from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, atomic_write_json, first_time_logger, publish_kept, read_json
+from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, first_time_logger, publish_kept
+from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main, wait_alive
 
 INFO_KEYS = ("target_distance_before", "target_distance_after", "subgoal_reached", "row", "col")
@@ -139,7 +140,8 @@ class Actor:
         rt.set_counters_source(lambda: {"steps_published": self.seq, "weights_version": self.slot.version,
                                         "resent": self.ring.resent})
         self.code = 0
-        state = read_json(config.state_file) if config.state_file else None
+        self.progress = ProgressFile(config.state_file) if config.state_file else None
+        state = self.progress.read() if self.progress else None
         self.restart = state is not None
         self.episode = int(state["episodes_done"]) if state else 0  # episodes finished (by every incarnation)
         self.restarts = int(state.get("restarts", 0)) + 1 if state else 0
@@ -155,9 +157,9 @@ class Actor:
         self.slot.watch = IncarnationWatch(session, config.run, "learner")
 
     def save_state(self, episodes: int) -> None:
-        if self.config.state_file:
-            atomic_write_json(self.config.state_file, {"episodes_done": episodes, "restarts": self.restarts,
-                                                       "incarnation": self.rt.incarnation})
+        if self.progress:
+            self.progress.write({"episodes_done": episodes, "restarts": self.restarts,
+                                 "incarnation": self.rt.incarnation})
 
     def give_up(self, code: int, why: str) -> None:
         self.rt.log(why)

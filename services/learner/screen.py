@@ -27,18 +27,21 @@ class ScreenCredit:
         self.delay = delay_from_spec(delay_spec)
         self.capacity = capacity
         self.index: collections.OrderedDict[int, int] = collections.OrderedDict()  # seq -> step-clock index
+        self.seq_of: dict[int, int] = {}  # the inverse: step-clock index -> seq
         self.held: list[tuple[Feedback, int]] = []  # (feedback, ingest position), arrival order
         self.past_actors: list[str] = []  # incarnations replaced by a restart (their feedback cannot be placed)
 
     def reset(self, retired_actor: str | None = None) -> None:
         self.index.clear()
+        self.seq_of.clear()
         if retired_actor is not None:
             self.past_actors = (self.past_actors + [retired_actor])[-16:]
 
     def learned(self, seq: int, index: int) -> None:
         self.index[int(seq)] = int(index)
+        self.seq_of[int(index)] = int(seq)
         while len(self.index) > self.capacity:
-            self.index.popitem(last=False)
+            self.seq_of.pop(self.index.popitem(last=False)[1], None)
 
     def must_wait(self, fb: Feedback, actor: str | None, next_seq: int) -> bool:
         """True while the newest step the person saw is not learned yet (or its actor not yet seen)."""
@@ -72,5 +75,6 @@ class ScreenCredit:
 
     def load(self, state: dict) -> None:
         self.index = collections.OrderedDict((int(k), int(v)) for k, v in state["index"])
+        self.seq_of = {i: q for q, i in self.index.items()}
         self.past_actors = [str(a) for a in state["past_actors"]]
         self.held = [(Feedback.decode(fb.encode()), int(pos)) for fb, pos in state["held"]]

@@ -88,10 +88,12 @@ class PerceptionService:
         self._predictions: dict[str, Any] = {}
         self._frames: dict[str, Any] = {}
         self.feedback_seq = 0
+        self.progress = None
         if config.state_file:  # a restart continues the seq (receivers drop what they have seen)
-            from services.common.faults import read_json
+            from services.common.progress import ProgressFile
 
-            state = read_json(config.state_file)
+            self.progress = ProgressFile(config.state_file)
+            state = self.progress.read()
             if state:
                 self.feedback_seq = int(state["next_seq"])
                 rt.counters["feedback_published"] = self.feedback_seq
@@ -131,10 +133,8 @@ class PerceptionService:
             c[f"predictions_invalid_{e.reason}"] += 1
         if event is not None:
             seq = self.feedback_seq
-            if self.config.state_file:  # first: a crash right after must not reuse this seq
-                from services.common.faults import atomic_write_json
-
-                atomic_write_json(self.config.state_file, {"next_seq": seq + 1})
+            if self.progress:  # first: a crash right after must not reuse this seq
+                self.progress.write({"next_seq": seq + 1})
             self.feedback.put(feedback_message(self.config.run, self.config.teacher_id, seq, event,
                                                self.screens.get(self.screen), self.config.screen_span))
             self.feedback_seq = seq + 1

@@ -75,10 +75,10 @@ def main(config: RecorderConfig) -> int:
                     item = inbox.get(timeout=0.05)
                     if item is not None:
                         try:
-                            st = decode(item.key, item.data)
-                            if not parse_key(item.key).spec.logged:
+                            if not parse_key(item.key).spec.logged:  # (the weights: not decoded for nothing)
                                 rt.counters[f"not_logged_{item.key.split('/')[2]}"] += 1
                                 continue
+                            st = decode(item.key, item.data)
                             if not caps.admit(item.key, len(item.data)):
                                 rt.counters[f"capped_{item.key.split('/')[2]}"] += 1
                                 continue

@@ -42,7 +42,7 @@ from common.protocol import (CompressedImage, ObserverReaction, Step, Time, came
                              reaction_key, status_key, step_key)
 from common.seeding import derive_seed
 from services.common.config import TaskConfig, _check_name
-from services.common.faults import atomic_write_json, read_json
+from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, service_main
 from services.teacher.face_launch import DEFAULT_RATE
 from services.teacher.follow import StepFollower
@@ -260,8 +260,9 @@ def main(config: FaceVideoConfig) -> int:
 
     library = ClipLibrary.load(config.width, config.jpeg_quality)  # a missing wheel fails here, before joining
     core = FaceVideoCore(config, library)
-    if config.state_file:  # a restart continues the reaction seq
-        state = read_json(config.state_file)
+    progress = ProgressFile(config.state_file) if config.state_file else None
+    if progress:  # a restart continues the reaction seq
+        state = progress.read()
         if state:
             core.shown = int(state["next_seq"])
     rt = ServiceRuntime(config.service_name, config)
@@ -277,8 +278,8 @@ def main(config: FaceVideoConfig) -> int:
 
             def send(done: list[Shown]) -> None:
                 for s in done:
-                    if config.state_file:
-                        atomic_write_json(config.state_file, {"next_seq": s.seq + 1})
+                    if progress:
+                        progress.write({"next_seq": s.seq + 1})
                     rpub.put(reaction_message(config, s))
                     published["reactions"] += 1
 

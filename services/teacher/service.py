@@ -19,8 +19,8 @@ from common.envs import make_env
 from common.protocol import Feedback, ProtocolError, Step, feedback_key, status_key, step_key
 from services.common.config import TeacherConfig
 from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, InputGate, ResendRing,
-                                    atomic_write_json, decoded_statuses, first_time_logger, publish_kept,
-                                    read_json)
+                                    decoded_statuses, first_time_logger, publish_kept)
+from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, service_main
 from services.teacher.oracle import OracleTeacher
 
@@ -37,7 +37,8 @@ class Teacher:
     def __init__(self, config: TeacherConfig, rt: ServiceRuntime):
         self.config, self.rt = config, rt
         self.core = OracleTeacher(config)
-        self.state = read_json(config.state_file) if config.state_file else None
+        self.progress = ProgressFile(config.state_file) if config.state_file else None
+        self.state = self.progress.read() if self.progress else None
         self.published = int(self.state["next_seq"]) if self.state else 0  # the next feedback seq
         self.ring = ResendRing(config.resend_window)
         env, _ = make_env(config.env, config.layout)
@@ -60,8 +61,8 @@ class Teacher:
         config = self.config
         for r in reactions:
             seq = self.published
-            if config.state_file:  # first: a crash right after must not reuse this seq
-                atomic_write_json(config.state_file, {"next_seq": seq + 1})
+            if self.progress:  # first: a crash right after must not reuse this seq
+                self.progress.write({"next_seq": seq + 1})
             publish_kept(self.pub, Feedback(run=config.run, teacher_id=config.teacher_id, seq=seq,
                                             t_reaction=r.t_reaction, value=r.value, source="oracle",
                                             ref_seq=r.ref_seq, intended=r.intended), self.ring)

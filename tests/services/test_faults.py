@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from common.protocol import Feedback, ServiceStatus, Step
 from services.common.config import LearnerConfig
 from services.common.faults import GATE_REASONS, InputGate, ResendRing, atomic_write_json, read_json
+from services.common.progress import ProgressFile
 from services.learner import checkpoint
 from services.learner.core import LearnerCore
 
@@ -215,6 +216,49 @@ def test_atomic_json_state_file(tmp_path):
     atomic_write_json(p, {"episodes_done": 4})
     assert read_json(p) == {"episodes_done": 4}
     assert sorted(os.listdir(p.parent)) == ["actor.json"]
+
+
+def test_progress_file_rewritten_in_place(tmp_path):
+    p = tmp_path / "s" / "teacher.json"
+    p.parent.mkdir()
+    p.write_text('{"next_seq": 123456789, "left": "by an older incarnation, longer than the new record"}')
+    f = ProgressFile(p)
+    assert f.read()["next_seq"] == 123456789
+    f.write({"next_seq": 5})  # the first write replaces the file atomically
+    inode = p.stat().st_ino
+    for seq in (6, 7, 1000):
+        f.write({"next_seq": seq})
+        assert ProgressFile(p).read() == {"next_seq": seq}
+    assert p.stat().st_ino == inode  # in place: no new file
+    f.write({"next_seq": 1, "note": "x" * 200})  # longer than the width: atomically again, wider
+    assert read_json(p) == {"next_seq": 1, "note": "x" * 200}
+    f.write({"next_seq": 2})
+    assert read_json(p) == {"next_seq": 2} and sorted(os.listdir(p.parent)) == ["teacher.json"]
+    f.close()
+
+
+def test_progress_file_whole_after_sigkill(tmp_path):
+    """A writer killed at a random moment leaves a record that parses (the old one or the new one)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    p = tmp_path / "actor.json"
+    code = ("import sys; from services.common.progress import ProgressFile\n"
+            "f = ProgressFile(sys.argv[1]); n = 0\n"
+            "while True:\n    n += 1; f.write({'episodes_done': n, 'pad': 'y' * (n % 40)})\n")
+    for delay in (0.01, 0.05, 0.2):
+        p.unlink(missing_ok=True)
+        proc = subprocess.Popen([sys.executable, "-c", code, str(p)], cwd=os.getcwd())
+        deadline = time.monotonic() + 60
+        while not p.exists() and time.monotonic() < deadline:  # (start-up on a loaded machine)
+            time.sleep(0.005)
+        time.sleep(delay)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+        rec = read_json(p)
+        assert rec["episodes_done"] > 0 and rec["pad"] == "y" * (rec["episodes_done"] % 40)
 
 
 # -- the actor's weights check ------------------------------------------------------------------------------------
