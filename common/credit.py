@@ -12,6 +12,12 @@ D may be any distribution with a CDF: a scipy.stats frozen distribution (Deep TA
 `DelayModel` of point masses at 0, 1, 2, ... steps (on the step clock, where step k is [k, k+1), this is
 exactly "lag i refers to step k - i"). Steps may last unequal times.
 
+That is Deep TAMER's reading of a screen: the rated event may lie anywhere in the step's interval. A person who
+rates a change (a move in a maze) reacts to the moment it appeared, so the cause of a feedback at t_f is the
+onset of some step, t_f - D = start_k; `onset_weights` credits that: each step shown before t_f gets the density
+of D at t_f - start_k, normalised over those steps (the posterior of "which step was rated" under a uniform
+prior). On the step clock with point-mass lags the two readings coincide.
+
 A feedback is never credited across an episode boundary: its episode is that of the newest step shown at or
 before t_f, and the mass that falls on other episodes' steps, before the oldest step still held, or
 between intervals is lost (returned, so the caller can count it). Weights and lost mass sum to 1.
@@ -21,6 +27,10 @@ from __future__ import annotations
 from typing import Protocol
 
 import numpy as np
+
+SCREEN_CREDIT = ("interval", "onset")
+"""How a step's time on a person's screen enters credit: its whole interval (`credit_weights`) or its onset
+(`onset_weights`)."""
 
 
 class DelayDistribution(Protocol):
@@ -92,3 +102,26 @@ def _point_mass_on_steps(delay, since_start: np.ndarray) -> np.ndarray | None:
     inside = lags <= since_start[..., None]  # [..., K, L]: the lag reaches back to step k's start
     inside[..., :-1, :] &= ~inside[..., 1:, :]  # ... but not to the next step's
     return np.where(inside, probs[..., None, :], 0.0).sum(axis=-1)
+
+
+def onset_weights(t_feedback: float, starts, delay, episodes=None) -> tuple[np.ndarray, float]:
+    """Weights of each held step (1-d `starts`, ascending) for a feedback at `t_feedback` from a person reacting
+    to each step's onset, and the mass lost (on other episodes' steps, or all of it when no onset lies where
+    the delay has density). `delay` needs a density (`pdf`: a scipy.stats distribution)."""
+    pdf = getattr(delay, "pdf", None)
+    if pdf is None:
+        raise ValueError("onset credit needs a delay with a density (a distribution in seconds, not steps:...)")
+    starts = np.asarray(starts, np.float64)
+    if np.any(starts[1:] < starts[:-1]):
+        raise ValueError("step start times must be ascending")
+    shown_before = starts <= t_feedback
+    density = np.where(shown_before, np.asarray(pdf(np.where(shown_before, t_feedback - starts, 0.0)),
+                                                 np.float64), 0.0)
+    total = float(density.sum())
+    if not total > 0:
+        return np.zeros(len(starts)), 1.0
+    weights = density / total
+    if episodes is not None and shown_before.any():
+        episodes = np.asarray(episodes)
+        weights = np.where(episodes == episodes[np.flatnonzero(shown_before)[-1]], weights, 0.0)
+    return weights, max(0.0, 1.0 - float(weights.sum()))

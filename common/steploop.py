@@ -49,10 +49,12 @@ class StepLoop:
         return FeedbackRound(*self.agent.feedback_rounds(np.asarray(rows, np.int64),
                                                          np.asarray(t_feedback, np.float64), values, counts))
 
-    def credit_screen(self, row: int, t_feedback: float, value: int, step_times, starts, ends, delay):
+    def credit_screen(self, row: int, t_feedback: float, value: int, step_times, starts, ends, delay,
+                      reference: str = "interval"):
         """A person's feedback (the console): held steps recorded at `step_times` were on their screen during
-        [starts, ends) seconds; credit in seconds with `delay`. Returns (agent.FeedbackOutcome, weights)."""
-        return give_screen_feedback(self.agent, row, t_feedback, value, step_times, starts, ends, delay)
+        [starts, ends) seconds; credit in seconds with `delay`, over each interval or at each onset
+        (`reference`). Returns (agent.FeedbackOutcome, weights)."""
+        return give_screen_feedback(self.agent, row, t_feedback, value, step_times, starts, ends, delay, reference)
 
     def step(self, rows: np.ndarray, obs, actions, rewards, next_obs, terminated, t_action,
              episodes) -> None:

@@ -5,15 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 from common.agents.agent import FeedbackOutcome, TrialBatchAgent
-from common.credit import credit_weights
+from common.credit import credit_weights, onset_weights
 
 
 def give_screen_feedback(agent: TrialBatchAgent, i: int, t_feedback: float, value: int, step_times, starts, ends,
-                         delay) -> tuple[FeedbackOutcome, np.ndarray]:
+                         delay, reference: str = "interval") -> tuple[FeedbackOutcome, np.ndarray]:
     """Feedback from a person who watched the steps on a screen (the console): the held steps recorded at
     `step_times` were on screen during [starts, ends) seconds, oldest first; credit them in seconds with
-    `delay` (any distribution with a CDF), by the same credit function. Mass on steps no longer held is
-    lost. Returns the outcome and the weight given to each listed step."""
+    `delay` (any distribution with a CDF), by the same credit function, over each step's interval
+    (`reference` "interval", Deep TAMER's) or at its onset ("onset": `common.credit.onset_weights`). Mass on
+    steps no longer held is lost. Returns the outcome and the weight given to each listed step."""
     if value not in (-1, 1):
         raise ValueError(f"feedback must be -1 or +1, got {value!r}")
     step_times = np.asarray(step_times, np.float64)
@@ -34,7 +35,10 @@ def give_screen_feedback(agent: TrialBatchAgent, i: int, t_feedback: float, valu
     if not len(step_times):
         return FeedbackOutcome("stale", 0, 1.0), weights
     episodes = np.where(at >= 0, agent.history.episode[i, np.maximum(at, 0)], -1)
-    w, _ = credit_weights(t_feedback, starts, delay, ends=ends, episodes=episodes)
+    if reference == "onset":
+        w, _ = onset_weights(t_feedback, starts, delay, episodes=episodes)
+    else:
+        w, _ = credit_weights(t_feedback, starts, delay, ends=ends, episodes=episodes)
     weights = np.where(at >= 0, w, 0.0)
     k = np.flatnonzero(weights > 0)
     lost = max(0.0, 1.0 - float(weights.sum()))

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import nested, option
+from common.credit import SCREEN_CREDIT
 from common.delay import check_delay_spec
 from common.observer import ObserverConfig
 from common.protocol import teacher_service_name, validate_name
@@ -175,6 +176,11 @@ class LearnerConfig(TaskConfig):
                                                 "screen (the console): uniform:LOW,HIGH (Deep TAMER's 0.2-4 s) or any "
                                                 "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, "
                                                 "loc, scale)")
+    screen_credit: str = option("interval", "how a step's time on a person's screen enters credit: interval (Deep "
+                                            "TAMER: the delay's probability over the time it was shown) or onset "
+                                            "(the person reacts to its appearance: the delay's density at the time "
+                                            "since it appeared, normalised over the steps shown)",
+                                choices=SCREEN_CREDIT)
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
                                     "learned steps while it is behind")
     snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
@@ -198,6 +204,10 @@ class LearnerConfig(TaskConfig):
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         check_delay_spec(self.screen_delay)  # a one-line ValueError if malformed
+        if self.screen_credit not in SCREEN_CREDIT:
+            raise ValueError(f"screen-credit must be one of {', '.join(SCREEN_CREDIT)}, got {self.screen_credit!r}")
+        if self.screen_credit == "onset" and self.screen_delay.strip().startswith("steps"):
+            raise ValueError("screen-credit onset needs a delay in seconds with a density, not steps:...")
         if self.weights_every < 1:
             raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
         if self.idle_updates < 0:

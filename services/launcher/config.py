@@ -11,6 +11,7 @@ from typing import Any
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import nested, option
+from common.credit import SCREEN_CREDIT
 from common.delay import parse_probs
 from common.observer import ObserverConfig
 from common.task import Task
@@ -71,6 +72,8 @@ class UpConfig:
     screen_delay: str = option("uniform:0.2,4", "--teacher web: delay in seconds the learner assumes between a step "
                                                 "appearing on a person's screen and their feedback: uniform:LOW,HIGH "
                                                 "or a scipy.stats NAME:ARGS (e.g. gamma:2,0.2,0.4)")
+    screen_credit: str = option("interval", "--teacher web: credit over each step's time on screen (interval, "
+                                            "Deep TAMER's) or at its appearance (onset)", choices=SCREEN_CREDIT)
     idle_updates: int = option(0, "learner: extra minibatch steps between two steps while idle (--teacher web: 8)")
     console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
@@ -163,7 +166,8 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             wait_teachers=tuple(t for t in map(teacher_id_of, teacher_names) if t),
                             checkpoint=launch.state_path("learner", ".ckpt"), checkpoint_period=c.checkpoint_period,
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
-                            debug_update_sleep=c.debug_update_sleep, screen_delay=c.screen_delay, idle_updates=c.idle_updates)
+                            debug_update_sleep=c.debug_update_sleep, screen_delay=c.screen_delay,
+                            screen_credit=c.screen_credit, idle_updates=c.idle_updates)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
                         episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),

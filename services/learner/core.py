@@ -74,7 +74,7 @@ class LearnerCore:
         self.agent = make_agent([self.agent_config], obs_shape(env), self.n_actions, [config.seed])
         self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
-        self.screen = ScreenCredit(config.screen_delay, self.agent_config.history_steps)
+        self.screen = ScreenCredit(config.screen_delay, self.agent_config.history_steps, config.screen_credit)
         self.actor: str | None = None
         self.next_seq = 0
         self.teacher_next: dict[str, int] = {}

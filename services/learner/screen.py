@@ -3,7 +3,8 @@
 A console Feedback lists the steps its person saw (`shown`: Step.seq and the system time each appeared) and is
 stamped with the time of the key press or camera frame. The learner credits it with the assumed delay in
 seconds (`LearnerConfig.screen_delay`, Deep TAMER's uniform 0.2-4 s by default) integrated over each step's
-on-screen interval [appeared, next appeared), through the one credit function (`common.credit`).
+on-screen interval [appeared, next appeared) or, with `screen_credit` onset, at the moment each appeared,
+through the one credit function (`common.credit`).
 
 Such a feedback is held until the learner has learned the newest step it lists (the person cannot have
 seen a step the actor had not taken, so it comes). Like the step clock, everything here depends only on the
@@ -23,8 +24,9 @@ from common.protocol import Feedback
 class ScreenCredit:
     """The learner's map from the actor's Step.seq to its step index, and the screen feedback waiting for a step."""
 
-    def __init__(self, delay_spec: str, capacity: int):
+    def __init__(self, delay_spec: str, capacity: int, reference: str = "interval"):
         self.delay = delay_from_spec(delay_spec)
+        self.reference = reference  # interval (Deep TAMER) or onset: common.credit
         self.capacity = capacity
         self.index: collections.OrderedDict[int, int] = collections.OrderedDict()  # seq -> step-clock index
         self.seq_of: dict[int, int] = {}  # the inverse: step-clock index -> seq
@@ -66,7 +68,8 @@ class ScreenCredit:
         starts = np.array([s.t for s in fb.shown], np.float64)
         ends = np.append(starts[1:], np.inf)
         times = np.array([self.index.get(q, np.nan) for q in seqs], np.float64)  # NaN: no longer held
-        out, weights = loop.credit_screen(0, float(fb.t_reaction), int(fb.value), times, starts, ends, self.delay)
+        out, weights = loop.credit_screen(0, float(fb.t_reaction), int(fb.value), times, starts, ends, self.delay,
+                                           self.reference)
         return out, [(q, float(w)) for q, w in zip(seqs, weights) if w > 0]
 
     def state(self) -> dict:

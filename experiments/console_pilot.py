@@ -1,0 +1,135 @@
+"""`python -m experiments.console_pilot`: the console comparison's setting simulated in process, on pilot seeds.
+
+What it is for: choosing what a next declared browser comparison (`services/console/compare.py`) should test,
+without spending its pairs. The browser runs take 17 minutes each at 2 steps/s; the same setting in process
+takes seconds. It is an approximation of the console, on the step clock:
+
+- the scripted person (paper's rule, presses on half the steps, 0.3-1.5 s after the paint) at 2 steps/s lags
+  0.6-3 steps: on the step clock lag 0, 1, 2 with probabilities 0.4/2.4, 1/2.4, 1/2.4 (`PERSON_LAGS`);
+- the console's learner runs 8 idle-time minibatch steps after each step's update (`services/console/launch.py`);
+- episodes are cut at 200 steps, 15 episodes, honest layouts.
+
+Trials run layouts `PILOT_LAYOUTS` on seeds 9000 + k (`experiments.taxi_pilot.PILOT_SEED0`): never a browser
+comparison's seed (2-51). No claim is computed from it. Each arm's measures are those of the browser designs:
+the episode of the 10th goal (short of 10: 15 + goals missing), the first episode within twice the shortest
+path (never: 16), and steps over the 15 episodes; every arm is compared with DQN on the same (layout, seed).
+
+    python -m experiments.console_pilot --trials 48
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from common.envs.maze import MazeEnv, make_layout
+from common.envs.registry import ENVS
+from common.observer import ObserverConfig
+from experiments.conditions import ADAPT_RATE, WINDOW, agent_for
+from experiments.taxi_pilot import PILOT_SEED0
+
+PILOT_LAYOUTS = tuple(range(0, 60, 2))
+"""Every honest layout (the browser designs reuse them too, but never the pilot's seeds)."""
+PERSON_LAGS = (0.4 / 2.4, 1 / 2.4, 1 / 2.4)
+INTERVAL_KERNEL = (0.033, 0.342, 0.417, 0.208)
+"""What the console's interval credit (Deep TAMER's) with the matched uniform 0.3-1.5 s does on the step clock: a
+press at t = m + L (L ~ U(0.6, 3) steps after step m's onset) gives step j the mass of D in (t - j - 1, t - j];
+averaged over L's fraction, over lags 0..3 from the newest step. The person's true lags are `PERSON_LAGS`: the
+interval reading credits about half a step too early (mean lag 1.8 against 1.25). The `matched` arm is what
+onset credit does here (the true step is always among the steps appearing within 0.3-1.5 s, each equally likely)."""
+EPISODES, EPISODE_STEPS, IDLE_UPDATES, GOALS = 15, 200, 8, 10
+ARMS = {
+    "dqn": lambda: agent_for("dqn"),
+    "dqn-tamer matched": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3),
+    "dqn-tamer matched interval": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=INTERVAL_KERNEL),
+    "dqn-tamer 0.2-4s": lambda: agent_for("dqn-tamer/uniform"),
+    "dqn-tamer matched adaptive": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3,
+                                                  alpha_h_adapt=ADAPT_RATE),
+    "dqn-tamer learned": lambda: agent_for("dqn-tamer/learned"),
+}
+
+
+def _register_cut_maze() -> str:
+    name = "maze-cut200"
+    ENVS[name] = replace(ENVS["maze"], name=name,
+                         factory=lambda layout=0: MazeEnv(layout, "mdp", max_steps=EPISODE_STEPS))
+    return name
+
+
+def _with_idle_updates(idle: int):
+    """The console learner's schedule: after every step's update, `idle` more minibatch steps."""
+    from common.agents.agent import TrialBatchAgent
+
+    plain = TrialBatchAgent.update
+
+    def update(self, active=None):
+        plain(self, active)
+        for _ in range(idle):
+            self.idle_update()
+    TrialBatchAgent.update = update
+
+
+def measures(steps: list[int], reached: list[bool], shortest: int) -> dict:
+    goals = np.flatnonzero(reached)
+    tenth = int(goals[GOALS - 1]) + 1 if len(goals) >= GOALS else EPISODES + GOALS - len(goals)
+    good = [i + 1 for i, (s, r) in enumerate(zip(steps, reached)) if r and s <= 2 * shortest]
+    return {"goals": tenth, "first_good": good[0] if good else EPISODES + 1, "steps": int(sum(steps))}
+
+
+def run(arms: list[str], trials: int) -> dict[str, list[dict]]:
+    from experiments.runner import TrialSpec, run_trials
+
+    env = _register_cut_maze()
+    observer = ObserverConfig(p_feedback=0.5, delay_probs=PERSON_LAGS)
+    pairs = [(PILOT_LAYOUTS[k % len(PILOT_LAYOUTS)], PILOT_SEED0 + k) for k in range(trials)]
+    specs = [(arm, L, TrialSpec(env, ARMS[arm](), observer, seed=s, layout=L, episodes=EPISODES))
+             for arm in arms for L, s in pairs]
+    results = run_trials([s for _, _, s in specs])
+    out: dict[str, list[dict]] = {arm: [] for arm in arms}
+    for (arm, L, _), res in zip(specs, results):
+        steps = [int(e["steps"]) for e in res.episodes]
+        reached = [s < EPISODE_STEPS for s in steps]  # an episode cut at 200 steps did not reach it
+        out[arm].append(measures(steps, reached, make_layout(L).shortest_path()))
+    return out
+
+
+def summary(out: dict[str, list[dict]]) -> None:
+    from scipy import stats
+
+    base = out["dqn"]
+    print(f"{'arm':<28} {'10th goal':>9} {'first good':>10} {'steps':>7}   vs DQN (10th goal): mean, W/T/L, p")
+    for arm, rows in out.items():
+        g = np.array([r["goals"] for r in rows])
+        line = (f"{arm:<28} {g.mean():9.2f} {np.mean([r['first_good'] for r in rows]):10.2f} "
+                f"{np.mean([r['steps'] for r in rows]):7.0f}")
+        if arm != "dqn":
+            d = np.array([b["goals"] for b in base]) - g
+            nz = d[d != 0]
+            p = stats.wilcoxon(nz, alternative="greater").pvalue if len(nz) else 1.0
+            line += f"   {d.mean():+.2f}, {(d > 0).sum()}/{(d == 0).sum()}/{(d < 0).sum()}, {p:.3f}"
+        print(line)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m experiments.console_pilot", description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=48, help="(layout, seed) pairs per arm")
+    ap.add_argument("--idle-updates", type=int, default=IDLE_UPDATES, help="idle-time updates after each step")
+    ap.add_argument("--arms", default=",".join(ARMS), help="comma-separated arms (dqn is always included)")
+    args = ap.parse_args(argv)
+    arms = ["dqn"] + [a for a in args.arms.split(",") if a and a != "dqn"]
+    unknown = [a for a in arms if a not in ARMS]
+    if unknown:
+        ap.error(f"unknown arm(s) {unknown}; choose from {list(ARMS)}")
+    if args.idle_updates:
+        _with_idle_updates(args.idle_updates)
+    t0 = time.time()
+    out = run(arms, args.trials)
+    summary(out)
+    print(f"({args.trials} pairs per arm, idle updates {args.idle_updates}, {time.time() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
