@@ -38,3 +38,19 @@ def test_goals_measure_counts_episodes_to_the_tenth_goal_and_decides_at_alpha_ov
     # 5 wins and 7 ties: Wilcoxon p = 1/32 = 0.031 < 0.05, but the fourth look decides at 0.0125
     assert test["wilcoxon_p"] == pytest.approx(1 / 32) and test["alpha"] == pytest.approx(0.0125)
     assert test["verdict"] == "not shown"
+
+
+def test_every_design_runs_pairs_no_earlier_design_or_pilot_used_and_counts_its_look():
+    """A design's pairs are new (their seeds never used by an earlier design, nor by the in-process pilot's 9000+),
+    and its verdict is taken at 0.05 over the number of designs tested so far."""
+    from experiments.taxi_pilot import PILOT_SEED0
+
+    seen: set[int] = set()
+    for look, (name, design) in enumerate(compare.DESIGNS.items(), 1):
+        seeds = {s for _, s in design.pairs}
+        assert not seeds & seen, name
+        assert max(seeds) < PILOT_SEED0
+        assert design.looks in (1, look), name  # the first three were declared before looks were counted
+        seen |= seeds
+    onset = compare.DESIGNS["onset"]
+    assert onset.looks == 5 and onset.arms[0].screen_credit == "onset" and onset.primary[0] == "DQN"

@@ -82,8 +82,9 @@ def test_scene_follows_the_maze_and_the_taxi():
     assert taxi == {"taxi": [1, 1], "passenger": 2, "dest": 2}
 
 
-def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals():
-    core = LearnerCore(LearnerConfig(run="r", task=Task(env="maze")))
+def _credit_of_one_press(config: LearnerConfig):
+    """Twelve steps shown 0.5 s apart (each 0.05 s after it was taken) and one press at t0 + 5.8 s."""
+    core = LearnerCore(config)
     env, _ = make_env("maze", 0)
     obs, t0 = env.reset(seed=0)[0], 1000.0
     shown = [ShownStep(k, t0 + 0.5 * k + 0.05) for k in range(12)]
@@ -99,10 +100,27 @@ def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals
                                      weights_version=k, info={}))[0]
         obs = nxt
     (res,) = results
+    return res
+
+
+def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals():
+    res = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze")))
     # uniform 0.2-4 s: each step gets the share of [t - 4, t - 0.2] = [1001.8, 1005.6] it was on screen
     want = {3: 0.25 / 3.8, **{k: 0.5 / 3.8 for k in range(4, 11)}, 11: 0.05 / 3.8}
     assert res.status == "credited" and dict(res.credited) == pytest.approx(want)
     assert res.lost_mass == pytest.approx(0.0, abs=1e-9)
+
+
+def test_learner_credits_at_each_steps_onset_when_told_and_refuses_onset_with_a_step_counted_delay():
+    res = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.3,1.5",
+                                             screen_credit="onset"))
+    # of the steps that appeared before t0 + 5.8, those 0.3-1.5 s before it: step 9 (t0 + 4.55) and step 10
+    # (t0 + 5.05), equally; step 8 appeared 1.75 s before, step 11 only 0.25 s before
+    assert res.status == "credited" and dict(res.credited) == pytest.approx({9: 0.5, 10: 0.5})
+    with pytest.raises(ValueError, match="onset"):
+        LearnerConfig(run="r", task=Task(env="maze"), screen_delay="steps:0.5,0.5", screen_credit="onset")
+    with pytest.raises(ValueError, match="screen-credit"):
+        LearnerConfig(run="r", task=Task(env="maze"), screen_credit="middle")
 
 
 def test_security_login_and_tls_and_loopback_only_without_it(tmp_path):

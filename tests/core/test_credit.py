@@ -3,7 +3,7 @@ import pytest
 
 import scipy.stats
 
-from common.credit import credit_weights
+from common.credit import credit_weights, onset_weights
 from common.delay import DelayModel, delay_from_spec, parse_probs
 
 UNIFORM3 = DelayModel((1 / 3, 1 / 3, 1 / 3))
@@ -172,3 +172,43 @@ def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
                 w1, lost1 = credit_weights(t_f[k], starts[k], d if d is delay else RowDelays(row_probs[k:k + 1], unit),
                                            episodes=episodes[k])
                 assert np.array_equal(w1, fast_w[k]) and lost1 == fast_lost[k]
+
+
+def test_onset_credit_shares_a_uniform_delay_equally_among_the_steps_that_appeared_within_it():
+    """A person reacting 0.3-1.5 s after a step appeared: every step whose onset lies 0.3-1.5 s before the press
+    is equally likely to be the one rated; steps that appeared earlier or later get nothing."""
+    starts = np.array([0.0, 0.4, 0.8, 1.2, 1.6, 1.9])  # 2.5 steps/s; the last appeared after the press
+    w, lost = onset_weights(1.95, starts, scipy.stats.uniform(loc=0.3, scale=1.2))
+    np.testing.assert_allclose(w, [0, 0, 1 / 3, 1 / 3, 1 / 3, 0])  # 1.95 s and 0.05 s after their onsets: outside
+    assert lost == pytest.approx(0.0)
+
+
+def test_onset_credit_follows_the_density_and_drops_other_episodes():
+    starts = np.array([0.0, 1.0, 2.0, 3.0])
+    delay = scipy.stats.gamma(2.0, scale=0.5)
+    w, lost = onset_weights(3.5, starts, delay, episodes=np.array([0, 0, 1, 1]))
+    density = delay.pdf(3.5 - starts)
+    np.testing.assert_allclose(w, np.r_[0, 0, density[2:]] / density.sum())
+    assert lost == pytest.approx(density[:2].sum() / density.sum())
+
+
+def test_onset_credit_of_a_press_with_no_step_in_reach_is_all_lost():
+    w, lost = onset_weights(10.0, np.array([0.0, 1.0]), scipy.stats.uniform(loc=0.2, scale=3.8))
+    assert not w.any() and lost == 1.0
+
+
+def test_onset_credit_differs_from_the_interval_reading_where_the_person_reacts_to_onsets():
+    """The interval reading (Deep TAMER's) gives part of the mass to the step before the true one; the onset
+    reading does not when only one onset is in reach."""
+    starts = np.array([0.0, 0.5, 1.0])
+    delay = scipy.stats.uniform(loc=0.3, scale=0.2)  # reacts 0.3-0.5 s after the onset
+    t = 1.0 + 0.45  # a reaction to the step that appeared at 1.0
+    onset, _ = onset_weights(t, starts, delay)
+    interval, _ = credit_weights(t, starts, delay)
+    np.testing.assert_allclose(onset, [0, 0, 1])
+    assert interval[1] > 0  # [t - 0.5, t - 0.3] reaches back into the step before
+
+
+def test_onset_credit_needs_a_density():
+    with pytest.raises(ValueError, match="density"):
+        onset_weights(1.0, np.array([0.0]), DelayModel((0.5, 0.5)))
