@@ -78,12 +78,12 @@ def measures(steps: list[int], reached: list[bool], shortest: int) -> dict:
     return {"goals": tenth, "first_good": good[0] if good else EPISODES + 1, "steps": int(sum(steps))}
 
 
-def run(arms: list[str], trials: int) -> dict[str, list[dict]]:
+def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS) -> dict[str, list[dict]]:
     from experiments.runner import TrialSpec, run_trials
 
     env = _register_cut_maze()
     observer = ObserverConfig(p_feedback=0.5, delay_probs=PERSON_LAGS)
-    pairs = [(PILOT_LAYOUTS[k % len(PILOT_LAYOUTS)], PILOT_SEED0 + k) for k in range(trials)]
+    pairs = [(layouts[k % len(layouts)], PILOT_SEED0 + k) for k in range(trials)]
     specs = [(arm, L, TrialSpec(env, ARMS[arm](), observer, seed=s, layout=L, episodes=EPISODES))
              for arm in arms for L, s in pairs]
     results = run_trials([s for _, _, s in specs])
@@ -116,6 +116,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.console_pilot", description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=48, help="(layout, seed) pairs per arm")
     ap.add_argument("--idle-updates", type=int, default=IDLE_UPDATES, help="idle-time updates after each step")
+    ap.add_argument("--layouts", default=",".join(map(str, PILOT_LAYOUTS)),
+                    help="comma-separated maze layouts, cycled over the pairs (default: every honest one)")
     ap.add_argument("--arms", default=",".join(ARMS), help="comma-separated arms (dqn is always included)")
     args = ap.parse_args(argv)
     arms = ["dqn"] + [a for a in args.arms.split(",") if a and a != "dqn"]
@@ -125,7 +127,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.idle_updates:
         _with_idle_updates(args.idle_updates)
     t0 = time.time()
-    out = run(arms, args.trials)
+    try:
+        layouts = tuple(int(x) for x in args.layouts.split(",") if x.strip())
+    except ValueError:
+        ap.error(f"--layouts must be comma-separated integers, got {args.layouts!r}")
+    out = run(arms, args.trials, layouts)
     summary(out)
     print(f"({args.trials} pairs per arm, idle updates {args.idle_updates}, {time.time() - t0:.0f} s)")
     return 0
