@@ -18,13 +18,13 @@ path (never: 16), and steps over the 15 episodes; every arm is compared with DQN
 """
 from __future__ import annotations
 
-import argparse
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from common.envs.maze import MazeEnv, make_layout
+from common.config import option, parse_config
+from common.envs.maze import LAYOUT_COUNT, MazeEnv, make_layout
 from common.envs.registry import ENVS
 from common.observer import ObserverConfig
 from experiments.conditions import ADAPT_RATE, WINDOW, agent_for
@@ -37,17 +37,17 @@ INTERVAL_KERNEL = (0.033, 0.342, 0.417, 0.208)
 """What the console's interval credit (Deep TAMER's) with the matched uniform 0.3-1.5 s does on the step clock: a
 press at t = m + L (L ~ U(0.6, 3) steps after step m's onset) gives step j the mass of D in (t - j - 1, t - j];
 averaged over L's fraction, over lags 0..3 from the newest step. The person's true lags are `PERSON_LAGS`: the
-interval reading credits about half a step too early (mean lag 1.8 against 1.25). The `matched` arm is what
+interval reading credits about half a step too early (mean lag 1.8 against 1.25). The `dqn-tamer/matched` arm is what
 onset credit does here (the true step is always among the steps appearing within 0.3-1.5 s, each equally likely)."""
 EPISODES, EPISODE_STEPS, IDLE_UPDATES, GOALS = 15, 200, 8, 10
 ARMS = {
     "dqn": lambda: agent_for("dqn"),
-    "dqn-tamer matched": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3),
-    "dqn-tamer matched interval": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=INTERVAL_KERNEL),
-    "dqn-tamer 0.2-4s": lambda: agent_for("dqn-tamer/uniform"),
-    "dqn-tamer matched adaptive": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3,
+    "dqn-tamer/matched": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3),
+    "dqn-tamer/interval": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=INTERVAL_KERNEL),
+    "dqn-tamer/0.2-4s": lambda: agent_for("dqn-tamer/uniform"),
+    "dqn-tamer/adaptive": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3,
                                                   alpha_h_adapt=ADAPT_RATE),
-    "dqn-tamer learned": lambda: agent_for("dqn-tamer/learned"),
+    "dqn-tamer/learned": lambda: agent_for("dqn-tamer/learned"),
 }
 
 
@@ -99,10 +99,10 @@ def summary(out: dict[str, list[dict]]) -> None:
     from scipy import stats
 
     base = out["dqn"]
-    print(f"{'arm':<28} {'10th goal':>9} {'first good':>10} {'steps':>7}   vs DQN (10th goal): mean, W/T/L, p")
+    print(f"{'arm':<20} {'10th goal':>9} {'first good':>10} {'steps':>7}   vs DQN (10th goal): mean, W/T/L, p")
     for arm, rows in out.items():
         g = np.array([r["goals"] for r in rows])
-        line = (f"{arm:<28} {g.mean():9.2f} {np.mean([r['first_good'] for r in rows]):10.2f} "
+        line = (f"{arm:<20} {g.mean():9.2f} {np.mean([r['first_good'] for r in rows]):10.2f} "
                 f"{np.mean([r['steps'] for r in rows]):7.0f}")
         if arm != "dqn":
             d = np.array([b["goals"] for b in base]) - g
@@ -112,30 +112,42 @@ def summary(out: dict[str, list[dict]]) -> None:
         print(line)
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.console_pilot", description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=48, help="(layout, seed) pairs per arm")
-    ap.add_argument("--idle-updates", type=int, default=IDLE_UPDATES, help="idle-time updates after each step")
-    ap.add_argument("--layouts", default=",".join(map(str, PILOT_LAYOUTS)),
-                    help="comma-separated maze layouts, cycled over the pairs (default: every honest one)")
-    ap.add_argument("--arms", default=",".join(ARMS), help="comma-separated arms (dqn is always included)")
-    args = ap.parse_args(argv)
-    arms = ["dqn"] + [a for a in args.arms.split(",") if a and a != "dqn"]
-    unknown = [a for a in arms if a not in ARMS]
-    if unknown:
-        ap.error(f"unknown arm(s) {unknown}; choose from {list(ARMS)}")
-    if args.idle_updates:
-        _with_idle_updates(args.idle_updates)
+@dataclass(frozen=True)
+class ConsolePilotConfig:
+    """The console comparison simulated in process on pilot seeds: each arm against DQN."""
+
+    trials: int = option(48, "(layout, seed) pairs per arm")
+    idle_updates: int = option(IDLE_UPDATES, "idle-time minibatch steps after each step (the console's learner: 8)")
+    layouts: tuple[int, ...] = option(PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one)")
+    arms: tuple[str, ...] = option(tuple(ARMS), "arms besides dqn (always run): dqn-tamer/matched (credit on the "
+                                                "true candidates: onset credit), /interval (the interval reading's "
+                                                "kernel), /0.2-4s (lags uniform 0-6), /adaptive (adaptive alpha_h, "
+                                                "matched), /learned (delay learned online)")
+
+    def __post_init__(self):
+        unknown = [a for a in self.arms if a not in ARMS]
+        if unknown:
+            raise ValueError(f"unknown arm(s) {unknown}; choose from {list(ARMS)}")
+        if self.trials < 1 or self.idle_updates < 0 or not self.layouts:
+            raise ValueError("trials must be >= 1, idle-updates >= 0, and some layout given")
+        bad = [L for L in self.layouts if not 0 <= L < LAYOUT_COUNT]
+        if bad:
+            raise ValueError(f"layouts must be in 0..{LAYOUT_COUNT - 1}, got {bad}")
+
+
+def main(cfg: ConsolePilotConfig) -> int:
+    arms = ["dqn"] + [a for a in cfg.arms if a != "dqn"]
+    if cfg.idle_updates:
+        _with_idle_updates(cfg.idle_updates)
     t0 = time.time()
-    try:
-        layouts = tuple(int(x) for x in args.layouts.split(",") if x.strip())
-    except ValueError:
-        ap.error(f"--layouts must be comma-separated integers, got {args.layouts!r}")
-    out = run(arms, args.trials, layouts)
-    summary(out)
-    print(f"({args.trials} pairs per arm, idle updates {args.idle_updates}, {time.time() - t0:.0f} s)")
+    summary(run(arms, cfg.trials, cfg.layouts))
+    print(f"({cfg.trials} pairs per arm, idle updates {cfg.idle_updates}, {time.time() - t0:.0f} s)")
     return 0
 
 
+def cli(argv: list[str] | None = None) -> int:
+    return main(parse_config(ConsolePilotConfig, argv, prog="python -m experiments.console_pilot"))
+
+
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(cli())
