@@ -13,18 +13,18 @@ when below ln 1.1) to the first E episodes, for E = 60, 70, ... up to --episodes
 drifts over --episodes (as the reproduction's drifts over its horizon), so for `delay-drift` only the
 last checkpoint is the condition the reproduction would run at that horizon.
 
-    python -m experiments.maze_pilot --episodes 150 maze-high-delay maze-low-delay
+    python -m experiments.maze_pilot --episodes 150 --conditions maze-high-delay,maze-low-delay
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from common.config import option, parse_config
 from experiments.conditions import BY_NAME, Condition, agent_for
 from experiments.taxi_pilot import PILOT_SEED0
 
@@ -101,34 +101,44 @@ def run_condition(cond: Condition, episodes: int, seed0: int) -> dict:
             "curves": {arm: np.log(np.maximum(s, 1)).mean(axis=0).round(4).tolist() for arm, s in arrays.items()}}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.maze_pilot", description=__doc__.splitlines()[0])
-    ap.add_argument("conditions", nargs="*", default=list(DEFAULT_CONDITIONS),
-                    help="maze MDP conditions of experiments/conditions.py (default: the 7 that were not flat at 60)")
-    ap.add_argument("--episodes", type=int, default=150, help="episodes per trial (checkpoints from 60, every 10)")
-    ap.add_argument("--seed0", type=int, default=PILOT_SEED0, help=f"first pilot seed (>= {PILOT_SEED0})")
-    ap.add_argument("--out", help="write every condition's summary and mean curves as JSON here")
-    args = ap.parse_args(argv)
-    if args.seed0 < PILOT_SEED0:
-        ap.error(f"--seed0 must be >= {PILOT_SEED0}: lower seeds may be the reproduction's")
-    bad = [c for c in args.conditions if c not in BY_NAME or BY_NAME[c].is_taxi or BY_NAME[c].env != "maze"]
-    if bad:
-        ap.error(f"not a maze MDP condition: {', '.join(bad)}")
-    if args.episodes < CHECKPOINTS_FROM:
-        ap.error(f"--episodes must be >= {CHECKPOINTS_FROM}")
+@dataclass(frozen=True)
+class MazePilotConfig:
+    """Maze conditions on pilot layouts and seeds, long: the flatness rule at each checkpoint."""
+
+    conditions: tuple[str, ...] = option(DEFAULT_CONDITIONS, "maze MDP conditions of experiments/conditions.py "
+                                                             "(the 7 that were not flat at 60)")
+    episodes: int = option(150, "episodes per trial (checkpoints from 60, every 10)")
+    seed0: int = option(PILOT_SEED0, f"first pilot seed (>= {PILOT_SEED0})")
+    out: str | None = option(None, "write every condition's summary and mean curves as JSON here")
+
+    def __post_init__(self):
+        if self.seed0 < PILOT_SEED0:
+            raise ValueError(f"seed0 must be >= {PILOT_SEED0}: lower seeds may be the reproduction's")
+        bad = [c for c in self.conditions if c not in BY_NAME or BY_NAME[c].is_taxi or BY_NAME[c].env != "maze"]
+        if bad:
+            raise ValueError(f"not a maze MDP condition: {', '.join(bad)}")
+        if self.episodes < CHECKPOINTS_FROM:
+            raise ValueError(f"episodes must be >= {CHECKPOINTS_FROM}")
+
+
+def main(cfg: MazePilotConfig) -> int:
     out = []
-    for name in args.conditions:
-        res = run_condition(BY_NAME[name], args.episodes, args.seed0)
+    for name in cfg.conditions:
+        res = run_condition(BY_NAME[name], cfg.episodes, cfg.seed0)
         out.append(res)
         marks = " ".join(f"{r['episodes']}:{r['change_last']:+.3f}{'' if r['flat'] else '*'}" for r in res["checkpoints"])
         print(f"{name}: {res['trials']} trials, {res['cpu_s']:.0f} CPU s, {res['env_steps']} steps "
               f"({res['cpu_per_env_step_us']:.1f} us/step), first-60 share of steps {res['steps_first_60_share']:.2f}; "
               f"flat from {res['flat_from']}; change by episodes (* not flat): {marks}", flush=True)
-    if args.out:
-        with open(args.out, "w") as fh:
+    if cfg.out:
+        with open(cfg.out, "w") as fh:
             json.dump(out, fh)
     return 0
 
 
+def cli(argv: list[str] | None = None) -> int:
+    return main(parse_config(MazePilotConfig, argv, prog="python -m experiments.maze_pilot"))
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli())

@@ -16,12 +16,14 @@ median stays below 100 steps.
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 
 import numpy as np
+
+from common.config import option, parse_config
 
 from experiments.conditions import AGENT_OVERRIDES
 from experiments.panels import CONVERGED_STEPS
@@ -73,23 +75,38 @@ def convergence(steps: np.ndarray) -> dict:
             "trial_median_below_100_from_episode": per_trial}
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.taxi_pilot", description=__doc__.splitlines()[0])
-    ap.add_argument("--env", default="taxi-s", help="taxi-s (Gymnasium's, one-hot), taxi-fixed-s, taxi, taxi-fixed")
-    ap.add_argument("--episodes", type=int, default=300, help="episodes per trial")
-    ap.add_argument("--trials", type=int, default=3, help="DQN trials (seeds seed0, seed0 + 1, ...)")
-    ap.add_argument("--seed0", type=int, default=PILOT_SEED0, help=f"first pilot seed (>= {PILOT_SEED0})")
-    ap.add_argument("--set", action="append", default=[], metavar="FIELD=VALUE",
-                    help="an AgentConfig field changed from the reproduction's Taxi settings (repeatable)")
-    ap.add_argument("--out", help="write the per-episode steps and the summary as JSON here")
-    args = ap.parse_args(argv)
-    if args.seed0 < PILOT_SEED0:
-        ap.error(f"--seed0 must be >= {PILOT_SEED0}: lower seeds may be the reproduction's")
-    try:
-        changes = {k.replace("-", "_"): _value(v) for k, v in (s.split("=", 1) for s in args.set)}
-        trial_specs = specs(args.env, args.episodes, args.trials, changes, args.seed0)
-    except (ValueError, TypeError) as exc:
-        ap.error(str(exc))
+@dataclass(frozen=True)
+class TaxiPilotConfig:
+    """DQN alone on Taxi, on pilot seeds: the report's convergence rule, to choose the Taxi horizon."""
+
+    env: str = option("taxi-s", "taxi-s (Gymnasium's, one-hot), taxi-fixed-s, taxi, taxi-fixed",
+                      choices=("taxi-s", "taxi-fixed-s", "taxi", "taxi-fixed"))
+    episodes: int = option(300, "episodes per trial")
+    trials: int = option(3, "DQN trials (seeds seed0, seed0 + 1, ...)")
+    seed0: int = option(PILOT_SEED0, f"first pilot seed (>= {PILOT_SEED0})")
+    set: tuple[str, ...] = option((), "AgentConfig fields changed from the reproduction's Taxi settings, "
+                                      "FIELD=VALUE,FIELD=VALUE")
+    out: str | None = option(None, "write the per-episode steps and the summary as JSON here")
+
+    def __post_init__(self):
+        if self.seed0 < PILOT_SEED0:
+            raise ValueError(f"seed0 must be >= {PILOT_SEED0}: lower seeds may be the reproduction's")
+        bad = [s for s in self.set if "=" not in s]
+        if bad:
+            raise ValueError(f"set expects FIELD=VALUE, got {bad}")
+        try:
+            specs(self.env, 1, 1, self.changes, self.seed0)
+        except TypeError as exc:
+            raise ValueError(str(exc)) from None
+
+    @property
+    def changes(self) -> dict:
+        return {k.replace("-", "_"): _value(v) for k, v in (s.split("=", 1) for s in self.set)}
+
+
+def main(cfg: TaxiPilotConfig) -> int:
+    changes = cfg.changes
+    trial_specs = specs(cfg.env, cfg.episodes, cfg.trials, changes, cfg.seed0)
     from threadpoolctl import threadpool_limits
 
     from experiments.runner import run_trials
@@ -106,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     with threadpool_limits(1, user_api="blas"):
         results = run_trials(trial_specs, on_episode=on_episode)
     steps = np.array([[e["steps"] for e in r.episodes] for r in results], np.float64)
-    summary = {"env": args.env, "changes": changes, "seeds": [s.seed for s in trial_specs],
+    summary = {"env": cfg.env, "changes": changes, "seeds": [s.seed for s in trial_specs],
                "layouts": [s.layout for s in trial_specs], **convergence(steps),
                "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
                "env_steps": int(steps.sum())}
@@ -114,11 +131,17 @@ def main(argv: list[str] | None = None) -> int:
     for k, row in enumerate(steps):
         med = [int(np.median(row[i:i + 10])) for i in range(0, len(row), 10)]
         print(f"trial {k} (seed {trial_specs[k].seed}): median steps per 10 episodes {med}", file=sys.stderr)
-    if args.out:
-        with open(args.out, "w") as fh:
+    if cfg.out:
+        with open(cfg.out, "w") as fh:
             json.dump({**summary, "steps": steps.tolist()}, fh)
     return 0
 
 
+
+
+def cli(argv: list[str] | None = None) -> int:
+    return main(parse_config(TaxiPilotConfig, argv, prog="python -m experiments.taxi_pilot"))
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli())

@@ -22,9 +22,9 @@ def test_pilot_trials_are_never_the_reproductions():
     # a drifting observer drifts over the pilot's own length
     assert {s.observer.drift_episodes for _, s in maze_pilot.specs(BY_NAME["delay-drift"], 150)} == {150}
     with pytest.raises(SystemExit):
-        maze_pilot.main(["--seed0", "5"])
+        maze_pilot.cli(["--seed0", "5"])
     with pytest.raises(SystemExit):
-        maze_pilot.main(["taxi-stop"])
+        maze_pilot.cli(["--conditions", "taxi-stop"])
 
 
 def test_flatness_by_checkpoint_on_known_curves():

@@ -28,6 +28,6 @@ def test_pilot_seeds_and_tasks_are_not_the_reproductions():
     assert not {s.seed for s in pilot + fixed} & repro
     assert [s.layout for s in fixed] == [3, 8, 1, 6, 11, 4]  # another order of the 12 tasks
     with pytest.raises(SystemExit):
-        taxi_pilot.main(["--seed0", "5"])
+        taxi_pilot.cli(["--seed0", "5"])
     with pytest.raises(SystemExit):
-        taxi_pilot.main(["--set", "no_such_field=1", "--episodes", "1", "--trials", "1"])
+        taxi_pilot.cli(["--set", "no_such_field=1", "--episodes", "1", "--trials", "1"])
