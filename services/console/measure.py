@@ -1,4 +1,4 @@
-"""`python -m services.console.measure RUN [RUN ...]`: the console's timing figures, read from runs' logs.
+"""`python -m services.console.measure RUN[,RUN ...]`: the console's timing figures, read from runs' logs.
 
 - press -> credited: a person's feedback from its press (system time, `Feedback.t_reaction`) to the learner's H
   update with it (`Credit.t_credited`);
@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from common.mcap_read import read_log
+from common.config import option, parse_config
+from common.mcap_read import NotMcapError, read_log
 from common.protocol import Credit, ExpressionPrediction, Feedback, Shown
 
 
@@ -52,14 +54,36 @@ def measure(paths: list[str]) -> dict:
             "steps_listed_per_feedback": _stats(listed, 1.0), "steps_credited_per_feedback": _stats(credited, 1.0)}
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = sys.argv[1:] if argv is None else argv
-    if not args or args[0] in ("-h", "--help"):
-        print(__doc__)
-        return 0 if args else 2
-    print(json.dumps(measure([str(Path(a) / "session.mcap") if Path(a).is_dir() else a for a in args]), indent=2))
+@dataclass(frozen=True)
+class MeasureConfig:
+    """The console's timing figures, read from runs' logs."""
+
+    runs: tuple[str, ...] = option((), "run directories (or their session.mcap), comma-separated", positional=True)
+
+    def __post_init__(self):
+        if not self.runs:
+            raise ValueError("name at least one run directory or session.mcap")
+        missing = [r for r in self.logs if not Path(r).is_file()]
+        if missing:
+            raise ValueError(f"no log at {', '.join(missing)}")
+
+    @property
+    def logs(self) -> list[str]:
+        return [str(Path(r) / "session.mcap") if Path(r).is_dir() else r for r in self.runs]
+
+
+def main(cfg: MeasureConfig) -> int:
+    try:
+        print(json.dumps(measure(cfg.logs), indent=2))
+    except NotMcapError as exc:
+        print(f"services.console.measure: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 
+def cli(argv: list[str] | None = None) -> int:
+    return main(parse_config(MeasureConfig, argv, prog="python -m services.console.measure"))
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(cli())

@@ -159,3 +159,14 @@ def test_an_actor_started_paused_waits_for_a_resume_and_counts_the_wait():
     inbox.put(Received(control_key("r"), msg.encode(), NOW, None))
     assert control.take(inbox) and not control.paused
     assert counters["control_resume"] == 1 and counters["paused_ms"] >= 0 and said[-1] == "resumed by web-1"
+
+
+def test_measure_names_a_missing_or_foreign_log_in_one_line(tmp_path, capsys):
+    from services.console import measure
+
+    with pytest.raises(SystemExit):
+        measure.cli([str(tmp_path / "nope")])
+    assert "no log at" in capsys.readouterr().err
+    (tmp_path / "x.mcap").write_text("not a log")
+    assert measure.cli([str(tmp_path / "x.mcap")]) == 2
+    assert "not an MCAP file" in capsys.readouterr().err
