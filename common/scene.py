@@ -83,6 +83,7 @@ class SceneBuilder:
         self.memory = memory
         self._episode: tuple[str, int] | None = None
         self._last_after: dict[str, tuple[int, int]] = {}
+        self._layouts: dict[int | None, tuple[list, list]] = {}  # the layout's primitives, per taxi destination
         if self.kind == "maze":
             from common.envs.maze import SIZE, make_layout
 
@@ -164,6 +165,21 @@ class SceneBuilder:
     # -- the three pictures --------------------------------------------------------------------------------
     def layout_update(self, step: Any) -> Any:
         h, w = self.size
+        if self.kind == "maze":
+            key, title = None, f"{self.env} layout {self.layout_index}, episode {step.episode}"
+        else:
+            key, title = _taxi_destination(step.obs), f"taxi, episode {step.episode}"
+        if key not in self._layouts:  # (built once per destination: building the primitives is what costs)
+            self._layouts[key] = self._layout_primitives(key)
+        cubes, texts = self._layouts[key]
+        texts = texts + [_text(w / 2, h + 0.4, 0.5, title, 14)]
+        return fm.SceneUpdate(entities=[_entity(step.t_action, "layout", meta={"episode": str(step.episode)},
+                                                cubes=cubes, texts=texts)])
+
+    def _layout_primitives(self, dest: int | None) -> tuple[list, list]:
+        """The layout's cubes and labels: the maze's walls, start and goal; taxi's walls and stands (`dest`: the
+        episode's destination stand)."""
+        h, w = self.size
         cubes = [_cube(w / 2, h / 2, -0.05, w, h, 0.1, _colour(0.85, 0.85, 0.82))]
         texts = []
         if self.kind == "maze":
@@ -178,18 +194,13 @@ class SceneBuilder:
                 x, y = self._xy(cell)
                 cubes.append(_cube(x, y, 0.01, 0.9, 0.9, 0.02, colour))
                 texts.append(_text(x, y, 0.6, label, 12))
-            title = f"{self.env} layout {self.layout_index}, episode {step.episode}"
         else:
             cubes += self._taxi_walls()
-            dest = _taxi_destination(step.obs)
             for i, ((r, c), rgb) in enumerate(zip(self.stands, _STAND_COLOURS)):
                 x, y = self._xy((r, c))
                 cubes.append(_cube(x, y, 0.01, 0.9, 0.9, 0.02 if i != dest else 0.12, _colour(*rgb, 0.9)))
                 texts.append(_text(x, y, 0.6, _STANDS[i] + (" (destination)" if i == dest else ""), 12))
-            title = f"taxi, episode {step.episode}"
-        texts.append(_text(w / 2, h + 0.4, 0.5, title, 14))
-        return fm.SceneUpdate(entities=[_entity(step.t_action, "layout", meta={"episode": str(step.episode)},
-                                                cubes=cubes, texts=texts)])
+        return cubes, texts
 
     def agent_update(self, step: Any, before: tuple[int, int], after: tuple[int, int]) -> Any:
         x, y = self._xy(after)
