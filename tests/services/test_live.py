@@ -148,42 +148,35 @@ def test_dqn_live_in_lockstep_equals_the_in_process_runner(tmp_path):
 
 
 def test_dqn_tamer_live_learns_like_in_process(tmp_path):
-    """Learning curves of DQN-TAMER live (lockstep) and in-process over a few seeds: no significant difference
-    (Mann-Whitney on per-seed mean return), and both learn. Live feedback reaches the policy 1-2 steps later
-    than on the virtual clock (see docs/live.md), so exact equality is not expected. A teacher that falls behind
-    (its start-up, a loaded machine) sends reactions late; with the default 32-step history those arriving later
-    are dropped as stale and the live curve sinks below the in-process one for reasons of the machine, not of the
-    live system, so both sides keep 1000 steps of history here (no reaction is dropped for lateness; the
-    in-process runner never delivers one late)."""
-    from scipy.stats import mannwhitneyu
+    """DQN-TAMER live (lockstep) learns as the in-process runner does: over the same 4 seeds, the mean of the
+    learning measure (mean log episode length over episodes 10-19) is within what 99.99% of in-process 4-seed
+    draws reach, for the live runs and for the in-process runs. The rule and its measured rates (false failures,
+    and passes of an untrained agent and of one whose feedback never arrives) are in `learning_rule.py`.
 
-    from common.agents import agent_config
-    from common.observer import ObserverConfig
-    from experiments.runner import TrialSpec, run_trials
+    Exact equality is not expected: live feedback reaches the policy at least one step later than on the virtual
+    clock (docs/live.md), and a teacher that falls behind (its start-up, a loaded machine) sends reactions later
+    still, which slows live learning a little (measured in learning_rule.py). With the default 32-step history
+    the latest would be dropped as stale, so both sides keep 1000 steps (no reaction is dropped for lateness;
+    the in-process runner never delivers one late). Live and in-process runs of one seed are not paired: their
+    measures correlate at about 0.1 (44 seeds), since their actions part at the first feedback."""
+    from .learning_rule import EPISODES, HISTORY_STEPS, MAX_MEAN_LOG_STEPS, in_process_steps, learning_measure, passes
 
-    # 20 episodes: by 15, one seed in seven (in-process, 100 seeds) has not yet settled, so "4 seeds' last 5 > 0.7"
-    # failed for 23% of seed draws; by 20, for 6% (live timing makes the live seeds such draws).
-    episodes, live_seeds, ref_seeds = 20, range(4), range(12)
-    history = 1000
-    agent = agent_config("dqn-tamer", assumed_delay_probs=(0.3333, 0.3333, 0.3334), history_steps=history)
-    ref = run_trials([TrialSpec("maze", agent, ObserverConfig(), s, 0, episodes) for s in ref_seeds])
-    ref_curves = np.array([r.returns for r in ref])
-    live_curves = []
-    for s in live_seeds:  # one at a time: a second run's load makes the lockstep actor outrun the teacher
-        launch = start_up(tmp_path, f"s{s}", "--episodes", str(episodes), "--seed", str(s), "--max-ahead", "0",
-                          "--agent.history-steps", str(history))
+    seeds = range(4)
+    ref = [learning_measure(steps) for steps in in_process_steps(seeds)]
+    live = []
+    for s in seeds:  # one at a time: a second run's load makes the lockstep actor outrun the teacher
+        launch = start_up(tmp_path, f"s{s}", "--episodes", str(EPISODES), "--seed", str(s), "--max-ahead", "0",
+                          "--agent.history-steps", str(HISTORY_STEPS))
         assert launch.wait(timeout=240) == 0, launch.out
         summary = launch.summary()
         assert "stale" not in summary["feedback_rejected"], summary["feedback_rejected"]
-        live_curves.append(summary["returns"])
+        assert all(e["finished"] for e in summary["episodes"])
+        live.append(learning_measure([e["steps"] for e in summary["episodes"]]))
         assert_nothing_left(launch.rundir)
-    live_curves = np.array(live_curves)
-    p = mannwhitneyu(live_curves.mean(axis=1), ref_curves.mean(axis=1)).pvalue
-    msg = f"live {live_curves.mean(axis=1)}, in-process {ref_curves.mean(axis=1)}, p = {p:.3f}"
-    assert p > 0.01, msg
-    for curves in (live_curves, ref_curves):
-        assert curves[:, -5:].mean() > curves[:, :5].mean(), msg
-        assert curves[:, -5:].mean() > 0.7, msg
+    msg = (f"mean log steps of episodes 10-19 per seed: live {np.round(live, 2)} (mean {np.mean(live):.2f}), "
+           f"in-process {np.round(ref, 2)} (mean {np.mean(ref):.2f}); limit {MAX_MEAN_LOG_STEPS}")
+    assert passes(ref), "in process: " + msg  # deterministic: the algorithm itself changed (re-measure the rule)
+    assert passes(live), "live: " + msg
 
 
 def test_ctrl_c_stops_everything_cleanly(tmp_path):
