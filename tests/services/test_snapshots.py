@@ -39,3 +39,17 @@ def test_bounded_rate_and_what_each_snapshot_holds():
     assert w.version == 1001 and np.array_equal(w.tensors["q.0.weight"], tensors["q.0.weight"])
     t = {x.name: x for x in sent[0].tensors}["q.0.weight"]
     assert t.shape == [2, 3] and t.mean == 2.5 and t.max == 5.0 and abs(t.norm - np.sqrt(55)) < 1e-9
+
+
+def test_tensor_numbers_are_numpys_own_bit_for_bit():
+    from services.learner.snapshots import tensor_summaries
+
+    rng = np.random.default_rng(7)
+    for scale in (1e-3, 1.0, 1e3):
+        tensors = {"w": (rng.normal(size=(19, 100)) * scale).astype(np.float32),
+                   "b": (rng.normal(size=(1, 6)) * scale + scale).astype(np.float32), "none": np.zeros((0, 4), np.float32)}
+        for s, (name, t) in zip(tensor_summaries(tensors), tensors.items()):
+            a = t.astype(np.float64)
+            want = (a.mean(), a.std(), a.min(), a.max(), np.sqrt(np.sum(a * a))) if a.size else (0.0,) * 5
+            assert (s.name, s.shape) == (name, list(t.shape))
+            assert (s.mean, s.std, s.min, s.max, s.norm) == tuple(map(float, want))
