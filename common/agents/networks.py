@@ -64,6 +64,19 @@ def views(flat: np.ndarray, shapes: dict[str, tuple[int, int]], names: bool = Fa
     return out
 
 
+_CONSTANTS: dict[tuple, np.ndarray] = {}
+
+
+def _constant(kind: str, *shape: int) -> np.ndarray:
+    """A read-only np.ones (float32) or np.arange of this shape, made once (they were made at every step)."""
+    got = _CONSTANTS.get((kind, shape))
+    if got is None:
+        got = np.ones(shape, np.float32) if kind == "ones" else np.arange(*shape)
+        got.flags.writeable = False
+        _CONSTANTS[(kind, shape)] = got
+    return got
+
+
 def with_ones(x: np.ndarray) -> np.ndarray:
     """x [n, N, k] with a column of ones appended (the bias input): [n, N, k + 1]."""
     out = np.empty((*x.shape[:-1], x.shape[-1] + 1), np.float32)
@@ -99,7 +112,7 @@ def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: 
     every reduction is a per-trial matrix product."""
     n, N = x.shape[:2]
     g_w2 = h.transpose(0, 2, 1) @ d_out                              # [n, hidden, out]
-    g_b2 = np.ones((n, 1, N), np.float32) @ d_out                    # [n, 1, out]
+    g_b2 = _constant("ones", n, 1, N) @ d_out                        # [n, 1, out]
     d_pre = d_out @ p["w2"].transpose(0, 2, 1)                       # [n, N, hidden]
     slope = h * h
     np.subtract(np.float32(1), slope, out=slope)                     # tanh' = 1 - tanh^2
@@ -175,7 +188,7 @@ class ValueNetworks(Protocol):
 def pick(values: np.ndarray, actions: np.ndarray) -> np.ndarray:
     """values[i, j, actions[i, j]] for values [n, N, A]: [n, N]."""
     n, N, A = values.shape
-    return values.reshape(n * N, A)[np.arange(n * N), actions.reshape(-1)].reshape(n, N)
+    return values.reshape(n * N, A)[_constant("arange", n * N), actions.reshape(-1)].reshape(n, N)
 
 
 def row_index(rows: np.ndarray | None, total: int):
@@ -207,12 +220,21 @@ class StackedMLP:
         return self.flat.shape[0]
 
     def rows(self, idx) -> dict[str, np.ndarray]:
-        """Views of the weights of trials `idx` (None, a slice or an index array; None without copying)."""
-        return self.params if idx is None else views(self.flat[idx], self.shapes)
+        """Views of the weights of trials `idx` (None, a slice or an index array; None and slices without
+        copying, a slice's views made once per `flat`)."""
+        if idx is None:
+            return self.params
+        if not isinstance(idx, slice):
+            return views(self.flat[idx], self.shapes)
+        got = self._slice_views.get((idx.start, idx.stop))
+        if got is None:
+            got = self._slice_views[(idx.start, idx.stop)] = views(self.flat[idx], self.shapes)
+        return got
 
     def set_flat(self, flat: np.ndarray) -> None:
         self.flat = flat
         self.params = views(flat, self.shapes, names=True)
+        self._slice_views: dict[tuple, dict[str, np.ndarray]] = {}
 
     def values(self, rows: np.ndarray | None, x: np.ndarray) -> np.ndarray:
         if rows is None or len(rows) == self.flat.shape[0]:
@@ -277,7 +299,7 @@ def fit_together(jobs: list[FitJob]) -> None:
     if len(jobs) == 1:  # (the common case, with as few calls as possible: the same arithmetic)
         j = jobs[0]
         r = row_index(j.rows, j.net.flat.shape[0])
-        params, x = j.net.params if r is None else views(j.net.flat[r], j.net.shapes), j.x
+        params, x = j.net.rows(r), j.x
     else:
         idx = [row_index(j.rows, j.net.flat.shape[0]) for j in jobs]
         x = np.concatenate([j.x for j in jobs])
@@ -285,7 +307,7 @@ def fit_together(jobs: list[FitJob]) -> None:
                        jobs[0].net.shapes)
     x1 = with_ones(x)
     hidden, out = mlp_forward(params, x, x1)
-    arange_a = np.arange(out.shape[-1])
+    arange_a = _constant("arange", out.shape[-1])
     d_out = np.empty_like(out) if len(jobs) > 1 else None
     start = 0
     for j in jobs:
