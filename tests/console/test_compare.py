@@ -54,3 +54,4 @@ def test_every_design_runs_pairs_no_earlier_design_or_pilot_used_and_counts_its_
         seen |= seeds
     onset = compare.DESIGNS["onset"]
     assert onset.looks == 5 and onset.arms[0].screen_credit == "onset" and onset.primary[0] == "DQN"
+    assert compare.DESIGNS["replicate"].looks == 6 and len(compare.DESIGNS["replicate"].pairs) == 18
