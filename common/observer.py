@@ -17,6 +17,7 @@ import numpy as np
 
 from common.config import option
 from common.delay import DelayModel, parse_probs
+from common.util import RowConstants
 
 # A reaction lands half a step after its lag: between two actions, never on one.
 REACTION_OFFSET = 0.5
@@ -107,6 +108,7 @@ class ObserverBatch:
         self.u = np.zeros((len(configs), block, 3), np.float64)
         self.watched = np.zeros(len(configs), np.int64)  # steps watched so far (draws used)
         self.drawn = np.zeros(len(configs), np.int64)  # steps' worth of uniforms drawn so far
+        self._constants = RowConstants(self._pick_constants)
 
     def react(self, rows: np.ndarray, intended: np.ndarray, episode: np.ndarray, global_step: np.ndarray):
         """Trials `rows` (distinct) each watched one step whose rule says `intended`: (gives feedback, value,
@@ -117,15 +119,19 @@ class ObserverBatch:
             self.drawn[k] += self.block
         u = self.u[rows, n % self.block]
         self.watched[rows] = n + 1
-        silent = (episode >= self.stop_episode[rows]) | (global_step >= self.stop_step[rows])
-        give = ~silent & (u[:, 0] < self.p_feedback[rows])
-        cum = self.cum[rows]
+        stop_episode, stop_step, p_feedback, cum, last_lag, p_flip, cum_late, drift_episodes = self._constants(rows)
+        silent = (episode >= stop_episode) | (global_step >= stop_step)
+        give = ~silent & (u[:, 0] < p_feedback)
         if self.drifts:
-            w = np.minimum(1.0, episode / self.drift_episodes[rows])[:, None]
-            cum = (1 - w) * cum + w * self.cum_late[rows]
-        lag = np.minimum((u[:, 1:2] >= cum).sum(axis=1), self.n_lags[rows] - 1)
-        value = np.where(u[:, 2] < self.p_flip[rows], -intended, intended)
+            w = np.minimum(1.0, episode / drift_episodes)[:, None]
+            cum = (1 - w) * cum + w * cum_late
+        lag = np.minimum((u[:, 1:2] >= cum).sum(axis=1), last_lag)
+        value = np.where(u[:, 2] < p_flip, -intended, intended)
         return give, value, lag
+
+    def _pick_constants(self, rows: np.ndarray) -> tuple:
+        return (self.stop_episode[rows], self.stop_step[rows], self.p_feedback[rows], self.cum[rows],
+                self.n_lags[rows] - 1, self.p_flip[rows], self.cum_late[rows], self.drift_episodes[rows])
 
     def select(self, rows: np.ndarray) -> None:
         """Keep only trials `rows` (in that order)."""
@@ -133,6 +139,7 @@ class ObserverBatch:
                      "drift_episodes", "u", "watched", "drawn"):
             setattr(self, name, getattr(self, name)[rows])
         self.rngs = [self.rngs[k] for k in rows]
+        self._constants.clear()
 
 
 class SimulatedObserver:

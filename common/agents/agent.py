@@ -34,7 +34,7 @@ from common.agents.history import BatchCredit
 from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max
 from common.agents.streams import to_integers
 from common.delay_learning import TrialLags
-from common.util import nz
+from common.util import RowConstants, nz
 
 # At most this many due rows run the Q and H minibatch steps as one stacked computation (above it,
 # copying the weights together costs more than the saved calls).
@@ -94,6 +94,9 @@ class TrialBatchAgent:
         # The latest feedback round's credit of its H trials (their indices into its rows, the credit): what the
         # live learner reports in Credit messages, so it never computes a feedback's credit twice.
         self.last_credit: tuple[np.ndarray, BatchCredit] | None = None
+        # Rows that train both Q and H (whose choices `act` compares), and whether there is one, per row set.
+        self._learns_both = RowConstants(lambda rows: (self.train_q[rows] & self.train_h[rows],
+                                                       bool((self.train_q[rows] & self.train_h[rows]).any())))
 
     @property
     def B(self) -> int:
@@ -138,8 +141,7 @@ class TrialBatchAgent:
         obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
         x = obs[rows].reshape(len(rows), 1, self.obs_dim)
         aq, ah = self.mixture.weights(rows, self.steps[rows])
-        both = self.train_q[rows] & self.train_h[rows]
-        compare = both.any()
+        both, compare = self._learns_both(rows)
         # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
         # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
         q = self.q.values(rows, x) if compare or aq.any() or not ah.any() else None
@@ -348,6 +350,7 @@ class TrialBatchAgent:
         self.parts.select(rows)
         for name in self._ROW_ARRAYS:
             setattr(self, name, getattr(self, name)[rows])
+        self._learns_both.clear()
         self.configs = [self.configs[k] for k in rows]
         self.seeds = [self.seeds[k] for k in rows]
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from common.agents.streams import UniformBlocks
+from common.util import RowConstants
 
 
 class Mixture:
@@ -28,9 +29,12 @@ class Mixture:
         self.adapt = np.array([getattr(c, "alpha_h_adapt", 0.0) for c in configs], np.float64)
         self.agree = np.ones(len(configs), np.float64)
         self.adapting = bool((self.adapt > 0).any())  # none adapts (the paper): skip the per-step work
+        self._constants = RowConstants(lambda rows: (self.alpha_h0[rows], self.alpha_h_decay[rows],
+                                                     self.alpha_q[rows].astype(np.float32).reshape(-1, 1, 1)))
 
     def alpha_h(self, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        sched = self.alpha_h0[rows] * self.alpha_h_decay[rows] ** steps.astype(np.float64)
+        alpha_h0, decay, _ = self._constants(rows)
+        sched = alpha_h0 * decay ** steps.astype(np.float64)
         if not self.adapting:
             return sched
         return np.where(self.adapt[rows] > 0, sched * self.agree[rows], sched)
@@ -52,7 +56,7 @@ class Mixture:
 
     def weights(self, rows: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(alpha_q, alpha_h) as float32 [n, 1, 1], to weigh values [n, N, A]."""
-        aq = self.alpha_q[rows].astype(np.float32).reshape(-1, 1, 1)
+        aq = self._constants(rows)[2]
         ah = self.alpha_h(rows, steps).astype(np.float32).reshape(-1, 1, 1)
         return aq, ah
 
@@ -60,6 +64,7 @@ class Mixture:
         for name in self._ROWS:
             setattr(self, name, getattr(self, name)[rows])
         self.adapting = bool((self.adapt > 0).any())
+        self._constants.clear()
 
 
 class EpsilonGreedy:
@@ -73,9 +78,11 @@ class EpsilonGreedy:
         self.floor = np.array([c.epsilon_floor for c in configs], np.float64)
         self.n_actions = n_actions
         self._u = UniformBlocks(keys, 2)
+        self._constants = RowConstants(lambda rows: (self.floor[rows], self.start[rows], self.decay[rows]))
 
     def epsilons(self, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        return np.maximum(self.floor[rows], self.start[rows] - self.decay[rows] * steps)
+        floor, start, decay = self._constants(rows)
+        return np.maximum(floor, start - decay * steps)
 
     def choose(self, rows: np.ndarray, steps: np.ndarray, greedy: np.ndarray) -> np.ndarray:
         """The actions of trials `rows` at their step `steps`, given their greedy actions."""
@@ -88,3 +95,4 @@ class EpsilonGreedy:
         for name in self._ROWS:
             setattr(self, name, getattr(self, name)[rows])
         self._u.select(rows)
+        self._constants.clear()

@@ -38,19 +38,19 @@ class BatchStepHistory:
     def push(self, trials: np.ndarray, t: np.ndarray, obs: np.ndarray, action: np.ndarray,
              slot: np.ndarray, episode: np.ndarray) -> None:
         """Trial trials[k] took action[k] at time t[k] in its episode episode[k] (trials distinct)."""
-        held = self.count[trials] > 0
-        newest = self.times[trials, (self.head[trials] - 1) % self.capacity]
-        if np.any(held & (t < newest)):
-            k = int(nz(held & (t < newest))[0])
+        pos, count = self.head[trials], self.count[trials]
+        newest = self.times[trials, (pos - 1) % self.capacity]
+        older = (count > 0) & (t < newest)
+        if older.any():
+            k = int(nz(older)[0])
             raise ValueError(f"step time {t[k]} is older than the previous step {newest[k]}")
-        pos = self.head[trials]
         self.times[trials, pos] = t
         self.episode[trials, pos] = episode
         self.obs[trials, pos] = obs
         self.action[trials, pos] = action
         self.slot[trials, pos] = slot
         self.head[trials] = (pos + 1) % self.capacity
-        self.count[trials] = np.minimum(self.count[trials] + 1, self.capacity)
+        self.count[trials] = np.minimum(count + 1, self.capacity)
 
     def clear(self, trials) -> None:
         self.count[trials] = 0
