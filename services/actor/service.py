@@ -9,12 +9,12 @@ A Weights version is the number of steps the learner has learned from. With `max
 acts at step k only once it holds a version >= k - m (m = 0 is the runner's lockstep: every action sees the
 update of the step before it).
 
-Restarts (docs/faults.md): with `state_file`, the number of finished episodes is saved (atomically) before
-each episode's last step is published. An actor started on an existing state file is a new incarnation
-that continues the run: it starts the next episode (the broken one is closed by the learner), waits for
-the current weights of an announced learner first and counts its schedules and lockstep from that version
-on. Weights are accepted only from a learner incarnation that a ServiceStatus announced, with a plausible
-timestamp and the right tensor names and shapes; everything else is dropped and counted. Steps of the last
+Restarts (docs/faults.md): with `state_file`, the number of finished episodes is saved (in place, whole after a
+kill: services/common/progress.py) before each episode's last step is published. An actor started on an existing
+state file is a new incarnation that continues the run: it starts the next episode (the broken one is closed by
+the learner), waits for the current weights of an announced learner first and counts its schedules and lockstep
+from that version on. Weights are accepted only from a learner incarnation that a ServiceStatus announced, with a
+plausible timestamp and the right tensor names and shapes; everything else is dropped and counted. Steps of the last
 `resend_window` s are published again when a learner or recorder (re)starts.
 
 Pace: `rate` steps per second (a fixed period, for a human watching) or as fast as possible (0). Each Step

@@ -107,7 +107,8 @@ class ActorConfig(TaskConfig):
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
-    state_file: str | None = option(None, "progress file (episodes done), rewritten atomically at each episode end; "
+    state_file: str | None = option(None, "progress file (episodes done), rewritten in place "
+                                          "(services/common/progress.py) at each episode end; "
                                           "an actor started on an existing one is a restart: it continues with the "
                                           "next episode and waits for the learner's current weights first")
 
@@ -142,8 +143,9 @@ class TeacherConfig(TaskConfig):
                                  "half-way between steps k+d and k+d+1; wall: sent at t_action(k) + (d + 0.5) * "
                                  "step-unit seconds (for a fixed actor rate)", choices=CLOCKS)
     step_unit: float = option(0.1, "seconds per step for --clock wall (1 / the actor's rate)")
-    state_file: str | None = option(None, "the next feedback seq, rewritten atomically before each feedback is "
-                                          "sent: a restarted teacher continues its seq (never reuses one)")
+    state_file: str | None = option(None, "the next feedback seq, rewritten in place (services/common/progress.py) "
+                                          "before each feedback is sent: a restarted teacher continues its seq "
+                                          "(never reuses one)")
 
     def __post_init__(self):
         super().__post_init__()
