@@ -158,7 +158,7 @@ def test_dqn_tamer_live_learns_like_in_process(tmp_path):
     still, which slows live learning a little (measured in learning_rule.py). With the default 32-step history
     the latest would be dropped as stale, so both sides keep 1000 steps (no reaction is dropped for lateness;
     the in-process runner never delivers one late). Live and in-process runs of one seed are not paired: their
-    measures correlate at about 0.1 (44 seeds), since their actions part at the first feedback."""
+    measures correlate at 0.17 (60 seeds), since their actions part at the first feedback."""
     from .learning_rule import EPISODES, HISTORY_STEPS, MAX_MEAN_LOG_STEPS, in_process_steps, learning_measure, passes
 
     seeds = range(4)
@@ -169,7 +169,10 @@ def test_dqn_tamer_live_learns_like_in_process(tmp_path):
                           "--agent.history-steps", str(HISTORY_STEPS))
         assert launch.wait(timeout=240) == 0, launch.out
         summary = launch.summary()
-        assert "stale" not in summary["feedback_rejected"], summary["feedback_rejected"]
+        # None stale, none ignored: every feedback reached H (the measure alone would pass an agent that ignores
+        # feedback by design, dqn: 99.9% of draws, as DQN too learns the maze by episode 10).
+        assert set(summary["feedback_rejected"]) <= {"after_end"}, summary["feedback_rejected"]
+        assert summary["feedback_credited"] >= 0.9 * summary["feedback_logged"] > 0, summary["feedback_credited"]
         assert all(e["finished"] for e in summary["episodes"])
         live.append(learning_measure([e["steps"] for e in summary["episodes"]]))
         assert_nothing_left(launch.rundir)
