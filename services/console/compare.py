@@ -204,6 +204,7 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
                   marker="o", linestyle="none", label=a.name)
     title = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
     left.set(xlabel="layout/seed", ylabel="episodes (fewer is better)", title=title)
+    left.tick_params(axis="x", labelrotation=60, labelsize=7)
     right.set(xlabel="episode", ylabel="steps (median over pairs)", yscale="log", title="steps per episode")
     left.legend(fontsize=8)
     fig.tight_layout()
