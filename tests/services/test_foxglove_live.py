@@ -47,6 +47,10 @@ async def watch(port: int, deadline: float) -> tuple[dict, dict]:
                     elif body["op"] == "advertise":
                         subs = []
                         for ch in body["channels"]:
+                            # a channel may be advertised again (the server re-advertises as channels appear):
+                            # subscribing twice with the same id is refused and loses the subscription
+                            if ch["id"] in channels:
+                                continue
                             channels[ch["id"]] = ch
                             if ch["topic"] in WANTED:
                                 subs.append({"id": ch["id"], "channelId": ch["id"]})
