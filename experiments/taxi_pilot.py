@@ -85,15 +85,15 @@ class TaxiPilotConfig:
     trials: int = option(3, "DQN trials (seeds seed0, seed0 + 1, ...)")
     seed0: int = option(PILOT_SEED0, f"first pilot seed (>= {PILOT_SEED0})")
     set: tuple[str, ...] = option((), "AgentConfig fields changed from the reproduction's Taxi settings, "
-                                      "FIELD=VALUE,FIELD=VALUE")
+                                      "FIELD=VALUE,FIELD=VALUE (a value may hold commas: "
+                                      "assumed_delay_probs=0.3,0.6,0.1)")
     out: str | None = option(None, "write the per-episode steps and the summary as JSON here")
 
     def __post_init__(self):
         if self.seed0 < PILOT_SEED0:
             raise ValueError(f"seed0 must be >= {PILOT_SEED0}: lower seeds may be the reproduction's")
-        bad = [s for s in self.set if "=" not in s]
-        if bad:
-            raise ValueError(f"set expects FIELD=VALUE, got {bad}")
+        if self.set and "=" not in self.set[0]:
+            raise ValueError(f"set expects FIELD=VALUE, got {self.set[0]!r}")
         try:
             specs(self.env, 1, 1, self.changes, self.seed0)
         except TypeError as exc:
@@ -101,7 +101,15 @@ class TaxiPilotConfig:
 
     @property
     def changes(self) -> dict:
-        return {k.replace("-", "_"): _value(v) for k, v in (s.split("=", 1) for s in self.set)}
+        """FIELD=VALUE items; an item without "=" continues the previous value (the command line splits
+        `assumed_delay_probs=0.3,0.6,0.1` at its commas)."""
+        items: list[str] = []
+        for part in self.set:
+            if "=" in part or not items:
+                items.append(part)
+            else:
+                items[-1] += "," + part
+        return {k.replace("-", "_"): _value(v) for k, v in (s.split("=", 1) for s in items)}
 
 
 def main(cfg: TaxiPilotConfig) -> int:

@@ -31,3 +31,12 @@ def test_pilot_seeds_and_tasks_are_not_the_reproductions():
         taxi_pilot.cli(["--seed0", "5"])
     with pytest.raises(SystemExit):
         taxi_pilot.cli(["--set", "no_such_field=1", "--episodes", "1", "--trials", "1"])
+
+
+def test_set_takes_several_fields_and_values_that_hold_commas():
+    from common.config import parse_config
+
+    cfg = parse_config(taxi_pilot.TaxiPilotConfig, ["--set", "replay_size=50000,assumed_delay_probs=0.3,0.6,0.1"])
+    assert cfg.changes == {"replay_size": 50000, "assumed_delay_probs": "0.3,0.6,0.1"}
+    (spec,) = taxi_pilot.specs("taxi-s", 1, 1, cfg.changes)
+    assert spec.agent.assumed_delay_probs == (0.3, 0.6, 0.1) and spec.agent.replay_size == 50000
