@@ -6,7 +6,8 @@
   to the recorder receiving that Feedback; frame -> expression: capture to the recorder receiving its
   ExpressionPrediction;
 - action -> screen: a step's action (`Step.t_action`) to its paint on the person's screen (`Shown.t_shown`);
-- steps per feedback: the steps a feedback listed as shown in its window, and those it was credited to.
+- steps per feedback: the steps a feedback listed as shown in its window, and those it was credited to;
+- the share of each press's credit on steps the paper's rule rates as the press does (a scripted person's).
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from common.config import option, parse_config
 from common.mcap_read import NotMcapError, read_log
-from common.protocol import Credit, ExpressionPrediction, Feedback, Shown
+from common.protocol import Credit, ExpressionPrediction, Feedback, Shown, Step
 
 
 def _stats(values: list[float], scale: float = 1e3) -> dict | None:
@@ -31,9 +32,10 @@ def _stats(values: list[float], scale: float = 1e3) -> dict | None:
 
 
 def measure(paths: list[str]) -> dict:
-    press, face, expression, shown_lag, listed, credited = [], [], [], [], [], []
+    press, face, expression, shown_lag, listed, credited, agreeing = [], [], [], [], [], [], []
     for path in paths:
         fbs: dict[tuple[str, int], Feedback] = {}
+        infos: dict[tuple[str, int], dict] = {}
         for rec in read_log(Path(path)):
             m = rec.message
             if isinstance(m, Feedback) and m.shown is not None:
@@ -45,13 +47,31 @@ def measure(paths: list[str]) -> dict:
                 credited.append(sum(1 for s in m.steps if s.weight > 0))
                 if fbs[(m.teacher_id, m.seq)].source != "face":
                     press.append(m.t_credited - m.t_reaction)
+                    share = rule_agreement(m, infos)
+                    if share is not None:
+                        agreeing.append(share)
+            elif isinstance(m, Step):
+                infos[(m.incarnation, m.seq)] = m.info
             elif isinstance(m, Shown):
                 shown_lag.append(m.t_shown - m.t_action)
             elif isinstance(m, ExpressionPrediction):
                 expression.append(rec.log_time / 1e9 - m.t_capture)
     return {"runs": paths, "press_to_credited_ms": _stats(press), "frame_to_face_feedback_ms": _stats(face),
             "frame_to_expression_ms": _stats(expression), "action_to_screen_ms": _stats(shown_lag),
-            "steps_listed_per_feedback": _stats(listed, 1.0), "steps_credited_per_feedback": _stats(credited, 1.0)}
+            "steps_listed_per_feedback": _stats(listed, 1.0), "steps_credited_per_feedback": _stats(credited, 1.0),
+            "credit_share_on_steps_the_rule_rates_alike": _stats(agreeing, 1.0)}
+
+
+def rule_agreement(credit: Credit, infos: dict) -> float | None:
+    """The share of a press's credit on steps that the paper's rule rates as the press does (a scripted person
+    presses by that rule, so a perfect credit scores 1); None where a step's info has no target distances."""
+    from common.envs.rules import progress_rule
+
+    rows = [(s.weight, infos.get((credit.actor, s.seq))) for s in credit.steps if s.weight > 0]
+    if not rows or any(i is None or "target_distance_after" not in i for _, i in rows):
+        return None
+    total = sum(w for w, _ in rows)
+    return sum(w for w, i in rows if progress_rule(i) == credit.value) / total
 
 
 @dataclass(frozen=True)

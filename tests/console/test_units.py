@@ -170,3 +170,16 @@ def test_measure_names_a_missing_or_foreign_log_in_one_line(tmp_path, capsys):
     (tmp_path / "x.mcap").write_text("not a log")
     assert measure.cli([str(tmp_path / "x.mcap")]) == 2
     assert "not an MCAP file" in capsys.readouterr().err
+
+
+def test_rule_agreement_is_the_share_of_a_press_on_steps_the_rule_rates_alike():
+    from common.protocol import Credit, CreditedStep
+    from services.console.measure import rule_agreement
+
+    closer = {"target_distance_before": 5.0, "target_distance_after": 4.0}
+    away = {"target_distance_before": 4.0, "target_distance_after": 5.0}
+    infos = {("act-1", 7): closer, ("act-1", 8): away}
+    credit = Credit(run="r", teacher_id="web-1", seq=0, value=1, status="credited", t_reaction=NOW,
+                    t_credited=NOW, actor="act-1", steps=[CreditedStep(7, 0.3), CreditedStep(8, 0.1)], lost_mass=0.6)
+    assert rule_agreement(credit, infos) == pytest.approx(0.75)
+    assert rule_agreement(credit, {("act-1", 7): closer, ("act-1", 8): {}}) is None  # no distances: no rule
