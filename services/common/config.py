@@ -188,6 +188,8 @@ class LearnerConfig(TaskConfig):
     snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
                                       "each episode end (numbers only), on request and the final ones")
     ingest_batch: int = option(256, "at most this many entries per Ingest message")
+    ingest_period: float = option(0.05, "seconds an entry may wait for its Ingest message (one message per period, "
+                                        "not one per step: each message costs every process on its way)")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
     wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
     checkpoint: str | None = option(None, "checkpoint file: restored at start if it exists, rewritten atomically "
@@ -216,6 +218,8 @@ class LearnerConfig(TaskConfig):
             raise ValueError(f"idle-updates must be >= 0, got {self.idle_updates}")
         if self.snapshot_every < 1:
             raise ValueError(f"snapshot-every must be >= 1, got {self.snapshot_every}")
+        if not (math.isfinite(self.ingest_period) and 0 <= self.ingest_period <= 10):
+            raise ValueError(f"ingest-period must be in 0..10 s, got {self.ingest_period}")
         if not 1 <= self.ingest_batch <= 2048:
             raise ValueError(f"ingest-batch must be in 1..2048, got {self.ingest_batch}")
         if not (math.isfinite(self.end_grace) and self.end_grace >= 0):

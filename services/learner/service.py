@@ -69,6 +69,7 @@ class Learner:
         self.idle_left = 0  # extra minibatch steps still allowed before the next step arrives
         self.wpub, self.epub, self.ipub = publishers["weights"], publishers["episode"], publishers["ingest"]
         self.ingest_seq = 0
+        self.last_ingest = time.monotonic()  # when Ingest was last flushed
         self.sent_at: dict[int, tuple] = {}  # ingest position of a held feedback -> (when sent, when it arrived)
         self.ring = ResendRing(config.resend_window)
         spub = publishers["snapshot"]
@@ -85,6 +86,7 @@ class Learner:
     # -- outputs ---------------------------------------------------------------------------------------------
     def flush_ingest(self) -> None:
         core = self.core
+        self.last_ingest = time.monotonic()
         while core.entries:
             index = core.position - len(core.entries)
             entries = core.take_entries(self.config.ingest_batch)
@@ -215,7 +217,7 @@ class Learner:
         if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
             if self.idle_left > 0 and self.core.idle(time.time()):
                 self.idle_left -= 1
-                self.flush_ingest()
+            self.flush_ingest()  # (what waited for the period goes now: nothing else is coming)
             return
         if got.key.endswith("/step"):  # a new step: a new budget of idle-time updates before the next one
             self.idle_left = self.config.idle_updates
@@ -231,7 +233,8 @@ class Learner:
         v = self.core.steps_learned
         if v != self.last_weights["v"] and (idle or v - self.last_weights["v"] >= self.config.weights_every):
             self.publish_weights(v)
-        if idle or len(self.core.entries) >= self.config.ingest_batch:
+        if (len(self.core.entries) >= self.config.ingest_batch
+                or time.monotonic() - self.last_ingest >= self.config.ingest_period):
             self.flush_ingest()
 
     def on_restarts(self) -> None:
