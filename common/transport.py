@@ -221,6 +221,22 @@ def subscription(session: zenoh.Session, key_expr: str, *, maxsize: int = 1024, 
             sub.undeclare()
 
 
+@contextlib.contextmanager
+def subscriptions(session: zenoh.Session, key_exprs: list[str], *, maxsize: int = 1024, policy: str = "block",
+                  block_timeout: float = 5.0, auth: Any = None) -> Iterator[Inbox]:
+    """Like :func:`subscription`, for several key expressions feeding one Inbox (in arrival order)."""
+    inbox = Inbox(maxsize, policy, block_timeout=block_timeout, auth=auth)
+    subs = []
+    try:
+        subs = [session.declare_subscriber(k, inbox.handler()) for k in key_exprs]
+        yield inbox
+    finally:
+        inbox.close()
+        for sub in subs:
+            with contextlib.suppress(Exception):
+                sub.undeclare()
+
+
 # -- a router process -----------------------------------------------------------------------------------------------
 
 def run_router(endpoint: str, *, stop: threading.Event | None = None,

@@ -1,4 +1,5 @@
-"""`python -m services.recorder`: everything under `hitl/<run>/**` into one MCAP file.
+"""`python -m services.recorder`: everything under `hitl/<run>/**` that the log keeps (all but the weights) into
+one MCAP file.
 
 Just another subscriber: samples are written as received (bytes untouched, log time = arrival, publish time
 = the sample's Zenoh timestamp), one channel per key, one schema per type, zstd chunks flushed every
@@ -21,7 +22,7 @@ import sys
 import time
 
 from common.config import config_record
-from common.protocol import ProtocolError, RunConfig, ServiceStatus, decode, parse_key, run_prefix, status_key
+from common.protocol import KEYS, ProtocolError, RunConfig, ServiceStatus, decode, status_key
 from common.scene import SceneBuilder
 from services.common.config import RecorderConfig
 from services.common.faults import AliveWatch, first_time_logger
@@ -44,7 +45,7 @@ def load_run_config(config: RecorderConfig) -> RunConfig:
 
 def main(config: RecorderConfig) -> int:
     from common.mcap_log import LogWriter
-    from common.transport import subscription
+    from common.transport import subscriptions
 
     rt = ServiceRuntime("recorder", config)
     run_config = load_run_config(config)
@@ -56,8 +57,10 @@ def main(config: RecorderConfig) -> int:
     caps = RecordCaps(config.max_sender_mb_s * MIB, config.max_camera_mb_s * MIB, config.max_camera_fps)
     try:
         with rt.session() as session:
-            with subscription(session, run_prefix(config.run), maxsize=1 << 16, policy="block",
-                              block_timeout=3600) as inbox:
+            # What it logs, kind by kind: not `hitl/<run>/**`, which would bring it the weights the actor needs
+            # after almost every step (KEYS["weights"].logged is False) only to drop them.
+            logged = [spec.wildcard(config.run) for spec in KEYS.values() if spec.logged]
+            with subscriptions(session, logged, maxsize=1 << 16, policy="block", block_timeout=3600) as inbox:
                 rt.ready()
                 note_rejected = first_time_logger(rt.event, "message")
                 others = None
@@ -75,9 +78,6 @@ def main(config: RecorderConfig) -> int:
                     item = inbox.get(timeout=0.05)
                     if item is not None:
                         try:
-                            if not parse_key(item.key).spec.logged:  # (the weights: not decoded for nothing)
-                                rt.counters[f"not_logged_{item.key.split('/')[2]}"] += 1
-                                continue
                             st = decode(item.key, item.data)
                             if not caps.admit(item.key, len(item.data)):
                                 rt.counters[f"capped_{item.key.split('/')[2]}"] += 1
