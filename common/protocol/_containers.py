@@ -128,6 +128,34 @@ class Obj(Spec):
         return "object {" + ", ".join(f"{k}: {v.describe()}" for k, v in self.fields.items()) + "}"
 
 
+class Embedded(Spec):
+    """A whole message of another type as a nested object: its own fields, checks and cross-rules. ``message``
+    returns the class (a function, so that a module may name a message type defined after it)."""
+
+    def __init__(self, message: Any, *, description: str = ""):
+        self._message = message
+        self.description = description
+
+    @property
+    def cls(self) -> Any:
+        return self._message()
+
+    def schema(self) -> dict:
+        return {k: v for k, v in self.cls.json_schema().items() if k not in ("$schema", "$id")}
+
+    def check(self, value: Any, path: str) -> Any:
+        try:
+            return self.cls.from_json_obj(value)
+        except ProtocolError as e:
+            raise ProtocolError(e.reason, f"{path}: {e.detail}") from None
+
+    def to_json(self, value: Any) -> Any:
+        return value.to_json_obj() if isinstance(value, self.cls) else value
+
+    def describe(self) -> str:
+        return f"a `{self.cls.TYPE_NAME}` object (its own fields and rules)"
+
+
 class AnyJSON(Spec):
     """Any JSON value with finite numbers, bounded nesting depth. Used for the run config."""
 

@@ -206,6 +206,14 @@ def message_type(key: str) -> type:
     return parse_key(key).spec.message
 
 
+def carried(message: Any) -> list[tuple[str, Any]]:
+    """The messages that ride inside another, each with the key it would have had alone: an Ingest's Credits
+    (the recorder logs them, and the Foxglove bridge serves them, as if they had come alone)."""
+    if isinstance(message, Ingest) and message.credits:
+        return [(credit_key(message.run, c.teacher_id), c) for c in message.credits]
+    return []
+
+
 def decode(key: str, data: bytes) -> Any:
     """Decode bytes received on ``key``. Raises only :class:`ProtocolError`.
 

@@ -6,7 +6,7 @@ import dataclasses
 from typing import Any, ClassVar
 
 from ._base import PROTOCOL_VERSION, Message, fld
-from ._containers import AnyJSON, List, Map, Nullable, Obj
+from ._containers import AnyJSON, Embedded, List, Map, Nullable, Obj
 from ._spec import Bool, Bytes64, Float, Int, ProtocolError, Str
 
 #: Names that become one chunk of a key expression (run, teacher_id, service, camera id): letters, digits,
@@ -207,6 +207,9 @@ INGEST_ENTRY_SPEC = Obj({
 }, cls=IngestEntry, description="One ingest entry.")
 
 
+MAX_INGEST_CREDITS = 64  # Credits one Ingest message may carry
+
+
 @dataclasses.dataclass(frozen=True)
 class Ingest(Message):
     """A learner's record of the inputs it consumed, in the order it consumed them (published on
@@ -221,7 +224,8 @@ class Ingest(Message):
     """
 
     TYPE_NAME: ClassVar[str] = "hitl.Ingest"
-    MAX_BYTES: ClassVar[int] = 512 * 1024
+    MAX_BYTES: ClassVar[int] = 512 * 1024 + MAX_INGEST_CREDITS * 8192  # (8192: Credit.MAX_BYTES)
+    CROSS_RULES: ClassVar[tuple[str, ...]] = ("every credit's `run` is the Ingest's `run`, else `bad_value`",)
 
     run: str = fld(Name(RUN))
     learner: str = fld(Token("The learner process's incarnation."))
@@ -230,6 +234,21 @@ class Ingest(Message):
     entries: list = fld(List(INGEST_ENTRY_SPEC, max_items=2048, description="Entries in consumption order."))
     config: dict | None = fld(Nullable(AnyJSON(object_only=True, description=(
         "The learner's config (first batch only): everything retrain needs to rebuild it."))), optional=True)
+    credits: list | None = fld(Nullable(List(Embedded(lambda: _credit_type()), max_items=MAX_INGEST_CREDITS, description=(
+        "What became of feedback from the teachers whose Credits ride here rather than on their own key (the "
+        "learner's `credits-in-ingest`: a run's own teacher services, one message less per feedback). The "
+        "recorder logs each on `/credit/<teacher_id>` as if it had come alone."))), optional=True)
+
+    def _cross_check(self) -> None:
+        if any(c.run != self.run for c in self.credits or ()):
+            raise ProtocolError("bad_value", "a credit of another run")
+
+
+
+def _credit_type() -> type:
+    from ._console import Credit  # (the console's module, which imports this one)
+
+    return Credit
 
 
 #: `stopped`: done with its part of the run (receivers waiting on it may end); `failed`: ended without

@@ -192,6 +192,9 @@ class LearnerConfig(TaskConfig):
                                         "not one per step: each message costs every process on its way)")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
     wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
+    credits_in_ingest: tuple[str, ...] = option((), "teacher ids whose Credits ride in the next Ingest message "
+                                                    "instead of one message each (the launcher: its own teachers; a "
+                                                    "person's console wants each at once, on its own key)")
     checkpoint: str | None = option(None, "checkpoint file: restored at start if it exists, rewritten atomically "
                                           "every checkpoint-period s while learning")
     checkpoint_period: float = option(2.0, "seconds between checkpoints (when something was learned)")

@@ -160,10 +160,10 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     if not teachers:
         raise ValueError(f"teacher kind {c.teacher!r} starts no process")
     teacher_names = [teachers[0].name]
+    own_teachers = tuple(t for t in map(teacher_id_of, teacher_names) if t)  # (not a console's people)
     learner = LearnerConfig(**launch.common("learner"), task=c.task, algo=c.algo, agent=c.agent,
                             weights_every=c.weights_every,
-                            end_grace=c.end_grace,
-                            wait_teachers=tuple(t for t in map(teacher_id_of, teacher_names) if t),
+                            end_grace=c.end_grace, wait_teachers=own_teachers, credits_in_ingest=own_teachers,
                             checkpoint=launch.state_path("learner", ".ckpt"), checkpoint_period=c.checkpoint_period,
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
                             debug_update_sleep=c.debug_update_sleep, screen_delay=c.screen_delay,

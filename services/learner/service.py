@@ -29,8 +29,9 @@ from __future__ import annotations
 import sys
 import time
 
-from common.protocol import (KEYS, kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ProtocolError, ServiceStatus, Step, Weights,
-                             episode_key, feedback_wildcard, ingest_key, step_key, weights_key)
+from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep, EpisodeSummary, Feedback,
+                             Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key, feedback_wildcard,
+                             ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
 from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, InputGate, ResendRing,
                                     decoded_statuses, first_time_logger, publish_kept)
@@ -65,6 +66,7 @@ class Learner:
         self.config, self.rt, self.core, self.gate, self.resumed = config, rt, core, gate, resumed
         self.session = session
         self.credit_pubs: dict = {}  # per person (console teacher): where their Credit messages go
+        self.ingest_credits: list = []  # Credits for the next Ingest message (config.credits_in_ingest)
         self.inbox, self.status, self.watch, self.actors, self.requests = inbox, status, watch, actors, requests
         self.idle_left = 0  # extra minibatch steps still allowed before the next step arrives
         self.wpub, self.epub, self.ipub = publishers["weights"], publishers["episode"], publishers["ingest"]
@@ -87,16 +89,19 @@ class Learner:
     def flush_ingest(self) -> None:
         core = self.core
         self.last_ingest = time.monotonic()
-        while core.entries:
+        while core.entries or self.ingest_credits:
             index = core.position - len(core.entries)
             entries = core.take_entries(self.config.ingest_batch)
+            credits = self.ingest_credits[:MAX_INGEST_CREDITS]
+            del self.ingest_credits[:MAX_INGEST_CREDITS]
             cfg = None
             if self.ingest_seq == 0:
                 cfg = core.config_record()
                 if self.resumed is not None:
                     cfg["resumed_from"] = {"learner": self.resumed["learner"], "position": self.resumed["position"]}
             publish_kept(self.ipub, Ingest(run=self.config.run, learner=self.rt.incarnation, seq=self.ingest_seq,
-                                           index=index, entries=entries, config=cfg), self.ring)
+                                           index=index, entries=entries, config=cfg, credits=credits or None),
+                         self.ring)
             self.ingest_seq += 1
 
     def current_weights(self, version: int) -> tuple[dict, bytes]:
@@ -131,7 +136,11 @@ class Learner:
         done = time.time()
         for r in results:
             if r.feedback is not None:  # what became of it: consoles and the log's scene show it
-                publish_credit(self.session, self.config.run, self.credit_pubs, r, self.core.actor, done)
+                credit = credit_message(self.config.run, r, self.core.actor, done)
+                if credit.teacher_id in self.config.credits_in_ingest:
+                    self.ingest_credits.append(credit)
+                else:
+                    publish_credit(self.session, self.credit_pubs, credit)
             t0, t_held = t_sent, None
             if r.received_at in self.sent_at:
                 t0, t_held = self.sent_at.pop(r.received_at)
@@ -233,7 +242,7 @@ class Learner:
         v = self.core.steps_learned
         if v != self.last_weights["v"] and (idle or v - self.last_weights["v"] >= self.config.weights_every):
             self.publish_weights(v)
-        if (len(self.core.entries) >= self.config.ingest_batch
+        if (len(self.core.entries) >= self.config.ingest_batch or len(self.ingest_credits) >= MAX_INGEST_CREDITS
                 or time.monotonic() - self.last_ingest >= self.config.ingest_period):
             self.flush_ingest()
 
@@ -341,19 +350,23 @@ def main(config: LearnerConfig) -> int:
     return 0
 
 
-def publish_credit(session, run: str, pubs: dict, result, actor: str | None, t_done: float) -> None:
-    """A `Credit` for one resolved feedback: the steps it was credited to, with their weights."""
-    from common.protocol import Credit, CreditedStep, credit_key
+def credit_message(run: str, result, actor: str | None, t_done: float) -> Credit:
+    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights."""
+    fb = result.feedback
+    return Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
+                  t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
+                  steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
+                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))))
+
+
+def publish_credit(session, pubs: dict, credit: Credit) -> None:
+    """A Credit on its own key, `hitl/<run>/credit/<teacher_id>` (a publisher per teacher, made once)."""
     from common.transport import MessagePublisher
 
-    fb = result.feedback
-    pub = pubs.get(fb.teacher_id)
+    pub = pubs.get(credit.teacher_id)
     if pub is None:
-        pub = pubs[fb.teacher_id] = MessagePublisher(session, credit_key(run, fb.teacher_id))
-    pub.put(Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
-                   t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
-                   steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
-                   lost_mass=min(1.0, max(0.0, float(result.lost_mass)))))
+        pub = pubs[credit.teacher_id] = MessagePublisher(session, credit_key(credit.run, credit.teacher_id))
+    pub.put(credit)
 
 
 def cli(argv: list[str] | None = None) -> int:

@@ -11,7 +11,7 @@ from common.protocol import (NAME_PATTERN, TOKEN_PATTERN, Box, CompressedImage, 
                              EpisodeSummary, ExpressionPrediction, Feedback, Ingest, IngestEntry, RunConfig,
                              Request, ServiceStatus, Shown, ShownStep, Step, TensorSummary, Time, Weights,
                              WeightsSnapshot)
-from common.protocol._containers import AnyJSON, List, Map, Nullable, Obj
+from common.protocol._containers import AnyJSON, Embedded, List, Map, Nullable, Obj
 from common.protocol._spec import Bool, Bytes64, Float, Int, Spec, Str
 
 TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)
@@ -50,6 +50,8 @@ def for_spec(spec: Spec) -> st.SearchStrategy:
         return st.builds(spec.cls, **fields) if spec.cls is not None else st.fixed_dictionaries(fields)
     if isinstance(spec, AnyJSON):
         return st.dictionaries(TEXT, ANY_JSON, max_size=5)
+    if isinstance(spec, Embedded):
+        return messages(spec.cls)
     raise TypeError(spec)
 
 
@@ -75,7 +77,13 @@ def _fix_control(msg: Control) -> Control:
     return dataclasses.replace(msg, rate=None)
 
 
-FIXERS = {Step: _fix_step, Feedback: _fix_feedback, Shown: _fix_shown, Control: _fix_control}
+def _fix_ingest(msg: Ingest) -> Ingest:
+    if not msg.credits:
+        return msg
+    return dataclasses.replace(msg, credits=[dataclasses.replace(c, run=msg.run) for c in msg.credits])
+
+
+FIXERS = {Step: _fix_step, Feedback: _fix_feedback, Shown: _fix_shown, Control: _fix_control, Ingest: _fix_ingest}
 
 
 def messages(cls: type) -> st.SearchStrategy:

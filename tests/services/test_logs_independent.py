@@ -61,6 +61,8 @@ def test_every_message_matches_its_embedded_schema_and_the_scene_matches_foxglov
         for schema, channel, message in reader.iter_messages():
             counts[channel.topic] += 1
             assert "indep" not in channel.topic  # topics carry no run id
+            if channel.topic == "/ingest":
+                counts["credits in ingest"] += len(json.loads(message.data).get("credits") or ())
             if schema.encoding == "jsonschema":
                 if schema.id not in validators:
                     body = json.loads(schema.data)
@@ -85,6 +87,8 @@ def test_every_message_matches_its_embedded_schema_and_the_scene_matches_foxglov
     assert episodes == 6 and steps > 0
     assert counts["/scene/layout"] == episodes and counts["/scene/agent"] == steps
     assert counts["/scene/feedback"] == counts["/credit/oracle"] > 0
+    # the oracle (the run's own teacher) had its Credits ride in Ingest; the recorder logged each on its own topic
+    assert counts["credits in ingest"] == counts["/credit/oracle"]
     assert counts["/snapshot"] >= 2 and "/weights" not in counts  # bounded-rate weights, not every version
 
     # Foxglove's published schema (not the SDK that wrote the log): same types, and its classes parse the bytes.
