@@ -19,11 +19,17 @@ WANTED = ("/step", "/scene/agent", "/scene/layout")
 
 
 async def watch(port: int, deadline: float) -> tuple[dict, dict]:
-    """Connect (retrying while the run starts), subscribe to WANTED as they are advertised; collect payloads."""
+    """Connect (retrying while the run starts), subscribe to WANTED as they are advertised; collect payloads.
+    A wanted channel still silent 1.5 s after its subscription is subscribed once more under a new id (a subscribe
+    that reached the server as it was still setting the channel up was seen lost, 1 run in 5)."""
     import aiohttp
 
     channels: dict[int, dict] = {}
+    by_sub: dict[int, int] = {}  # subscription id -> channel id
+    asked: dict[int, float] = {}  # channel id -> when last subscribed
+    again: set[int] = set()  # channels subscribed a second time
     got: dict[str, list[bytes]] = {t: [] for t in WANTED}
+    notes: list[str] = []  # the server's status messages, for the failure message
     async with aiohttp.ClientSession() as http:
         while True:
             try:
@@ -34,36 +40,50 @@ async def watch(port: int, deadline: float) -> tuple[dict, dict]:
                     raise
                 await asyncio.sleep(0.2)
         info = None
+
+        async def subscribe(ids: list[int]) -> None:
+            subs = []
+            for cid in ids:
+                sub_id = len(by_sub) + 1
+                by_sub[sub_id] = cid
+                asked[cid] = time.monotonic()
+                subs.append({"id": sub_id, "channelId": cid})
+            await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": subs}))
+
         async with ws:
             while time.monotonic() < deadline and not all(len(v) >= 3 for v in got.values()):
                 try:
-                    msg = await ws.receive(timeout=max(0.1, deadline - time.monotonic()))
+                    msg = await ws.receive(timeout=0.5)
                 except asyncio.TimeoutError:
-                    break
-                if msg.type == aiohttp.WSMsgType.TEXT:
+                    msg = None
+                if msg is not None and msg.type == aiohttp.WSMsgType.TEXT:
                     body = json.loads(msg.data)
                     if body["op"] == "serverInfo":
                         info = body
+                    elif body["op"] == "status":
+                        notes.append(str(body.get("message"))[:200])
                     elif body["op"] == "advertise":
-                        subs = []
-                        for ch in body["channels"]:
-                            # a channel may be advertised again (the server re-advertises as channels appear):
-                            # subscribing twice with the same id is refused and loses the subscription
-                            if ch["id"] in channels:
-                                continue
-                            channels[ch["id"]] = ch
-                            if ch["topic"] in WANTED:
-                                subs.append({"id": ch["id"], "channelId": ch["id"]})
-                        if subs:
-                            await ws.send_str(json.dumps({"op": "subscribe", "subscriptions": subs}))
-                elif msg.type == aiohttp.WSMsgType.BINARY:
+                        # a channel may be advertised again (the server re-advertises as channels appear):
+                        # only new channel ids are subscribed here
+                        new = [ch for ch in body["channels"] if ch["id"] not in channels]
+                        channels.update({ch["id"]: ch for ch in new})
+                        wanted = [ch["id"] for ch in new if ch["topic"] in WANTED]
+                        if wanted:
+                            await subscribe(wanted)
+                elif msg is not None and msg.type == aiohttp.WSMsgType.BINARY:
                     data = msg.data
                     if data[0] == 0x01:  # message data: subscription id, log time, payload
                         sub_id, _ = struct.unpack_from("<IQ", data, 1)
-                        got[channels[sub_id]["topic"]].append(bytes(data[13:]))
-                elif msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED, aiohttp.WSMsgType.ERROR):
+                        got[channels[by_sub[sub_id]]["topic"]].append(bytes(data[13:]))
+                elif msg is not None and msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED,
+                                                      aiohttp.WSMsgType.ERROR):
                     break
-    return {"info": info, "channels": {c["topic"]: c for c in channels.values()}}, got
+                silent = [cid for cid, t in asked.items() if cid not in again
+                          and not got[channels[cid]["topic"]] and time.monotonic() - t > 1.5]
+                if silent:
+                    again.update(silent)
+                    await subscribe(silent)
+    return {"info": info, "channels": {c["topic"]: c for c in channels.values()}, "notes": notes}, got
 
 
 def test_a_foxglove_client_receives_the_scene_and_the_steps(tmp_path):
@@ -84,7 +104,7 @@ def test_a_foxglove_client_receives_the_scene_and_the_steps(tmp_path):
     assert chans["/scene/agent"]["schemaName"] == "foxglove.SceneUpdate"
     assert chans["/scene/agent"]["encoding"] == "protobuf"
     assert "/weights" not in chans  # the same channels as the log: not the actor's every-step weights
-    assert all(len(got[t]) >= 1 for t in WANTED), {t: len(v) for t, v in got.items()}
+    assert all(len(got[t]) >= 1 for t in WANTED), ({t: len(v) for t, v in got.items()}, meta["notes"])
     steps = [Step.decode(b) for b in got["/step"]]
     assert [s.seq for s in steps] == sorted(s.seq for s in steps) and steps[0].run == "fox"
     agent = SceneUpdate.decode(got["/scene/agent"][-1])
