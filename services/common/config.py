@@ -187,7 +187,7 @@ class LearnerConfig(TaskConfig):
                                     "learned steps while it is behind")
     snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
                                       "each episode end (numbers only), on request and the final ones")
-    ingest_batch: int = option(256, "at most this many entries per Ingest message")
+    ingest_batch: int = option(64, "at most this many entries per Ingest message")
     ingest_period: float = option(0.05, "seconds an entry may wait for its Ingest message (one message per period, "
                                         "not one per step: each message costs every process on its way)")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
