@@ -257,6 +257,19 @@ class SceneBuilder:
         return walls
 
 
+def derived_records(run: str, message: Any, scene: "SceneBuilder | None") -> list[tuple[str, bytes]]:
+    """(key, bytes) a log or a live viewer adds for one decoded message of `run`: the Credits an Ingest carries,
+    each as if it had come alone on its own key, and the scene drawn from the message and from those Credits."""
+    from common.protocol import carried
+
+    inner = carried(message)
+    out = [(key, m.encode()) for key, m in inner]
+    if scene is not None:
+        for m in [message] + [m for _, m in inner]:
+            out += scene.feed(run, m)
+    return out
+
+
 def _onehot(values: list, start: int, n: int) -> int:
     part = list(values[start:start + n])
     return int(max(range(n), key=lambda i: part[i])) if part else 0

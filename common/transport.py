@@ -207,25 +207,12 @@ def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None,
 
 
 @contextlib.contextmanager
-def subscription(session: zenoh.Session, key_expr: str, *, maxsize: int = 1024, policy: str | None = None,
-                 block_timeout: float = 5.0, auth: Any = None) -> Iterator[Inbox]:
-    """``with subscription(session, run_prefix(run)) as inbox: ...``: a callback subscriber feeding an Inbox;
-    on exit the inbox is closed first (releasing a callback blocked on a full queue), then the subscriber
-    is undeclared."""
-    sub, inbox = subscribe(session, key_expr, maxsize=maxsize, policy=policy, block_timeout=block_timeout, auth=auth)
-    try:
-        yield inbox
-    finally:
-        inbox.close()
-        with contextlib.suppress(Exception):
-            sub.undeclare()
-
-
-@contextlib.contextmanager
-def subscriptions(session: zenoh.Session, key_exprs: list[str], *, maxsize: int = 1024, policy: str = "block",
+def subscriptions(session: zenoh.Session, key_exprs: list[str], *, maxsize: int = 1024, policy: str | None = None,
                   block_timeout: float = 5.0, auth: Any = None) -> Iterator[Inbox]:
-    """Like :func:`subscription`, for several key expressions feeding one Inbox (in arrival order)."""
-    inbox = Inbox(maxsize, policy, block_timeout=block_timeout, auth=auth)
+    """``with subscriptions(session, [key, ...]) as inbox: ...``: callback subscribers feeding one Inbox (in arrival
+    order; policy by default the key table's for the first key); on exit the inbox is closed first (releasing a
+    callback blocked on a full queue), then the subscribers are undeclared."""
+    inbox = Inbox(maxsize, policy or default_policy(key_exprs[0]), block_timeout=block_timeout, auth=auth)
     subs = []
     try:
         subs = [session.declare_subscriber(k, inbox.handler()) for k in key_exprs]
@@ -235,6 +222,11 @@ def subscriptions(session: zenoh.Session, key_exprs: list[str], *, maxsize: int 
         for sub in subs:
             with contextlib.suppress(Exception):
                 sub.undeclare()
+
+
+def subscription(session: zenoh.Session, key_expr: str, **kwargs: Any) -> contextlib.AbstractContextManager[Inbox]:
+    """``with subscription(session, run_prefix(run)) as inbox: ...``: :func:`subscriptions` of one key."""
+    return subscriptions(session, [key_expr], **kwargs)
 
 
 # -- a router process -----------------------------------------------------------------------------------------------

@@ -244,7 +244,6 @@ class Ingest(Message):
             raise ProtocolError("bad_value", "a credit of another run")
 
 
-
 def _credit_type() -> type:
     from ._console import Credit  # (the console's module, which imports this one)
 

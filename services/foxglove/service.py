@@ -15,8 +15,8 @@ import json
 import sys
 import time
 
-from common.protocol import ProtocolError, ServiceStatus, carried, decode, log_topic, parse_key, run_prefix
-from common.scene import SceneBuilder
+from common.protocol import ProtocolError, ServiceStatus, decode, log_topic, parse_key, run_prefix
+from common.scene import SceneBuilder, derived_records
 from services.common.config import FoxgloveConfig
 from services.common.runtime import ServiceRuntime, service_main
 
@@ -81,11 +81,8 @@ def main(config: FoxgloveConfig) -> int:
                     if parse_key(item.key).spec.logged:
                         channels.log(item.key, item.data, t)
                         rt.counters["messages_served"] += 1
-                    for key, inner in carried(msg):  # (an Ingest's Credits: served as if they had come alone)
-                        channels.log(key, inner.encode(), t)
-                    for m in [msg] + [inner for _, inner in carried(msg)] if scene is not None else ():
-                        for key, data in scene.feed(config.run, m):
-                            channels.log(key, data, t)
+                    for key, data in derived_records(config.run, msg, scene):  # carried Credits, the scene
+                        channels.log(key, data, t)
                     if isinstance(msg, ServiceStatus) and msg.state == "stopped" and config.stop_when:
                         stopped.add(msg.service)
                         if linger_until is None and set(config.stop_when) <= stopped:

@@ -22,8 +22,8 @@ import sys
 import time
 
 from common.config import config_record
-from common.protocol import KEYS, ProtocolError, RunConfig, ServiceStatus, carried, decode, status_key
-from common.scene import SceneBuilder
+from common.protocol import KEYS, ProtocolError, RunConfig, ServiceStatus, decode, status_key
+from common.scene import SceneBuilder, derived_records
 from services.common.config import RecorderConfig
 from services.common.faults import AliveWatch, first_time_logger
 from services.common.runtime import ServiceRuntime, service_main
@@ -89,11 +89,8 @@ def main(config: RecorderConfig) -> int:
                             rt.counters[f"rejected_{e.reason}"] += 1
                             note_rejected(e.reason, item.key[:80])
                             continue
-                        for key, inner in carried(st):  # (an Ingest's Credits: logged as if they had come alone)
-                            writer.write(key, inner.encode(), log_time=t_log)
-                        for m in [st] + [inner for _, inner in carried(st)] if scene is not None else ():
-                            for key, data in scene.feed(config.run, m):
-                                writer.write(key, data, log_time=t_log)
+                        for key, data in derived_records(config.run, st, scene):  # carried Credits, the scene
+                            writer.write(key, data, log_time=t_log)
                         if config.stop_when and "/status/" in item.key:
                             if isinstance(st, ServiceStatus) and st.state == "stopped":
                                 stopped.add(st.service)
