@@ -87,13 +87,16 @@ def test_user_factory_and_rule_run_live(tmp_path):
 @pytest.mark.slow
 def test_minigrid_with_a_cnn_learns_live(tmp_path):
     """The picture task in the live system: the learner trains the CNN, the actor acts with its weights."""
-    launch = _run(tmp_path, "mg", "--env", "minigrid-empty", "--algo", "dqn-tamer", "--episodes", "15")
+    launch = _run(tmp_path, "mg", "--env", "minigrid-empty", "--algo", "dqn-tamer", "--episodes", "20")
     returns = launch.summary()["returns"]
     records = list(read_log(launch.rundir / "session.mcap"))
     assert records[0].message.config["launcher"]["agent"]["network"] == "auto"  # images: a CNN
     snapshot = next(r.message for r in records if type(r.message).__name__ == "WeightsSnapshot")
     assert "q.conv.0.weight" in {t.name for t in snapshot.tensors}
-    # learned: the last 5 episodes well above the first 5 (a policy that never finds the goal scores 0; one live
-    # run of the suite ended at 0.82 against 0.16, another at 0.95, so the bar leaves room for timing noise)
-    first, last = sum(returns[:5]) / 5, sum(returns[-5:]) / 5
-    assert len(returns) == 15 and last > max(0.6, first + 0.3), returns
+    # Learned: the last 7 episodes score a mean above 0.75. A uniformly random policy scores 0.45 on average and
+    # a 7-episode mean above 0.75 in 0.6% of 1000 windows; an untrained network mostly scores 0 (it turns on the
+    # spot until the 100-step limit). The first 5 are no baseline: the live learner can find the goal by the
+    # third episode (then "last 5 above the first 5 + 0.3" failed 4 of 16 runs of main). 16 runs of this test's
+    # command ended at 0.83-0.96.
+    last = sum(returns[-7:]) / 7
+    assert len(returns) == 20 and last > 0.75, returns
