@@ -164,8 +164,9 @@ class _Batch:
         nxt, rew, term, trunc, intended = self.world.step(rows, a)
         if self.on_input is not None:
             self.trace_steps(rows, step, a, rew, nxt, term, trunc)
-        self.loop.step(rows, st["obs"][rows], a, rew, nxt, term, step.astype(np.float64), st["episode"][rows])
-        give, value, lag = self.observers.react(rows, intended, st["episode"][rows], step)
+        episode = st["episode"][rows]
+        self.loop.step(rows, st["obs"][rows], a, rew, nxt, term, step.astype(np.float64), episode)
+        give, value, lag = self.observers.react(rows, intended, episode, step)
         g = nz(give)
         st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
         if self.record_actions:

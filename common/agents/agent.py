@@ -140,7 +140,8 @@ class TrialBatchAgent:
             return actions
         obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
         x = obs[rows].reshape(len(rows), 1, self.obs_dim)
-        aq, ah = self.mixture.weights(rows, self.steps[rows])
+        steps = self.steps[rows]
+        aq, ah = self.mixture.weights(rows, steps)
         both, compare = self._learns_both(rows)
         # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
         # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
@@ -154,7 +155,7 @@ class TrialBatchAgent:
             self.h_decided_count[rows] += both & (greedy != q_best)
             if self.mixture.adapting:  # (H's own argmax is needed only then)
                 self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1))
-        actions[rows] = self.explorer.choose(rows, self.steps[rows], greedy)
+        actions[rows] = self.explorer.choose(rows, steps, greedy)
         return actions
 
     def mean_lag(self, rows: np.ndarray) -> np.ndarray:
