@@ -49,7 +49,8 @@ def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> tuple
 
 
 def bench_compare(cfg: BenchCompareConfig) -> int:
-    other, out = Path(cfg.against).resolve(), Path(cfg.out) / time.strftime("%Y%m%d-%H%M%S")
+    # Absolute: each checkout's bench runs in its own directory and writes where `out` points.
+    other, out = Path(cfg.against).resolve(), Path(cfg.out).resolve() / time.strftime("%Y%m%d-%H%M%S")
     rows: dict[str, dict[str, list]] = {p: {"this": [], "other": []} for p in cfg.phases}
     cpu: dict[str, dict[str, list]] = {p: {"this": [], "other": []} for p in cfg.phases}
     for r in range(cfg.repeats):
@@ -80,4 +81,8 @@ def bench_compare(cfg: BenchCompareConfig) -> int:
         median = statistics.median(rounds) if rounds else float("nan")
         print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}"
               f"{', '.join(f'{x:.3f}' for x in rounds):>24}{median:>8.3f}")
-    return 0
+    missing = [f"{label} {phase}" for phase, r in rows.items() for label, runs in r.items() if None in runs]
+    if missing:
+        print(f"some runs did not run or left no result ({', '.join(missing)}): the ratios above leave them out",
+              file=sys.stderr)
+    return 1 if missing else 0
