@@ -48,6 +48,21 @@ def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> tuple
             round(sum(cpu.values()), 3) if cpu else None)
 
 
+def print_rounds(title: str, runs: dict[str, dict[str, list]], ratio) -> None:
+    """One line per round and phase (other, this, their ratio), then each phase's median ratio over the rounds
+    where both ran."""
+    print(title)
+    print(f"{'round':<7}{'phase':<9}{'other':>10}{'this':>10}{'ratio':>8}")
+    for phase, r in runs.items():
+        ratios = []
+        for k, (o, t) in enumerate(zip(r["other"], r["this"])):
+            ratios += [ratio(o, t)] if o and t else []
+            print(f"{k + 1:<7}{phase:<9}{o if o else 'n/a':>10}{t if t else 'n/a':>10}"
+                  f"{f'{ratio(o, t):.3f}' if o and t else 'n/a':>8}")
+        median = f"{statistics.median(ratios):.3f}" if ratios else "n/a"
+        print(f"{phase}: median ratio {median} over {len(ratios)} rounds")
+
+
 def bench_compare(cfg: BenchCompareConfig) -> int:
     # Absolute: each checkout's bench runs in its own directory and writes where `out` points.
     other, out = Path(cfg.against).resolve(), Path(cfg.out).resolve() / time.strftime("%Y%m%d-%H%M%S")
@@ -65,22 +80,11 @@ def bench_compare(cfg: BenchCompareConfig) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "compare.json").write_text(json.dumps({"against": str(other), "rows": rows, "cpu_ms_per_step": cpu},
                                                  indent=2))
-    print(f"steps/s, this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved "
+    print(f"this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved "
           f"(load average now {' '.join(f'{x:.2f}' for x in os.getloadavg())}):")
-    print(f"{'phase':<10}{'other':>24}{'this':>24}{'ratio this/other':>18}{'per round':>24}{'median':>8}")
-    for phase, r in rows.items():
-        a, b = [x for x in r["other"] if x], [x for x in r["this"] if x]
-        ratio = (sum(b) / len(b)) / (sum(a) / len(a)) if a and b else float("nan")
-        rounds = [t / o for o, t in zip(r["other"], r["this"]) if o and t]  # both ran in that round
-        median = statistics.median(rounds) if rounds else float("nan")
-        print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}{ratio:>18.3f}"
-              f"{', '.join(f'{x:.3f}' for x in rounds):>24}{median:>8.3f}")
-    print("CPU ms per step of all services together, and the ratio other/this (above 1: this checkout needs less):")
-    for phase, r in cpu.items():
-        rounds = [o / t for o, t in zip(r["other"], r["this"]) if o and t]
-        median = statistics.median(rounds) if rounds else float("nan")
-        print(f"{phase:<10}{', '.join(map(str, r['other'])):>24}{', '.join(map(str, r['this'])):>24}"
-              f"{', '.join(f'{x:.3f}' for x in rounds):>24}{median:>8.3f}")
+    print_rounds("steps/s; ratio this/other (above 1: this checkout is faster)", rows, lambda o, t: t / o)
+    print_rounds("CPU ms per step of all services together; ratio other/this (above 1: this checkout needs less)",
+                 cpu, lambda o, t: o / t)
     missing = [f"{label} {phase}" for phase, r in rows.items() for label, runs in r.items() if None in runs]
     if missing:
         print(f"some runs did not run or left no result ({', '.join(missing)}): the ratios above leave them out",
