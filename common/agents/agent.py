@@ -135,12 +135,13 @@ class TrialBatchAgent:
     def act(self, obs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Epsilon-greedy actions for the active trials (-1 for the others). obs: [B, obs_dim]."""
         rows = np.arange(self.B) if active is None else nz(active)
-        actions = np.full(self.B, -1, dtype=np.int64)
-        if len(rows) == 0:
-            return actions
+        n = len(rows)
+        if n == 0:
+            return np.full(self.B, -1, dtype=np.int64)
+        sel = slice(None) if n == self.B else rows  # every row (the usual case): views, not gathers
         obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
-        x = obs[rows].reshape(len(rows), 1, self.obs_dim)
-        steps = self.steps[rows]
+        x = obs[sel].reshape(n, 1, self.obs_dim)
+        steps = self.steps[sel]
         aq, ah = self.mixture.weights(rows, steps)
         both, compare = self._learns_both(rows)
         # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
@@ -151,11 +152,15 @@ class TrialBatchAgent:
         greedy = scores[:, 0, :].argmax(axis=1)
         if compare:
             q_best = q[:, 0, :].argmax(axis=1)
-            self.greedy_count[rows] += both
-            self.h_decided_count[rows] += both & (greedy != q_best)
+            self.greedy_count[sel] += both
+            self.h_decided_count[sel] += both & (greedy != q_best)
             if self.mixture.adapting:  # (H's own argmax is needed only then)
                 self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1))
-        actions[rows] = self.explorer.choose(rows, steps, greedy)
+        chosen = self.explorer.choose(rows, steps, greedy)
+        if n == self.B:
+            return chosen
+        actions = np.full(self.B, -1, dtype=np.int64)
+        actions[rows] = chosen
         return actions
 
     def mean_lag(self, rows: np.ndarray) -> np.ndarray:

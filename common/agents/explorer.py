@@ -32,8 +32,8 @@ class Mixture:
         self._constants = RowConstants(lambda rows: (self.alpha_h0[rows], self.alpha_h_decay[rows],
                                                      self.alpha_q[rows].astype(np.float32).reshape(-1, 1, 1)))
 
-    def alpha_h(self, rows: np.ndarray, steps: np.ndarray) -> np.ndarray:
-        alpha_h0, decay, _ = self._constants(rows)
+    def alpha_h(self, rows: np.ndarray, steps: np.ndarray, constants: tuple | None = None) -> np.ndarray:
+        alpha_h0, decay, _ = self._constants(rows) if constants is None else constants
         sched = alpha_h0 * decay ** steps.astype(np.float64)
         if not self.adapting:
             return sched
@@ -56,9 +56,9 @@ class Mixture:
 
     def weights(self, rows: np.ndarray, steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(alpha_q, alpha_h) as float32 [n, 1, 1], to weigh values [n, N, A]."""
-        aq = self._constants(rows)[2]
-        ah = self.alpha_h(rows, steps).astype(np.float32).reshape(-1, 1, 1)
-        return aq, ah
+        constants = self._constants(rows)
+        ah = self.alpha_h(rows, steps, constants).astype(np.float32).reshape(-1, 1, 1)
+        return constants[2], ah
 
     def select(self, rows: np.ndarray) -> None:
         for name in self._ROWS:
