@@ -158,23 +158,24 @@ class _Batch:
         """One step of every running trial; returns the rows whose episode ended."""
         st, agent = self.st, self.agent
         rows = nz(st["active"])
-        step = agent.steps[rows].copy()  # this action's virtual time, in steps
+        sel = slice(None) if len(rows) == len(st["active"]) else rows  # every row (the usual case): views
+        step = agent.steps[sel].copy()  # this action's virtual time, in steps
         self.deliver(rows, step)
-        a = agent.act(st["obs"], st["active"])[rows]
+        a = agent.act(st["obs"], st["active"])[sel]
         nxt, rew, term, trunc, intended = self.world.step(rows, a)
         if self.on_input is not None:
             self.trace_steps(rows, step, a, rew, nxt, term, trunc)
-        episode = st["episode"][rows]
-        self.loop.step(rows, st["obs"][rows], a, rew, nxt, term, step.astype(np.float64), episode)
+        episode = st["episode"][sel]
+        self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, step.astype(np.float64), episode)
         give, value, lag = self.observers.react(rows, intended, episode, step)
         g = nz(give)
         st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
         if self.record_actions:
             for i, act in zip(st["orig"][rows], a):
                 self.results[i].actions.append(int(act))
-        st["ep_return"][rows] += rew
-        st["ep_steps"][rows] += 1
-        st["obs"][rows] = nxt
+        st["ep_return"][sel] += rew
+        st["ep_steps"][sel] += 1
+        st["obs"][sel] = nxt
         return rows[term | trunc]
 
     def trace_steps(self, rows, step, a, rew, nxt, term, trunc) -> None:
