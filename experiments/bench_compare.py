@@ -7,7 +7,9 @@ the interfaces every commit has (`TrialSpec` of an environment name, `agent_conf
 `experiments bench` does: plain (each trial alone, one after another) and batched (one lockstep batch per
 environment). The maze layouts and agents' defaults may differ between commits, so the trials need not take
 the same number of environment steps: the ratio is of environment steps per second, this / other (above 1:
-this checkout is faster). The parallel mode of `experiments bench` is the batched arithmetic on a process pool
+this checkout is faster). A lockstep batch steps all its running trials at once until its longest trial ends,
+so its time follows its ticks (the longest trial's steps) more than its steps: the batched mode is also
+compared per tick. The parallel mode of `experiments bench` is the batched arithmetic on a process pool
 whose interface differs between commits, so it is left out. Printed per round and mode: both times, steps/s,
 the ratio, and the ratio of steps per CPU second of the run's process (others' load lengthens wall time far
 more than CPU time); last, the median ratios per mode and the load average at the start and the end (on a
@@ -42,7 +44,10 @@ t0, c0 = time.perf_counter(), time.process_time()
 for env in envs:
     run_trials([s for s in specs if s.env == env])
 t_batched, c_batched = time.perf_counter() - t0, time.process_time() - c0
-print(json.dumps({"trials": len(specs), "env_steps": int(sum(r.total_steps for r in plain)), "plain_s": t_plain,
+# A batch steps all its running trials at once until its longest trial ends: its lockstep ticks.
+ticks = sum(max(r.total_steps for r, s in zip(plain, specs) if s.env == env) for env in envs)
+print(json.dumps({"trials": len(specs), "env_steps": int(sum(r.total_steps for r in plain)), "ticks": ticks,
+                  "plain_s": t_plain,
                   "batched_s": t_batched, "plain_cpu_s": c_plain, "batched_cpu_s": c_batched}))
 """
 
@@ -84,6 +89,8 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
             cpu_ratios[m].append(cpu["this"] / cpu["other"])
             print(f"{r + 1:<6}{m[:-2]:<10}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{speed['other']:>15.0f}"
                   f"{speed['this']:>14.0f}{ratios[m][-1]:>18.3f}{cpu_ratios[m][-1]:>12.3f}", flush=True)
+    tick_ratios = [(g["this"]["ticks"] / g["this"]["batched_s"]) / (g["other"]["ticks"] / g["other"]["batched_s"])
+                   for g in runs]
     medians = {m: statistics.median(v) for m, v in ratios.items()}
     cpu_medians = {m: statistics.median(v) for m, v in cpu_ratios.items()}
     print(f"{runs[0]['this']['trials']} trials a run; environment steps: other {runs[0]['other']['env_steps']}, "
@@ -92,5 +99,8 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
           + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in medians.items()) + f"; load average at end {load()}")
     print("median ratio this/other, steps per CPU second of the run's process: "
           + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in cpu_medians.items()))
-    return {"against": str(other), "envs": envs, "trials": trials, "episodes": episodes, "runs": runs,
+    print(f"batched, lockstep ticks per second (a batch's time follows its longest trial, not its steps; ticks: "
+          f"other {runs[0]['other']['ticks']}, this {runs[0]['this']['ticks']}): median ratio this/other "
+          f"{statistics.median(tick_ratios):.3f} (per round {', '.join(f'{x:.3f}' for x in tick_ratios)})")
+    return {"tick_ratios": tick_ratios, "against": str(other), "envs": envs, "trials": trials, "episodes": episodes, "runs": runs,
             "ratios": ratios, "medians": medians, "cpu_ratios": cpu_ratios, "cpu_medians": cpu_medians}

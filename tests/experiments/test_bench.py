@@ -40,6 +40,10 @@ def test_bench_compare_alternates_two_checkouts_and_prints_ratios(tmp_path):
     result = json.loads(out.read_text())
     assert len(result["runs"]) == 2 and set(result["medians"]) == {"plain_s", "batched_s"}
     assert result["runs"][0]["this"]["env_steps"] == result["runs"][0]["other"]["env_steps"] > 0
+    # one maze batch of the four agents, one episode each: its ticks are its longest trial's steps
+    first = result["runs"][0]["this"]
+    assert 0 < first["ticks"] <= first["env_steps"] and len(result["tick_ratios"]) == 2
+    assert "lockstep ticks per second" in proc.stdout
     proc = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--against", str(tmp_path)],
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert proc.returncode == 2 and "not a checkout of this project" in proc.stderr
