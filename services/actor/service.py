@@ -194,16 +194,27 @@ class Actor:
         config, rt, slot = self.config, self.rt, self.slot
         ahead = config.max_lag if config.max_ahead is None else min(config.max_ahead, config.max_lag)
         need = self.base + self.seq - ahead
-        waited = time.monotonic()
+        waited = resent = time.monotonic()
         while slot.version < need and not rt.stop.is_set():
             self.adopt_weights(timeout=0.05)
             rt.tick()  # waiting is progress too (the launcher kills a service whose statuses stop)
             if self.watch.take() and len(self.ring):
                 self.ring.resend()
+            if time.monotonic() - resent > config.stall_resend:
+                self.resend_unlearned()
+                resent = time.monotonic()
             if time.monotonic() - waited > config.weights_timeout:
                 self.give_up(4, f"no weights >= {need} after {config.weights_timeout} s; stopping")
         if not rt.stop.is_set():
             rt.counters["weights_wait_us"] += int((time.monotonic() - waited) * 1e6)
+
+    def resend_unlearned(self) -> None:
+        """The steps the newest weights have not learned, again (the learner drops those it has: duplicates)."""
+        unlearned = self.base + self.seq - self.slot.version
+        if unlearned > 0 and len(self.ring):
+            n = self.ring.resend(last=unlearned)
+            self.rt.counters["stall_resends"] += 1
+            self.rt.log(f"no fresh weights for {self.config.stall_resend} s: re-sent the last {n} steps")
 
     def wait_for_tick(self, control: RunControl, next_tick: float) -> tuple[float, bool]:
         """At a fixed pace, wait for the next tick, adopting weights as they arrive.

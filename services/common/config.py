@@ -107,6 +107,9 @@ class ActorConfig(TaskConfig):
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
+    stall_resend: float = option(2.0, "waiting this many seconds for fresh enough weights, re-send the steps the "
+                                      "learner has not learned (one dropped before the learner knew this actor "
+                                      "would otherwise stall the lockstep for good)")
     state_file: str | None = option(None, "progress file (episodes done), rewritten in place "
                                           "(services/common/progress.py) at each episode end; "
                                           "an actor started on an existing one is a restart: it continues with the "
@@ -123,6 +126,8 @@ class ActorConfig(TaskConfig):
             raise ValueError(f"max-steps must be >= 0 or none, got {self.max_steps}")
         if self.episode_steps is not None and self.episode_steps < 1:
             raise ValueError(f"episode-steps must be >= 1 or none, got {self.episode_steps}")
+        if not self.stall_resend > 0:
+            raise ValueError(f"stall-resend must be > 0 seconds, got {self.stall_resend}")
         if not (math.isfinite(self.rate) and self.rate >= 0):
             raise ValueError(f"rate must be >= 0, got {self.rate}")
         if self.max_ahead is not None and self.max_ahead < 0:
@@ -204,6 +209,8 @@ class LearnerConfig(TaskConfig):
                                       "congestion control slows the publishers down")
     debug_update_sleep: float = option(0.0, "TEST ONLY: sleep this many seconds after each learned step "
                                             "(a deliberately slow learner)")
+    debug_drop_steps: int = option(0, "TEST ONLY: drop the first N steps as if their actor were not announced yet "
+                                      "(what a late announcement does on a loaded machine)")
 
     def __post_init__(self):
         super().__post_init__()
@@ -233,6 +240,8 @@ class LearnerConfig(TaskConfig):
             raise ValueError(f"inbox-size must be >= 1, got {self.inbox_size}")
         if not (math.isfinite(self.debug_update_sleep) and self.debug_update_sleep >= 0):
             raise ValueError(f"debug-update-sleep must be >= 0, got {self.debug_update_sleep}")
+        if self.debug_drop_steps < 0:
+            raise ValueError(f"debug-drop-steps must be >= 0, got {self.debug_drop_steps}")
 
 
 @dataclass(frozen=True)

@@ -200,10 +200,13 @@ class ResendRing:
         while self._items and (len(self._items) > self.max_items or now - self._items[0][0] > self.window):
             self._items.popleft()
 
-    def resend(self) -> int:
-        """Publish everything still in the window again, in the original order. Returns how many."""
+    def resend(self, last: int | None = None) -> int:
+        """Publish everything still in the window again (only the `last` newest if given), in the original order.
+        Returns how many."""
         self._trim(time.monotonic())
         items = list(self._items)
+        if last is not None:
+            items = items[len(items) - min(max(last, 0), len(items)):]
         for _, publisher, data in items:
             publisher.put(data)
         self.resent += len(items)

@@ -69,6 +69,7 @@ class UpConfig:
     max_lag: int = option(2048, "the actor never runs more than this many steps ahead of the learner's newest weights "
                                 "(whatever max-ahead says): a bound on everything in flight")
     debug_update_sleep: float = option(0.0, "TEST ONLY: the learner sleeps this long after each step (slow learner)")
+    debug_drop_steps: int = option(0, "TEST ONLY: the learner drops the first N steps as from an unannounced actor")
     screen_delay: str = option("uniform:0.2,4", "--teacher web: delay in seconds the learner assumes between a step "
                                                 "appearing on a person's screen and their feedback: uniform:LOW,HIGH "
                                                 "or a scipy.stats NAME:ARGS (e.g. gamma:2,0.2,0.4)")
@@ -166,7 +167,8 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             end_grace=c.end_grace, wait_teachers=own_teachers, credits_in_ingest=own_teachers,
                             checkpoint=launch.state_path("learner", ".ckpt"), checkpoint_period=c.checkpoint_period,
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
-                            debug_update_sleep=c.debug_update_sleep, screen_delay=c.screen_delay,
+                            debug_update_sleep=c.debug_update_sleep, debug_drop_steps=c.debug_drop_steps,
+                            screen_delay=c.screen_delay,
                             screen_credit=c.screen_credit, idle_updates=c.idle_updates)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,

@@ -169,8 +169,10 @@ class Learner:
     def consume_step(self, msg: Step, now: float, t_recv: float, live: bool) -> bool:
         for inc in self.actors.take():
             self.gate.announce(inc)
-        reason = self.gate.admit_step(msg, t_recv)
-        if reason == "unknown_incarnation" and live:
+        # (TEST ONLY: --debug-drop-steps drops the first steps as if their actor's announcement came late)
+        dropping = live and self.rt.counters["rejected_unknown_incarnation"] < self.config.debug_drop_steps
+        reason = "unknown_incarnation" if dropping else self.gate.admit_step(msg, t_recv)
+        if reason == "unknown_incarnation" and live and not dropping:
             self.drain_status()  # its announcement may be waiting in the other queue
             reason = self.gate.admit_step(msg, t_recv)
         if reason:
@@ -254,7 +256,7 @@ class Learner:
                 self.ring.resend()
                 if self.last_weights["data"] is not None:
                     self.wpub.put(self.last_weights["data"])
-            elif name == "actor" and (self.core.steps_learned > 0 or self.resumed is not None):
+            elif name == "actor":  # (even before any step is learned: a restarted actor waits for weights)
                 self.publish_weights(self.core.steps_learned)
 
     def finished(self) -> bool:

@@ -204,6 +204,9 @@ def test_resend_ring_is_bounded_and_resends_in_order():
         ring.add(pub, bytes([i]))
     assert len(ring) == 5
     assert ring.resend() == 5 and pub.sent == [bytes([i]) for i in range(7, 12)]
+    pub.sent.clear()
+    assert ring.resend(last=2) == 2 and pub.sent == [bytes([10]), bytes([11])]  # the newest, in order
+    assert ring.resend(last=0) == 0 and ring.resend(last=99) == 5
     old = ResendRing(window=0.0, max_items=5)
     old.add(pub, b"x")
     assert old.resend() == 0
