@@ -23,7 +23,9 @@ class BenchCompareConfig:
 
     against: str = option("", "the other checkout (a git worktree of the commit to compare with)")
     phases: tuple[str, ...] = option(("ingest", "paper"), "bench phases to compare")
-    steps: int = option(3000, "actor steps per phase")
+    # (`services bench`'s own default: at 3000 steps an `ingest` phase lasts about 1.5 s, and separate
+    # invocations of the same code differed by more than their rounds' spread)
+    steps: int = option(8000, "actor steps per phase")
     repeats: int = option(2, "rounds (each runs every phase in both checkouts, alternating which goes first)")
     out: str = option("runs/bench-compare", "directory of the runs and compare.json")
 
