@@ -135,7 +135,7 @@ class _Batch:
         st, R = self.st, self.R
         slot = (step - 1) % R
         due = st["inbox"][rows, slot]
-        if not due.any():
+        if not np.count_nonzero(due):  # (the per-tick test: a C call, cheaper than .any())
             return
         st["inbox"][rows, slot] = 0
         has = due != 0
@@ -260,7 +260,7 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
             raise ValueError(f"episodes must be >= 0, got {s.episodes}")
     batch = _Batch(specs, use_tables, record_actions, greedy_eval, on_episode, on_trial_done, on_input)
     tick_start = time.process_time()
-    while batch.st["active"].any():
+    while np.count_nonzero(batch.st["active"]):
         running = int(batch.st["active"].sum()) if profile is not None else 0
         ended = batch.tick()
         if profile is not None:

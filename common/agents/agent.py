@@ -31,7 +31,8 @@ import numpy as np
 from common.agents.build import SHARED_FIELDS, AgentParts, build_parts
 from common.agents.config import AgentConfig
 from common.agents.history import BatchCredit
-from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max
+from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max, values_of,
+                                     with_ones)
 from common.agents.streams import to_integers
 from common.delay_learning import TrialLags
 from common.util import RowConstants, nz
@@ -146,8 +147,9 @@ class TrialBatchAgent:
         both, compare = self._learns_both(rows)
         # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
         # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
-        q = self.q.values(rows, x) if compare or aq.any() or not ah.any() else None
-        h = self.h.values(rows, x) if compare or ah.any() else None
+        x1 = with_ones(x)  # (made once for both networks)
+        q = values_of(self.q, rows, x, x1) if compare or np.count_nonzero(aq) or not np.count_nonzero(ah) else None
+        h = values_of(self.h, rows, x, x1) if compare or np.count_nonzero(ah) else None
         scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
         greedy = scores[:, 0, :].argmax(axis=1)
         if compare:
@@ -227,10 +229,10 @@ class TrialBatchAgent:
         steps = np.zeros(n, np.int64)
         lost = np.zeros(n, np.float64)
         shaping = self.shaping[rows]
-        if shaping.any():
+        if np.count_nonzero(shaping):
             self._shape(rows, t_feedback, values, counts, nz(shaping), status, steps, lost)
         learn = self.train_h[rows] & ~shaping
-        if learn.any():
+        if np.count_nonzero(learn):
             self._credit_h(rows, t_feedback, values, counts, nz(learn), status, steps, lost)
         return status, steps, lost
 
@@ -260,7 +262,7 @@ class TrialBatchAgent:
         status[k] = np.where(ok, CREDITED, STALE)
         steps[k] = credit.counts
         lost[k] = credit.lost
-        if not ok.any():
+        if not np.count_nonzero(ok):
             return
         k, r, pos, cnt = k[ok], r[ok], credit.positions[ok], credit.counts[ok]
         w32 = credit.weights[ok].astype(np.float32)
@@ -335,17 +337,19 @@ class TrialBatchAgent:
         d = self.obs_dim
         u = self.parts.q_draws.get(rows, self.q_updates[rows])
         b = self.replay.gather_records(rows, to_integers(u, self.replay.size[rows][:, None]))
-        q_next = row_max(self.q_target.values(rows, b[:, :, d + 2:2 * d + 2]))
-        target = b[:, :, d + 1] + np.float32(self.base.gamma) * (np.float32(1) - b[:, :, 2 * d + 2]) * q_next
-        return FitJob(self.q, rows, b[:, :, :d], b[:, :, d].astype(np.int64), target, None, HUBER_MEAN)
+        # obs, 1, action, reward, next_obs, 1, terminated: each observation with its bias input (`with_ones`)
+        q_next = row_max(values_of(self.q_target, rows, b[:, :, d + 3:2 * d + 3], b[:, :, d + 3:2 * d + 4]))
+        target = b[:, :, d + 2] + np.float32(self.base.gamma) * (np.float32(1) - b[:, :, 2 * d + 4]) * q_next
+        return FitJob(self.q, rows, b[:, :, :d], b[:, :, d + 1].astype(np.int64), target, None, HUBER_MEAN,
+                      b[:, :, :d + 1])
 
     def _h_job(self, rows: np.ndarray) -> FitJob:
         """H's weighted squared-error step on a D_global minibatch."""
         d, m = self.obs_dim, self.feedback_memory
         u = self.parts.h_draws.get(rows, self.h_updates[rows])
-        b = m.gather_records(rows, to_integers(u, m.size[rows][:, None]))  # obs, action, feedback, weight
-        return FitJob(self.h, rows, b[:, :, :d], b[:, :, d].astype(np.int64), b[:, :, d + 1], b[:, :, d + 2],
-                      SQUARED_MEAN)
+        b = m.gather_records(rows, to_integers(u, m.size[rows][:, None]))  # obs, 1, action, feedback, weight
+        return FitJob(self.h, rows, b[:, :, :d], b[:, :, d + 1].astype(np.int64), b[:, :, d + 2], b[:, :, d + 3],
+                      SQUARED_MEAN, b[:, :, :d + 1])
 
     # -------------------------------------------------------------------------- batch bookkeeping
     def select(self, rows: np.ndarray) -> None:

@@ -41,7 +41,7 @@ class BatchStepHistory:
         pos, count = self.head[trials], self.count[trials]
         newest = self.times[trials, (pos - 1) % self.capacity]
         older = (count > 0) & (t < newest)
-        if older.any():
+        if np.count_nonzero(older):
             k = int(nz(older)[0])
             raise ValueError(f"step time {t[k]} is older than the previous step {newest[k]}")
         self.times[trials, pos] = t

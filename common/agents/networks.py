@@ -68,10 +68,12 @@ _CONSTANTS: dict[tuple, np.ndarray] = {}
 
 
 def _constant(kind: str, *shape: int) -> np.ndarray:
-    """A read-only np.ones (float32) or np.arange of this shape, made once (they were made at every step)."""
+    """A read-only np.ones (float32) or np.arange of this shape, or ("offsets", n, A) the flat positions of n
+    rows of A values, made once (they were made at every step)."""
     got = _CONSTANTS.get((kind, shape))
     if got is None:
-        got = np.ones(shape, np.float32) if kind == "ones" else np.arange(*shape)
+        got = (np.ones(shape, np.float32) if kind == "ones" else np.arange(shape[0]) * shape[1] if kind == "offsets"
+               else np.arange(*shape))
         got.flags.writeable = False
         _CONSTANTS[(kind, shape)] = got
     return got
@@ -132,8 +134,10 @@ class Loss:
 
     def grad(self, pred: np.ndarray, target: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
         """d loss / d pred, float32 [n, N]."""
-        if self.kind == "huber":
-            d = np.clip(pred - target, -1.0, 1.0)
+        if self.kind == "huber":  # (np.clip's own overhead is twice that of these two calls: the same numbers)
+            d = pred - target
+            np.maximum(d, np.float32(-1), out=d)
+            np.minimum(d, np.float32(1), out=d)
         else:
             d = np.float32(2) * weights * (pred - target)
         if self.reduce == "mean":
@@ -149,7 +153,8 @@ SQUARED_SUM = Loss("squared", "sum")
 @dataclass
 class FitJob:
     """One optimiser step of `net` on trial rows `rows`: minibatch x [n, N, ...], actions [n, N], targets and
-    weights [n, N] (weights None for an unweighted loss)."""
+    weights [n, N] (weights None for an unweighted loss). x1, optional: x with a column of ones appended, which
+    the numpy MLP uses instead of making it (replay stores it); other networks ignore it."""
 
     net: "ValueNetworks"
     rows: np.ndarray
@@ -158,6 +163,7 @@ class FitJob:
     targets: np.ndarray
     weights: np.ndarray | None
     loss: Loss
+    x1: np.ndarray | None = None  # x with its ones column (`with_ones`), where the caller holds it already
 
 
 class ValueNetworks(Protocol):
@@ -183,6 +189,13 @@ class ValueNetworks(Protocol):
     def policy_state(self, row: int) -> dict[str, np.ndarray]: ...
 
     def load_policy_state(self, row: int, state: dict) -> None: ...
+
+
+def values_of(net: "ValueNetworks", rows: np.ndarray, x: np.ndarray, x1: np.ndarray) -> np.ndarray:
+    """net.values(rows, x), given also x1 = `with_ones(x)`: the numpy MLP uses it instead of making it."""
+    if isinstance(net, StackedMLP):
+        return net.values(rows, x, x1)
+    return net.values(rows, x)
 
 
 def pick(values: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -236,10 +249,11 @@ class StackedMLP:
         self.params = views(flat, self.shapes, names=True)
         self._slice_views: dict[tuple, dict[str, np.ndarray]] = {}
 
-    def values(self, rows: np.ndarray | None, x: np.ndarray) -> np.ndarray:
-        if rows is None or len(rows) == self.flat.shape[0]:
-            return mlp_forward(self.params, np.asarray(x, np.float32))[1]
-        return mlp_forward(self.rows(row_index(rows, self.flat.shape[0])), np.asarray(x, np.float32))[1]
+    def values(self, rows: np.ndarray | None, x: np.ndarray, x1: np.ndarray | None = None) -> np.ndarray:
+        """(`ValueNetworks.values`; x1: `with_ones(x)` where the caller has it.)"""
+        params = self.params if rows is None or len(rows) == self.flat.shape[0] else \
+            self.rows(row_index(rows, self.flat.shape[0]))
+        return mlp_forward(params, np.asarray(x, np.float32), x1)[1]
 
     def fit(self, job: FitJob) -> None:
         fit_together([job])
@@ -299,26 +313,28 @@ def fit_together(jobs: list[FitJob]) -> None:
     if len(jobs) == 1:  # (the common case, with as few calls as possible: the same arithmetic)
         j = jobs[0]
         r = row_index(j.rows, j.net.flat.shape[0])
-        params, x = j.net.rows(r), j.x
+        params, x, x1 = j.net.rows(r), j.x, j.x1
     else:
         idx = [row_index(j.rows, j.net.flat.shape[0]) for j in jobs]
-        x = np.concatenate([j.x for j in jobs])
         params = views(np.concatenate([j.net.flat if r is None else j.net.flat[r] for j, r in zip(jobs, idx)]),
                        jobs[0].net.shapes)
-    x1 = with_ones(x)
+        if all(j.x1 is not None for j in jobs):
+            x1 = np.concatenate([j.x1 for j in jobs])
+            x = x1[..., :-1]
+        else:
+            x, x1 = np.concatenate([j.x for j in jobs]), None
+    if x1 is None:
+        x1 = with_ones(x)
     hidden, out = mlp_forward(params, x, x1)
-    arange_a = _constant("arange", out.shape[-1])
-    d_out = np.empty_like(out) if len(jobs) > 1 else None
+    # d loss / d out: each row's loss gradient at its action taken, 0 at the other actions (a scatter into
+    # zeros at flat positions row * A + action: the same numbers as a mask and np.where, at half the cost).
+    d_out = np.zeros_like(out)
     start = 0
     for j in jobs:
         n = len(j.rows)
-        a = j.actions.reshape(n, -1, 1)
-        d_pred = j.loss.grad(pick(out[start:start + n], a), j.targets, j.weights)
-        d_j = np.where(a == arange_a, d_pred[:, :, None], np.float32(0))
-        if d_out is None:
-            d_out = d_j
-        else:
-            d_out[start:start + n] = d_j
+        at = _constant("offsets", out.shape[1] * n, out.shape[2]) + j.actions.reshape(-1)
+        pred = out[start:start + n].reshape(-1)[at].reshape(n, -1)
+        d_out[start:start + n].reshape(-1)[at] = j.loss.grad(pred, j.targets, j.weights).reshape(-1)
         start += n
     grad = mlp_backward(params, x, hidden, d_out, x1)
     if len(jobs) == 1:

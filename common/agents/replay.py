@@ -2,7 +2,9 @@
 
 All fields of an entry are stored side by side in one float32 record (`rec`, [B, capacity, width];
 integer fields such as the action are small and exact in float32), so a minibatch is one gather;
-`data[name]` are views of the columns. The agent samples them with counter-based draws (`streams`): the j-th
+`data[name]` are views of the columns. An observation is followed by a constant column of ones (the bias
+input of the numpy MLP's augmented first layer), so a gathered minibatch holds that input as a view: the
+per-update copy that appends it is saved. The agent samples them with counter-based draws (`streams`): the j-th
 index of a trial's u-th minibatch is a pure function of (trial key, u, j) and the trial's current size, so
 its draws are the same alone or batched. `TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's
 D_global.
@@ -13,11 +15,16 @@ import numpy as np
 
 
 
+ONES = "ones"  # a constant column named with this prefix holds 1.0 in every record
+
+
 class _Ring:
     def __init__(self, trials: int, capacity: int, fields: dict[str, int]):
-        """fields: name -> width (0 for a scalar field)."""
+        """fields: name -> width (0 for a scalar field); fields named `ONES`... are constant columns of ones,
+        filled here and never given to `add_rows`."""
         self.capacity = capacity
         self.fields = dict(fields)
+        self.given = tuple(name for name in fields if not name.startswith(ONES))
         self.columns, o = {}, 0
         for name, width in fields.items():
             self.columns[name] = slice(o, o + max(width, 1))
@@ -33,9 +40,14 @@ class _Ring:
                      for name, w in self.fields.items()}
 
     def _record(self, n: int, values: dict) -> np.ndarray:
-        if values.keys() == self.fields.keys():  # every field: one concatenation in column order
-            return np.concatenate([np.asarray(values[name], np.float32).reshape(n, -1) for name in self.fields], axis=1)
+        if values.keys() == set(self.given):  # every field: one concatenation in column order
+            ones = np.ones((n, 1), np.float32)
+            return np.concatenate([ones if name.startswith(ONES) else np.asarray(values[name], np.float32).reshape(n, -1)
+                                   for name in self.fields], axis=1)
         row = np.zeros((n, self.width), np.float32)
+        for name in self.fields:
+            if name.startswith(ONES):
+                row[:, self.columns[name]] = 1.0
         for name, value in values.items():
             row[:, self.columns[name]] = np.asarray(value, np.float32).reshape(n, -1)
         return row
@@ -80,8 +92,8 @@ class _Ring:
 
 class TransitionReplay(_Ring):
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "reward": 0, "next_obs": obs_dim,
-                                            "terminated": 0})
+        super().__init__(trials, capacity, {"obs": obs_dim, ONES: 0, "action": 0, "reward": 0,
+                                            "next_obs": obs_dim, ONES + "_next": 0, "terminated": 0})
 
     def add_reward(self, trial, slot, amount) -> None:
         """Naive reward shaping: feedback added to already stored transitions (arrays allowed)."""
@@ -92,4 +104,4 @@ class FeedbackMemory(_Ring):
     """D_global: every credited (state, action, feedback, weight) so far (FIFO beyond capacity)."""
 
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "feedback": 0, "weight": 0})
+        super().__init__(trials, capacity, {"obs": obs_dim, ONES: 0, "action": 0, "feedback": 0, "weight": 0})

@@ -7,7 +7,7 @@ import torch
 from common.agents import AgentParts, TrialBatchAgent, agent_config, build_parts
 from common.agents.explorer import EpsilonGreedy, Mixture
 from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, StackedMLP, fit_together,
-                                    mlp_backward, mlp_forward)
+                                    mlp_backward, mlp_forward, with_ones)
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import TransitionReplay
 from common.agents.streams import UniformBlocks, to_integers, uniforms
@@ -91,6 +91,25 @@ def test_replay_rows_are_independent_and_sample_their_own_stream():
     idx = to_integers(u[:1], r.size[:1, None])
     rec = r.gather_records(np.array([0]), idx)
     assert rec.shape == (1, 5, r.width) and idx.max() < 4
+
+
+def test_replay_holds_each_observation_with_its_bias_input_and_fits_use_it_unchanged():
+    r = TransitionReplay(1, 8, 3)
+    rng = np.random.default_rng(2)
+    for k in range(8):
+        r.add_rows(np.array([0]), obs=rng.standard_normal((1, 3)), action=[k % 4], reward=[k],
+                   next_obs=rng.standard_normal((1, 3)), terminated=[0.0])
+    rec = r.gather_records(np.array([0]), np.arange(8)[None, :])
+    assert np.array_equal(rec[:, :, :4], with_ones(r.data["obs"][:1])) and (rec[:, :, 2 * 3 + 3] == 1).all()  # after next_obs
+    nets = [StackedMLP(3, 5, 4, [7]) for _ in range(2)]
+    for net in nets:
+        net.opt = FlatRMSProp()
+        net.opt.attach(net.flat.shape)
+    targets = rng.standard_normal((1, 8)).astype(np.float32)
+    for net, x1 in zip(nets, (None, rec[:, :, :4])):  # the same step, given the bias input or making it
+        fit_together([FitJob(net, np.array([0]), rec[:, :, :3], rec[:, :, 4].astype(np.int64), targets, None,
+                             HUBER_MEAN, x1)])
+    assert np.array_equal(nets[0].flat, nets[1].flat) and not np.array_equal(nets[0].flat, StackedMLP(3, 5, 4, [7]).flat)
 
 
 def test_explorer_and_mixture_are_functions_of_the_step():
