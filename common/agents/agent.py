@@ -31,7 +31,7 @@ import numpy as np
 from common.agents.build import SHARED_FIELDS, AgentParts, build_parts
 from common.agents.config import AgentConfig
 from common.agents.history import BatchCredit
-from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max, values_of,
+from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max,
                                      with_ones)
 from common.agents.streams import to_integers
 from common.delay_learning import TrialLags
@@ -148,8 +148,8 @@ class TrialBatchAgent:
         # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
         # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
         x1 = with_ones(x)  # (made once for both networks)
-        q = values_of(self.q, rows, x, x1) if compare or np.count_nonzero(aq) or not np.count_nonzero(ah) else None
-        h = values_of(self.h, rows, x, x1) if compare or np.count_nonzero(ah) else None
+        q = self.q.values(rows, x, x1) if compare or np.count_nonzero(aq) or not np.count_nonzero(ah) else None
+        h = self.h.values(rows, x, x1) if compare or np.count_nonzero(ah) else None
         scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
         greedy = scores[:, 0, :].argmax(axis=1)
         if compare:
@@ -334,22 +334,24 @@ class TrialBatchAgent:
 
     def _q_job(self, rows: np.ndarray) -> FitJob:
         """Q's TD step on a replay minibatch: target r + gamma (1 - terminated) max_a Q_target(s', a)."""
-        d = self.obs_dim
+        m = self.replay
         u = self.parts.q_draws.get(rows, self.q_updates[rows])
-        b = self.replay.gather_records(rows, to_integers(u, self.replay.size[rows][:, None]))
-        # obs, 1, action, reward, next_obs, 1, terminated: each observation with its bias input (`with_ones`)
-        q_next = row_max(values_of(self.q_target, rows, b[:, :, d + 3:2 * d + 3], b[:, :, d + 3:2 * d + 4]))
-        target = b[:, :, d + 2] + np.float32(self.base.gamma) * (np.float32(1) - b[:, :, 2 * d + 4]) * q_next
-        return FitJob(self.q, rows, b[:, :, :d], b[:, :, d + 1].astype(np.int64), target, None, HUBER_MEAN,
-                      b[:, :, :d + 1])
+        b = m.gather_records(rows, to_integers(u, m.size[rows][:, None]))
+        col, at, ones = m.columns, m.at, m.with_ones  # (each observation is stored with its bias input)
+        q_next = row_max(self.q_target.values(rows, b[:, :, col["next_obs"]], b[:, :, ones["next_obs"]]))
+        gamma, done = np.float32(self.base.gamma), b[:, :, at["terminated"]]
+        target = b[:, :, at["reward"]] + gamma * (np.float32(1) - done) * q_next
+        return FitJob(self.q, rows, b[:, :, col["obs"]], b[:, :, at["action"]].astype(np.int64), target, None,
+                      HUBER_MEAN, b[:, :, ones["obs"]])
 
     def _h_job(self, rows: np.ndarray) -> FitJob:
         """H's weighted squared-error step on a D_global minibatch."""
-        d, m = self.obs_dim, self.feedback_memory
+        m = self.feedback_memory
         u = self.parts.h_draws.get(rows, self.h_updates[rows])
-        b = m.gather_records(rows, to_integers(u, m.size[rows][:, None]))  # obs, 1, action, feedback, weight
-        return FitJob(self.h, rows, b[:, :, :d], b[:, :, d + 1].astype(np.int64), b[:, :, d + 2], b[:, :, d + 3],
-                      SQUARED_MEAN, b[:, :, :d + 1])
+        b = m.gather_records(rows, to_integers(u, m.size[rows][:, None]))
+        col, at = m.columns, m.at
+        return FitJob(self.h, rows, b[:, :, col["obs"]], b[:, :, at["action"]].astype(np.int64),
+                      b[:, :, at["feedback"]], b[:, :, at["weight"]], SQUARED_MEAN, b[:, :, m.with_ones["obs"]])
 
     # -------------------------------------------------------------------------- batch bookkeeping
     def select(self, rows: np.ndarray) -> None:

@@ -171,8 +171,10 @@ class ValueNetworks(Protocol):
 
     n_actions: int
 
-    def values(self, rows: np.ndarray | None, x: np.ndarray) -> np.ndarray:
-        """x [n, N, ...] (n = len(rows), all trials when rows is None) -> float32 [n, N, n_actions]."""
+    def values(self, rows: np.ndarray | None, x: np.ndarray, x1: np.ndarray | None = None) -> np.ndarray:
+        """x [n, N, ...] (n = len(rows), all trials when rows is None) -> float32 [n, N, n_actions]. x1, when
+        given, is x with a column of ones appended (`with_ones`), for a network that can use it instead of
+        making it (the numpy MLP); others ignore it."""
 
     def fit(self, job: FitJob) -> None:
         """One gradient step of its optimiser on `job`."""
@@ -189,13 +191,6 @@ class ValueNetworks(Protocol):
     def policy_state(self, row: int) -> dict[str, np.ndarray]: ...
 
     def load_policy_state(self, row: int, state: dict) -> None: ...
-
-
-def values_of(net: "ValueNetworks", rows: np.ndarray, x: np.ndarray, x1: np.ndarray) -> np.ndarray:
-    """net.values(rows, x), given also x1 = `with_ones(x)`: the numpy MLP uses it instead of making it."""
-    if isinstance(net, StackedMLP):
-        return net.values(rows, x, x1)
-    return net.values(rows, x)
 
 
 def pick(values: np.ndarray, actions: np.ndarray) -> np.ndarray:

@@ -15,21 +15,23 @@ import numpy as np
 
 
 
-ONES = "ones"  # a constant column named with this prefix holds 1.0 in every record
-
-
 class _Ring:
-    def __init__(self, trials: int, capacity: int, fields: dict[str, int]):
-        """fields: name -> width (0 for a scalar field); fields named `ONES`... are constant columns of ones,
-        filled here and never given to `add_rows`."""
+    def __init__(self, trials: int, capacity: int, fields: dict[str, int], ones_after: tuple[str, ...] = ()):
+        """fields: name -> width (0 for a scalar field). Each field of `ones_after` is followed by a column of
+        ones, written with every record: `with_ones[name]` is the field with it, `at[name]` a field's first
+        column."""
         self.capacity = capacity
         self.fields = dict(fields)
-        self.given = tuple(name for name in fields if not name.startswith(ONES))
-        self.columns, o = {}, 0
+        self.columns, self.with_ones, o = {}, {}, 0
         for name, width in fields.items():
             self.columns[name] = slice(o, o + max(width, 1))
             o += max(width, 1)
+            if name in ones_after:
+                self.with_ones[name] = slice(self.columns[name].start, o + 1)
+                o += 1
         self.width = o
+        self.at = {name: s.start for name, s in self.columns.items()}
+        self._ones = [s.stop - 1 for s in self.with_ones.values()]
         self.rec = np.zeros((trials, capacity, o), np.float32)
         self.size = np.zeros(trials, dtype=np.int64)
         self.pos = np.zeros(trials, dtype=np.int64)
@@ -40,14 +42,15 @@ class _Ring:
                      for name, w in self.fields.items()}
 
     def _record(self, n: int, values: dict) -> np.ndarray:
-        if values.keys() == set(self.given):  # every field: one concatenation in column order
-            ones = np.ones((n, 1), np.float32)
-            return np.concatenate([ones if name.startswith(ONES) else np.asarray(values[name], np.float32).reshape(n, -1)
-                                   for name in self.fields], axis=1)
+        if values.keys() == self.fields.keys():  # every field: one concatenation in column order
+            parts, ones = [], np.ones((n, 1), np.float32)
+            for name in self.fields:
+                parts.append(np.asarray(values[name], np.float32).reshape(n, -1))
+                if name in self.with_ones:
+                    parts.append(ones)
+            return np.concatenate(parts, axis=1)
         row = np.zeros((n, self.width), np.float32)
-        for name in self.fields:
-            if name.startswith(ONES):
-                row[:, self.columns[name]] = 1.0
+        row[:, self._ones] = 1.0
         for name, value in values.items():
             row[:, self.columns[name]] = np.asarray(value, np.float32).reshape(n, -1)
         return row
@@ -92,8 +95,8 @@ class _Ring:
 
 class TransitionReplay(_Ring):
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {"obs": obs_dim, ONES: 0, "action": 0, "reward": 0,
-                                            "next_obs": obs_dim, ONES + "_next": 0, "terminated": 0})
+        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "reward": 0, "next_obs": obs_dim,
+                                            "terminated": 0}, ones_after=("obs", "next_obs"))
 
     def add_reward(self, trial, slot, amount) -> None:
         """Naive reward shaping: feedback added to already stored transitions (arrays allowed)."""
@@ -104,4 +107,5 @@ class FeedbackMemory(_Ring):
     """D_global: every credited (state, action, feedback, weight) so far (FIFO beyond capacity)."""
 
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {"obs": obs_dim, ONES: 0, "action": 0, "feedback": 0, "weight": 0})
+        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "feedback": 0, "weight": 0},
+                         ones_after=("obs",))

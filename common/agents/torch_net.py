@@ -132,7 +132,8 @@ class TorchValueNetworks:
         out = [self.modules[int(r)](x[k]) for k, r in enumerate(rows)]
         return out[0].unsqueeze(0) if len(out) == 1 else torch.stack(out)
 
-    def values(self, rows: np.ndarray | None, x: np.ndarray) -> np.ndarray:
+    def values(self, rows: np.ndarray | None, x: np.ndarray, x1: np.ndarray | None = None) -> np.ndarray:
+        """(`ValueNetworks.values`; x1, the input with its bias column, is not needed here.)"""
         with torch.no_grad():
             return self.forward(rows, x).cpu().numpy()
 

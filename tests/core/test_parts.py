@@ -100,15 +100,16 @@ def test_replay_holds_each_observation_with_its_bias_input_and_fits_use_it_uncha
         r.add_rows(np.array([0]), obs=rng.standard_normal((1, 3)), action=[k % 4], reward=[k],
                    next_obs=rng.standard_normal((1, 3)), terminated=[0.0])
     rec = r.gather_records(np.array([0]), np.arange(8)[None, :])
-    assert np.array_equal(rec[:, :, :4], with_ones(r.data["obs"][:1])) and (rec[:, :, 2 * 3 + 3] == 1).all()  # after next_obs
+    assert np.array_equal(rec[:, :, r.with_ones["obs"]], with_ones(r.data["obs"][:1]))
+    assert np.array_equal(rec[:, :, r.with_ones["next_obs"]], with_ones(r.data["next_obs"][:1]))
     nets = [StackedMLP(3, 5, 4, [7]) for _ in range(2)]
     for net in nets:
         net.opt = FlatRMSProp()
         net.opt.attach(net.flat.shape)
     targets = rng.standard_normal((1, 8)).astype(np.float32)
-    for net, x1 in zip(nets, (None, rec[:, :, :4])):  # the same step, given the bias input or making it
-        fit_together([FitJob(net, np.array([0]), rec[:, :, :3], rec[:, :, 4].astype(np.int64), targets, None,
-                             HUBER_MEAN, x1)])
+    x, actions = rec[:, :, r.columns["obs"]], rec[:, :, r.at["action"]].astype(np.int64)
+    for net, x1 in zip(nets, (None, rec[:, :, r.with_ones["obs"]])):  # the same step, given the bias input or not
+        fit_together([FitJob(net, np.array([0]), x, actions, targets, None, HUBER_MEAN, x1)])
     assert np.array_equal(nets[0].flat, nets[1].flat) and not np.array_equal(nets[0].flat, StackedMLP(3, 5, 4, [7]).flat)
 
 
