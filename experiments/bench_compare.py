@@ -31,7 +31,7 @@ MODES = ("plain_s", "batched_s")
 _TIMED_RUN = """
 import json, sys, time
 from common.agents import agent_config
-from common.observer import ObserverConfig
+from common.core.observer import ObserverConfig
 from experiments.runner import TrialSpec, run_trials
 envs, trials, episodes = json.loads(sys.argv[1])
 specs = [TrialSpec(env, agent_config(algo), ObserverConfig(), seed=k, layout=k % 10 if env == "maze" else 0,

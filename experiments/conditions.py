@@ -16,7 +16,7 @@ destination pairs).
 
 An arm is an agent variant: the paper's four (`dqn`, `dqn-rs`, `deep-tamer`, `dqn-tamer`) or ours:
 `<algo>/uniform` (lags assumed uniform over the learner's window 0..6), `<algo>/true` (the observer's
-true distribution), `<algo>/learned` (learned online, common.delay_learning), `dqn-tamer/adaptive`
+true distribution), `<algo>/learned` (learned online, common.core.delay_learning), `dqn-tamer/adaptive`
 (alpha_h also follows H/Q agreement).
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ import numpy as np
 from common.agents import ALGOS, AgentConfig, agent_config
 from common.envs.maze import LAYOUT_COUNT, layout_kind
 from common.envs.taxi import FIXED_TASKS
-from common.observer import ObserverConfig
+from common.core.observer import ObserverConfig
 from experiments.runner import TrialSpec
 
 NO_DELAY = (1.0, 0.0, 0.0)

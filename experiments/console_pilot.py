@@ -26,7 +26,7 @@ import numpy as np
 from common.config import option, parse_config
 from common.envs.maze import LAYOUT_COUNT, MazeEnv, make_layout
 from common.envs.registry import ENVS
-from common.observer import ObserverConfig
+from common.core.observer import ObserverConfig
 from experiments.conditions import ADAPT_RATE, WINDOW, agent_for
 from experiments.taxi_pilot import PILOT_SEED0
 

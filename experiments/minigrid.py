@@ -11,7 +11,7 @@ import time
 import numpy as np
 
 from common.agents import agent_config
-from common.observer import ObserverConfig
+from common.core.observer import ObserverConfig
 from experiments.plots import plot_curves
 from experiments.runner import TrialSpec, run_trials
 

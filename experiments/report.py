@@ -159,7 +159,7 @@ def lag_lines(result: dict) -> list[str]:
     lines = ["## Learned delay (beyond the paper)", "", "![learned lags](learned-lags.png)", "",
              "The learner's candidate lags are 0..6 steps; `uniform` assumes them equally likely, `true` uses the "
              "observer's distribution (a drifting observer: its average), `learned` starts uniform and follows "
-             "online EM (`common/delay_learning.py`). Honest layouts only, high frequency.", "",
+             "online EM (`common/core/delay_learning.py`). Honest layouts only, high frequency.", "",
              "| condition | true mean lag (start -> end) | learned mean lag at the end |", "|---|---|---|"]
     for cond, d in result["learned_lags"].items():
         learned = ", ".join(f"{AGENT_NAMES.get(a, a)} {v[-1]:.2f}" for a, v in d["learned"].items())

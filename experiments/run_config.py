@@ -7,8 +7,8 @@ from dataclasses import dataclass
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import nested, option
-from common.observer import ObserverConfig
-from common.task import Task
+from common.core.observer import ObserverConfig
+from common.core.task import Task
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The in-process runner: the core's step loop on a virtual clock, many trials stepped in lockstep.
 
 Virtual time: trial i's k-th action is taken at t = k (one unit per step). The observer's reactions land
-between steps (see `common.observer.REACTION_OFFSET`). Per tick, in `common.steploop`'s order (Algorithm 2 of
+between steps (see `common.core.observer.REACTION_OFFSET`). Per tick, in `common.core.steploop`'s order (Algorithm 2 of
 the paper): credit the feedback that arrived since the previous action, act, step the env, record the step
 and run the every-b-steps updates; the observer watches the step and its reaction is delivered on the tick
 after it lands.
@@ -25,10 +25,10 @@ from threadpoolctl import threadpool_limits
 from common.agents import AgentConfig, TrialBatchAgent, make_agent
 from common.agents.agent import CREDITED, STALE
 from common.envs import make_env, obs_shape
-from common.observer import REACTION_OFFSET, ObserverBatch, ObserverConfig
-from common.seeding import derive_seed
-from common.steploop import StepLoop
-from common.util import nz
+from common.core.observer import REACTION_OFFSET, ObserverBatch, ObserverConfig
+from common.core.seeding import derive_seed
+from common.core.steploop import StepLoop
+from common.core.util import nz
 from experiments.envbatch import LoopEnvs, TableEnvs
 
 EPISODE_FIELDS = ("episode", "return", "steps", "feedback_given", "feedback_credited", "feedback_stale",

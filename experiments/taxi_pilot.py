@@ -43,7 +43,7 @@ def _value(text: str):
 
 def specs(env: str, episodes: int, trials: int, changes: dict, seed0: int = PILOT_SEED0):
     from common.agents import agent_config
-    from common.observer import ObserverConfig
+    from common.core.observer import ObserverConfig
     from experiments.runner import TrialSpec
 
     agent = agent_config("dqn", **{**AGENT_OVERRIDES.get(env, {}), **changes})

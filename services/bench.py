@@ -32,7 +32,7 @@ import numpy as np
 
 from common.agents import ALGOS
 from common.config import option
-from common.task import Task
+from common.core.task import Task
 
 PHASES = ("ingest", "paper", "paper-b4", "rate")
 PING_KEY = "hitl-bench/{run}/ping"
@@ -89,7 +89,7 @@ class Pinger:
 
         import zenoh
 
-        from common.transport import client_config, open_session, wait_for_matching
+        from common.wire.transport import client_config, open_session, wait_for_matching
 
         try:
             with open_session(client_config(self.endpoint, connect_timeout=60)) as session:
@@ -136,7 +136,7 @@ def echo_main(endpoint: str, run: str) -> int:
 
     import zenoh
 
-    from common.transport import client_config, open_session
+    from common.wire.transport import client_config, open_session
 
     from services.common.runtime import set_from_handler
 
@@ -165,7 +165,7 @@ def phase_settings(name: str, cfg: BenchConfig) -> dict[str, Any]:
 
 
 def analyse(rundir: Path) -> dict[str, Any]:
-    from common.mcap_log import read_log
+    from common.logs.mcap_log import read_log
     from common.protocol import Ingest, Step
 
     summary = json.loads((rundir / "summary.json").read_text())
@@ -208,7 +208,7 @@ def analyse(rundir: Path) -> dict[str, Any]:
 
 
 def bench(cfg: BenchConfig) -> int:
-    from common.transport import free_port, tcp_endpoint
+    from common.wire.transport import free_port, tcp_endpoint
     from services.launcher import UpConfig, up
 
     out = Path(cfg.out)

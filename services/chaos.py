@@ -97,7 +97,7 @@ def alive_tokens(rundir: Path) -> Any:
     import zenoh
 
     from common.protocol import step_key
-    from common.transport import client_config
+    from common.wire.transport import client_config
 
     run_json = json.loads((rundir / "config" / "run.json").read_text())
     endpoint = run_json["launcher"]["endpoint"]
@@ -154,7 +154,7 @@ def kill_in_turn(cfg: ChaosConfig, rundir: Path, proc: subprocess.Popen) -> list
 
 
 def _learner_events(rundir: Path) -> list[str]:
-    from common.mcap_log import read_log
+    from common.logs.mcap_log import read_log
     from common.protocol import Log
 
     out = []
@@ -167,7 +167,7 @@ def _learner_events(rundir: Path) -> list[str]:
 def report(cfg: ChaosConfig, chaos_dir: Path, base_dir: Path | None, kills: list[dict]) -> dict[str, Any]:
     import numpy as np
 
-    from common.mcap_log import LogRecoveryWarning, read_log
+    from common.logs.mcap_log import LogRecoveryWarning, read_log
     from services.replay.retrain import retrain
 
     s = json.loads((chaos_dir / "summary.json").read_text())

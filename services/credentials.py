@@ -34,7 +34,7 @@ class CredentialsConfig:
 
 
 def credentials(cfg: CredentialsConfig) -> int:
-    from common.auth import SECRET_FILE, AuthError, make_run_credentials, make_teacher_credential
+    from common.wire.auth import SECRET_FILE, AuthError, make_run_credentials, make_teacher_credential
 
     out = Path(cfg.out)
     try:

@@ -100,7 +100,7 @@ def makers(run: str, obs_dim: int, spec: dict[str, tuple[int, ...]], rng: np.ran
 def main(argv: list[str] | None = None) -> int:
     from common.agents import TrialBatchAgent, agent_config
     from common.envs import make_env
-    from common.transport import client_config, open_session
+    from common.wire.transport import client_config, open_session
 
     ap = argparse.ArgumentParser(prog="python -m services.flood", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)

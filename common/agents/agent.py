@@ -5,11 +5,11 @@ The parts (`AgentParts`, built by `build_parts` from the configs, or passed in),
   h                H's value network with its optimiser; learns from feedback;
   replay           `TransitionReplay`: the transitions Q samples (and shaping rewrites);
   feedback_memory  `FeedbackMemory`: D_global, every credited (step, feedback, weight);
-  history          `BatchStepHistory`: the recent steps that credit (`common.credit`) weighs;
+  history          `BatchStepHistory`: the recent steps that credit (`common.core.credit`) weighs;
   explorer, mixture  epsilon-greedy on alpha_q Q + alpha_h H (`explorer`).
 The four algorithms are ways of assembling them (`AgentConfig` presets: which parts learn, the mixture
 weights, shaping), so a batch may mix them. The order in which a driver calls the agent is
-`common.steploop`'s.
+`common.core.steploop`'s.
 
 How it stays fast and batch-independent:
   * every per-trial quantity has a leading trial axis and every method works on a set of trial rows at
@@ -34,8 +34,8 @@ from common.agents.history import BatchCredit
 from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max,
                                      with_ones)
 from common.agents.streams import to_integers
-from common.delay_learning import TrialLags
-from common.util import RowConstants, nz
+from common.core.delay_learning import TrialLags
+from common.core.util import RowConstants, nz
 
 # At most this many due rows run the Q and H minibatch steps as one stacked computation (above it,
 # copying the weights together costs more than the saved calls).
@@ -276,7 +276,7 @@ class TrialBatchAgent:
             self._learn_local(r[g], cnt[g], obs[g], act[g], fb, w32[g])
 
     def _learn_delay(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray) -> None:
-        """One step of the learned lag distribution (common.delay_learning) per learning trial, from H's
+        """One step of the learned lag distribution (common.core.delay_learning) per learning trial, from H's
         current predictions at the step each lag points to (before H learns from this feedback)."""
         lags = self.assumed_delay
         m = lags.learn[rows]

@@ -17,9 +17,9 @@ from common.agents.networks import StackedMLP, ValueNetworks
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.streams import UniformBlocks
-from common.delay import DelayModel
-from common.delay_learning import TrialLags
-from common.seeding import derive_seed
+from common.core.delay import DelayModel
+from common.core.delay_learning import TrialLags
+from common.core.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
 SHARED_FIELDS = ("network", "device", "hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
@@ -37,7 +37,7 @@ class AgentParts:
     history: BatchStepHistory
     explorer: EpsilonGreedy
     mixture: Mixture
-    assumed_delay: object  # anything with a CDF (`common.credit.DelayDistribution`)
+    assumed_delay: object  # anything with a CDF (`common.core.credit.DelayDistribution`)
     q_draws: UniformBlocks  # Q's replay minibatch draws (counter-based, per trial)
     h_draws: UniformBlocks  # H's D_global minibatch draws
 
@@ -76,7 +76,7 @@ def mlp(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[in
 
 def _assumed_delay(configs: list[AgentConfig], step_unit: float):
     """The paper's one point-mass model when every trial assumes the same lags and none learns them; else one
-    distribution per trial (`common.delay_learning.TrialLags`)."""
+    distribution per trial (`common.core.delay_learning.TrialLags`)."""
     c = configs[0]
     if all(x.assumed_delay_probs == c.assumed_delay_probs and not x.learn_delay for x in configs):
         return DelayModel(c.assumed_delay_probs, step_unit)

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, fields, replace
 
 from common.config import option
-from common.delay import parse_probs
+from common.core.delay import parse_probs
 
 NETWORKS = ("auto", "mlp", "torch-mlp", "cnn")  # the built-in networks (common/agents/torch_net.py builds them)
 
@@ -60,7 +60,7 @@ class AgentConfig:
                                                     "2, ... steps (for credit)")
     history_steps: int = option(32, "recent steps a feedback may still be credited to; older targets are stale")
     # Beyond the paper (ours; docs/results/REPORT.md: learned delay, adaptive alpha_h).
-    learn_delay: bool = option(False, "learn the lag distribution online (common.delay_learning: EM over lags "
+    learn_delay: bool = option(False, "learn the lag distribution online (common.core.delay_learning: EM over lags "
                                       "0..len(assumed)-1, starting from assumed_delay_probs)")
     alpha_h_adapt: float = option(0.0, "if > 0, alpha_h is also multiplied by a running rate (this step size, "
                                        "from 1) of argmax H agreeing with argmax Q; 0 = the paper's schedule")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from common.agents.streams import UniformBlocks
-from common.util import RowConstants
+from common.core.util import RowConstants
 
 
 class Mixture:

@@ -1,7 +1,7 @@
 """The recent steps of every trial in a batch (ring buffers of time, episode, obs, action, replay slot of the
 last `capacity` steps), and credit by timestamp over them for one feedback per trial at once.
 
-The weights come from `common.credit.credit_weights`, the one credit function: step k is shown from its
+The weights come from `common.core.credit.credit_weights`, the one credit function: step k is shown from its
 action time to the next one, and a feedback is credited only within the episode of the newest step shown
 at or before its stamp.
 """
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.credit import credit_weights
-from common.util import nz
+from common.core.credit import credit_weights
+from common.core.util import nz
 
 @dataclass
 class BatchCredit:

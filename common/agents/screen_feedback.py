@@ -1,11 +1,11 @@
 """A person's feedback on what their screen showed (the console): credit in seconds over the on-screen intervals
-of the held steps, by the one credit function (`common.credit`), then the agent's D_local step."""
+of the held steps, by the one credit function (`common.core.credit`), then the agent's D_local step."""
 from __future__ import annotations
 
 import numpy as np
 
 from common.agents.agent import FeedbackOutcome, TrialBatchAgent
-from common.credit import credit_weights, onset_weights
+from common.core.credit import credit_weights, onset_weights
 
 
 def give_screen_feedback(agent: TrialBatchAgent, i: int, t_feedback: float, value: int, step_times, starts, ends,
@@ -13,7 +13,7 @@ def give_screen_feedback(agent: TrialBatchAgent, i: int, t_feedback: float, valu
     """Feedback from a person who watched the steps on a screen (the console): the held steps recorded at
     `step_times` were on screen during [starts, ends) seconds, oldest first; credit them in seconds with
     `delay` (any distribution with a CDF), by the same credit function, over each step's interval
-    (`reference` "interval", Deep TAMER's) or at its onset ("onset": `common.credit.onset_weights`). Mass on
+    (`reference` "interval", Deep TAMER's) or at its onset ("onset": `common.core.credit.onset_weights`). Mass on
     steps no longer held is lost. Returns the outcome and the weight given to each listed step."""
     if value not in (-1, 1):
         raise ValueError(f"feedback must be -1 or +1, got {value!r}")

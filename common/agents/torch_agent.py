@@ -11,7 +11,7 @@ from common.agents.agent import TrialBatchAgent
 from common.agents.build import build_parts
 from common.agents.config import AgentConfig
 from common.agents.torch_net import TorchValueNetworks, build_modules, resolve_network
-from common.seeding import derive_seed
+from common.core.seeding import derive_seed
 
 
 def torch_networks(configs: list[AgentConfig], obs_shape: tuple[int, ...], n_actions: int, seeds: list[int],

@@ -90,7 +90,7 @@ def _key_expressions(w) -> None:
     w(f"Every key is `{ROOT}/<run>/<kind>[/<name>]`; a recorder subscribes to `{ROOT}/<run>/**`. `decode(key, "
       "bytes)` also checks that a message's `run` (and `teacher_id`, `service`) equals the key's (`bad_value`). "
       "Congestion `block` means publishers use Zenoh's `CongestionControl.BLOCK` (nothing dropped under load); "
-      "`drop` means `DROP`. The receive policy is the default of `common.transport.Inbox` for that key.")
+      "`drop` means `DROP`. The receive policy is the default of `common.wire.transport.Inbox` for that key.")
     w("")
     w("| key expression | message type | congestion | receive policy | content |")
     w("|---|---|---|---|---|")
@@ -105,7 +105,7 @@ def _publishers(w) -> None:
     w("## Who may publish what")
     w("")
     w("An identity is a service name; its role is the part before the first `.`. Every receiver checks a message's "
-      "authentication envelope (`common/auth.py`, docs/security.md) against this table before anything else, and "
+      "authentication envelope (`common/wire/auth.py`, docs/security.md) against this table before anything else, and "
       "the secured router's access rules are built from it. `{id}` is the identity's own name (`alice` for "
       "`teacher.alice`); every identity may also publish `status/<identity>` and `log/<identity>`.")
     w("")
@@ -123,8 +123,8 @@ def _usage(w) -> None:
     w("")
     w("```python")
     w("from common.protocol import Step, decode, run_prefix, step_key")
-    w("from common.transport import MessagePublisher, client_config, open_session, subscription")
-    w("from common.mcap_log import LogWriter, read_log")
+    w("from common.wire.transport import MessagePublisher, client_config, open_session, subscription")
+    w("from common.logs.mcap_log import LogWriter, read_log")
     w("")
     w("with open_session(client_config(7447)) as session:          # always closed, even on errors")
     w("    steps = MessagePublisher(session, step_key(run))           # BLOCK/DROP from the key table")

@@ -72,7 +72,7 @@ def _message_class(type_name: str, fds: bytes) -> Any:
 
 class SceneUpdate(FoxgloveProto):
     """Entities of a 3D scene (`foxglove.SceneUpdate`): the environment's layout, the agent, feedback marks.
-    Built by `common.scene` with foxglove-sdk; Foxglove's 3D panel draws it."""
+    Built by `common.logs.scene` with foxglove-sdk; Foxglove's 3D panel draws it."""
 
     TYPE_NAME: ClassVar[str] = "foxglove.SceneUpdate"
     SDK_NAME: ClassVar[str] = "SceneUpdate"

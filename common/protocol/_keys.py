@@ -70,7 +70,7 @@ KEYS: dict[str, KeySpec] = {k.kind: k for k in [
     KeySpec("scene", SceneUpdate, "part", "block", "block",
             "The environment drawn for Foxglove's 3D panel (foxglove.SceneUpdate, protobuf): `layout` once per "
             "episode, `agent` per step, `feedback` per resolved feedback. Made by the recorder and the Foxglove "
-            "bridge from steps and credits (common/scene.py)."),
+            "bridge from steps and credits (common/logs/scene.py)."),
     KeySpec("episode", EpisodeSummary, None, "block", "block", "End-of-episode summary, from the learner."),
     KeySpec("ingest", Ingest, None, "block", "block",
             "The learner's input order (what `replay retrain` feeds a fresh learner), from the learner."),

@@ -4,7 +4,7 @@ An identity is a service name: `actor`, `learner`, `recorder`, `launcher`, `teac
 feedback key is `feedback/<id>`), `observer.<id>` (the face-video observer showing reactions to camera `<id>`),
 `perception` (a perception service that is not a teacher). Its role is the part before the first `.`.
 
-:data:`PUBLISHES` is the one table of who may publish what. The authentication gate (`common.auth`, checked
+:data:`PUBLISHES` is the one table of who may publish what. The authentication gate (`common.wire.auth`, checked
 by every receiver) and the secured router's access rules (`common.security`) are both built from it.
 """
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Secured Zenoh for multi-machine runs: TLS, user/password authentication and access control (issue 6).
 
-By default every service listens and connects on 127.0.0.1 only (``common.transport``), so nobody else is
+By default every service listens and connects on 127.0.0.1 only (``common.wire.transport``), so nobody else is
 let in. To spread the services over several machines, run one secured router and connect every service to
 it as a client:
 
@@ -16,7 +16,7 @@ it as a client:
   the actor ``step``; each identity only its own ``status/<service>`` and ``log/<service>``. Every
   authenticated identity may subscribe to and receive ``hitl/<run>/**`` (so the recorder records everything).
   A denied put is dropped silently by the router: the publisher gets no error. On top of this, every message
-  carries the run's authentication tag (common/auth.py), checked by every receiver.
+  carries the run's authentication tag (common/wire/auth.py), checked by every receiver.
 
 Modules: config (who is who, security.json), access (the router's rules), zenoh_config, certs (CA, init),
 router (the secured router process, the command line).

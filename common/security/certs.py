@@ -13,7 +13,7 @@ from typing import Any, Iterable
 from common.security.config import (CA_CERT, CA_KEY, CREDENTIALS_FILE, DEFAULT_PORT, ROUTER_CERT, ROUTER_KEY,
                                     SECURITY_FILE, SecurityConfig, SecurityError, save_security, write_credentials)
 from common.security.files import write_private
-from common.transport import LOOPBACK
+from common.wire.transport import LOOPBACK
 
 # -- certificates ----------------------------------------------------------------------------------------------
 

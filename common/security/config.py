@@ -11,7 +11,7 @@ from typing import Any
 
 from common.protocol import teacher_service_name
 from common.security.files import write_private
-from common.transport import LOOPBACK
+from common.wire.transport import LOOPBACK
 
 DEFAULT_PORT = 7447
 SECURITY_FILE = "security.json"

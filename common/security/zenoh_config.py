@@ -9,7 +9,7 @@ import zenoh
 
 from common.security.access import access_control
 from common.security.config import DEFAULT_PORT, SecurityConfig, SecurityError, tls_endpoint  # noqa: F401
-from common.transport import DEFAULT_CONNECT_TIMEOUT, make_config
+from common.wire.transport import DEFAULT_CONNECT_TIMEOUT, make_config
 
 # -- zenoh configs ---------------------------------------------------------------------------------------------
 

@@ -28,8 +28,8 @@ import yaml
 from common.agents import ALGOS, agent_config
 from common.envs import LAYOUT_COUNT
 from common.envs.registry import resolve_env
-from common.observer import ObserverConfig
-from common.task import Task
+from common.core.observer import ObserverConfig
+from common.core.task import Task
 from experiments.conditions import AGENT_OVERRIDES, FULL, MAZE_EPISODES, TAXI_EPISODES, trial_seed
 from experiments.run_config import RunConfig
 from experiments.runner import TrialSpec

@@ -8,7 +8,7 @@ from common.protocol import Control, ProtocolError
 
 
 class RunControl:
-    """The actor's pace and pause state, fed by a Control inbox (a `common.transport` subscription)."""
+    """The actor's pace and pause state, fed by a Control inbox (a `common.wire.transport` subscription)."""
 
     def __init__(self, rate: float, counters, log, paused: bool = False):
         self.period = 1.0 / rate if rate > 0 else 0.0

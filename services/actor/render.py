@@ -25,7 +25,7 @@ def enable_rgb(env: Any) -> bool:
 
 class FramePublisher:
     def __init__(self, session: Any, run: str, env: Any, counters):
-        from common.transport import MessagePublisher
+        from common.wire.transport import MessagePublisher
 
         self.env, self.counters = getattr(env, "unwrapped", env), counters
         self.pub = MessagePublisher(session, camera_key(run, CAMERA))

@@ -34,9 +34,11 @@ from common.protocol import (ProtocolError, ServiceStatus, Step, Weights, contro
                              weights_key)
 from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
-from common.seeding import derive_seed
+from common.core.seeding import derive_seed
 from services.common.config import ActorConfig
-from services.common.faults import AliveWatch, IncarnationWatch, ResendRing, first_time_logger, publish_kept
+from services.common.gate import first_time_logger
+from services.common.resend import ResendRing, publish_kept
+from services.common.watches import AliveWatch, IncarnationWatch
 from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main, wait_alive
 
@@ -303,7 +305,7 @@ class Actor:
 
 
 def main(config: ActorConfig) -> int:
-    from common.transport import MessagePublisher, subscription
+    from common.wire.transport import MessagePublisher, subscription
 
     apply_torch_threads()
     rt = ServiceRuntime("actor", config)

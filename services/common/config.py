@@ -2,7 +2,7 @@
 (`common.config`), and is written to the run's log.
 
 Every service shares `ServiceConfig` (run name, router endpoint, launcher link, stats file); the task
-(`common.task.Task`: env, layout, seed, teacher rule), the agent (`AgentConfig`, `--agent.*`) and the
+(`common.core.task.Task`: env, layout, seed, teacher rule), the agent (`AgentConfig`, `--agent.*`) and the
 observer (`ObserverConfig`, `--observer.*`) are the same dataclasses as the in-process runner's, so a live
 run and an in-process run with the same values are the same experiment.
 """
@@ -14,11 +14,11 @@ from dataclasses import dataclass
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import nested, option
-from common.credit import SCREEN_CREDIT
-from common.delay import check_delay_spec
-from common.observer import ObserverConfig
+from common.core.credit import SCREEN_CREDIT
+from common.core.delay import check_delay_spec
+from common.core.observer import ObserverConfig
 from common.protocol import teacher_service_name, validate_name
-from common.task import Task
+from common.core.task import Task
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 CLOCKS = ("steps", "wall")
@@ -43,7 +43,7 @@ class ServiceConfig:
     connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
     security: str | None = option(None, "security.json of this machine (common/security.py: TLS, user/password, "
                                         "access control); connect to the secured router as this service's identity")
-    credentials: str | None = option(None, "this service's credential file (common/auth.py): signs what it publishes, "
+    credentials: str | None = option(None, "this service's credential file (common/wire/auth.py): signs what it publishes, "
                                            "checks what it receives; the launcher writes one per service, "
                                            "`python -m services credentials` for services started by hand")
 

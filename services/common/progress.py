@@ -1,7 +1,7 @@
 """A service's progress file (the actor's episodes done, a teacher's next feedback seq): a small JSON object
 rewritten before each thing it counts, so that a restarted service continues where the killed one stopped.
 
-It is rewritten in place: the first write replaces the file atomically (`faults.atomic_write`) with the record
+It is rewritten in place: the first write replaces the file atomically (`statefiles.atomic_write`) with the record
 padded by spaces to a fixed width (JSON allows trailing whitespace), and later writes overwrite that width at
 offset 0 of the file kept open, with one `pwrite`. A single write of a few dozen bytes to a regular file is not
 split by a kill, so a reader after a SIGKILL sees the old or the new record whole, as with the atomic rename,
@@ -16,7 +16,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from services.common.faults import atomic_write, read_json
+from services.common.statefiles import atomic_write, read_json
 
 MIN_WIDTH = 64  # bytes of the padded record
 

@@ -112,7 +112,7 @@ class ServiceRuntime:
     def session(self) -> Iterator[Any]:
         """A client session to the configured router(s); on exit: final status 'stopped', token dropped,
         a short linger so BLOCK publishers' queues drain, then close."""
-        from common.transport import MessagePublisher, open_session, subscribe
+        from common.wire.transport import MessagePublisher, open_session, subscribe
 
         cfg = self.config
         with open_session(self.zenoh_config()) as session:
@@ -174,7 +174,7 @@ class ServiceRuntime:
     def zenoh_config(self) -> Any:
         """A plain loopback client of `connect`, or with `security` the secured client of this service's
         identity (role from the service name: `teacher.<id>` is teacher `<id>`)."""
-        from common.transport import client_config
+        from common.wire.transport import client_config
 
         cfg = self.config
         security = getattr(cfg, "security", None)
@@ -196,7 +196,7 @@ class ServiceRuntime:
         if self._session is None:
             return
         from common.protocol import Log, Time, log_key
-        from common.transport import MessagePublisher
+        from common.wire.transport import MessagePublisher
 
         try:
             if self._log_pub is None:
@@ -209,7 +209,7 @@ class ServiceRuntime:
     def ready(self) -> None:
         """Subscribers are declared: announce liveliness and state 'ready'."""
         self._token = self._session.liveliness().declare_token(alive_key(self.config.run, self.name))
-        # Announces this incarnation to receivers that accept inputs only from announced ones (faults.py).
+        # Announces this incarnation to receivers that accept inputs only from announced ones (services/common/gate.py).
         self._inc_token = self._session.liveliness().declare_token(
             incarnation_alive_key(self.config.run, self.name, self.incarnation))
         self._cpu_at_ready = time.process_time()
@@ -261,11 +261,11 @@ _CURRENT: list["ServiceRuntime | None"] = [None]  # this process's runtime (its 
 
 
 def load_auth(name: str, config: Any, incarnation: str, process_default: bool = True) -> Any:
-    """This service's signer and checker from its credential file (common/auth.py), installed as the process's
+    """This service's signer and checker from its credential file (common/wire/auth.py), installed as the process's
     default for every publisher and inbox (unless `process_default` is False: tests that build a runtime in
     their own process). Raises AuthError (one line) without one."""
-    from common.auth import Auth, AuthError, load_credential
-    from common.transport import set_default_auth
+    from common.wire.auth import Auth, AuthError, load_credential
+    from common.wire.transport import set_default_auth
 
     path = getattr(config, "credentials", None)
     if not path:
@@ -327,7 +327,7 @@ def apply_torch_threads() -> None:
 
 def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, prog: str) -> int:
     """Parse `cls` from the command line (or --config FILE) and run `main(config)`."""
-    from common.auth import AuthError
+    from common.wire.auth import AuthError
     from common.config import parse_config
 
     config = parse_config(cls, argv, prog=prog)

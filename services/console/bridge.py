@@ -39,7 +39,7 @@ class Hub:
 
     def __init__(self, config: ConsoleConfig, rt: Any, session: Any, loop: asyncio.AbstractEventLoop):
         from common.agents import make_agent  # torch: only a live console needs it, not `--replay`
-        from common.transport import MessagePublisher
+        from common.wire.transport import MessagePublisher
 
         self.config, self.rt, self.session, self.loop = config, rt, session, loop
         env, _ = make_env(config.env, config.layout)
@@ -82,7 +82,7 @@ class Hub:
 
     def _on_sample(self, sample: Any) -> None:  # a zenoh thread: hand the bytes to the loop
         item = (str(sample.key_expr), sample.payload.to_bytes(), time.time())
-        auth = self.rt.auth  # checked first (common/auth.py): a forgery never reaches a page or a person's status
+        auth = self.rt.auth  # checked first (common/wire/auth.py): a forgery never reaches a page or a person's status
         att = sample.attachment
         if auth is not None and auth.check(item[0], item[1], None if att is None else att.to_bytes(), item[2]):
             return

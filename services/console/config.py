@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import option
-from common.delay import check_delay_spec, delay_from_spec
+from common.core.delay import check_delay_spec, delay_from_spec
 from common.protocol import MAX_RATE
 from services.common.config import TaskConfig, _check_name
 

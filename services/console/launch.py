@@ -24,7 +24,7 @@ def console_defaults(up: Any) -> dict:
 
 
 def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]:
-    from common.transport import free_port
+    from common.wire.transport import free_port
     from services.console.config import ConsoleConfig
 
     port = up.console_port or free_port(up.host if up.security else "127.0.0.1")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from common.config import option, parse_config
-from common.mcap_read import NotMcapError, read_log
+from common.logs.mcap_read import NotMcapError, read_log
 from common.protocol import Credit, ExpressionPrediction, Feedback, Shown, Step
 
 

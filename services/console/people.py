@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from common.protocol import CONTROL_COMMANDS, MAX_RATE, TOKEN_PATTERN
-from common.screen import ScreenTimeline
+from common.core.screen import ScreenTimeline
 
 MAX_TEXT = 4096  # bytes of one JSON page message
 KINDS = ("ping", "shown", "feedback", "control")

@@ -50,7 +50,7 @@ def _learner_run(path) -> tuple[dict, dict]:
 def timeline(path) -> dict:
     """Everything the replay page shows, as one JSON-ready dict."""
     from common.envs.scene import SceneTracker, static_scene
-    from common.mcap_log import LogRecoveryWarning, read_log
+    from common.logs.mcap_log import LogRecoveryWarning, read_log
     from common.protocol import Credit, EpisodeSummary, Step
 
     values, learner = _learner_run(path)
@@ -87,7 +87,7 @@ def replay_main(config) -> int:
 
     from aiohttp import web
 
-    from common.mcap_log import NotMcapError
+    from common.logs.mcap_log import NotMcapError
 
     path = Path(config.replay)
     if not path.exists():

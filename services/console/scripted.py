@@ -22,7 +22,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from common.credit import SCREEN_CREDIT
+from common.core.credit import SCREEN_CREDIT
 from common.config import option, parse_config
 
 ROOT = Path(__file__).resolve().parents[2]

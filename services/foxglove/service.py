@@ -2,7 +2,7 @@
 
 Another subscriber of `hitl/<run>/**`, like the recorder, serving what the recorder writes: the same topics
 (`/step`, `/scene/agent`, ...), the same schemas (JSON Schema, or Foxglove's protobuf scene), the same scene
-drawn from the steps and credits (common/scene.py), and not the actor's every-step weights. Foxglove connects
+drawn from the steps and credits (common/logs/scene.py), and not the actor's every-step weights. Foxglove connects
 to ws://HOST:PORT (Open connection -> Foxglove WebSocket); the layout in docs/foxglove-layout.json shows it.
 `python -m services up --foxglove PORT` starts it. It serves on 127.0.0.1 unless told otherwise.
 
@@ -16,7 +16,7 @@ import sys
 import time
 
 from common.protocol import ProtocolError, ServiceStatus, decode, log_topic, parse_key, run_prefix
-from common.scene import SceneBuilder, derived_records
+from common.logs.scene import SceneBuilder, derived_records
 from services.common.config import FoxgloveConfig
 from services.common.runtime import ServiceRuntime, service_main
 
@@ -30,7 +30,7 @@ class Channels:
     def log(self, key: str, data: bytes, log_time: int) -> None:
         import foxglove
 
-        from common.mcap_log import schema_record
+        from common.logs.mcap_log import schema_record
 
         ch = self.by_key.get(key)
         if ch is None:
@@ -52,7 +52,7 @@ def load_scene(config: FoxgloveConfig) -> SceneBuilder | None:
 def main(config: FoxgloveConfig) -> int:
     import foxglove
 
-    from common.transport import subscription
+    from common.wire.transport import subscription
 
     rt = ServiceRuntime("foxglove", config)
     scene = load_scene(config)

@@ -1,7 +1,7 @@
 """`python -m services up`: a whole live run on this machine.
 
 Starts an embedded Zenoh router (this process's own session in router mode, listening on HOST:PORT, no
-multicast scouting), makes the run's credentials (common/auth.py: a secret per run, one credential file per
+multicast scouting), makes the run's credentials (common/wire/auth.py: a secret per run, one credential file per
 service and teacher, readable only by the user), spawns one process per service (recorder, learner, the
 teacher's processes, actor; each in its own process group, each told to exit if this process disappears),
 shows a progress bar fed by the learner's EpisodeSummary messages, and stops everything at the end or on

@@ -11,10 +11,10 @@ from typing import Any
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import nested, option
-from common.credit import SCREEN_CREDIT
-from common.delay import parse_probs
-from common.observer import ObserverConfig
-from common.task import Task
+from common.core.credit import SCREEN_CREDIT
+from common.core.delay import parse_probs
+from common.core.observer import ObserverConfig
+from common.core.task import Task
 from common.protocol import teacher_id_of
 from services.common.config import ActorConfig, FoxgloveConfig, LearnerConfig, RecorderConfig
 from services.teacher.registry import TEACHERS, ProcessSpec

@@ -25,7 +25,7 @@ class Progress:
 
     def subscribe(self, session: Any, run: str) -> Any:
         from common.protocol import episode_key
-        from common.transport import subscribe
+        from common.wire.transport import subscribe
 
         sub, self.inbox = subscribe(session, episode_key(run), maxsize=4096, policy="drop_oldest")
         return sub

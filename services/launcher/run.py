@@ -22,7 +22,7 @@ DISK_FULL_TEXT = "No space left on device"
 
 def router_settings(cfg: UpConfig, port: int) -> tuple[str, Any]:
     """The embedded router's endpoint and zenoh config (the secured one with `security`)."""
-    from common.transport import router_config, tcp_endpoint
+    from common.wire.transport import router_config, tcp_endpoint
 
     if cfg.security:
         from common.security import load_security, router_config_for, tls_endpoint
@@ -52,7 +52,7 @@ class Run:
         self.status_pub: Any = None
         self.statuses: Any = None
 
-    # -- the launcher's own status: 'stopping' tells every service the run is ending (common/auth.py signs it) --
+    # -- the launcher's own status: 'stopping' tells every service the run is ending (common/wire/auth.py signs it) --
     def announce(self, state: str) -> None:
         from common.protocol import ServiceStatus
 
@@ -178,7 +178,7 @@ class Run:
 
 def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
     """Name, directory (locked), credentials, processes and the run record. Raises RunDirError."""
-    from common.transport import free_port
+    from common.wire.transport import free_port
 
     run = cfg.run or default_run_name()
     ServiceConfig(run=run)  # validates the name
@@ -231,9 +231,9 @@ def open_launcher_session(r: Run, router_cfg: Any) -> Any:
     """The router session, signing as `launcher` (its credential), with the launcher's status publisher."""
     import zenoh
 
-    from common.auth import Auth, load_credential
+    from common.wire.auth import Auth, load_credential
     from common.protocol import KEYS, status_key
-    from common.transport import MessagePublisher, set_default_auth, subscribe
+    from common.wire.transport import MessagePublisher, set_default_auth, subscribe
 
     set_default_auth(Auth(load_credential(r.rundir.path / "credentials" / "launcher.json", r.run, "launcher")))
     session = zenoh.open(router_cfg)

@@ -75,7 +75,7 @@ class RunDir:
         """A new run secret and one credential per identity under `credentials/` (0700, files 0600). Everything the
         launcher starts runs as this user on this machine: a service credential each (teachers that join from
         elsewhere get a teacher credential: `python -m services credentials --teacher ID`)."""
-        from common.auth import make_run_credentials
+        from common.wire.auth import make_run_credentials
 
         return make_run_credentials(self.path / "credentials", run, services=identities)
 

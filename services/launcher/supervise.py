@@ -101,9 +101,10 @@ class Supervisor:
 
     def __init__(self, cfg: UpConfig, run: str, session: Any):
         from common.protocol import log_key
-        from common.transport import MessagePublisher
+        from common.wire.transport import MessagePublisher
         from common.protocol import alive_key
-        from services.common.faults import AliveWatch, ResendRing
+        from services.common.resend import ResendRing
+        from services.common.watches import AliveWatch
 
         self.cfg, self.run = cfg, run
         self.records: list[dict[str, Any]] = []
@@ -131,7 +132,7 @@ class Supervisor:
 
     def say(self, text: str, level: int = 3) -> None:
         from common.protocol import Log, Time
-        from services.common.faults import publish_kept
+        from services.common.resend import publish_kept
 
         print(f"\n[launcher] {text}", file=sys.stderr, flush=True)
         try:

@@ -16,7 +16,7 @@ def catch_up(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, consu
     """Consume from the recorder's log every step and feedback that the (restored) core has not seen, in log
     order; statuses in the log announce incarnations and final counts. The log may be cut or still being
     written (read up to its last complete chunk); what it lacks arrives re-sent or live (deduplicated)."""
-    from common.mcap_log import LogRecoveryWarning, read_log
+    from common.logs.mcap_log import LogRecoveryWarning, read_log
 
     t0 = time.monotonic()
     before = core.steps_learned, core.counters["feedback_received"]

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from services.common.faults import atomic_write
+from services.common.statefiles import atomic_write
 
 FORMAT = "hitl.learner-checkpoint/1"
 SEP = "."

@@ -30,7 +30,7 @@ from common.agents.agent import STATUS_NAMES
 from common.config import config_record
 from common.envs import make_env, obs_shape
 from common.protocol import Feedback, IngestEntry, Step
-from common.steploop import StepLoop
+from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
 from services.learner.screen import ScreenCredit

@@ -4,7 +4,7 @@ A console Feedback lists the steps its person saw (`shown`: Step.seq and the sys
 stamped with the time of the key press or camera frame. The learner credits it with the assumed delay in
 seconds (`LearnerConfig.screen_delay`, Deep TAMER's uniform 0.2-4 s by default) integrated over each step's
 on-screen interval [appeared, next appeared) or, with `screen_credit` onset, at the moment each appeared,
-through the one credit function (`common.credit`).
+through the one credit function (`common.core.credit`).
 
 Such a feedback is held until the learner has learned the newest step it lists (the person cannot have
 seen a step the actor had not taken, so it comes). Like the step clock, everything here depends only on the
@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from common.delay import delay_from_spec
+from common.core.delay import delay_from_spec
 from common.protocol import Feedback
 
 
@@ -26,7 +26,7 @@ class ScreenCredit:
 
     def __init__(self, delay_spec: str, capacity: int, reference: str = "interval"):
         self.delay = delay_from_spec(delay_spec)
-        self.reference = reference  # interval (Deep TAMER) or onset: common.credit
+        self.reference = reference  # interval (Deep TAMER) or onset: common.core.credit
         self.capacity = capacity
         self.index: collections.OrderedDict[int, int] = collections.OrderedDict()  # seq -> step-clock index
         self.seq_of: dict[int, int] = {}  # the inverse: step-clock index -> seq

@@ -33,8 +33,9 @@ from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, C
                              Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key, feedback_wildcard,
                              ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
-from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, InputGate, ResendRing,
-                                    decoded_statuses, first_time_logger, publish_kept)
+from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
+from services.common.resend import ResendRing, publish_kept
+from services.common.watches import AliveWatch, IncarnationWatch, decoded_statuses
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
 from services.learner import checkpoint
 from services.learner.catchup import catch_up
@@ -311,7 +312,7 @@ class Learner:
 
 
 def main(config: LearnerConfig) -> int:
-    from common.transport import Inbox, MessagePublisher, subscription
+    from common.wire.transport import Inbox, MessagePublisher, subscription
 
     apply_torch_threads()
     rt = ServiceRuntime("learner", config)
@@ -363,7 +364,7 @@ def credit_message(run: str, result, actor: str | None, t_done: float) -> Credit
 
 def publish_credit(session, pubs: dict, credit: Credit) -> None:
     """A Credit on its own key, `hitl/<run>/credit/<teacher_id>` (a publisher per teacher, made once)."""
-    from common.transport import MessagePublisher
+    from common.wire.transport import MessagePublisher
 
     pub = pubs.get(credit.teacher_id)
     if pub is None:

@@ -81,7 +81,7 @@ class PerceptionService:
 
     def __init__(self, config: PerceptionLiveConfig, rt: ServiceRuntime, session: Any,
                  pipeline: PerceptionPipeline):
-        from common.transport import MessagePublisher
+        from common.wire.transport import MessagePublisher
 
         self.config, self.rt, self.session, self.pipeline = config, rt, session, pipeline
         self.feedback = MessagePublisher(session, feedback_key(config.run, config.teacher_id))
@@ -104,7 +104,7 @@ class PerceptionService:
         self.cpu_first = 0.0
 
     def _publisher(self, table: dict, key: str) -> Any:
-        from common.transport import MessagePublisher
+        from common.wire.transport import MessagePublisher
 
         pub = table.get(key)
         if pub is None:
@@ -160,7 +160,7 @@ class PerceptionService:
 
     def on_shown(self, items) -> None:
         """Paint reports of the people's screens (console `Shown` messages)."""
-        from common.screen import ScreenTimeline
+        from common.core.screen import ScreenTimeline
 
         for item in items:
             try:
@@ -204,7 +204,7 @@ def main(config: PerceptionLiveConfig) -> int:
     """Run the service until the source ends, ``stop_with`` services have stopped, or SIGTERM/SIGINT."""
     import dataclasses
 
-    from common.transport import subscription
+    from common.wire.transport import subscription
 
     spec = config.source_spec
     if spec.kind in ("video", "image", "mcap") and not os.path.exists(spec.target):

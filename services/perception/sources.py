@@ -81,7 +81,7 @@ def iter_mcap_frames(path: str, camera: str | None = None, realtime: bool = Fals
     import os
     import warnings
 
-    from common.mcap_log import LogRecoveryWarning, read_log
+    from common.logs.mcap_log import LogRecoveryWarning, read_log
     from common.protocol import CompressedImage
 
     if not os.path.exists(path):

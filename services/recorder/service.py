@@ -23,9 +23,10 @@ import time
 
 from common.config import config_record
 from common.protocol import KEYS, ProtocolError, RunConfig, ServiceStatus, decode, status_key
-from common.scene import SceneBuilder, derived_records
+from common.logs.scene import SceneBuilder, derived_records
 from services.common.config import RecorderConfig
-from services.common.faults import AliveWatch, first_time_logger
+from services.common.gate import first_time_logger
+from services.common.watches import AliveWatch
 from services.common.runtime import ServiceRuntime, service_main
 from services.recorder.caps import RecordCaps
 
@@ -44,8 +45,8 @@ def load_run_config(config: RecorderConfig) -> RunConfig:
 
 
 def main(config: RecorderConfig) -> int:
-    from common.mcap_log import LogWriter
-    from common.transport import subscriptions
+    from common.logs.mcap_log import LogWriter
+    from common.wire.transport import subscriptions
 
     rt = ServiceRuntime("recorder", config)
     run_config = load_run_config(config)

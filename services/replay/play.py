@@ -10,15 +10,15 @@ import time
 import warnings
 from typing import Any
 
-from common.mcap_log import LogRecoveryWarning, read_log
+from common.logs.mcap_log import LogRecoveryWarning, read_log
 from common.protocol import ProtocolError, parse_key
 
 
 def play(path: str | os.PathLike, session: Any, *, speed: float = 1.0, kinds: tuple[str, ...] = (),
          stop: Any = None, on_record: Any = None, signer: Any = None) -> dict[str, int]:
     """Publish the log's records on `session`, each signed as its original sender by `signer`
-    (`common.auth.SignAsSender`; receivers drop what is not signed). Returns counts by kind."""
-    from common.transport import declare_publisher
+    (`common.wire.auth.SignAsSender`; receivers drop what is not signed). Returns counts by kind."""
+    from common.wire.transport import declare_publisher
 
     publishers: dict[str, Any] = {}
     counts: dict[str, int] = {}

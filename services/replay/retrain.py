@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from common.mcap_log import LogRecoveryWarning, read_log
+from common.logs.mcap_log import LogRecoveryWarning, read_log
 from common.protocol import Feedback, Ingest, Step, Weights, WeightsSnapshot
 
 

@@ -45,14 +45,14 @@ def cmd_summary(args) -> int:
 def cmd_play(args) -> int:
     import signal
 
-    from common.transport import client_config, free_port, open_session, router_config, tcp_endpoint
+    from common.wire.transport import client_config, free_port, open_session, router_config, tcp_endpoint
     from services.replay.play import play
 
     from services.common.runtime import set_from_handler
 
     signer = None
     if args.credentials:
-        from common.auth import AuthError, SignAsSender, load_credential
+        from common.wire.auth import AuthError, SignAsSender, load_credential
 
         try:
             signer = SignAsSender(load_credential(args.credentials))
@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = _warn_to_stderr
     if not Path(args.log).exists():
         parser.error(f"{args.log}: no such file or directory")
-    from common.mcap_log import NotMcapError
+    from common.logs.mcap_log import NotMcapError
 
     try:
         return {"summary": cmd_summary, "play": cmd_play, "retrain": cmd_retrain,

@@ -8,7 +8,7 @@ import warnings
 
 
 def log_size(path) -> dict:
-    from common.mcap_log import LogRecoveryWarning, read_log, segment_paths
+    from common.logs.mcap_log import LogRecoveryWarning, read_log, segment_paths
     from pathlib import Path
 
     p = Path(path)

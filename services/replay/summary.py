@@ -10,7 +10,7 @@ import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
-from common.mcap_log import LogRecoveryWarning, read_log
+from common.logs.mcap_log import LogRecoveryWarning, read_log
 from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
                              WeightsSnapshot)
 
@@ -232,7 +232,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "feedback_not_ingested": sum(1 for k in logged_fb if k not in lr.consumed_feedback),
         "rejected_inputs": rejected_inputs(c.by_pid),
         "duplicates_dropped": rejected_inputs(c.by_pid, prefixes=("duplicates_",)),
-        # dropped before anything else by the authentication check (common/auth.py): reason_kind -> count
+        # dropped before anything else by the authentication check (common/wire/auth.py): reason_kind -> count
         "unauthenticated_inputs": rejected_inputs(c.by_pid, prefixes=("auth_",)),
         "feedback_sent": sum(x for x in sent if x is not None) if sent else None,
         "feedback_logged": len(logged_fb),
@@ -347,7 +347,7 @@ def format_summary(s: dict[str, Any]) -> str:
 def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> None:
     import numpy as np
 
-    from common.plots import plot_curves
+    from common.logs.plots import plot_curves
 
     rets = np.asarray(s["returns"], dtype=float)
     plot_curves({"live": rets}, str(path), title or f"live run {s['run']}: return per episode")

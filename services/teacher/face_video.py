@@ -35,12 +35,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.config import option
-from common.delay import parse_probs
+from common.core.delay import parse_probs
 from common.envs import make_env
-from common.observer import ObserverConfig, SimulatedObserver
+from common.core.observer import ObserverConfig, SimulatedObserver
 from common.protocol import (CompressedImage, ObserverReaction, Step, Time, camera_key, observer_service_name,
                              reaction_key, status_key, step_key)
-from common.seeding import derive_seed
+from common.core.seeding import derive_seed
 from services.common.config import TaskConfig, _check_name
 from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, service_main
@@ -256,7 +256,7 @@ def reaction_message(config: FaceVideoConfig, s: Shown) -> ObserverReaction:
 # -- the service --------------------------------------------------------------------------------------------------
 
 def main(config: FaceVideoConfig) -> int:
-    from common.transport import MessagePublisher, subscription
+    from common.wire.transport import MessagePublisher, subscription
 
     library = ClipLibrary.load(config.width, config.jpeg_quality)  # a missing wheel fails here, before joining
     core = FaceVideoCore(config, library)

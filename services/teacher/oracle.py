@@ -21,9 +21,9 @@ import dataclasses
 import heapq
 
 from common.envs import make_env
-from common.observer import SimulatedObserver
+from common.core.observer import SimulatedObserver
 from common.protocol import Step
-from common.seeding import derive_seed
+from common.core.seeding import derive_seed
 from services.common.config import TeacherConfig
 from services.common.stepclock import StepClock
 from services.teacher.follow import StepFollower

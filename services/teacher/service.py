@@ -18,8 +18,9 @@ import time
 from common.envs import make_env
 from common.protocol import Feedback, ProtocolError, Step, feedback_key, status_key, step_key
 from services.common.config import TeacherConfig
-from services.common.faults import (DEDUP_REASON, AliveWatch, IncarnationWatch, InputGate, ResendRing,
-                                    decoded_statuses, first_time_logger, publish_kept)
+from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
+from services.common.resend import ResendRing, publish_kept
+from services.common.watches import AliveWatch, IncarnationWatch, decoded_statuses
 from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, service_main
 from services.teacher.oracle import OracleTeacher
@@ -144,7 +145,7 @@ class Teacher:
 
 
 def main(config: TeacherConfig) -> int:
-    from common.transport import MessagePublisher, subscription
+    from common.wire.transport import MessagePublisher, subscription
 
     rt = ServiceRuntime(config.service_name, config)
     teacher = Teacher(config, rt)

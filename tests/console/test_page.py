@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from common.envs.maze import SIZE, make_layout
-from common.mcap_read import read_log
+from common.logs.mcap_read import read_log
 from common.protocol import Credit, Feedback, Shown, Step
 
 from .harness import WebRun, browser, canvas_pixels, open_console, uniform_weights

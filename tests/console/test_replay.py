@@ -11,9 +11,9 @@ import time
 import numpy as np
 import pytest
 
-from common.mcap_log import read_log
+from common.logs.mcap_log import read_log
 from common.protocol import Credit, Step
-from common.transport import free_port
+from common.wire.transport import free_port
 from tests.services.live import ROOT, assert_nothing_left, env, kill_tree, start_up
 
 from .harness import _listening, browser

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from common.mcap_read import read_log
+from common.logs.mcap_read import read_log
 from common.protocol import Credit, Feedback, Step
 
 from tests.services.live import ROOT, env

@@ -11,8 +11,8 @@ import pytest
 from common.envs import make_env
 from common.envs.scene import SceneTracker, static_scene
 from common.protocol import Feedback, ShownStep, Step
-from common.screen import ScreenTimeline
-from common.task import Task
+from common.core.screen import ScreenTimeline
+from common.core.task import Task
 from services.common.config import LearnerConfig
 from services.console.people import PageError, PageGate, Person, RateLimit
 from services.learner.core import LearnerCore
@@ -147,7 +147,7 @@ def test_security_login_and_tls_and_loopback_only_without_it(tmp_path):
 def test_an_actor_started_paused_waits_for_a_resume_and_counts_the_wait():
     from collections import Counter
 
-    from common.inbox import Inbox, Received
+    from common.wire.inbox import Inbox, Received
     from common.protocol import Control, control_key
     from services.actor.control import RunControl
 

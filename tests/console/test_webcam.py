@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from common.mcap_read import read_log
+from common.logs.mcap_read import read_log
 from common.perception.assets import media_path
 from common.protocol import Credit, Feedback
 

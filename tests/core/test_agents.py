@@ -5,7 +5,7 @@ import torch
 from common.agents import (AgentConfig, DeepTamerConfig, DQNConfig, DQNTamerConfig, TrialBatchAgent,
                            agent_config)
 from common.agents.optim import FlatRMSProp
-from common.observer import ObserverConfig
+from common.core.observer import ObserverConfig
 from experiments.runner import TrialSpec, run_trials
 
 DELAYED = ObserverConfig(p_feedback=0.5, delay_probs=(0.3, 0.6, 0.1))

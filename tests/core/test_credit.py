@@ -3,8 +3,8 @@ import pytest
 
 import scipy.stats
 
-from common.credit import credit_weights, onset_weights
-from common.delay import DelayModel, delay_from_spec, parse_probs
+from common.core.credit import credit_weights, onset_weights
+from common.core.delay import DelayModel, delay_from_spec, parse_probs
 
 UNIFORM3 = DelayModel((1 / 3, 1 / 3, 1 / 3))
 
@@ -150,7 +150,7 @@ class _CdfOnly:
 @pytest.mark.parametrize("probs,unit", [((1 / 3, 1 / 3, 1 / 3), 1.0), ((0.1, 0.2, 0.3, 0.25, 0.15), 1.0),
                                         ((0.3, 0.6, 0.1), 0.25), ((0.5, 0.3, 0.2), 0.7), ((1.0,), 1.0)])
 def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
-    from common.delay_learning import RowDelays
+    from common.core.delay_learning import RowDelays
 
     rng = np.random.default_rng(len(probs))
     delay = DelayModel(probs, unit)

@@ -1,7 +1,7 @@
 """The online delay learner recovers a known skewed lag distribution from simulated feedback."""
 import numpy as np
 
-from common.delay_learning import DelayLearningConfig, OnlineDelayEM, expected_lag
+from common.core.delay_learning import DelayLearningConfig, OnlineDelayEM, expected_lag
 
 
 def simulate(true_probs, n_steps=6000, p_feedback=0.5, h_accuracy=0.85, seed=0, drift_to=None):
@@ -72,7 +72,7 @@ def test_per_trial_lags_plug_into_credit_and_leave_other_trials_unchanged():
     distribution moves from its start."""
     from dataclasses import replace
 
-    from common.observer import ObserverConfig
+    from common.core.observer import ObserverConfig
     from experiments.conditions import agent_for
     from experiments.runner import TrialSpec, run_trials
 

@@ -8,7 +8,7 @@ import pytest
 
 from common.agents import agent_config
 from common.envs import make_layout
-from common.observer import ObserverConfig
+from common.core.observer import ObserverConfig
 from experiments.runner import TrialSpec, run_trials
 
 LAYOUT = 0

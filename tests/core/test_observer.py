@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from common.envs import progress_rule
-from common.observer import REACTION_OFFSET, ObserverConfig, SimulatedObserver
+from common.core.observer import REACTION_OFFSET, ObserverConfig, SimulatedObserver
 
 GOOD = {"target_distance_before": 3.0, "target_distance_after": 2.0}
 BAD = {"target_distance_before": 3.0, "target_distance_after": 4.0}

@@ -13,8 +13,8 @@ from common.agents.networks import StackedMLP
 from common.agents.torch_net import TorchValueNetworks
 from common.agents.torch_agent import check_agent
 from common.envs import make_env
-from common.observer import ObserverConfig
-from common.steploop import StepLoop
+from common.core.observer import ObserverConfig
+from common.core.steploop import StepLoop
 from experiments.runner import TrialSpec, run_trials
 
 torch.set_num_threads(1)  # as the runner and the services run it (threads only contend at these sizes)

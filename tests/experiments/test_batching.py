@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from common.agents import TrialBatchAgent, agent_config
-from common.credit import credit_weights
-from common.delay import DelayModel
+from common.core.credit import credit_weights
+from common.core.delay import DelayModel
 from common.envs import progress_rule
-from common.observer import ObserverConfig, SimulatedObserver
-from common.observer import ObserverBatch
+from common.core.observer import ObserverConfig, SimulatedObserver
+from common.core.observer import ObserverBatch
 from experiments.runner import TrialSpec, run_trials
 
 ALGOS = ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer")

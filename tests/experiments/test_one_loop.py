@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from common.agents import ALGOS
-from common.observer import ObserverConfig
+from common.core.observer import ObserverConfig
 from common.protocol import Feedback, Step
 from experiments.runner import TrialSpec, run_trials
-from common.task import Task
+from common.core.task import Task
 from services.common.config import LearnerConfig
 from services.learner.core import LearnerCore
 

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from common.credit import credit_weights
-from common.delay import DelayModel
+from common.core.credit import credit_weights
+from common.core.delay import DelayModel
 from common.protocol import Feedback, ObserverReaction, ProtocolError, decode, reaction_key
 from services.teacher.face_metrics import face_metrics
 from services.teacher.face_launch import PERCEPTION_LAG_S, face_assumed_delay, face_video_defaults
@@ -190,7 +190,7 @@ def test_mcap_source_reads_a_sessions_camera_frames(tmp_path, onnx_path, capsys)
     bytes are not a JPEG, is reported (not a crash); `classify mcap:LOG` prints one line per good frame."""
     import cv2
 
-    from common.mcap_log import LogWriter
+    from common.logs.mcap_log import LogWriter
     from common.perception import assets
     from common.perception.media import load_video
     from common.protocol import CompressedImage, RunConfig, Time, camera_key

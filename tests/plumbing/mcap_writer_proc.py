@@ -8,7 +8,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from common.mcap_log import LogWriter  # noqa: E402
+from common.logs.mcap_log import LogWriter  # noqa: E402
 from common.protocol import RunConfig, Step, step_key  # noqa: E402
 
 path = sys.argv[1]

@@ -14,7 +14,7 @@ import pytest
 from mcap.records import Chunk, Message
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from common.mcap_log import LogRecoveryWarning, LogWriter, NotMcapError, read_log
+from common.logs.mcap_log import LogRecoveryWarning, LogWriter, NotMcapError, read_log
 from common.protocol import RunConfig, Step, feedback_key, step_key, Feedback
 
 from .strategies import example

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from common.mcap_log import (LogRecoveryWarning, LogWriter, load_log, next_segment_path, read_log, segment_path,
+from common.logs.mcap_log import (LogRecoveryWarning, LogWriter, load_log, next_segment_path, read_log, segment_path,
                              segment_paths)
 from common.protocol import (CompressedImage, Feedback, ProtocolError, RunConfig, ServiceStatus, Step, Weights,
                              camera_key, config_key, feedback_key, status_key, step_key, weights_key)

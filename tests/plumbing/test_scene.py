@@ -8,7 +8,7 @@ import pytest
 from common.envs.maze import MazeEnv, make_layout
 from common.envs.taxi import TaxiEnv
 from common.protocol import Credit, CreditedStep, SceneUpdate, Step, decode
-from common.scene import SceneBuilder
+from common.logs.scene import SceneBuilder
 
 
 def steps_of(env, actions, seed=0):

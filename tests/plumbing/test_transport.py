@@ -15,7 +15,7 @@ import psutil
 import pytest
 
 from common.protocol import ServiceStatus, Step, status_key, step_key
-from common.transport import (Inbox, MessagePublisher, Received, client_config, declare_publisher, default_policy,
+from common.wire.transport import (Inbox, MessagePublisher, Received, client_config, declare_publisher, default_policy,
                               free_port, open_session, peer_config, router_config, subscribe, subscription,
                               tcp_endpoint, wait_for_router)
 
@@ -155,7 +155,7 @@ def test_router_and_two_client_processes_exchange_step_and_weights():
     endpoint = tcp_endpoint(port)
     procs: list[subprocess.Popen] = []
     try:
-        router = _spawn("-m", "common.transport", "router", "--port", str(port))
+        router = _spawn("-m", "common.wire.transport", "router", "--port", str(port))
         procs.append(router)
         line = _readline(router, 20)
         assert line.startswith(f"ready {endpoint}"), (line, router.poll())

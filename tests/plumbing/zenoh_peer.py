@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import numpy as np  # noqa: E402
 
 from common.protocol import Step, Weights, run_prefix, step_key, weights_key  # noqa: E402
-from common.transport import Inbox, MessagePublisher, client_config, open_session, subscribe  # noqa: E402
+from common.wire.transport import Inbox, MessagePublisher, client_config, open_session, subscribe  # noqa: E402
 
 
 def sub(endpoint: str, run: str, count: int = 2, timeout: float = 20.0) -> int:

@@ -24,7 +24,7 @@ import zenoh  # noqa: E402
 
 from common.security import (client_config_for, client_settings, load_security,  # noqa: E402
                              SecurityConfig)
-from common.transport import make_config, open_session, wait_for_matching  # noqa: E402
+from common.wire.transport import make_config, open_session, wait_for_matching  # noqa: E402
 
 
 def sub(args: argparse.Namespace) -> int:

@@ -26,7 +26,7 @@ import pytest
 from common.security import (SecurityConfig, SecurityError, access_control, client_config_for,
                              generate_certificates, load_security, publish_keys, read_credentials,
                              router_config_dict, tls_endpoint)
-from common.transport import free_port
+from common.wire.transport import free_port
 
 pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]
 

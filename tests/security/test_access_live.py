@@ -15,7 +15,7 @@ def test_access_live_run_of_the_real_services_on_the_secured_router(tmp_path):
     import zenoh
 
     from common.security import init
-    from common.transport import client_config
+    from common.wire.transport import client_config
 
     init(tmp_path / "sec", ["oracle"], run="secure")
     launch = start_up(tmp_path, "secure", "--security", str(tmp_path / "sec" / "security.json"), "--episodes", "8",

@@ -28,7 +28,7 @@ class Attacker:
     def __init__(self, endpoint: str, run: str, rundir):
         import zenoh
 
-        from common.transport import client_config
+        from common.wire.transport import client_config
 
         self.run, self.rundir = run, rundir
         self.session = zenoh.open(client_config(endpoint, connect_timeout=20))
@@ -75,7 +75,7 @@ class Attacker:
         """Every forgery of the issue, once the real services are running."""
         import dataclasses
 
-        from common.auth import Auth, Credential, make_teacher_credential, load_credential
+        from common.wire.auth import Auth, Credential, make_teacher_credential, load_credential
         from common.protocol import (Feedback, ServiceStatus, Step, Weights, feedback_key, status_key, step_key,
                                      weights_key)
 
@@ -126,7 +126,7 @@ class Attacker:
 
 
 def run_attacked(tmp_path, run: str) -> tuple:
-    from common.transport import free_port
+    from common.wire.transport import free_port
 
     port = free_port()
     launch = start_up(tmp_path, run, *ARGS, "--port", str(port))
@@ -169,7 +169,7 @@ def runs(tmp_path_factory):
 
 
 def actions(rundir) -> list[tuple[int, int, int]]:
-    from common.mcap_log import read_log
+    from common.logs.mcap_log import read_log
     from common.protocol import Step
 
     return [(r.message.episode, r.message.t_in_episode, r.message.action) for r in read_log(rundir)
@@ -242,7 +242,7 @@ def test_forge_stopped_status_in_secured_mode_with_a_teachers_credentials(runs, 
 
     import zenoh
 
-    from common.auth import Auth, load_credential, make_teacher_credential
+    from common.wire.auth import Auth, load_credential, make_teacher_credential
     from common.protocol import status_key
     from common.security import client_config_for, init, load_security
 

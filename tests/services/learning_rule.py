@@ -65,7 +65,7 @@ def passes(measures) -> bool:
 def rule_agent(variant: str = "ok"):
     """The agent and observer of the test (`ok`), or a broken variant of them for measuring the rule's power."""
     from common.agents import agent_config
-    from common.observer import ObserverConfig
+    from common.core.observer import ObserverConfig
 
     agent = agent_config("dqn-tamer", assumed_delay_probs=(0.3333, 0.3333, 0.3334), history_steps=HISTORY_STEPS)
     variants = {

@@ -49,7 +49,7 @@ def test_every_command_names_an_existing_module_and_known_flags(name):
         config = parse_config(getattr(cfg, CONFIGS[module]), argv)
         assert dataclasses.is_dataclass(config)
     else:
-        assert module == "common.transport" and command[3] == "router"
+        assert module == "common.wire.transport" and command[3] == "router"
 
 
 @pytest.mark.parametrize("module", ["services.actor", "services.learner", "services.teacher", "services.recorder",

@@ -9,10 +9,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from common.envs import make_env
-from common.observer import ObserverConfig, SimulatedObserver
+from common.core.observer import ObserverConfig, SimulatedObserver
 from common.protocol import Feedback, Step
-from common.seeding import derive_seed
-from common.task import Task
+from common.core.seeding import derive_seed
+from common.core.task import Task
 from services.common.config import LearnerConfig, TeacherConfig
 from services.common.stepclock import StepClock
 from services.learner.core import LearnerCore, learner_config_from_record
@@ -236,7 +236,7 @@ def test_actor_never_goes_back_to_an_older_version():
 
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
-    from common.transport import Inbox, Received
+    from common.wire.transport import Inbox, Received
     from services.actor.service import WeightsSlot
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
@@ -274,7 +274,7 @@ def actor_credentials(run: str) -> str:
     """The actor's credential file of a throwaway run (made once per test process)."""
     import tempfile
 
-    from common.auth import make_run_credentials
+    from common.wire.auth import make_run_credentials
 
     if run not in _CREDENTIALS:
         _CREDENTIALS[run] = str(make_run_credentials(tempfile.mkdtemp(prefix="creds-"), run)["actor"])

@@ -23,7 +23,7 @@ import time
 import numpy as np
 import pytest
 
-from common.mcap_log import load_log
+from common.logs.mcap_log import load_log
 from common.protocol import Feedback
 
 from .live import ROOT, assert_nothing_left, env, start_up
@@ -93,9 +93,9 @@ def _collect(session, key_expr: str, sink: list):
 def test_mcap_source_reruns_perception_on_a_recorded_session(face_run, tmp_path):
     """`--source mcap:LOG` replays the recorded camera frames through perception: same frames, same capture
     times, so the same feedback as the live run (the pipeline is deterministic)."""
-    from common.auth import make_run_credentials
+    from common.wire.auth import make_run_credentials
     from common.protocol import decode, feedback_key
-    from common.transport import free_port, open_session, router_config, tcp_endpoint
+    from common.wire.transport import free_port, open_session, router_config, tcp_endpoint
 
     log = face_run.rundir / "session.mcap"
     records, _ = load_log(log)
@@ -135,11 +135,11 @@ def test_malformed_frames_are_counted_and_dropped(tmp_path):
     counted and skipped; the next good frame is processed; the service exits cleanly."""
     import zenoh
 
-    from common.auth import Auth, load_credential, make_run_credentials
+    from common.wire.auth import Auth, load_credential, make_run_credentials
     from common.perception import assets
     from common.perception.media import load_video
     from common.protocol import CompressedImage, Time, camera_key
-    from common.transport import free_port, open_session, router_config, tcp_endpoint
+    from common.wire.transport import free_port, open_session, router_config, tcp_endpoint
     from services.common.runtime import wait_alive
     from services.perception.live import encode_jpeg
 

@@ -13,7 +13,9 @@ from hypothesis import strategies as st
 
 from common.protocol import Feedback, ServiceStatus, Step
 from services.common.config import LearnerConfig
-from services.common.faults import GATE_REASONS, InputGate, ResendRing, atomic_write_json, read_json
+from services.common.gate import GATE_REASONS, InputGate
+from services.common.resend import ResendRing
+from services.common.statefiles import atomic_write_json, read_json
 from services.common.progress import ProgressFile
 from services.learner import checkpoint
 from services.learner.core import LearnerCore
@@ -280,7 +282,7 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
 
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
-    from common.transport import Inbox, Received
+    from common.wire.transport import Inbox, Received
     from services.actor.service import WeightsSlot
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
@@ -317,7 +319,7 @@ def actor_credentials(run: str) -> str:
     """The actor's credential file of a throwaway run (made once per test process)."""
     import tempfile
 
-    from common.auth import make_run_credentials
+    from common.wire.auth import make_run_credentials
 
     if run not in _CREDENTIALS:
         _CREDENTIALS[run] = str(make_run_credentials(tempfile.mkdtemp(prefix="creds-"), run)["actor"])

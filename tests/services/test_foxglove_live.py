@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from common.transport import free_port
+from common.wire.transport import free_port
 
 from .live import assert_nothing_left, start_up
 

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 import pytest
 
-from common.mcap_log import LogRecoveryWarning, load_log
+from common.logs.mcap_log import LogRecoveryWarning, load_log
 from common.protocol import Step
 
 from .live import ROOT, assert_nothing_left, env, processes_mentioning, start_up, wait_for
@@ -97,7 +97,7 @@ def test_replay_summary_agrees_with_the_launcher(live_run, tmp_path):
 
 
 def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
-    from common.transport import free_port, open_session, router_config, tcp_endpoint
+    from common.wire.transport import free_port, open_session, router_config, tcp_endpoint
     from services.common.runtime import wait_alive
 
     endpoint = tcp_endpoint(free_port())
@@ -132,7 +132,7 @@ def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
 def test_dqn_live_in_lockstep_equals_the_in_process_runner(tmp_path):
     """Same seed and timing: DQN (feedback ignored) acts identically live and in-process, action for action."""
     from common.agents import agent_config
-    from common.observer import ObserverConfig
+    from common.core.observer import ObserverConfig
     from experiments.runner import TrialSpec, run_trials
 
     episodes, seed = 6, 2

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from common.mcap_log import read_log
+from common.logs.mcap_log import read_log
 from common.protocol import Feedback, Step
 from tests.services.live import ROOT, Launch, assert_nothing_left
 from tests.services.live import env as live_env

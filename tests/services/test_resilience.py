@@ -12,7 +12,7 @@ import numpy as np
 import psutil
 import pytest
 
-from common.mcap_log import load_log
+from common.logs.mcap_log import load_log
 from common.protocol import Ingest, Step
 
 from .live import ROOT, assert_nothing_left, env, kill_tree, start_up, wait_for

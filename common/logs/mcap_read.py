@@ -1,7 +1,7 @@
 """Reading a run's log back: records in file order, from whole files, files cut short by a crash, files with
 damaged chunks, and several segment files read as one log.
 
-``read_log`` walks each file with :mod:`common.mcap_scan`: a file that is not MCAP raises
+``read_log`` walks each file with :mod:`common.logs.mcap_scan`: a file that is not MCAP raises
 :class:`NotMcapError` (one line: say it and exit non-zero); a damaged chunk is skipped and the reading goes on
 with the next good one; a cut file is read up to its last complete chunk. What was lost is in
 ``reader.status`` (per file: chunks lost, messages lost by the index, bytes) and in a
@@ -22,7 +22,7 @@ from typing import Any, Iterable, Iterator
 
 from mcap.records import Channel, Message as McapMessage, Metadata, Schema
 
-from common.mcap_scan import NotMcapError, ScanResult, scan
+from common.logs.mcap_scan import NotMcapError, ScanResult, scan
 from common.protocol import ProtocolError, RunConfig, decode, key_from_topic
 
 METADATA_NAME = "hitl.run"
@@ -247,7 +247,7 @@ def read_log(path: str | os.PathLike | Iterable[str | os.PathLike], *, decode: b
     ``dedup`` (with ``decode``): a message published twice (the same :func:`identity`: re-sent to a restarted
     recorder) is yielded once, the first time; ``status.duplicates_skipped`` counts the others by kind.
     """
-    from common.mcap_log import segment_paths
+    from common.logs.mcap_log import segment_paths
 
     if isinstance(path, (str, os.PathLike)):
         p = Path(path)

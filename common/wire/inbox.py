@@ -1,5 +1,5 @@
 """The bounded queue between a zenoh callback subscriber and a service's own thread, and the process's
-authentication default (common/auth.py) that every publisher and inbox uses."""
+authentication default (common/wire/auth.py) that every publisher and inbox uses."""
 from __future__ import annotations
 
 import collections
@@ -13,14 +13,14 @@ from common.protocol import KEYS, ProtocolError, decode
 QUEUE_POLICIES = ("block", "drop_oldest")
 
 
-# -- authentication (common/auth.py): the process's own credential, used by default by every publisher and inbox --
+# -- authentication (common/wire/auth.py): the process's own credential, used by default by every publisher and inbox --
 
 _DEFAULT_AUTH: list[Any] = [None]
 
 
 def set_default_auth(auth: Any) -> None:
     """Sign everything this process publishes and check everything it receives with ``auth``
-    (a :class:`common.auth.Auth`; None: neither). A service sets it once, from its credential file."""
+    (a :class:`common.wire.auth.Auth`; None: neither). A service sets it once, from its credential file."""
     _DEFAULT_AUTH[0] = auth
 
 
@@ -81,7 +81,7 @@ class Inbox:
         self.counters: collections.Counter[str] = collections.Counter()
         # Checked in zenoh's callback, before the sample is queued: a forgery never takes a real sample's place.
         self.auth = auth if auth is not None else default_auth()
-        self._window: dict = {}  # this subscription's replay state (common.auth.Auth.check)
+        self._window: dict = {}  # this subscription's replay state (common.wire.auth.Auth.check)
 
     # producer side (zenoh's callback thread)
     def handler(self) -> Any:

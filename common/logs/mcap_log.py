@@ -1,5 +1,5 @@
 """MCAP logs of a run: one writer that a recorder (or any service) feeds with (key, bytes); the reader
-(``read_log``, in ``common/mcap_read.py``) gives the records back in file order, also from files cut short
+(``read_log``, in ``common/logs/mcap_read.py``) gives the records back in file order, also from files cut short
 by a crash or with damaged chunks, and from several segment files (``session.mcap``, ``session.1.mcap``, ...).
 
 Layout of every segment file:
@@ -31,7 +31,7 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
-from common.mcap_read import (CHANNEL_METADATA, METADATA_NAME, FileStatus, LogReader, LogRecord, LogRecoveryWarning,  # noqa: F401
+from common.logs.mcap_read import (CHANNEL_METADATA, METADATA_NAME, FileStatus, LogReader, LogRecord, LogRecoveryWarning,  # noqa: F401
                               NotMcapError, ReadStatus, identity, load_log, read_log)
 from common.protocol import PROTOCOL_VERSION, RunConfig, config_key, log_topic, parse_key
 

@@ -14,7 +14,7 @@ Facts this module relies on (zenoh-python 1.10, measured here; see docs/protocol
 - A process whose callback subscriber is still declared at exit hangs unless the session is closed:
   :func:`open_session` closes in ``finally``.
 
-Run a router on its own: ``python -m common.transport router --port 7447`` (prints ``ready <endpoint>``,
+Run a router on its own: ``python -m common.wire.transport router --port 7447`` (prints ``ready <endpoint>``,
 stops on SIGTERM/SIGINT).
 """
 
@@ -34,7 +34,7 @@ from typing import Any, Callable, Iterator
 
 import zenoh
 
-from common.inbox import (QUEUE_POLICIES, Inbox, Received, default_auth, default_policy,  # noqa: F401 (re-exported)
+from common.wire.inbox import (QUEUE_POLICIES, Inbox, Received, default_auth, default_policy,  # noqa: F401 (re-exported)
                           set_default_auth)
 from common.protocol import parse_key
 
@@ -249,7 +249,7 @@ def run_router(endpoint: str, *, stop: threading.Event | None = None,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m common.transport", description="Zenoh helpers")
+    parser = argparse.ArgumentParser(prog="python -m common.wire.transport", description="Zenoh helpers")
     sub = parser.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("router", help="run a loopback router (a Python zenoh session in router mode)")
     r.add_argument("--port", type=int, default=7447)

@@ -122,7 +122,7 @@ def expected_lag(probs: np.ndarray) -> np.ndarray:
 
 
 class RowDelays:
-    """A point-mass lag distribution per trial, for the credit function (`common.credit`): rows of `probs`
+    """A point-mass lag distribution per trial, for the credit function (`common.core.credit`): rows of `probs`
     [n, L] over lags 0, unit, 2 unit, ...; `mass_between(low, high)` takes [n, ...] arrays whose leading
     axis is the row. Same arithmetic as `DelayModel.mass_between`, one distribution per row."""
 
@@ -147,7 +147,7 @@ class TrialLags:
     """The credit component's delay part when trials differ in their lag distribution or learn it: an
     assumed point-mass distribution per trial (zero-padded to the longest), replaced by the online EM
     estimate (`OnlineDelayEM`, starting from the assumption) for trials whose config says `learn_delay`.
-    `rows(r)` is what `common.credit` integrates for trials r."""
+    `rows(r)` is what `common.core.credit` integrates for trials r."""
 
     def __init__(self, configs, step_unit: float = 1.0, window: int = 400):
         B, L = len(configs), max(len(c.assumed_delay_probs) for c in configs)

@@ -3,7 +3,7 @@
 A `DelayModel` is a discrete distribution over lags of i * unit (i = 0, 1, ...): the paper's step-counted
 model (unit one step on the step clock). `delay_from_spec` also builds continuous ones from scipy.stats
 (seconds on a person's screen: Deep TAMER's uniform 0.2-4 s is `uniform:0.2,4`). The credit function
-(`common.credit`) needs only a distribution's CDF, so either kind serves.
+(`common.core.credit`) needs only a distribution's CDF, so either kind serves.
 """
 from __future__ import annotations
 

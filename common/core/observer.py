@@ -16,8 +16,8 @@ from typing import Callable, Mapping
 import numpy as np
 
 from common.config import option
-from common.delay import DelayModel, parse_probs
-from common.util import RowConstants
+from common.core.delay import DelayModel, parse_probs
+from common.core.util import RowConstants
 
 # A reaction lands half a step after its lag: between two actions, never on one.
 REACTION_OFFSET = 0.5

@@ -328,7 +328,7 @@ def signer_identity(attachment: bytes | None) -> str | None:
 
 def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
     """Microseconds per message to sign (publisher) and to check (each receiver), for a Step, a Feedback and the
-    DQN-TAMER maze Weights, as the services send them (`python -m common.auth bench`)."""
+    DQN-TAMER maze Weights, as the services send them (`python -m common.wire.auth bench`)."""
     import numpy as np
 
     from common.protocol import Feedback, Step, Weights, feedback_key, step_key, weights_key
@@ -368,7 +368,7 @@ def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    parser = argparse.ArgumentParser(prog="python -m common.auth", description="authentication of run messages")
+    parser = argparse.ArgumentParser(prog="python -m common.wire.auth", description="authentication of run messages")
     sub = parser.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("bench", help="microseconds per message to sign and to check")
     b.add_argument("-n", type=int, default=20000, help="messages per type and round (Weights: n/20)")

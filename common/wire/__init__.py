@@ -1,0 +1,1 @@
+"""The wire: Zenoh sessions, bounded inboxes, and the authentication of every message."""
