@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import difflib
 import json
+import re
 import sys
 import types
 import typing
@@ -26,8 +28,9 @@ T = TypeVar("T")
 
 
 def option(default: Any, help: str, **extra) -> Any:
-    """A documented dataclass field; `choices=`, `positional=True`, `cli=False`, `flatten=True` and
-    `exclude=(names)` (nested configs) are honoured by the CLI."""
+    """A documented dataclass field; `choices=`, `positional=True`, `nargs=` ("+", "*", "?": a tuple field
+    given as several words, `--grid A B --grid C` adds up), `metavar=`, `cli=False`, `flatten=True` and
+    `exclude=(names)` (nested configs) are honoured by the CLI. A bool flag given alone means true."""
     if isinstance(default, (list, dict, set)) or dataclasses.is_dataclass(default):
         return dataclasses.field(default_factory=lambda: default, metadata={"help": help, **extra})
     return dataclasses.field(default=default, metadata={"help": help, **extra})
@@ -116,13 +119,26 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
     for path, flag, f, hint in _leaves(cls):
         default = _default(f)
         shown = ",".join(str(x) for x in default) if isinstance(default, tuple) else default
-        kwargs = dict(type=_converter(hint, flag), default=dataclasses.MISSING,
-                      help=f"{f.metadata.get('help', '')} (default: {shown})")
+        text = f.metadata.get("help", "")
+        text = text if "default" in text else f"{text} (default: {shown})"
+        kwargs = dict(type=_converter(hint, flag), default=dataclasses.MISSING, help=text.replace("%", "%%"))
+        nargs = f.metadata.get("nargs")
+        if nargs:  # several words; None marks "not given" (extend needs a list or None to add to)
+            item = typing.get_args(_unwrap_optional(hint)[0])[:1] or (str,)
+            kwargs.update(type=item[0], nargs=nargs, default=None)
+            if not f.metadata.get("positional"):
+                kwargs["action"] = "extend"
+        elif _unwrap_optional(hint)[0] is bool and not f.metadata.get("positional"):
+            kwargs.update(nargs="?", const=True, metavar="true|false")
+        if "metavar" in f.metadata:
+            kwargs["metavar"] = f.metadata["metavar"]
         if "choices" in f.metadata:
             kwargs["choices"] = f.metadata["choices"]
-            kwargs.pop("type")
+            if not nargs:
+                kwargs.pop("type")
         if f.metadata.get("positional"):
-            parser.add_argument(f.name, metavar=flag.upper(), **kwargs)
+            kwargs.setdefault("metavar", flag.upper())
+            parser.add_argument("/".join(path), **kwargs)
         else:
             parser.add_argument(f"--{flag}", dest="/".join(path), **kwargs)
     parser.add_argument("--config", dest="_config_file", default=None, metavar="FILE",
@@ -157,7 +173,8 @@ def _check_file(cls: type, data: dict, where: str) -> dict:
     out = {}
     for key, value in data.items():
         if key not in fields:
-            raise ValueError(f"{where}: unknown setting {key!r}")
+            known = [".".join(path) for path, _, _, _ in _leaves(cls)]
+            raise ValueError(f"{where}: unknown setting {key!r}{suggest(key, known)}")
         sub = _config_type(hints[key])
         if sub is not None and isinstance(value, dict):
             value = _check_file(sub, value, f"{where}: {key}")
@@ -183,21 +200,42 @@ def config_from_namespace(cls: type[T], ns: argparse.Namespace) -> T:
         loaded = _load_file(config_file)
         loaded.pop("type", None)  # written by config_record
         values = _check_file(cls, loaded, config_file)
-    for path, _, _, _ in _leaves(cls):
+    for path, _, f, _ in _leaves(cls):
         v = getattr(ns, "/".join(path), dataclasses.MISSING)
+        if f.metadata.get("nargs"):
+            v = dataclasses.MISSING if v is None else tuple(v) if isinstance(v, list) else v
         if v is not dataclasses.MISSING:
             _set(values, path, v)
     return cls(**values)
 
 
+def suggest(name: str, known: list[str]) -> str:
+    """"; did you mean X?" for a flag or setting that was renamed or misspelt: the nested one with the same
+    leaf name (`--p-feedback` -> `--observer.p-feedback`), else the closest spelling; "" when none is near."""
+    leaf = name.lstrip("-").rsplit(".", 1)[-1].replace("_", "-")
+    same_leaf = [k for k in known if k.lstrip("-").rsplit(".", 1)[-1].replace("_", "-") == leaf and k != name]
+    close = same_leaf or difflib.get_close_matches(name, known, n=1, cutoff=0.75)
+    return f"; did you mean {' or '.join(close[:3])}?" if close else ""
+
+
 class ConfigParser(argparse.ArgumentParser):
-    """argparse whose errors are one line (`prog: error: ...`), without the usage block."""
+    """argparse whose errors are one line (`prog: error: ...`), without the usage block; an unknown flag names
+    the flag it was renamed to (or the closest one)."""
 
     def error(self, message: str):
         if message.startswith("unrecognized arguments: "):
-            flags = [t for t in message.split(": ", 1)[1].split() if t.startswith("-")]
+            flags = [t.split("=", 1)[0] for t in message.split(": ", 1)[1].split() if t.startswith("-")]
+            known = [o for o in self._option_string_actions if o.startswith("--")]
             message = "unknown setting " + (" ".join(flags) or message.split(": ", 1)[1])
+            message += suggest(flags[0], known) if flags else ""
         self.exit(2, f"{self.prog}: error: {message} (see --help)\n")
+
+    def parse_args(self, args=None, namespace=None):
+        """Unknown flags are reported by the (sub)command that was given, which knows their new spelling."""
+        ns, extras = self.parse_known_args(args, namespace)
+        if extras:
+            getattr(ns, "_parser", self).error("unrecognized arguments: " + " ".join(extras))
+        return ns
 
 
 def parse_config(cls: type[T], argv: list[str] | None = None, prog: str | None = None,
@@ -211,6 +249,46 @@ def parse_config(cls: type[T], argv: list[str] | None = None, prog: str | None =
     except (ValueError, OSError) as exc:
         parser.error(str(exc))
         raise  # unreachable
+
+
+@dataclasses.dataclass(frozen=True)
+class Command:
+    """One subcommand: its config dataclass (the command line) and `run(config) -> exit code`."""
+
+    config: type
+    run: Any
+    help: str = ""  # one line for the list of commands (default: the config's docstring's first sentence)
+    argv: bool = False  # run(config, argv) with the whole command line (to record how an output was made)
+
+
+def _add_commands(sub, commands: dict) -> None:
+    for name, command in commands.items():
+        if isinstance(command, dict):  # a group: `pilot maze|taxi|console`
+            doc = command.get("", "")
+            group = sub.add_parser(name, help=doc, description=doc)
+            _add_commands(group.add_subparsers(dest=f"_{name}", required=True, metavar="COMMAND"),
+                          {k: v for k, v in command.items() if k})
+            continue
+        doc = (command.config.__doc__ or "").strip()
+        first = re.split(r"(?<!e\.g)\. |; ", " ".join(doc.split("\n\n")[0].split()))[0]  # its first sentence
+        p = sub.add_parser(name, help=command.help or first, description=doc,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        add_config_arguments(p, command.config)
+        p.set_defaults(_command=command, _parser=p)
+
+
+def run_commands(prog: str, description: str, commands: dict, argv: list[str] | None = None) -> int:
+    """`prog COMMAND [SUBCOMMAND] --flags`: parse the chosen command's config and run it. `commands` maps a
+    name to a `Command` or to a group (a dict of names to commands, its help under the key "")."""
+    parser = ConfigParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    _add_commands(parser.add_subparsers(dest="_command_name", required=True, metavar="COMMAND"), commands)
+    ns = parser.parse_args(argv)
+    try:
+        config = config_from_namespace(ns._command.config, ns)
+    except (ValueError, OSError) as exc:
+        ns._parser.error(str(exc))
+    argv = list(sys.argv[1:] if argv is None else argv)
+    return ns._command.run(config, argv) if ns._command.argv else ns._command.run(config)
 
 
 def config_record(config: Any) -> dict:

@@ -1,4 +1,6 @@
-"""python -m experiments {run, sweep, reproduce, bench, bench-compare}: experiments on the in-process runner (virtual clock)."""
+"""python -m experiments COMMAND: experiments on the in-process runner (virtual clock), and their tools.
+
+Every command has --help; every setting is a field of the command's documented config (common/config.py)."""
 from __future__ import annotations
 
 import csv
@@ -7,7 +9,7 @@ import os
 import sys
 import time
 
-from common.config import ConfigParser, add_config_arguments, config_from_namespace, config_record
+from common.config import Command, config_record, fail, run_commands
 from experiments.run_config import RunConfig
 
 
@@ -54,143 +56,37 @@ def cmd_run(config: RunConfig) -> int:
     return 0
 
 
-def cmd_reproduce(args, argv: list[str]) -> int:
-    from dataclasses import replace
-
-    from experiments.conditions import FULL, QUICK, select
-    from experiments.reproduce import reproduce
-
-    conds = select(args.only)
-    if args.quick and not args.only:  # Taxi's 1000-step episodes alone cost more than the quick form's minutes
-        conds = [c for c in conds if not c.is_taxi]
-    scale = QUICK if args.quick else FULL
-    changes = {k: v for k, v in (("layouts", args.layouts), ("reps", args.reps),
-                                 ("maze_episodes", args.maze_episodes), ("taxi_episodes", args.taxi_episodes),
-                                 ("taxi_random_episodes", args.taxi_random_episodes or args.taxi_episodes),
-                                 ("taxi_trials", args.taxi_trials)) if v is not None}
-    scale = replace(scale, **changes)
-    out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
-    args.out = out
+def run_main(config: RunConfig) -> int:
     try:
-        stats = reproduce(conds, scale, out, workers=args.workers, progress=not args.no_progress, argv=argv,
-                          ray=args.ray)
-    except RuntimeError as exc:  # a worker or Ray failed: finished trials are cached, re-run resumes
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    with open(os.path.join(args.out, "claims.json")) as fh:
-        verdicts = {k: v["verdict"] for k, v in json.load(fh)["claims"].items()}
-    print(f"{stats.trials} trials ({stats.trials_run} run, {stats.trials_cached} cached, {stats.trials_shared} "
-          f"shared) in {stats.total_s:.1f} s; wrote {args.out}/REPORT.md, claims.json, timing.json, *.png")
-    for claim, verdict in verdicts.items():
-        print(f"  {claim}: {verdict}")
-    return 0
+        check_run(config)
+    except (ValueError, OSError) as exc:
+        fail(str(exc))
+    return cmd_run(config)
 
 
-def cmd_bench(args) -> int:
-    from experiments.bench import bench, format_report
-    from experiments.bench_paths import bench_paths, format_paths
-    from dataclasses import replace
+def commands() -> dict:
+    from experiments.bench_compare import BenchCompareConfig, main as bench_compare
+    from experiments.commands import BenchConfig, ReproduceConfig, bench_main, reproduce_main
+    from experiments.console_pilot import ConsolePilotConfig, main as console_pilot
+    from experiments.machines import MachinesConfig, main as machines
+    from experiments.maze_pilot import MazePilotConfig, main as maze_pilot
+    from experiments.minigrid import MinigridConfig, main as minigrid
+    from experiments.sweeps.bench import SweepBenchConfig, main as sweep_bench
+    from experiments.sweeps.cli import SweepConfig, main as sweep
+    from experiments.taxi_pilot import TaxiPilotConfig, main as taxi_pilot
 
-    from experiments.conditions import ALGOS, QUICK, select, trial_spec
-
-    if not args.paths_only:
-        report = bench(args.conditions, args.trials, args.episodes, workers=args.workers, out=args.out)
-        print(format_report(report))
-    first = select(args.conditions)[:1]  # the torch path is slower: one condition's trials
-    scale = replace(QUICK, maze_episodes=args.episodes, taxi_episodes=args.episodes, taxi_random_episodes=args.episodes)
-    specs = [trial_spec(c, algo, k, scale) for c in first for algo in ALGOS if algo in c.arms
-             for k in range(args.trials)]
-    print(format_paths(bench_paths(specs)))
-    return 0
-
-
-def cmd_bench_compare(args, parser) -> int:
-    from experiments.bench_compare import bench_compare
-
-    if args.rounds < 1 or args.trials < 1 or args.episodes < 1:
-        parser.error("--rounds, --trials and --episodes must be positive")
-    try:
-        result = bench_compare(args.against, args.rounds, args.envs, args.trials, args.episodes)
-    except (ValueError, RuntimeError) as exc:
-        parser.error(str(exc))
-    if args.out:
-        with open(args.out, "w") as fh:
-            json.dump(result, fh, indent=1)
-    return 0
+    return {"run": Command(RunConfig, run_main), "sweep": Command(SweepConfig, sweep, argv=True),
+            "reproduce": Command(ReproduceConfig, reproduce_main, argv=True),
+            "pilot": {"": "how a setting was chosen on pilot seeds, never the trials that use it",
+                      "maze": Command(MazePilotConfig, maze_pilot), "taxi": Command(TaxiPilotConfig, taxi_pilot),
+                      "console": Command(ConsolePilotConfig, console_pilot)},
+            "minigrid": Command(MinigridConfig, minigrid), "machines": Command(MachinesConfig, machines),
+            "bench": Command(BenchConfig, bench_main), "sweep-bench": Command(SweepBenchConfig, sweep_bench),
+            "bench-compare": Command(BenchCompareConfig, bench_compare)}
 
 
 def main(argv: list[str] | None = None) -> int:
-    from experiments.conditions import BY_NAME
-
-    argv = list(sys.argv[1:] if argv is None else argv)
-    parser = ConfigParser(prog="python -m experiments", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", help=RunConfig.__doc__, description=RunConfig.__doc__)
-    add_config_arguments(p_run, RunConfig)
-    from experiments.sweeps import cli as sweep_cli
-    p_sweep = sub.add_parser("sweep", help=sweep_cli.HELP, description=sweep_cli.HELP)
-    sweep_cli.add_arguments(p_sweep)
-    p_rep = sub.add_parser("reproduce", help="every condition of the paper with all four agents: figures, "
-                           "claims with computed verdicts, timing (cached: re-running only re-plots)")
-    p_rep.add_argument("--quick", action="store_true", help="the small form: 8 layouts, 40 maze episodes, no Taxi "
-                       "(--quick --only taxi-stop runs 4 Taxi trials x 40 episodes), about 2 minutes on 2 free "
-                       "cores, written to runs/reproduce-quick unless --out is given")
-    p_rep.add_argument("--layouts", type=int, help="maze layouts (default 60: 30 honest, 30 misleading, all "
-                       "generated)")
-    p_rep.add_argument("--reps", type=int, help="seeds per layout (default 1)")
-    p_rep.add_argument("--maze-episodes", type=int, help="episodes per maze trial")
-    p_rep.add_argument("--taxi-episodes", type=int, help="episodes per Taxi trial (both Taxi variants)")
-    p_rep.add_argument("--taxi-random-episodes", type=int,
-                       help="episodes per trial of Gymnasium's Taxi (random passenger and destination) only")
-    p_rep.add_argument("--taxi-trials", type=int, help="Taxi trials per arm")
-    p_rep.add_argument("--only", nargs="+", metavar="NAME", choices=list(BY_NAME),
-                       help=f"run only these conditions ({', '.join(BY_NAME)})")
-    p_rep.add_argument("--out", default=None, help="output directory (default: docs/results)")
-    p_rep.add_argument("--workers", type=int, default=2, help="worker processes (default: 2; 1 = in this process)")
-    p_rep.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
-                       help="run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)")
-    p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
-                             "loop, measured side by side on the same trials")
-    p_bench.add_argument("--conditions", nargs="+", default=list(BY_NAME), choices=list(BY_NAME),
-                         help="conditions to draw trials from (default: all)")
-    p_bench.add_argument("--trials", type=int, default=2, help="trials per agent and condition (default: 2)")
-    p_bench.add_argument("--episodes", type=int, default=30, help="episodes per trial (default: 30)")
-    p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
-    p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
-    p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
-                         "torch MLP, on the first condition's trials)")
-    p_cmp = sub.add_parser("bench-compare", help="the in-process runner of this checkout against another (a "
-                           "worktree of an earlier commit), plain and batched, alternating, round after round: "
-                           "steps/s ratios per round, the median ratio")
-    p_cmp.add_argument("--against", required=True, help="the other checkout's directory")
-    p_cmp.add_argument("--rounds", type=int, default=3, help="rounds; each runs both, alternating who goes first "
-                       "(default: 3)")
-    p_cmp.add_argument("--envs", nargs="+", default=["maze", "taxi"], help="environments (default: maze taxi)")
-    p_cmp.add_argument("--trials", type=int, default=1, help="trials per agent and environment (default: 1)")
-    p_cmp.add_argument("--episodes", type=int, default=10, help="episodes per trial (default: 10)")
-    p_cmp.add_argument("--out", default=None, help="also write every run's figures and the ratios to this JSON file")
-    args = parser.parse_args(argv)
-    if args.command == "bench-compare":
-        return cmd_bench_compare(args, p_cmp)
-    if args.command == "sweep":
-        return sweep_cli.main(args, argv, p_sweep)
-    if args.command == "reproduce":
-        if args.layouts is not None and args.layouts < 4:
-            p_rep.error("--layouts must be at least 4 (intervals resample layouts)")
-        return cmd_reproduce(args, argv)
-    if args.command == "bench":
-        if args.trials < 1 or args.episodes < 1:
-            p_bench.error("--trials and --episodes must be positive")
-        return cmd_bench(args)
-    if args.command == "run":
-        try:
-            config = config_from_namespace(RunConfig, args)
-            check_run(config)
-        except (ValueError, OSError) as exc:
-            p_run.error(str(exc))
-        return cmd_run(config)
-    return 2
+    return run_commands("python -m experiments", __doc__, commands(), argv)
 
 
 if __name__ == "__main__":

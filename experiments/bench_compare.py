@@ -1,4 +1,5 @@
-"""`python -m experiments bench-compare --against DIR`: the in-process runner of this checkout against another one
+"""`python -m experiments bench-compare --against DIR [--what inprocess|live]`: the in-process runner (or, with
+`--what live`, the live system: services/bench_compare.py) of this checkout against another one
 (e.g. a worktree of an earlier commit), alternating which goes first, round after round, in one run.
 
 Each run is a fresh process in its own checkout (its code first on the path) that builds the same trials from
@@ -22,7 +23,10 @@ import os
 import statistics
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+
+from common.config import option
 
 ROOT = Path(__file__).resolve().parents[1]
 MODES = ("plain_s", "batched_s")
@@ -104,3 +108,45 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
           f"{statistics.median(tick_ratios):.3f} (per round {', '.join(f'{x:.3f}' for x in tick_ratios)})")
     return {"tick_ratios": tick_ratios, "against": str(other), "envs": envs, "trials": trials, "episodes": episodes, "runs": runs,
             "ratios": ratios, "medians": medians, "cpu_ratios": cpu_ratios, "cpu_medians": cpu_medians}
+
+
+@dataclass(frozen=True)
+class BenchCompareConfig:
+    """This checkout against another (a worktree of an earlier commit), alternating who goes first, round after
+    round, in one run: `--what inprocess` times the in-process runner (plain and batched, the four agents),
+    `--what live` the live system's bench phases (steps/s and CPU ms per step of all services)."""
+
+    against: str = option("", "the other checkout's directory")
+    what: str = option("inprocess", "what to time", choices=("inprocess", "live"))
+    rounds: int | None = option(None, "rounds; each runs both checkouts (default: 3 inprocess, 2 live)")
+    envs: tuple[str, ...] = option(("maze", "taxi"), "inprocess: environments", nargs="+")
+    trials: int = option(1, "inprocess: trials per agent and environment")
+    episodes: int = option(10, "inprocess: episodes per trial")
+    phases: tuple[str, ...] = option(("ingest", "paper"), "live: bench phases to compare")
+    # (`services bench`'s own default: at 3000 steps an `ingest` phase lasts about 1.5 s, and separate
+    # invocations of the same code differed by more than their rounds' spread)
+    steps: int = option(8000, "live: actor steps per phase")
+    out: str | None = option(None, "inprocess: also write every run's figures and the ratios to this JSON file; "
+                                   "live: directory of the runs and compare.json (default: runs/bench-compare)")
+
+    def __post_init__(self):
+        if min(self.rounds or 1, self.trials, self.episodes, self.steps) < 1:
+            raise ValueError("--rounds, --trials, --episodes and --steps must be positive")
+
+
+def main(cfg: BenchCompareConfig) -> int:
+    from common.config import fail
+
+    try:
+        if cfg.what == "live":
+            from services.bench_compare import LiveCompareConfig, bench_compare as live_compare
+
+            return live_compare(LiveCompareConfig(cfg.against, cfg.phases, cfg.steps, cfg.rounds or 2,
+                                                  cfg.out or "runs/bench-compare"))
+        result = bench_compare(cfg.against, cfg.rounds or 3, list(cfg.envs), cfg.trials, cfg.episodes)
+    except (ValueError, RuntimeError) as exc:
+        fail(str(exc))
+    if cfg.out:
+        with open(cfg.out, "w") as fh:
+            json.dump(result, fh, indent=1)
+    return 0

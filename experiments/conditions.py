@@ -51,7 +51,7 @@ TAXI_EPISODES = 50
 REPRO_MAZE_EPISODES = 100
 """Maze MDP and POMDP (every maze condition, the learned-delay ones too). 60 at commit 872a531, where the
 best arm's curve was not flat in 7 of 12 maze conditions. Chosen on a pilot, before the runs that use it:
-`python -m experiments.maze_pilot --episodes 150` (docs/hyperparameters.md "Maze horizon pilot"; layouts
+`python -m experiments pilot maze --episodes 150` (docs/hyperparameters.md "Maze horizon pilot"; layouts
 44-59 on seeds 9000+, never the reproduction's trials; every arm of the 7 conditions that were not flat).
 From episodes 81-100 to 131-150 the best arm's mean ln steps falls by less than ln 1.1 in 5 of the 7
 (maze-high-delay -0.03, maze-low-nodelay +0.11, maze-flip -0.09, delay-late -0.01, delay-drift -0.07);
@@ -63,7 +63,7 @@ REPRO_TAXI_EPISODES = 100
 """The fixed-task Taxi: DQN converged by episode 79 in the reproduction of commit 5d2c95e."""
 REPRO_TAXI_RANDOM_EPISODES = 200
 """Gymnasium's Taxi (random passenger and destination): DQN had not converged at 100 episodes (5d2c95e).
-Chosen on a pilot, before the runs that use it: `python -m experiments.taxi_pilot --env taxi-s --episodes
+Chosen on a pilot, before the runs that use it: `python -m experiments pilot taxi --env taxi-s --episodes
 300 --trials 4` (seeds 9000-9003, never the reproduction's; DQN only, the reproduction's settings) reached
 its final level (19 steps, geometric mean) at episode 150 by the report's rule, the 10-episode median of its
 trials fell below 100 steps at episodes 76, 95, 117 and 132, and a DQN trial took 77 000 steps to get there.

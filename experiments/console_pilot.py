@@ -1,4 +1,4 @@
-"""`python -m experiments.console_pilot`: the console comparison's setting simulated in process, on pilot seeds.
+"""`python -m experiments pilot console`: the console comparison's setting simulated in process, on pilot seeds.
 
 What it is for: choosing what a next declared browser comparison (`services/console/compare.py`) should test,
 without spending its pairs. The browser runs take 17 minutes each at 2 steps/s; the same setting in process
@@ -14,7 +14,7 @@ comparison's seed (2-51). No claim is computed from it. Each arm's measures are 
 the episode of the 10th goal (short of 10: 15 + goals missing), the first episode within twice the shortest
 path (never: 16), and steps over the 15 episodes; every arm is compared with DQN on the same (layout, seed).
 
-    python -m experiments.console_pilot --trials 48
+    python -m experiments pilot console --trials 48
 """
 from __future__ import annotations
 
@@ -146,8 +146,5 @@ def main(cfg: ConsolePilotConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
-    return main(parse_config(ConsolePilotConfig, argv, prog="python -m experiments.console_pilot"))
+    return main(parse_config(ConsolePilotConfig, argv, prog="python -m experiments pilot console"))
 
-
-if __name__ == "__main__":
-    raise SystemExit(cli())

@@ -2,7 +2,7 @@
 
     OPENBLAS_CORETYPE=Haswell python -m experiments reproduce --out A             (the reference)
     env -u OPENBLAS_CORETYPE python -m experiments reproduce --only COND --out B  (another code path)
-    python -m experiments.machines A B
+    python -m experiments machines A B
 
 For every trial of B's conditions: do its per-episode steps and returns equal A's bit for bit? Then every
 claim is evaluated twice, on A's trials and on A's trials with B's conditions swapped in, and any verdict
@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import json
 import os
-import sys
+from dataclasses import dataclass
 
 import numpy as np
+
+from common.config import option
 
 from experiments.conditions import BY_NAME, FULL, Scale
 from experiments.evaluate import evaluate_claims
@@ -73,19 +75,20 @@ def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
             "commit": timing_a.get("commit"), "scale": timing_a.get("scale")}
 
 
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 2:
-        print("usage: python -m experiments.machines DIR_A DIR_B", file=sys.stderr)
-        return 2
-    result = compare(argv[0], argv[1])
-    with open(os.path.join(argv[0], "machines.json"), "w") as fh:
+@dataclass(frozen=True)
+class MachinesConfig:
+    """Which trials of two reproductions (e.g. another OPENBLAS_CORETYPE) differ, and whether any verdict does;
+    writes DIR_A/machines.json."""
+
+    dir_a: str = option("", "the first reproduction's output directory", positional=True)
+    dir_b: str = option("", "the second one's", positional=True)
+
+
+def main(args: MachinesConfig) -> int:
+    result = compare(args.dir_a, args.dir_b)
+    with open(os.path.join(args.dir_a, "machines.json"), "w") as fh:
         json.dump(result, fh, indent=1)
     print(result["summary"])
     for r in result["rows"]:
         print(f"  {r['cond']} {r['arm']}: {r['differ']} of {r['trials']} trials differ")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,4 +1,4 @@
-"""`python -m experiments.maze_pilot`: maze conditions on pilot seeds, long, to choose the maze horizon.
+"""`python -m experiments pilot maze`: maze conditions on pilot seeds, long, to choose the maze horizon.
 
 What it is for: choosing how many episodes the reproduction's mazes run (issue 12: "until the best agent's
 curve is flat") WITHOUT looking at the trials that decide a verdict. Its trials run layouts
@@ -13,7 +13,7 @@ when below ln 1.1) to the first E episodes, for E = 60, 70, ... up to --episodes
 drifts over --episodes (as the reproduction's drifts over its horizon), so for `delay-drift` only the
 last checkpoint is the condition the reproduction would run at that horizon.
 
-    python -m experiments.maze_pilot --episodes 150 --conditions maze-high-delay,maze-low-delay
+    python -m experiments pilot maze --episodes 150 --conditions maze-high-delay,maze-low-delay
 """
 from __future__ import annotations
 
@@ -137,8 +137,5 @@ def main(cfg: MazePilotConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
-    return main(parse_config(MazePilotConfig, argv, prog="python -m experiments.maze_pilot"))
+    return main(parse_config(MazePilotConfig, argv, prog="python -m experiments pilot maze"))
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

@@ -1,14 +1,16 @@
-"""`python -m experiments.minigrid`: DQN-TAMER against DQN on a MiniGrid task with image observations and
+"""`python -m experiments minigrid`: DQN-TAMER against DQN on a MiniGrid task with image observations and
 the default CNN, on the in-process runner: steps per episode, mean over seeds with a 95% interval, as a PNG
 and a JSON (docs/minigrid.png). Feedback comes from the simulated observer with the grid-world progress
 rule (common/envs/gym_tasks.py: fewer turns-and-moves to the goal = +1)."""
 from __future__ import annotations
 
-import argparse
 import json
 import time
+from dataclasses import dataclass
 
 import numpy as np
+
+from common.config import option
 
 from common.agents import agent_config
 from common.core.observer import ObserverConfig
@@ -31,13 +33,17 @@ def compare(env: str, seeds: int, episodes: int, observer: ObserverConfig = Obse
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m experiments.minigrid", description=__doc__)
-    p.add_argument("--env", default="minigrid-empty", help="environment (default: minigrid-empty)")
-    p.add_argument("--seeds", type=int, default=8, help="trials per algorithm (default: 8)")
-    p.add_argument("--episodes", type=int, default=25, help="episodes per trial (default: 25)")
-    p.add_argument("--out", default="docs/minigrid", help="writes OUT.png and OUT.json (default: docs/minigrid)")
-    args = p.parse_args(argv)
+@dataclass(frozen=True)
+class MinigridConfig:
+    """DQN-TAMER against DQN on a MiniGrid task with image observations and a CNN: OUT.png and OUT.json."""
+
+    env: str = option("minigrid-empty", "environment")
+    seeds: int = option(8, "trials per algorithm")
+    episodes: int = option(25, "episodes per trial")
+    out: str = option("docs/minigrid", "writes OUT.png and OUT.json")
+
+
+def main(args: MinigridConfig) -> int:
     data = compare(args.env, args.seeds, args.episodes)
     curves, bands = {}, {}
     for algo, d in data.items():
@@ -54,6 +60,3 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {args.out}.png, {args.out}.json")
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,4 +1,4 @@
-"""`python -m experiments.taxi_pilot`: DQN alone on Taxi, on pilot seeds, until it converges (or not).
+"""`python -m experiments pilot taxi`: DQN alone on Taxi, on pilot seeds, until it converges (or not).
 
 What it is for: choosing the reproduction's Taxi horizon and settings WITHOUT looking at the trials that
 decide a verdict. The pilot's seeds (`PILOT_SEED0 + k`) are never the reproduction's (those are
@@ -12,7 +12,7 @@ is below 100 steps; the episode of convergence is the first at which the 5-episo
 within ln 1.1 of the final level. Per trial it also prints the first episode from which the 10-episode
 median stays below 100 steps.
 
-    python -m experiments.taxi_pilot --env taxi-s --episodes 300 --trials 3 --set replay_size=50000
+    python -m experiments pilot taxi --env taxi-s --episodes 300 --trials 3 --set replay_size=50000
 """
 from __future__ import annotations
 
@@ -148,8 +148,5 @@ def main(cfg: TaxiPilotConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
-    return main(parse_config(TaxiPilotConfig, argv, prog="python -m experiments.taxi_pilot"))
+    return main(parse_config(TaxiPilotConfig, argv, prog="python -m experiments pilot taxi"))
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

@@ -1,46 +1,41 @@
-"""python -m services {up, bench, chaos}: the live system on this machine.
+"""python -m services COMMAND: the live system on this machine, and its tools.
 
-  up     start an embedded Zenoh router and every service as its own process; progress; summary
-  bench  throughput and latency figures of the live system on this machine (not a test)
-  chaos  SIGKILL every service in turn during a run: losses, recovery times, rejected inputs (docs/faults.md)
-  bench-compare  steps/s of this checkout against another (e.g. a worktree of an earlier commit), interleaved
-  credentials  a run's credential files for services started by hand, or one more teacher's (docs/security.md)
-
-Each service also runs on its own: python -m services.{actor,teacher,learner,recorder} --help, and
-python -m services.replay --help for logs.
+Each service also runs on its own: python -m services.{actor,teacher,learner,recorder,perception,console,
+foxglove} --help, and python -m services.replay --help for logs. Comparisons of two checkouts:
+python -m experiments bench-compare --what live.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
-from common.config import ConfigParser, add_config_arguments, config_from_namespace
+from common.config import Command, run_commands
+
+
+def commands() -> dict:
+    from common.protocol._cli import ProtocolConfig, protocol_main
+    from common.security.router import SecuredRouterConfig, SecurityInitConfig, secured_router, security_init
+    from common.security.router import zenohd_config
+    from common.wire.auth import AuthBenchConfig, bench_main
+    from common.wire.transport import RouterConfig, router_main
+    from services.bench import BenchConfig, bench
+    from services.chaos import ChaosConfig, chaos
+    from services.credentials import CredentialsConfig, credentials
+    from services.flood import FloodConfig, main as flood
+    from services.launcher import UpConfig, up
+
+    return {"up": Command(UpConfig, up), "bench": Command(BenchConfig, bench), "chaos": Command(ChaosConfig, chaos),
+            "flood": Command(FloodConfig, flood), "credentials": Command(CredentialsConfig, credentials),
+            "security": {"": "TLS + user/password + access control for runs across machines (docs/security.md)",
+                         "init": Command(SecurityInitConfig, security_init),
+                         "router": Command(SecuredRouterConfig, secured_router),
+                         "zenohd-config": Command(SecuredRouterConfig, zenohd_config,
+                                                  "print the secured router's config as JSON (for zenohd -c)")},
+            "router": Command(RouterConfig, router_main), "protocol": Command(ProtocolConfig, protocol_main),
+            "auth-bench": Command(AuthBenchConfig, bench_main)}
 
 
 def main(argv: list[str] | None = None) -> int:
-    from services.bench import BenchConfig, bench
-    from services.bench_compare import BenchCompareConfig, bench_compare
-    from services.chaos import ChaosConfig, chaos
-    from services.credentials import CredentialsConfig, credentials
-    from services.launcher import UpConfig, up
-
-    parser = ConfigParser(prog="python -m services", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = parser.add_subparsers(dest="command", required=True)
-    commands = {"up": (UpConfig, up), "bench": (BenchConfig, bench), "chaos": (ChaosConfig, chaos),
-                "credentials": (CredentialsConfig, credentials), "bench-compare": (BenchCompareConfig, bench_compare)}
-    parsers = {}
-    for name, (cls, _) in commands.items():
-        doc = (cls.__doc__ or "").strip()
-        parsers[name] = p = sub.add_parser(name, help=doc.split("\n")[0], description=doc)
-        add_config_arguments(p, cls)
-    args = parser.parse_args(argv)
-    cls, fn = commands[args.command]
-    try:
-        config = config_from_namespace(cls, args)
-    except (ValueError, OSError) as exc:
-        parsers[args.command].error(str(exc))
-    return fn(config)
+    return run_commands("python -m services", __doc__, commands(), argv)
 
 
 if __name__ == "__main__":

@@ -95,7 +95,7 @@ class Pinger:
             with open_session(client_config(self.endpoint, connect_timeout=60)) as session:
                 from services.launcher import ROOT, child_env
 
-                self.echo = subprocess.Popen([sys.executable, "-m", "services.bench", self.endpoint, self.run],
+                self.echo = subprocess.Popen([sys.executable, "-c", ECHO, self.endpoint, self.run],
                                              cwd=str(ROOT), env=child_env(), stdout=subprocess.DEVNULL,
                                              stderr=subprocess.DEVNULL, start_new_session=True)
                 q: queue.Queue = queue.Queue()
@@ -128,6 +128,10 @@ class Pinger:
     def finish(self) -> None:
         self.stop.set()
         self.thread.join(15)
+
+
+# The echo side runs in its own process (a child, not a command of its own).
+ECHO = "import sys; from services.bench import echo_main; sys.exit(echo_main(sys.argv[1], sys.argv[2]))"
 
 
 def echo_main(endpoint: str, run: str) -> int:
@@ -273,6 +277,3 @@ def report(results: dict) -> str:
         lines.append(format_phase(name, r))
     return "\n".join(lines)
 
-
-if __name__ == "__main__":
-    sys.exit(echo_main(sys.argv[1], sys.argv[2]))

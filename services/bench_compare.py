@@ -1,4 +1,4 @@
-"""`python -m services bench-compare --against DIR`: `services bench` of this checkout and of another one (e.g. a
+"""`python -m experiments bench-compare --what live --against DIR`: `services bench` of this checkout and of another one (e.g. a
 worktree of an earlier commit), interleaved phase by phase and repeated, printed side by side with ratios (of the means, of each round, and
 their median): on a shared, noisy machine only a comparison within one run means anything."""
 from __future__ import annotations
@@ -18,8 +18,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @dataclass(frozen=True)
-class BenchCompareConfig:
-    """Steps/s of the live system, this checkout against another, interleaved, in one run."""
+class LiveCompareConfig:
+    """Steps/s of the live system, this checkout against another, interleaved, in one run (the settings of
+    `experiments bench-compare --what live`)."""
 
     against: str = option("", "the other checkout (a git worktree of the commit to compare with)")
     phases: tuple[str, ...] = option(("ingest", "paper"), "bench phases to compare")
@@ -34,7 +35,7 @@ class BenchCompareConfig:
             raise ValueError(f"--against {self.against!r}: not a checkout of this project")
 
 
-def one(checkout: Path, phase: str, cfg: BenchCompareConfig, out: Path) -> tuple[float | None, bool, float | None]:
+def one(checkout: Path, phase: str, cfg: LiveCompareConfig, out: Path) -> tuple[float | None, bool, float | None]:
     """Run one phase with `checkout`'s own code: its steps/s (None if it did not run), whether it lost nothing, and
     the CPU ms per step of all its services together (after start-up; less hurt by others' load than steps/s)."""
     cmd = [sys.executable, "-m", "services", "bench", "--phases", phase, "--steps", str(cfg.steps), "--out", str(out)]
@@ -65,7 +66,7 @@ def print_rounds(title: str, runs: dict[str, dict[str, list]], ratio) -> None:
         print(f"{phase}: median ratio {median} over {len(ratios)} rounds")
 
 
-def bench_compare(cfg: BenchCompareConfig) -> int:
+def bench_compare(cfg: LiveCompareConfig) -> int:
     # Absolute: each checkout's bench runs in its own directory and writes where `out` points.
     other, out = Path(cfg.against).resolve(), Path(cfg.out).resolve() / time.strftime("%Y%m%d-%H%M%S")
     rows: dict[str, dict[str, list]] = {p: {"this": [], "other": []} for p in cfg.phases}

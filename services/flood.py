@@ -1,4 +1,4 @@
-"""`python -m services.flood --connect ENDPOINT --run RUN`: publish garbage on a run's step, feedback and weights
+"""`python -m services flood --connect ENDPOINT --run RUN`: publish garbage on a run's step, feedback and weights
 keys (a test tool: what every subscriber must drop, count and survive; docs/faults.md).
 
 Each message is one of `KINDS`, in turn: bytes that are not JSON, oversized payloads, wrong types, missing and
@@ -9,16 +9,16 @@ from a known sender: those only access control can keep out (docs/security.md).
 """
 from __future__ import annotations
 
-import argparse
 import json
-import os
 import signal
-import sys
 import time
 import uuid
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
+
+from common.config import option
 
 KINDS = ("malformed", "oversized", "wrong_type", "missing_field", "extra_field", "nan", "wrong_run",
          "future_step", "stale_step", "unknown_incarnation", "obs_shape", "action_range",
@@ -97,21 +97,30 @@ def makers(run: str, obs_dim: int, spec: dict[str, tuple[int, ...]], rng: np.ran
     }
 
 
-def main(argv: list[str] | None = None) -> int:
+@dataclass(frozen=True)
+class FloodConfig:
+    """Publish garbage on a run's step, feedback and weights keys: what every subscriber must drop, count and
+    survive (a test tool; docs/faults.md)."""
+
+    connect: str = option("", "router endpoint, e.g. tcp/127.0.0.1:7447")
+    run: str = option("", "the run's name")
+    env: str = option("maze", "environment (the shapes of the observations and weights sent)")
+    rate: float = option(300.0, "garbage messages per second")
+    duration: float = option(0.0, "seconds (0: until SIGTERM)")
+    seed: int = option(0, "seed of the garbage")
+    report: str | None = option(None, "write the counts sent per kind to this JSON file at the end")
+
+    def __post_init__(self):
+        if not self.connect or not self.run:
+            raise ValueError("--connect and --run are required")
+        if self.rate <= 0:
+            raise ValueError("--rate must be positive")
+
+
+def main(args: FloodConfig) -> int:
     from common.agents import TrialBatchAgent, agent_config
     from common.envs import make_env
     from common.wire.transport import client_config, open_session
-
-    ap = argparse.ArgumentParser(prog="python -m services.flood", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--connect", required=True, help="router endpoint, e.g. tcp/127.0.0.1:7447")
-    ap.add_argument("--run", required=True)
-    ap.add_argument("--env", default="maze")
-    ap.add_argument("--rate", type=float, default=300.0, help="garbage messages per second")
-    ap.add_argument("--duration", type=float, default=0.0, help="seconds (0: until SIGTERM)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--report", help="write the counts sent per kind to this JSON file at the end")
-    args = ap.parse_args(argv)
 
     env, _ = make_env(args.env, 0)
     obs_dim, n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
@@ -146,7 +155,3 @@ def main(argv: list[str] | None = None) -> int:
     print(f"sent {sum(sent.values())} garbage messages", flush=True)
     return 0
 
-
-if __name__ == "__main__":
-    os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    sys.exit(main())

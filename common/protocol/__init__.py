@@ -2,7 +2,7 @@
 
 Each message type is defined once (a frozen dataclass whose fields carry their validation spec); its
 JSON Schema (draft 2020-12), its validating decoder and its section of ``docs/protocol.md`` all derive
-from that definition. ``python -m common.protocol --markdown`` prints the documentation.
+from that definition. ``python -m services protocol --markdown`` prints the documentation.
 
 Use::
 

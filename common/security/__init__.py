@@ -23,8 +23,8 @@ router (the secured router process, the command line).
 
 Use (see docs/security.md)::
 
-    python -m common.security init DIR --teachers alice,bob [--hosts 192.168.1.10,router.lan]
-    python -m common.security router --security DIR/security.json [--host 0.0.0.0] [--port 7447]
+    python -m services security init DIR --teachers alice,bob [--hosts 192.168.1.10,router.lan]
+    python -m services security router --security DIR/security.json [--host 0.0.0.0] [--port 7447]
 
     sec = load_security("DIR/clients/learner/security.json")
     with open_session(client_config_for(sec, "learner")) as session: ...
@@ -56,13 +56,13 @@ from common.security.config import (CA_CERT, CA_KEY, CREDENTIALS_FILE, DEFAULT_P
                                     SECURITY_FILE, SERVICE_ROLES, USERNAME_PATTERN, SecurityConfig, SecurityError,
                                     load_security, read_credentials, save_security, tls_endpoint, validate_username,
                                     write_credentials)
-from common.security.router import main, run_secured_router
+from common.security.router import run_secured_router
 from common.security.zenoh_config import (client_config_for, client_settings, router_config_dict, router_config_for,
                                           router_settings)
 
 __all__ = ["access_control", "publish_keys", "publish_kinds", "generate_certificates", "init", "new_password",
            "CA_CERT", "CA_KEY", "CREDENTIALS_FILE", "DEFAULT_PORT", "ROLES", "ROUTER_CERT", "ROUTER_KEY",
            "SECURITY_FILE", "SERVICE_ROLES", "USERNAME_PATTERN", "SecurityConfig", "SecurityError", "load_security",
-           "read_credentials", "save_security", "tls_endpoint", "validate_username", "write_credentials", "main",
+           "read_credentials", "save_security", "tls_endpoint", "validate_username", "write_credentials",
            "run_secured_router", "client_config_for", "client_settings", "router_config_dict", "router_config_for",
            "router_settings"]

@@ -1,17 +1,18 @@
-"""A secured router process and the command line (``python -m common.security``)."""
+"""A secured router process and the commands of ``python -m services security init|router|zenohd-config``."""
 
 from __future__ import annotations
 
-import argparse
 import json
 import signal
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import zenoh
 
+from common.config import option
 from common.security.certs import init
 from common.security.config import DEFAULT_PORT, SECURITY_FILE, SecurityConfig, SecurityError, load_security, tls_endpoint
 from common.security.zenoh_config import router_config_dict, router_config_for
@@ -41,40 +42,56 @@ def run_secured_router(security: SecurityConfig, port: int | None = None, *, hos
         session.close()
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m common.security",
-                                     description="TLS + user/password + access control for multi-machine runs")
-    sub = parser.add_subparsers(dest="cmd", required=True)
-    i = sub.add_parser("init", help="write a CA, a router certificate, credentials and security.json into DIR")
-    i.add_argument("dir")
-    i.add_argument("--teachers", default="", help="comma-separated teacher usernames (= their teacher_id)")
-    i.add_argument("--hosts", default="", help="comma-separated extra names/IPs of the router machine for its "
-                                               "certificate (localhost and 127.0.0.1 are always in)")
-    i.add_argument("--router-host", default=LOOPBACK, help="the host clients dial (default 127.0.0.1)")
-    i.add_argument("--port", type=int, default=DEFAULT_PORT)
-    i.add_argument("--run", default="*", help="restrict all access to this run name (default: any run)")
-    i.add_argument("--no-perception", action="store_true", help="no perception identity")
-    i.add_argument("--days", type=int, default=365, help="certificate validity")
-    r = sub.add_parser("router", help="run the secured router (prints 'ready <endpoint> <zid>')")
-    r.add_argument("--security", required=True, help="the router machine's security.json")
-    r.add_argument("--port", type=int, help="default: the port in security.json")
-    r.add_argument("--host", help="listen address (default: router_host in security.json; 0.0.0.0 for all)")
-    z = sub.add_parser("zenohd-config", help="print the router config as JSON (for zenohd -c)")
-    z.add_argument("--security", required=True)
-    z.add_argument("--port", type=int)
-    z.add_argument("--host")
-    args = parser.parse_args(argv)
+def _names(text: str) -> list[str]:
+    return [x.strip() for x in text.split(",") if x.strip()]
+
+
+@dataclass(frozen=True)
+class SecurityInitConfig:
+    """Write a CA, a router certificate, credentials and security.json into DIR (TLS + user/password + access
+    control for a run across machines; docs/security.md)."""
+
+    dir: str = option("", "output directory", positional=True)
+    teachers: str = option("", "comma-separated teacher usernames (= their teacher_id)")
+    hosts: str = option("", "comma-separated extra names/IPs of the router machine for its certificate "
+                            "(localhost and 127.0.0.1 are always in)")
+    router_host: str = option(LOOPBACK, "the host clients dial")
+    port: int = option(DEFAULT_PORT, "the router's port")
+    run: str = option("*", "restrict all access to this run name (*: any run)")
+    perception: bool = option(True, "make a perception identity")
+    days: int = option(365, "certificate validity in days")
+
+
+@dataclass(frozen=True)
+class SecuredRouterConfig:
+    """Run the secured router (prints 'ready <endpoint> <zid>'); `zenohd-config` prints its config as JSON for
+    zenohd -c instead."""
+
+    security: str = option("", "the router machine's security.json (python -m services security init)")
+    port: int | None = option(None, "listen port (default: the port in security.json)")
+    host: str | None = option(None, "listen address (default: router_host in security.json; 0.0.0.0 for all)")
+
+    def __post_init__(self):
+        if not self.security:
+            raise ValueError("--security is required")
+
+
+def security_init(args: SecurityInitConfig) -> int:
     try:
-        if args.cmd == "init":
-            split = lambda s: [x.strip() for x in s.split(",") if x.strip()]  # noqa: E731
-            sec = init(args.dir, split(args.teachers), hosts=split(args.hosts), router_host=args.router_host,
-                       port=args.port, run=args.run, perception=None if args.no_perception else "perception",
-                       days=args.days)
-            print(f"wrote {Path(args.dir) / SECURITY_FILE} (router machine) and {Path(args.dir) / 'clients'}/<user>/ "
-                  f"for {', '.join(sec.usernames())}")
-            return 0
+        sec = init(args.dir, _names(args.teachers), hosts=_names(args.hosts), router_host=args.router_host,
+                   port=args.port, run=args.run, perception="perception" if args.perception else None, days=args.days)
+    except SecurityError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"wrote {Path(args.dir) / SECURITY_FILE} (router machine) and {Path(args.dir) / 'clients'}/<user>/ "
+          f"for {', '.join(sec.usernames())}")
+    return 0
+
+
+def secured_router(args: SecuredRouterConfig, print_config: bool = False) -> int:
+    try:
         sec = load_security(args.security)
-        if args.cmd == "zenohd-config":
+        if print_config:
             print(json.dumps(router_config_dict(sec, args.port, host=args.host), indent=2))
             return 0
         run_secured_router(sec, args.port, host=args.host)
@@ -84,5 +101,5 @@ def main(argv: list[str] | None = None) -> int:
         return 2
 
 
-if __name__ == "__main__":
-    sys.exit(main())
+def zenohd_config(args: SecuredRouterConfig) -> int:
+    return secured_router(args, print_config=True)

@@ -35,6 +35,7 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
+from common.config import option
 from common.protocol import (SERVICE_ROLES, kind_of, may_publish, observer_service_name, sender_of, split_identity,
                              teacher_service_name)
 
@@ -328,7 +329,7 @@ def signer_identity(attachment: bytes | None) -> str | None:
 
 def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
     """Microseconds per message to sign (publisher) and to check (each receiver), for a Step, a Feedback and the
-    DQN-TAMER maze Weights, as the services send them (`python -m common.wire.auth bench`)."""
+    DQN-TAMER maze Weights, as the services send them (`python -m services auth-bench`)."""
     import numpy as np
 
     from common.protocol import Feedback, Step, Weights, feedback_key, step_key, weights_key
@@ -365,15 +366,15 @@ def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
-    import argparse
+@dataclasses.dataclass(frozen=True)
+class AuthBenchConfig:
+    """Microseconds per message to sign and to check (every message of a run is authenticated)."""
 
-    parser = argparse.ArgumentParser(prog="python -m common.wire.auth", description="authentication of run messages")
-    sub = parser.add_subparsers(dest="cmd", required=True)
-    b = sub.add_parser("bench", help="microseconds per message to sign and to check")
-    b.add_argument("-n", type=int, default=20000, help="messages per type and round (Weights: n/20)")
-    b.add_argument("--repeats", type=int, default=7, help="rounds; the best and the median are printed")
-    args = parser.parse_args(argv)
+    n: int = option(20000, "messages per type and round (Weights: n/20)")
+    repeats: int = option(7, "rounds; the best and the median are printed")
+
+
+def bench_main(args: AuthBenchConfig) -> int:
     rows = bench(args.n, args.repeats)
     print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; µs per message, best (median) of "
           f"{args.repeats} rounds")
@@ -382,9 +383,3 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r['message']:<10}{r['bytes']:>8}{r['sign_us']:>9.2f} ({r['sign_us_median']:>5.1f})"
               f"{r['check_us']:>9.2f} ({r['check_us_median']:>5.1f})")
     return 0 if all(r["rejected"] == 0 for r in rows) else 1
-
-
-if __name__ == "__main__":
-    import sys
-
-    sys.exit(main())

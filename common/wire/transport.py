@@ -14,20 +14,18 @@ Facts this module relies on (zenoh-python 1.10, measured here; see docs/protocol
 - A process whose callback subscriber is still declared at exit hangs unless the session is closed:
   :func:`open_session` closes in ``finally``.
 
-Run a router on its own: ``python -m common.wire.transport router --port 7447`` (prints ``ready <endpoint>``,
+Run a router on its own: ``python -m services router --port 7447`` (prints ``ready <endpoint>``,
 stops on SIGTERM/SIGINT).
 """
 
 from __future__ import annotations
 
-import argparse
 import collections
 import contextlib
 import dataclasses
 import json
 import signal
 import socket
-import sys
 import threading
 import time
 from typing import Any, Callable, Iterator
@@ -36,6 +34,7 @@ import zenoh
 
 from common.wire.inbox import (QUEUE_POLICIES, Inbox, Received, default_auth, default_policy,  # noqa: F401 (re-exported)
                           set_default_auth)
+from common.config import option
 from common.protocol import parse_key
 
 LOOPBACK = "127.0.0.1"
@@ -248,21 +247,20 @@ def run_router(endpoint: str, *, stop: threading.Event | None = None,
             time.sleep(0.1)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m common.wire.transport", description="Zenoh helpers")
-    sub = parser.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("router", help="run a loopback router (a Python zenoh session in router mode)")
-    r.add_argument("--port", type=int, default=7447)
-    r.add_argument("--endpoint", help="full endpoint instead of --port, e.g. tcp/127.0.0.1:7447")
-    args = parser.parse_args(argv)
-    endpoint = args.endpoint or tcp_endpoint(args.port)
+@dataclasses.dataclass(frozen=True)
+class RouterConfig:
+    """Run a loopback Zenoh router (a Python zenoh session in router mode); prints 'ready <endpoint> <zid>',
+    stops on SIGTERM/SIGINT."""
+
+    port: int = option(7447, "listen port on 127.0.0.1")
+    endpoint: str | None = option(None, "full endpoint instead of --port, e.g. tcp/0.0.0.0:7447")
+
+
+def router_main(config: RouterConfig) -> int:
+    endpoint = config.endpoint or tcp_endpoint(config.port)
 
     def ready(session: zenoh.Session) -> None:
         print(f"ready {endpoint} {session.zid()}", flush=True)
 
     run_router(endpoint, on_ready=ready)
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

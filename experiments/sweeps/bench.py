@@ -1,4 +1,4 @@
-"""`python -m experiments.sweeps.bench`: one sweep on the local process pool and through a local Ray head,
+"""`python -m experiments sweep-bench`: one sweep on the local process pool and through a local Ray head,
 side by side in one run, and the overhead of a Ray task.
 
 The sweep (default: agent.algo=dqn,dqn-tamer, 30 trials each, the maze's 60 episodes) runs from an
@@ -9,13 +9,14 @@ the round trip of a no-op streaming task (the same kind the sweep submits) measu
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
 import tempfile
 import time
+from dataclasses import dataclass
 
+from common.config import fail, option
 from experiments.sweeps.grid import Sweep, parse_assignment, parse_values
 from experiments.sweeps.ray_head import local_head
 from experiments.sweeps.report import run_sweep
@@ -84,20 +85,25 @@ def format_report(rep: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m experiments.sweeps.bench", description=__doc__.split("\n\n")[0])
-    p.add_argument("--grid", nargs="+", default=["agent.algo=dqn,dqn-tamer"], metavar="FIELD=V1,V2")
-    p.add_argument("--trials", type=int, default=30, help="trials per cell (default: 30)")
-    p.add_argument("--workers", type=int, default=2, help="local processes and Ray CPUs (default: 2)")
-    p.add_argument("--repeats", type=int, default=1, help="rounds of (local, Ray) (default: 1)")
-    p.add_argument("--noop-tasks", type=int, default=20, help="no-op tasks timed (default: 20)")
-    p.add_argument("--json", default=None, help="also write the numbers to this file")
-    args = p.parse_args(argv)
+@dataclass(frozen=True)
+class SweepBenchConfig:
+    """One sweep on the local process pool and through a local Ray head, timed side by side: the same numbers
+    either way, seconds, Ray's start and per-task overhead, processes left behind."""
+
+    grid: tuple[str, ...] = option(("agent.algo=dqn,dqn-tamer",), "swept fields", nargs="+", metavar="FIELD=V1,V2")
+    trials: int = option(30, "trials per cell")
+    workers: int = option(2, "local processes and Ray CPUs")
+    repeats: int = option(1, "rounds of (local, Ray)")
+    noop_tasks: int = option(20, "no-op tasks timed")
+    json: str | None = option(None, "also write the numbers to this file")
+
+
+def main(args: SweepBenchConfig) -> int:
     try:
         grid = {path: parse_values(path, rhs) for path, rhs in map(parse_assignment, args.grid)}
         sweep = Sweep(name="bench", grid=grid, trials=args.trials)
     except ValueError as exc:
-        p.error(str(exc))
+        fail(str(exc))
     rep = bench(sweep, args.workers, args.repeats, args.noop_tasks)
     print(format_report(rep))
     if args.json:
@@ -105,6 +111,3 @@ def main(argv: list[str] | None = None) -> int:
             json.dump(rep, fh, indent=1)
     return 0 if all(r["identical"] for r in rep["rounds"]) and not rep["processes_left"] else 1
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,44 +1,49 @@
 """`python -m experiments sweep`: the command line of a sweep (grid, YAML file, contrasts, Ray)."""
 from __future__ import annotations
 
-import argparse
 import shlex
+import sys
+from dataclasses import dataclass
 
+from common.config import fail, option
+from experiments.conditions import FULL
 from experiments.evaluate import N_BOOT
 from experiments.sweeps.grid import Sweep, coerce, from_mapping, load_yaml, parse_assignment, parse_values, split_top
 
-HELP = ("a grid of config fields, trials per cell: one tidy table (CSV, Parquet), a summary per cell, a "
-        "figure per group of cells, named contrasts with verdicts (cached: re-running only re-plots)")
 
+@dataclass(frozen=True)
+class SweepConfig:
+    """A grid of config fields, trials per cell: one tidy table (CSV, Parquet), a summary per cell, a figure per
+    group of cells, named contrasts with verdicts (cached: re-running only re-plots)."""
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("file", nargs="?", default=None, metavar="SWEEP.yaml",
-                   help="sweep file (keys: name, trials, layouts, set, grid, contrasts, legend); "
-                        "the options below override it")
-    p.add_argument("--grid", nargs="+", default=[], metavar="FIELD=V1,V2",
-                   help="swept fields, e.g. observer.p_feedback=0.1,0.5 agent.algo=dqn,dqn-tamer "
-                        "(tuples in brackets: observer.delay_probs=[1,0,0],[0.3,0.6,0.1])")
-    p.add_argument("--set", nargs="+", default=[], metavar="FIELD=V",
-                   help="fixed settings for every cell, e.g. env=maze-pomdp agent.lr=0.003")
-    p.add_argument("--trials", type=int, default=None, help="trials per cell (default: 10, or the file's)")
-    p.add_argument("--layouts", default=None, metavar="L1,L2",
-                   help="maze layouts the trials cycle over (default: all 10)")
-    p.add_argument("--contrast", action="append", default=[], metavar="'F=A - F=B'",
-                   help="a named contrast, e.g. 'agent.algo=dqn-tamer - agent.algo=dqn' on mean ln steps (prefix "
-                        "'return:', 'success:' or 'ln_steps_last10:' for another metric); repeatable")
-    p.add_argument("--legend", default=None, metavar="FIELD",
-                   help="swept field drawn as lines in each figure (default: agent.algo if swept, else the "
-                        "last swept field); the other fields make the groups")
-    p.add_argument("--name", default=None, help="sweep name, used in titles (default: the file's or 'sweep')")
-    p.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
-    p.add_argument("--cache", default=None, metavar="DIR",
-                   help="trial cache shared between sweeps (default: OUT/cache)")
-    p.add_argument("--workers", type=int, default=2, help="local worker processes (default: 2; 1 = in this process)")
-    p.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
-                   help="run the trials as Ray tasks: 'auto' (the running cluster), an address (HOST:PORT) "
-                        "or 'local' (a private instance); needs pip install '.[ray]'")
-    p.add_argument("--boot", type=int, default=N_BOOT, help=f"bootstrap resamples (default: {N_BOOT})")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    file: str | None = option(None, "sweep file (keys: name, trials, layouts, set, grid, contrasts, legend); the "
+                                    "options below override it", positional=True, nargs="?", metavar="SWEEP.yaml")
+    grid: tuple[str, ...] = option((), "swept fields, e.g. observer.p_feedback=0.1,0.5 agent.algo=dqn,dqn-tamer "
+                                       "(tuples in brackets: observer.delay_probs=[1,0,0],[0.3,0.6,0.1])",
+                                   nargs="+", metavar="FIELD=V1,V2")
+    set: tuple[str, ...] = option((), "fixed settings for every cell, e.g. env=maze-pomdp agent.lr=0.003",
+                                  nargs="+", metavar="FIELD=V")
+    trials: int | None = option(None, "trials per cell (default: 10, or the file's)")
+    layouts: str | None = option(None, f"maze layouts the trials cycle over (default: all {FULL.layouts})",
+                                 metavar="L1,L2")
+    contrast: tuple[str, ...] = option((), "a named contrast, e.g. 'agent.algo=dqn-tamer - agent.algo=dqn' on mean "
+                                           "ln steps (prefix 'return:', 'success:' or 'ln_steps_last10:' for another "
+                                           "metric); repeatable", nargs="+", metavar="'F=A - F=B'")
+    legend: str | None = option(None, "swept field drawn as lines in each figure (default: agent.algo if swept, "
+                                      "else the last swept field); the other fields make the groups", metavar="FIELD")
+    name: str | None = option(None, "sweep name, used in titles (default: the file's or 'sweep')")
+    out: str = option("runs/sweep", "output directory")
+    cache: str | None = option(None, "trial cache shared between sweeps (default: OUT/cache)", metavar="DIR")
+    workers: int = option(2, "local worker processes (1 = in this process)")
+    ray: str | None = option(None, "run the trials as Ray tasks: 'auto' (the running cluster), an address "
+                                   "(HOST:PORT) or 'local' (a private instance); needs pip install '.[ray]'",
+                             metavar="auto|local|ADDRESS")
+    boot: int = option(N_BOOT, "bootstrap resamples")
+    no_progress: bool = option(False, "no progress bar")
+
+    def __post_init__(self):
+        if self.workers < 1 or self.boot < 10:
+            raise ValueError("--workers must be >= 1 and --boot >= 10")
 
 
 def build_sweep(args) -> Sweep:
@@ -65,26 +70,26 @@ def build_sweep(args) -> Sweep:
     return Sweep(**kw)
 
 
-def main(args, argv: list[str], parser: argparse.ArgumentParser) -> int:
+def main(args: SweepConfig, argv: list[str]) -> int:
     from experiments.sweeps.report import print_outcome, run_sweep
 
-    if args.workers < 1 or args.boot < 10:
-        parser.error("--workers must be >= 1 and --boot >= 10")
     try:
         sweep = build_sweep(args)
         from experiments.sweeps.analysis import parse_contrast
         for c in sweep.contrasts:
             parse_contrast(c, sweep)
     except ValueError as exc:
-        parser.error(str(exc))
+        fail(str(exc))
     try:
         result = run_sweep(sweep, args.out, workers=args.workers, ray=args.ray, progress=not args.no_progress,
                            cache_dir=args.cache, n_boot=args.boot,
                            command="python -m experiments " + shlex.join(argv))
     except RuntimeError as exc:  # a worker or Ray failed: finished trials are cached, re-run resumes
-        parser.exit(1, f"error: {exc}\n")
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
-        parser.exit(130, f"interrupted: finished trials are cached in {args.cache or args.out + '/cache'}; "
-                         "the same command resumes\n")
+        print(f"interrupted: finished trials are cached in {args.cache or args.out + '/cache'}; "
+              "the same command resumes", file=sys.stderr)
+        return 130
     print_outcome(result, args.out)
     return 0

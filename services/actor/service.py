@@ -339,6 +339,3 @@ def pace(control: RunControl, control_in, slot: WeightsSlot, weights_in, learner
 def cli(argv: list[str] | None = None) -> int:
     return service_main(ActorConfig, main, argv, "python -m services.actor")
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

@@ -1,11 +1,11 @@
-"""`python -m services.console.compare`: does the scripted person at 2 steps/s make DQN-TAMER reach the goal in
+"""`python -m services.console compare`: does the scripted person at 2 steps/s make DQN-TAMER reach the goal in
 fewer episodes than DQN alone?
 
 The comparison is declared here, in `DESIGNS`, before any of its runs (the two pilot sessions in docs/console.md,
 layout 0 with seeds 0 and 1, are not part of it). Each pair is an honest maze layout with its own seed; in each
 pair the same scripted person (`static/scripted_person.js`: the paper's rule, pressing on half the steps it saw,
 0.3-1.5 s after the paint) teaches every arm through the real console in headless Chromium, one
-`python -m services.console.scripted` process per run, several at once (the runs are paced by the clock, not the
+`python -m services.console scripted` process per run, several at once (the runs are paced by the clock, not the
 CPU).
 
 Primary measure (per design, `Design.measure`): the episode in which the agent first reached the goal within twice
@@ -87,7 +87,7 @@ GOALS = Design(pairs=tuple((2 * k, 40 + k) for k in range(12)), arms=MATCHED.arm
 # appeared 0.3-1.5 s before it; and crediting each press one step later agreed as well or better: the person
 # reacts to a step's appearance, so integrating the delay over the step's whole interval credits about half a
 # step too early, on the step before (in a two-cell loop, the move back). In process on pilot seeds
-# (`python -m experiments.console_pilot`, never these pairs), that bias cost DQN-TAMER about 0.9 episodes to the
+# (`python -m experiments pilot console`, never these pairs), that bias cost DQN-TAMER about 0.9 episodes to the
 # tenth goal. The hypothesis: DQN-TAMER crediting at each step's onset (the person's own delay, 0.3-1.5 s)
 # reaches the goal ten times in fewer episodes than DQN. New pairs (honest layouts 24-46 reused, seeds 52-63,
 # never used before); fifth look at the claim: decided at 0.05 / 5.
@@ -127,7 +127,7 @@ def run_arm(cfg: CompareConfig, design: Design, arm: Arm, layout: int, seed: int
     if not result.exists():
         shutil.rmtree(Path(cfg.out) / "runs" / tag, ignore_errors=True)  # a failed attempt's: run it again
         result.parent.mkdir(parents=True, exist_ok=True)
-        cmd = [sys.executable, "-m", "services.console.scripted", "--algo", arm.algo, "--layout", str(layout),
+        cmd = [sys.executable, "-m", "services.console", "scripted", "--algo", arm.algo, "--layout", str(layout),
                "--seed", str(seed), "--episodes", str(design.episodes), "--rate", str(design.rate),
                "--episode-steps", str(design.episode_steps), "--screen-delay", arm.screen_delay,
                "--screen-credit", arm.screen_credit,
@@ -245,8 +245,5 @@ def main(cfg: CompareConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
-    return main(parse_config(CompareConfig, argv, prog="python -m services.console.compare"))
+    return main(parse_config(CompareConfig, argv, prog="python -m services.console compare"))
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

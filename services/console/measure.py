@@ -1,4 +1,4 @@
-"""`python -m services.console.measure RUN[,RUN ...]`: the console's timing figures, read from runs' logs.
+"""`python -m services.console measure RUN[,RUN ...]`: the console's timing figures, read from runs' logs.
 
 - press -> credited: a person's feedback from its press (system time, `Feedback.t_reaction`) to the learner's H
   update with it (`Credit.t_credited`);
@@ -102,8 +102,5 @@ def main(cfg: MeasureConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
-    return main(parse_config(MeasureConfig, argv, prog="python -m services.console.measure"))
+    return main(parse_config(MeasureConfig, argv, prog="python -m services.console measure"))
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

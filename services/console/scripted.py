@@ -1,4 +1,4 @@
-"""`python -m services.console.scripted`: a scripted person teaches through the console, in headless Chromium.
+"""`python -m services.console scripted`: a scripted person teaches through the console, in headless Chromium.
 
 Starts `python -m services up --teacher web` with the given task, opens the console page in Debian's Chromium
 (Playwright, `/usr/bin/chromium`), and injects `static/scripted_person.js`: on each step painted, with
@@ -178,8 +178,5 @@ def main(cfg: ScriptedConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
-    return main(parse_config(ScriptedConfig, argv, prog="python -m services.console.scripted"))
+    return main(parse_config(ScriptedConfig, argv, prog="python -m services.console scripted"))
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

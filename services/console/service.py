@@ -209,5 +209,19 @@ def main(config: ConsoleConfig) -> int:
     return 0
 
 
+STUDIES = ("scripted", "compare", "measure")
+
+
 def cli(argv: list[str] | None = None) -> int:
+    """`python -m services.console --flags` serves the page; `python -m services.console scripted|compare|measure`
+    runs a scripted person through it, the declared comparisons of that person, or the console's timing figures."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] and argv[0] in STUDIES:
+        from common.config import Command, run_commands
+        from services.console import compare, measure, scripted
+
+        studies = {"scripted": Command(scripted.ScriptedConfig, scripted.main),
+                   "compare": Command(compare.CompareConfig, compare.main),
+                   "measure": Command(measure.MeasureConfig, measure.main)}
+        return run_commands("python -m services.console", cli.__doc__, studies, argv)
     return service_main(ConsoleConfig, main, argv, "python -m services.console")

@@ -3,13 +3,12 @@ panel seen from above, the learning curve, the feedback (its values and what eac
 panel (the camera and the expression read from it) and the log. Topics carry no run id, so it fits every session
 log and the live bridge.
 
-`python -m services.foxglove.layout > docs/foxglove-layout.json` writes it (a test checks it is up to date).
+`python -m services.foxglove layout > docs/foxglove-layout.json` writes it (a test checks it is up to date).
 In Foxglove: Layouts -> Import from file.
 """
 from __future__ import annotations
 
 import json
-import sys
 
 import foxglove.layouts as fl
 
@@ -57,6 +56,3 @@ def layout() -> fl.Layout:
 def layout_json() -> str:
     return json.dumps(json.loads(layout().to_json()), indent=2) + "\n"
 
-
-if __name__ == "__main__":
-    sys.stdout.write(layout_json())

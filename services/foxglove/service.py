@@ -97,8 +97,13 @@ def main(config: FoxgloveConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
+    """`python -m services.foxglove --flags` bridges a run to Foxglove; `python -m services.foxglove layout`
+    prints the layout of docs/foxglove-layout.json."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv == ["layout"]:
+        from services.foxglove.layout import layout_json
+
+        sys.stdout.write(layout_json())
+        return 0
     return service_main(FoxgloveConfig, main, argv, "python -m services.foxglove")
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

@@ -63,7 +63,7 @@ class UpConfig:
     restart_backoff: float = option(0.5, "seconds before the first restart of a service; doubles per restart, "
                                          "at most 8 s")
     checkpoint_period: float = option(2.0, "seconds between the learner's checkpoints")
-    security: str | None = option(None, "security.json of the router machine (python -m common.security init): "
+    security: str | None = option(None, "security.json of the router machine (python -m services security init): "
                                         "run the secured router (TLS on HOST:PORT) and connect every service to it")
     learner_inbox: int = option(1 << 16, "the learner's bounded input queue (steps + feedback)")
     max_lag: int = option(2048, "the actor never runs more than this many steps ahead of the learner's newest weights "

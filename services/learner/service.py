@@ -375,6 +375,3 @@ def publish_credit(session, pubs: dict, credit: Credit) -> None:
 def cli(argv: list[str] | None = None) -> int:
     return service_main(LearnerConfig, main, argv, "python -m services.learner")
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

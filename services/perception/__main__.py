@@ -18,9 +18,11 @@ each decision to a ``sink`` (what tests and other programs embed; no Zenoh).
 
 from __future__ import annotations
 
-import argparse
 import sys
+from dataclasses import dataclass
 from typing import Callable
+
+from common.config import Command, option, run_commands
 
 from common.perception.assets import AssetsMissingError
 from common.perception.media import MediaError
@@ -54,55 +56,87 @@ def run_pipeline(config: PerceptionServiceConfig, sink: Sink | None = None) -> i
     return events
 
 
-def _add_pipeline_args(p: argparse.ArgumentParser) -> None:
-    d = PipelineConfig()
-    p.add_argument("--model", default=d.model,
-                   help="mini-xception (default), haar-smile, or a model config .json/.toml (see docs/perception.md)")
-    p.add_argument("--detector", default=d.detector, choices=["tracking", "haar", "haar-full"],
-                   help="face detector (default: %(default)s)")
-    p.add_argument("--detect-width", type=int, default=d.detect_width,
-                   help="width of the copy the full face search runs on (default: %(default)s)")
+@dataclass(frozen=True)
+class _PipelineOptions:
+    model: str = option(PipelineConfig.model, "mini-xception, haar-smile, or a model config .json/.toml "
+                                              "(see docs/perception.md)")
+    detector: str = option(PipelineConfig.detector, "face detector", choices=("tracking", "haar", "haar-full"))
+    detect_width: int = option(PipelineConfig.detect_width, "width of the copy the full face search runs on")
+
+    def pipeline(self) -> PipelineConfig:
+        return PipelineConfig(detector=self.detector, detect_width=self.detect_width, model=self.model)
 
 
-def _pipeline_config(args: argparse.Namespace) -> PipelineConfig:
-    return PipelineConfig(detector=args.detector, detect_width=args.detect_width, model=args.model)
+@dataclass(frozen=True)
+class ClassifyConfig(_PipelineOptions):
+    """Print expression and feedback per frame of a video or per image (offline, no network)."""
+
+    path: str = option("", "a video file, an image, a folder of images, or mcap:LOG.mcap (a session's frames)",
+                       positional=True)
+    json: bool = option(False, "one JSON object per line")
+    every: int = option(1, "process every N-th frame only")
+
+    def __post_init__(self):
+        if self.every < 1:
+            raise ValueError("--every must be >= 1")
 
 
-def _parse_sizes(text: str) -> list[tuple[int, int]]:
+def _parse_sizes(text: str) -> tuple[tuple[int, int], ...]:
     sizes = []
     for part in text.split(","):
         try:
             w, h = part.lower().split("x")
             sizes.append((int(w), int(h)))
         except ValueError:
-            raise argparse.ArgumentTypeError(f"size {part!r} is not WIDTHxHEIGHT") from None
-    return sizes
+            raise ValueError(f"--sizes: {part!r} is not WIDTHxHEIGHT") from None
+    return tuple(sizes)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m services.perception", description=__doc__.split("\n\n")[0])
-    sub = parser.add_subparsers(dest="command")
+@dataclass(frozen=True)
+class PerceptionBenchConfig(_PipelineOptions):
+    """Fps, capture-to-feedback latency and accuracy on the labelled clip (offline, no network)."""
 
-    c = sub.add_parser("classify", help="print expression and feedback per frame of a video or per image")
-    c.add_argument("path", help="a video file, an image, a folder of images, or mcap:LOG.mcap (a session's frames)")
-    c.add_argument("--json", action="store_true", help="one JSON object per line")
-    c.add_argument("--every", type=int, default=1, metavar="N", help="process every N-th frame only")
-    _add_pipeline_args(c)
+    sizes: str = option("320x240,640x480", "frame sizes, WIDTHxHEIGHT, comma-separated")
+    repeats: int = option(3, "passes over the clip per row")
+    no_naive: bool = option(False, "skip the naive full-frame Haar rows")
+    all_cores: bool = option(False, "do not pin the process to one CPU")
+    frame_step: int = option(1, "quick look: run the clip on every N-th frame only")
+    json: bool = option(False, "print the rows as JSON")
 
-    b = sub.add_parser("bench", help="fps, capture-to-feedback latency and accuracy on the labelled clip")
-    b.add_argument("--sizes", type=_parse_sizes, default=[(320, 240), (640, 480)],
-                   help="frame sizes, e.g. 320x240,640x480 (default)")
-    b.add_argument("--repeats", type=int, default=3, help="passes over the clip per row (default: 3)")
-    b.add_argument("--no-naive", action="store_true", help="skip the naive full-frame Haar rows")
-    b.add_argument("--all-cores", action="store_true", help="do not pin the process to one CPU")
-    b.add_argument("--frame-step", type=int, default=1, metavar="N",
-                   help="quick look: run the clip on every N-th frame only (default: all)")
-    b.add_argument("--json", action="store_true")
-    _add_pipeline_args(b)
-    return parser
+    def __post_init__(self):
+        _parse_sizes(self.sizes)
 
 
-SUBCOMMANDS = ("classify", "bench")
+def _offline(run):
+    def guarded(args) -> int:
+        try:
+            return run(args)
+        except (MediaError, AssetsMissingError, FileNotFoundError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        except BrokenPipeError:  # e.g. piped into head
+            return 0
+    return guarded
+
+
+def _classify(args: ClassifyConfig) -> int:
+    from .classify import classify
+
+    classify(args.path, args.pipeline(), as_json=args.json, every=args.every)
+    return 0
+
+
+def _bench(args: PerceptionBenchConfig) -> int:
+    from .bench import run_bench
+
+    run_bench(sizes=_parse_sizes(args.sizes), repeats=args.repeats, naive=not args.no_naive,
+              one_core=not args.all_cores, config=args.pipeline(), as_json=args.json,
+              frame_step=max(1, args.frame_step))
+    return 0
+
+
+SUBCOMMANDS = {"classify": Command(ClassifyConfig, _offline(_classify)),
+               "bench": Command(PerceptionBenchConfig, _offline(_bench))}
 
 
 def main(config):
@@ -118,31 +152,7 @@ def cli(argv: list[str] | None = None) -> int:
         from .live import cli as live_cli
 
         return live_cli(argv)
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        if args.command == "classify":
-            if args.every < 1:
-                parser.error("--every must be >= 1")
-            from .classify import classify
-
-            classify(args.path, _pipeline_config(args), as_json=args.json, every=args.every)
-            return 0
-        if args.command == "bench":
-            from .bench import run_bench
-
-            run_bench(sizes=args.sizes, repeats=args.repeats, naive=not args.no_naive,
-                      one_core=not args.all_cores, config=_pipeline_config(args), as_json=args.json,
-                      frame_step=max(1, args.frame_step))
-            return 0
-    except (MediaError, AssetsMissingError, FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except BrokenPipeError:  # e.g. piped into head
-        return 0
-    parser.print_help(sys.stderr)
-    return 2
-
+    return run_commands("python -m services.perception", __doc__.split("\n\n")[0], SUBCOMMANDS, argv)
 
 if __name__ == "__main__":
     sys.exit(cli())

@@ -120,6 +120,3 @@ def main(config: RecorderConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return service_main(RecorderConfig, main, argv, "python -m services.recorder")
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

@@ -1,4 +1,4 @@
-"""python -m services.replay LOG.mcap {summary, play, retrain}: a recorded session, offline.
+"""python -m services.replay {summary, play, retrain, size} LOG.mcap: a recorded session, offline.
 
   summary   counts, losses, what became of every feedback, per-episode returns, learning-curve plot
   play      re-publish the session over Zenoh at the recorded pace (or faster)
@@ -9,17 +9,67 @@
 A file that is not MCAP (a video, random bytes) gets a one-line error and exit code 2.
 
 A log cut short by a crash is read up to its last complete chunk, with a warning saying how much was
-recovered. LOG may be a run directory (its session.mcap).
+recovered. LOG may be a run directory (its session.mcap); it may also come before the command
+(`python -m services.replay LOG summary`).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import threading
 import time
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
+
+from common.config import Command, fail, option
+
+
+@dataclass(frozen=True)
+class LogConfig:
+    log: str = option("", "session.mcap (or a run directory); later segments are read too", positional=True)
+
+    def __post_init__(self):
+        if not Path(self.log).exists():
+            raise ValueError(f"{self.log}: no such file or directory")
+
+
+@dataclass(frozen=True)
+class SummaryConfig(LogConfig):
+    """Counts, losses, what became of every feedback, per-episode returns, learning-curve plot."""
+
+    json: bool = option(False, "print the whole summary as JSON")
+    plot: str | None = option(None, "learning-curve PNG (default: replay_curve.png beside the log)")
+    no_plot: bool = option(False, "no plot")
+
+
+@dataclass(frozen=True)
+class PlayConfig(LogConfig):
+    """Re-publish the session over Zenoh at the recorded pace (or faster)."""
+
+    connect: str | None = option(None, "router endpoint(s) to publish through (default: run an embedded router)")
+    port: int = option(0, "embedded router port (0 = a free one)")
+    speed: float = option(1.0, "pace multiplier; 0 = as fast as possible")
+    kinds: str = option("", "only these key kinds, comma-separated (e.g. step,feedback)")
+    start_delay: float = option(1.0, "seconds to wait before publishing")
+    credentials: str | None = option(None, "a service credential of the run (python -m services credentials): each "
+                                           "record is signed as its original sender; without one, receivers drop them")
+
+
+@dataclass(frozen=True)
+class RetrainConfig(LogConfig):
+    """Feed a fresh learner the recorded inputs in the recorded order; say whether its final weights equal the live
+    learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)."""
+
+    learner: str | None = option(None, "learner incarnation (default: the last one in the log)")
+    save: str | None = option(None, "write the retrained final weights to this safetensors file")
+
+
+@dataclass(frozen=True)
+class SizeConfig(LogConfig):
+    """Bytes per 1,000 steps, and per topic."""
+
+    json: bool = option(False, "as JSON")
 
 
 def _warn_to_stderr(message, category, filename, lineno, file=None, line=None):
@@ -108,45 +158,28 @@ def cmd_size(args) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.replay", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("log", help="session.mcap (or a run directory); later segments are read too")
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("summary", help="counts, returns, plot")
-    p.add_argument("--json", action="store_true", help="print the whole summary as JSON")
-    p.add_argument("--plot", help="learning-curve PNG (default: replay_curve.png beside the log)")
-    p.add_argument("--no-plot", action="store_true", help="no plot")
-    p = sub.add_parser("play", help="re-publish over Zenoh")
-    p.add_argument("--connect", help="router endpoint(s) to publish through (default: run an embedded router)")
-    p.add_argument("--port", type=int, default=0, help="embedded router port (0 = a free one)")
-    p.add_argument("--speed", type=float, default=1.0, help="pace multiplier; 0 = as fast as possible")
-    p.add_argument("--kinds", default="", help="only these key kinds, comma-separated (e.g. step,feedback)")
-    p.add_argument("--start-delay", type=float, default=1.0, help="seconds to wait before publishing")
-    p.add_argument("--credentials", help="a service credential of the run (python -m services credentials): each "
-                                         "record is signed as its original sender; without one, receivers drop them")
-    p = sub.add_parser("retrain", help="fresh learner on the recorded inputs; compare final weights")
-    p.add_argument("--learner", help="learner incarnation (default: the last one in the log)")
-    p.add_argument("--save", help="write the retrained final weights to this safetensors file")
-    p = sub.add_parser("size", help="bytes per 1,000 steps and per topic")
-    p.add_argument("--json", action="store_true", help="as JSON")
-    args = parser.parse_args(argv)
-    warnings.showwarning = _warn_to_stderr
-    if not Path(args.log).exists():
-        parser.error(f"{args.log}: no such file or directory")
-    from common.logs.mcap_log import NotMcapError
+def _guarded(run):
+    """A file that is not MCAP (a video, a random file): one line, exit 2."""
+    def guarded(args) -> int:
+        from common.logs.mcap_log import NotMcapError
 
-    try:
-        return {"summary": cmd_summary, "play": cmd_play, "retrain": cmd_retrain,
-                "size": cmd_size}[args.command](args)
-    except NotMcapError as e:  # a video, a random file: say so in one line
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+        warnings.showwarning = _warn_to_stderr
+        try:
+            return run(args)
+        except NotMcapError as e:
+            fail(str(e))
+            return 2
+    return guarded
+
+
+COMMANDS = {"summary": Command(SummaryConfig, _guarded(cmd_summary)), "play": Command(PlayConfig, _guarded(cmd_play)),
+            "retrain": Command(RetrainConfig, _guarded(cmd_retrain)), "size": Command(SizeConfig, _guarded(cmd_size))}
 
 
 def cli(argv: list[str] | None = None) -> int:
-    return main(argv)
+    from common.config import run_commands
 
-
-if __name__ == "__main__":
-    sys.exit(cli())
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if len(argv) > 1 and argv[0] not in COMMANDS and argv[1] in COMMANDS:  # the log first, as before
+        argv[0], argv[1] = argv[1], argv[0]
+    return run_commands("python -m services.replay", __doc__, COMMANDS, argv)

@@ -12,7 +12,7 @@ import math
 
 from common.protocol import observer_service_name, teacher_service_name
 
-# Where the perception path's lag comes from (measured by `python -m services.teacher.face_video measure`,
+# Where the perception path's lag comes from (measured by `python -m services.teacher face-video measure`,
 # docs/perception.md): from the first frame of a clip to the frame that fires, 0.29 s (7 frames at 23.98 fps)
 # for most clips, 0.46 s at the 90th percentile of the sad clips.
 PERCEPTION_LAG_S = (0.29, 0.46)
@@ -81,4 +81,4 @@ def face_video_processes(up, teacher_id: str) -> list[tuple[str, str, object]]:
                            teacher_id=teacher_id, camera=teacher_id, p_feedback=o.p_feedback,
                            delay_probs=o.delay_probs, flip=o.p_flip, stop_episode=o.stop_episode,
                            stop_step=o.stop_step, step_unit=1.0 / up.rate)
-    return [(teacher, "services.perception", perception), (observer, "services.teacher.face_video", face)]
+    return [(teacher, "services.perception", perception), (observer, "services.teacher face-video", face)]

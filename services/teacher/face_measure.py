@@ -1,4 +1,4 @@
-"""`python -m services.teacher.face_video measure`: what the perception path does to the face-video observer's
+"""`python -m services.teacher face-video measure`: what the perception path does to the face-video observer's
 reactions, offline (no Zenoh, no timing noise).
 
 Every possible clip start in the smiling (+1) and sad (-1) parts of the labelled clip (or a sample of them) is
@@ -10,11 +10,13 @@ is causal, so a clip of N frames fires exactly as the first N frames of a longer
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
+from dataclasses import dataclass
 
 import numpy as np
+
+from common.config import option, parse_config
 
 
 def measure(clip_lengths_s: list[float], width: int = 320, quality: int = 80, step: int = 1,
@@ -81,19 +83,24 @@ def format_rows(result: dict) -> str:
     return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class FaceMeasureConfig:
+    """What the perception path does to the face-video observer's reactions, offline: per clip length, reactions
+    fired, missed, with the wrong polarity, more than once, and their lag."""
+
+    clip_s: tuple[float, ...] = option((0.5, 0.75, 1.0), "clip lengths to report (s, comma-separated)")
+    width: int = option(320, "frame width the clips are scaled to")
+    jpeg_quality: int = option(80, "JPEG quality of the frames")
+    step: int = option(1, "every N-th clip start only (quick look)")
+    json: bool = option(False, "print the result as JSON")
+
+
 def cli(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m services.teacher.face_video measure", description=__doc__)
-    p.add_argument("--clip-s", default="0.5,0.75,1.0", help="clip lengths to report (s, comma-separated)")
-    p.add_argument("--width", type=int, default=320)
-    p.add_argument("--jpeg-quality", type=int, default=80)
-    p.add_argument("--step", type=int, default=1, help="every N-th clip start only (quick look)")
-    p.add_argument("--json", action="store_true")
-    args = p.parse_args(argv)
+    args = parse_config(FaceMeasureConfig, argv, prog="python -m services.teacher face-video measure")
     from common.perception.assets import AssetsMissingError
 
     try:
-        result = measure([float(x) for x in args.clip_s.split(",") if x.strip()], args.width, args.jpeg_quality,
-                         max(1, args.step))
+        result = measure(list(args.clip_s), args.width, args.jpeg_quality, max(1, args.step))
     except AssetsMissingError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

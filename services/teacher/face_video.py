@@ -1,4 +1,4 @@
-"""`python -m services.teacher.face_video`: a video-backed observer for the `face-video` teacher.
+"""`python -m services.teacher face-video`: a video-backed observer for the `face-video` teacher.
 
 The core's simulated observer (`SimulatedObserver`: the rule, p_feedback, the true lag, misreads) decides, for
 each step it sees, whether and when to react with +1 or -1, exactly as the `oracle` teacher on the wall clock.
@@ -343,11 +343,8 @@ def cli(argv: list[str] | None = None) -> int:
     from common.perception.assets import AssetsMissingError
 
     try:
-        return service_main(FaceVideoConfig, main, argv, "python -m services.teacher.face_video")
+        return service_main(FaceVideoConfig, main, argv, "python -m services.teacher face-video")
     except AssetsMissingError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

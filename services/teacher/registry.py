@@ -16,7 +16,7 @@ class ProcessSpec:
     """One process to start: its service name (liveliness token / status key), module and config."""
 
     name: str
-    module: str  # run as `python -m <module> --config <file>`
+    module: str  # run as `python -m <module> --config <file>`; may name a subcommand ("services.teacher face-video")
     config: Any  # a config dataclass instance (written to a JSON file by the launcher)
 
 
@@ -83,7 +83,7 @@ def _face_video(up: Any, teacher_id: str) -> list[ProcessSpec]:
 
 
 register(TeacherKind("face-video", "the simulated observer's reactions shown as clips of a real face to a camera "
-                                   "(services.teacher.face_video), read by the perception service (teacher.<id>)",
+                                   "(services.teacher face-video), read by the perception service (teacher.<id>)",
                      _face_video, _face_video_unavailable, _face_video_defaults))
 
 

@@ -162,8 +162,12 @@ def main(config: TeacherConfig) -> int:
 
 
 def cli(argv: list[str] | None = None) -> int:
+    """`python -m services.teacher [face-video [measure]] --flags`: the simulated observer, or the observer shown
+    to the perception service as face clips (services/teacher/face_video.py)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["face-video"]:
+        from services.teacher.face_video import cli as face_video_cli
+
+        return face_video_cli(argv[1:])
     return service_main(TeacherConfig, main, argv, "python -m services.teacher")
 
-
-if __name__ == "__main__":
-    sys.exit(cli())

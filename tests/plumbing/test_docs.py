@@ -11,7 +11,7 @@ from common.protocol._docs import markdown
 
 ROOT = Path(__file__).resolve().parents[2]
 DOC = ROOT / "docs" / "protocol.md"
-REGENERATE = "python -m common.protocol --markdown > docs/protocol.md"
+REGENERATE = "python -m services protocol --markdown > docs/protocol.md"
 
 
 def test_committed_protocol_doc_equals_generated():
@@ -19,7 +19,7 @@ def test_committed_protocol_doc_equals_generated():
 
 
 def test_cli_prints_the_same_markdown():
-    out = subprocess.run([sys.executable, "-m", "common.protocol", "--markdown"], cwd=ROOT, capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "services", "protocol", "--markdown"], cwd=ROOT, capture_output=True,
                          check=True, timeout=60).stdout.decode("utf-8")
     assert out == markdown()
 

@@ -12,7 +12,7 @@ DOC = Path(__file__).resolve().parents[2] / "docs" / "foxglove-layout.json"
 
 
 def test_committed_layout_equals_generated():
-    assert DOC.read_text() == layout_json(), "run: python -m services.foxglove.layout > docs/foxglove-layout.json"
+    assert DOC.read_text() == layout_json(), "run: python -m services.foxglove layout > docs/foxglove-layout.json"
 
 
 def test_every_topic_in_the_layout_is_a_log_topic():

@@ -155,7 +155,7 @@ def test_router_and_two_client_processes_exchange_step_and_weights():
     endpoint = tcp_endpoint(port)
     procs: list[subprocess.Popen] = []
     try:
-        router = _spawn("-m", "common.wire.transport", "router", "--port", str(port))
+        router = _spawn("-m", "services", "router", "--port", str(port))
         procs.append(router)
         line = _readline(router, 20)
         assert line.startswith(f"ready {endpoint}"), (line, router.poll())

@@ -1,6 +1,6 @@
 """Access control over a live secured router: TLS + user/password + ACL (common/security.py).
 
-One secured router (``python -m common.security router``) and one recorder-identity subscriber run as
+One secured router (``python -m services security router``) and one recorder-identity subscriber run as
 processes for the whole module; each test starts its publishers as further processes and asserts on what
 the recorder actually received. Each test uses its own run name, so its samples are told apart.
 
@@ -62,9 +62,9 @@ def _stop(proc: subprocess.Popen, *, close_stdin: bool = False) -> None:
 
 @pytest.fixture(scope="module")
 def deployment(tmp_path_factory) -> Path:
-    """``python -m common.security init DIR --teachers alice,bob`` (the CLI, as a user runs it)."""
+    """``python -m services security init DIR --teachers alice,bob`` (the CLI, as a user runs it)."""
     d = tmp_path_factory.mktemp("security") / "sec"
-    out = subprocess.run([sys.executable, "-m", "common.security", "init", str(d), "--teachers", ",".join(TEACHERS)],
+    out = subprocess.run([sys.executable, "-m", "services", "security", "init", str(d), "--teachers", ",".join(TEACHERS)],
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     return d
@@ -73,7 +73,7 @@ def deployment(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def router(deployment: Path):
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "common.security", "router",
+    proc = subprocess.Popen([sys.executable, "-m", "services", "security", "router",
                              "--security", str(deployment / "security.json"), "--port", str(port)],
                             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     lines: queue.Queue = queue.Queue()
@@ -329,7 +329,7 @@ def test_access_router_stops_on_sigterm(deployment):
     """The router CLI exits promptly on SIGTERM (a handler that took the stop Event's lock once deadlocked)."""
     for delay in (0.0, 0.07, 0.23):
         port = free_port()
-        proc = subprocess.Popen([sys.executable, "-m", "common.security", "router",
+        proc = subprocess.Popen([sys.executable, "-m", "services", "security", "router",
                                  "--security", str(deployment / "security.json"), "--port", str(port)],
                                 cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         try:

@@ -75,7 +75,7 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
         assert wait_for(run_json.exists, 60)
         endpoint = json.loads(run_json.read_text())["launcher"]["endpoint"]
         report = tmp_path / "flood.json"
-        flood = subprocess.Popen([sys.executable, "-m", "services.flood", "--connect", endpoint, "--run", "noisy",
+        flood = subprocess.Popen([sys.executable, "-m", "services", "flood", "--connect", endpoint, "--run", "noisy",
                                   "--rate", "400", "--report", str(report)], cwd=ROOT, env=env(),
                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
