@@ -1,4 +1,4 @@
-"""`python -m services.replay LOG size`: what a log costs, per 1,000 steps and per topic (payload bytes before
+"""`python -m services.replay size LOG`: what a log costs, per 1,000 steps and per topic (payload bytes before
 compression; the file is zstd-compressed). Reads any log, also those written before topics dropped the run id."""
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """What a session log says: counts, losses, what became of every feedback, per-episode returns.
 
-Used by `python -m services.replay LOG summary` and by the launcher for `summary.json`.
+Used by `python -m services.replay summary LOG` and by the launcher for `summary.json`.
 """
 from __future__ import annotations
 
