@@ -51,8 +51,9 @@ TAXI_EPISODES = 50
 REPRO_MAZE_EPISODES = 100
 """Maze MDP and POMDP (every maze condition, the learned-delay ones too). 60 at commit 872a531, where the
 best arm's curve was not flat in 7 of 12 maze conditions. Chosen on a pilot, before the runs that use it:
-`python -m experiments pilot maze --episodes 150` (docs/hyperparameters.md "Maze horizon pilot"; layouts
-44-59 on seeds 9000+, never the reproduction's trials; every arm of the 7 conditions that were not flat).
+`python -m experiments pilot maze --episodes 150` (docs/notes/2026-11-23-reproduction-pilots-and-speed.md,
+"Maze horizon pilot"; layouts 44-59 on seeds 9000+, never the reproduction's trials; every arm of the 7
+conditions that were not flat).
 From episodes 81-100 to 131-150 the best arm's mean ln steps falls by less than ln 1.1 in 5 of the 7
 (maze-high-delay -0.03, maze-low-nodelay +0.11, maze-flip -0.09, delay-late -0.01, delay-drift -0.07);
 maze-low-delay (-0.44) and delay-long (-0.31) still fall at 150. Environment steps grow 1.53x from 60 to
@@ -173,8 +174,9 @@ RANDOM_TAXI = ("taxi", "taxi-s")
 DELAY_CONDITIONS = ("delay-paper", "delay-late", "delay-long", "delay-drift")
 
 # Per-environment agent settings that differ from the `AgentConfig` defaults, the same for all four agents
-# (ours; why: docs/hyperparameters.md "Taxi"). The reproduction's Taxi observes the state one-hot beside
-# the 19 factored values (`taxi-s`, `taxi-fixed-s`) and updates every step (b = 1), as on the Maze.
+# (ours; why: docs/notes/2026-11-23-reproduction-pilots-and-speed.md, "Taxi"). The reproduction's Taxi observes
+# the state one-hot beside the 19 factored values (`taxi-s`, `taxi-fixed-s`) and updates every step (b = 1), as
+# on the Maze.
 AGENT_OVERRIDES: dict[str, dict] = {"taxi": {"update_interval": 4}, "taxi-fixed": {"update_interval": 4},
                                     "taxi-s": {"update_interval": 1}, "taxi-fixed-s": {"update_interval": 1}}
 

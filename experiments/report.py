@@ -172,11 +172,13 @@ def machines_lines(out: str, timing: dict) -> list[str]:
     import os
     path = os.path.join(out, "machines.json")
     if not os.path.exists(path):
-        return ["## Across machines", "", "(no comparison recorded: `python -m experiments machines DIR_A DIR_B` compares two runs' trials and verdicts)", ""]
+        return ["## Across machines", "", "(no comparison recorded: `python -m experiments machines DIR_A DIR_B` "
+                "compares two runs' trials and verdicts)", ""]
     m = json.load(open(path))
     stale = m.get("scale") != timing.get("scale") or m.get("commit") is None
     note = (f" (Compared at commit `{m.get('commit', '?')}` on a run of scale {m.get('scale')}: "
-            "NOT this report's trials; re-run the comparison: docs/hyperparameters.md, \"Across machines\".)" if stale else
+            "NOT this report's trials; re-run the comparison: "
+            "docs/notes/2026-11-23-reproduction-pilots-and-speed.md, \"Across machines\".)" if stale else
             f" (Compared at commit `{m.get('commit')}`, this report's scale.)")
     lines = ["## Across machines (BLAS code path)", "", m["summary"] + note, "",
              "| condition | arm | trials | trials that differ |", "|---|---|---|---|"]

@@ -4,7 +4,8 @@ What it is for: choosing the reproduction's Taxi horizon and settings WITHOUT lo
 decide a verdict. The pilot's seeds (`PILOT_SEED0 + k`) are never the reproduction's (those are
 `experiments.conditions.trial_seed(layout, rep)`, and its fixed-task trials run the 12 tasks in order),
 and it runs DQN only: no claim is computed from it. It also measures how many episodes and environment
-steps DQN needs to converge on Taxi, whatever the reproduction's budget (docs/hyperparameters.md "Taxi").
+steps DQN needs to converge on Taxi, whatever the reproduction's budget
+(docs/notes/2026-11-23-reproduction-pilots-and-speed.md "Taxi").
 
 Convergence, the reproduction's rule (experiments/panels.py `horizon`): the mean ln-steps curve over the
 trials is flat over its last 20 episodes (change below ln 1.1) and its last 10 episodes' geometric mean

@@ -13,7 +13,8 @@ passenger and destination drawn afresh every episode.
 `state_onehot=True` appends a one-hot of Gymnasium's 500 states to the 19 values (519 in all; the first 19
 are unchanged, so anything that reads them, e.g. the console's scene, still works). The reproduction's
 Taxi uses it: with the 19 factored values alone DQN did not learn Gymnasium's Taxi in 400 episodes
-(docs/hyperparameters.md "Taxi"), as Q must combine taxi position, passenger and destination.
+(docs/notes/2026-11-23-reproduction-pilots-and-speed.md "Taxi"), as Q must combine taxi position, passenger and
+destination.
 """
 from __future__ import annotations
 

@@ -1,9 +1,10 @@
 """`python -m services.console compare`: does the scripted person at 2 steps/s make DQN-TAMER reach the goal in
 fewer episodes than DQN alone?
 
-The comparison is declared here, in `DESIGNS`, before any of its runs (the two pilot sessions in docs/console.md,
-layout 0 with seeds 0 and 1, are not part of it). Each pair is an honest maze layout with its own seed; in each
-pair the same scripted person (`static/scripted_person.js`: the paper's rule, pressing on half the steps it saw,
+The comparison is declared here, in `DESIGNS`, before any of its runs (the two pilot sessions in
+docs/notes/2026-11-23-console-comparison.md, layout 0 with seeds 0 and 1, are not part of it). Each pair is an
+honest maze layout with its own seed; in each pair the same scripted person (`static/scripted_person.js`: the
+paper's rule, pressing on half the steps it saw,
 0.3-1.5 s after the paint) teaches every arm through the real console in headless Chromium, one
 `python -m services.console scripted` process per run, several at once (the runs are paced by the clock, not the
 CPU).

@@ -64,7 +64,8 @@ def _stop(proc: subprocess.Popen, *, close_stdin: bool = False) -> None:
 def deployment(tmp_path_factory) -> Path:
     """``python -m services security init DIR --teachers alice,bob`` (the CLI, as a user runs it)."""
     d = tmp_path_factory.mktemp("security") / "sec"
-    out = subprocess.run([sys.executable, "-m", "services", "security", "init", str(d), "--teachers", ",".join(TEACHERS)],
+    out = subprocess.run([sys.executable, "-m", "services", "security", "init", str(d),
+                          "--teachers", ",".join(TEACHERS)],
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     return d

@@ -1,5 +1,6 @@
-"""`python -m experiments bench-compare --what live`: both checkouts' runs are found and compared, whatever directory it is run
-from (each checkout's bench runs in its own directory, so a relative `--out` must not be read as theirs)."""
+"""`python -m experiments bench-compare --what live`: both checkouts' runs are found and compared, whatever
+directory it is run from (each checkout's bench runs in its own directory, so a relative `--out` must not be read
+as theirs)."""
 from __future__ import annotations
 
 import json
@@ -18,7 +19,8 @@ def test_bench_compare_from_another_directory_with_a_relative_out(tmp_path):
     subprocess.run(["git", "worktree", "add", "--detach", str(other), "HEAD"], cwd=ROOT, check=True,
                    capture_output=True)
     try:
-        done = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--what", "live", "--against", str(other),
+        done = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--what", "live",
+                               "--against", str(other),
                                "--phases", "ingest", "--steps", "150", "--rounds", "1", "--out", "compared"],
                               cwd=tmp_path, env=env(), capture_output=True, text=True, timeout=300)
     finally:
