@@ -325,12 +325,14 @@ def apply_torch_threads() -> None:
     threadpool_limits(1, user_api="blas")  # called, not entered: the limit holds for the process
 
 
-def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, prog: str) -> int:
-    """Parse `cls` from the command line (or --config FILE) and run `main(config)`."""
+def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, prog: str, also: str = "") -> int:
+    """Parse `cls` from the command line (or --config FILE) and run `main(config)`; `also` names the service's
+    other commands in its --help."""
     from common.wire.auth import AuthError
     from common.config import parse_config
 
-    config = parse_config(cls, argv, prog=prog)
+    doc = (cls.__doc__ or "").strip()
+    config = parse_config(cls, argv, prog=prog, description=f"{doc}\n\n{also}" if also else doc)
     try:
         code = main(config)
     except AuthError as exc:

@@ -224,4 +224,5 @@ def cli(argv: list[str] | None = None) -> int:
                    "compare": Command(compare.CompareConfig, compare.main),
                    "measure": Command(measure.MeasureConfig, measure.main)}
         return run_commands("python -m services.console", cli.__doc__, studies, argv)
-    return service_main(ConsoleConfig, main, argv, "python -m services.console")
+    return service_main(ConsoleConfig, main, argv, "python -m services.console",
+                        also="Also: python -m services.console scripted|compare|measure --help.")

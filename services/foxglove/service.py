@@ -105,5 +105,6 @@ def cli(argv: list[str] | None = None) -> int:
 
         sys.stdout.write(layout_json())
         return 0
-    return service_main(FoxgloveConfig, main, argv, "python -m services.foxglove")
+    return service_main(FoxgloveConfig, main, argv, "python -m services.foxglove",
+                        also="Also: python -m services.foxglove layout (prints docs/foxglove-layout.json).")
 

@@ -326,7 +326,9 @@ def cli(argv: list[str] | None = None) -> int:
     from common.config import parse_config
     from common.perception.assets import AssetsMissingError
 
-    config = parse_config(PerceptionLiveConfig, argv, prog="python -m services.perception")
+    config = parse_config(PerceptionLiveConfig, argv, prog="python -m services.perception",
+                          description=(PerceptionLiveConfig.__doc__ or "").strip()
+                          + "\n\nAlso: python -m services.perception classify|bench --help (offline).")
     try:
         return main(config)
     except (MediaError, AssetsMissingError, FileNotFoundError) as exc:

@@ -169,5 +169,6 @@ def cli(argv: list[str] | None = None) -> int:
         from services.teacher.face_video import cli as face_video_cli
 
         return face_video_cli(argv[1:])
-    return service_main(TeacherConfig, main, argv, "python -m services.teacher")
+    return service_main(TeacherConfig, main, argv, "python -m services.teacher",
+                        also="Also: python -m services.teacher face-video [measure] --help.")
 
