@@ -99,8 +99,8 @@ def makers(run: str, obs_dim: int, spec: dict[str, tuple[int, ...]], rng: np.ran
 
 @dataclass(frozen=True)
 class FloodConfig:
-    """Publish garbage on a run's step, feedback and weights keys: what every subscriber must drop, count and
-    survive (a test tool; docs/faults.md)."""
+    """Publish garbage on a run's step, feedback and weights keys, which every subscriber must drop, count and
+    survive (a test tool, docs/faults.md)."""
 
     connect: str = option("", "router endpoint, e.g. tcp/127.0.0.1:7447")
     run: str = option("", "the run's name")

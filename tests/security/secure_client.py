@@ -10,24 +10,25 @@ another CA), put each ``--put KEY=PAYLOAD`` in order through one session, and pr
 
 from __future__ import annotations
 
-import argparse
 import json
 import queue
 import sys
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import zenoh  # noqa: E402
 
+from common.config import option, parse_config  # noqa: E402
 from common.security import (client_config_for, client_settings, load_security,  # noqa: E402
                              SecurityConfig)
 from common.wire.transport import make_config, open_session, wait_for_matching  # noqa: E402
 
 
-def sub(args: argparse.Namespace) -> int:
+def sub(args: "ClientArgs") -> int:
     sec = load_security(args.security)
     samples: queue.Queue = queue.Queue()
     closed = threading.Event()
@@ -54,7 +55,7 @@ def sub(args: argparse.Namespace) -> int:
     return 0
 
 
-def client_config(sec: SecurityConfig, args: argparse.Namespace) -> zenoh.Config:
+def client_config(sec: SecurityConfig, args: "ClientArgs") -> zenoh.Config:
     if args.tcp:
         endpoint = f"tcp/127.0.0.1:{args.tcp}"
     else:
@@ -76,7 +77,7 @@ def client_config(sec: SecurityConfig, args: argparse.Namespace) -> zenoh.Config
     return config
 
 
-def pub(args: argparse.Namespace) -> int:
+def pub(args: "ClientArgs") -> int:
     sec = load_security(args.security)
     try:
         session = zenoh.open(client_config(sec, args))
@@ -98,21 +99,26 @@ def pub(args: argparse.Namespace) -> int:
     return 0
 
 
+@dataclass(frozen=True)
+class ClientArgs:
+    """A subscriber or publisher with a security.json identity (or a wrong one), for the access-control tests."""
+
+    cmd: str = option("sub", "subscribe or publish", positional=True, choices=("sub", "pub"))
+    security: str = option("", "the identity's security.json")
+    endpoint: str = option("", "tls/host:port")
+    user: str = option("", "the identity's user name")
+    key: str = option("hitl/**", "what a subscriber subscribes to")
+    put: tuple[str, ...] = option((), "KEY=PAYLOAD to publish, in order; repeatable", nargs="+")
+    password: str | None = option(None, "log in as --user with this password (no lookup)")
+    no_auth: bool = option(False, "no user/password at all")
+    tcp: int | None = option(None, "dial plain tcp/127.0.0.1:PORT instead")
+    ca: str | None = option(None, "trust this CA certificate instead")
+    connect_timeout: float = option(5.0, "seconds to connect")
+    match_timeout: float = option(5.0, "seconds to wait for a matching subscriber before each put")
+
+
 def main() -> int:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("cmd", choices=["sub", "pub"])
-    parser.add_argument("--security", required=True)
-    parser.add_argument("--endpoint", required=True, help="tls/host:port")
-    parser.add_argument("--user", default="")
-    parser.add_argument("--key", default="hitl/**")
-    parser.add_argument("--put", action="append", default=[])
-    parser.add_argument("--password", help="log in as --user with this password (no lookup)")
-    parser.add_argument("--no-auth", action="store_true", help="no user/password at all")
-    parser.add_argument("--tcp", type=int, help="dial plain tcp/127.0.0.1:PORT instead")
-    parser.add_argument("--ca", help="trust this CA certificate instead")
-    parser.add_argument("--connect-timeout", type=float, default=5.0)
-    parser.add_argument("--match-timeout", type=float, default=5.0)
-    args = parser.parse_args()
+    args = parse_config(ClientArgs, prog="secure_client.py")
     return sub(args) if args.cmd == "sub" else pub(args)
 
 

@@ -14,13 +14,15 @@ Measure the distributions (each prints the share of 4-seed draws that fail the r
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from common.config import option, parse_config
 
 EPISODES = 20  # per run
 WINDOW = slice(10, 20)  # the episodes the measure averages
@@ -113,13 +115,18 @@ def draw_fail_rate(measures, draws: int = 400_000, seed: int = 0) -> float:
     return float((m[picks].mean(axis=1) > MAX_MEAN_LOG_STEPS).mean())
 
 
+@dataclass(frozen=True)
+class RuleArgs:
+    """Measure the distribution of the learning measure over seeds, and how often a 4-seed draw fails the rule."""
+
+    seeds: str = option("", "A:B, the seeds A..B-1")
+    variant: str = option("ok", "ok, untrained, no-feedback, dqn, flipped, late3 (in process)")
+    live: bool = option(False, "run the live system (variant ok) instead")
+    save: str | None = option(None, "write the steps per episode of each run here (JSON)")
+
+
 def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--seeds", required=True, help="A:B, the seeds A..B-1")
-    p.add_argument("--variant", default="ok", help="ok, untrained, no-feedback, dqn, flipped, late3 (in process)")
-    p.add_argument("--live", action="store_true", help="run the live system (variant ok) instead")
-    p.add_argument("--save", type=Path, help="write the steps per episode of each run here (JSON)")
-    a = p.parse_args(argv)
+    a = parse_config(RuleArgs, argv, prog="python -m tests.services.learning_rule")
     lo, hi = (int(x) for x in a.seeds.split(":"))
     if a.live:
         with tempfile.TemporaryDirectory(prefix="learning-rule-") as tmp:
@@ -129,7 +136,7 @@ def main(argv=None) -> None:
         for start in range(lo, hi, 250):  # batches of 250 trials
             runs += in_process_steps(range(start, min(hi, start + 250)), a.variant)
     if a.save:
-        a.save.write_text(json.dumps({"seeds": [lo, hi], "live": a.live, "variant": a.variant, "steps": runs}))
+        Path(a.save).write_text(json.dumps({"seeds": [lo, hi], "live": a.live, "variant": a.variant, "steps": runs}))
     m = np.array([learning_measure(r) for r in runs])
     means = m[np.random.default_rng(0).integers(0, len(m), (400_000, SEEDS_PER_DRAW))].mean(axis=1)
     q = np.quantile(means, [0.5, 0.99, 0.999, 0.9999])
