@@ -18,7 +18,6 @@ last checkpoint is the condition the reproduction would run at that horizon.
 from __future__ import annotations
 
 import json
-import sys
 import time
 from dataclasses import dataclass, replace
 

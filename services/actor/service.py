@@ -23,7 +23,6 @@ episode, the weights version it acted with, and the env's info for the simulated
 """
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np

@@ -26,7 +26,6 @@ publish weights, flush Ingest, checkpoint, stop waiting) never touch the learner
 """
 from __future__ import annotations
 
-import sys
 import time
 
 from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep, EpisodeSummary, Feedback,
