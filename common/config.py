@@ -281,9 +281,14 @@ def _add_commands(sub, commands: dict) -> None:
         p.set_defaults(_command=command, _parser=p)
 
 
-def run_commands(prog: str, description: str, commands: dict, argv: list[str] | None = None) -> int:
+def run_commands(prog: str, description: str, commands: dict, argv: list[str] | None = None,
+                 moved: dict[str, str] | None = None) -> int:
     """`prog COMMAND [SUBCOMMAND] --flags`: parse the chosen command's config and run it. `commands` maps a
-    name to a `Command` or to a group (a dict of names to commands, its help under the key "")."""
+    name to a `Command` or to a group (a dict of names to commands, its help under the key ""); `moved` maps a
+    command that moved elsewhere to its new spelling (said in the error)."""
+    given = list(sys.argv[1:] if argv is None else argv)
+    if given[:1] and given[0] in (moved or {}):
+        fail(f"{prog} {given[0]} moved: {moved[given[0]]}")
     parser = ConfigParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_commands(parser.add_subparsers(dest="_command_name", required=True, metavar="COMMAND"), commands)
     ns = parser.parse_args(argv)

@@ -35,7 +35,8 @@ def commands() -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_commands("python -m services", __doc__, commands(), argv)
+    return run_commands("python -m services", __doc__, commands(), argv,
+                        moved={"bench-compare": "python -m experiments bench-compare --what live"})
 
 
 if __name__ == "__main__":

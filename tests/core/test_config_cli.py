@@ -83,7 +83,7 @@ def test_several_words_add_up_a_bool_alone_is_true_and_groups_dispatch():
 @pytest.mark.parametrize("argv, message", [
     (["services", "up", "--p-feedback", "0.1"], "did you mean --observer.p-feedback?"),
     (["services", "security", "init", "DIR", "--no-perception"], "did you mean --perception?"),
-    (["services", "bench-compare"], "invalid choice: 'bench-compare'"),  # one bench-compare, in experiments
+    (["services", "bench-compare"], "moved: python -m experiments bench-compare --what live"),  # one, there
 ])
 def test_the_services_command_line_names_new_spellings(argv, message):
     done = subprocess.run([sys.executable, "-m", *argv], cwd=ROOT, capture_output=True, text=True, timeout=120)
