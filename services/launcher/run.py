@@ -265,6 +265,21 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
         signal.signal(signal.SIGTERM, old_term)
 
 
+def print_when_listening(waiting: list[tuple[str, int, str]]) -> list[tuple[str, int, str]]:
+    """Print each (host, port, line) whose server accepts connections now; the rest wait for the next call."""
+    import socket
+
+    left = []
+    for host, port, line in waiting:
+        try:
+            socket.create_connection((host, port), timeout=0.2).close()
+        except OSError:
+            left.append((host, port, line))
+            continue
+        print(line, file=sys.stderr, flush=True)
+    return left
+
+
 def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, r: Run, session: Any,
                t_start: float) -> int:
     """Announce the run, start the children and pump until the run ends; always stops what it started."""
@@ -287,7 +302,9 @@ def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: l
             r.outcome, r.error = "disk_full", f"disk full: {describe(exc)}; stopping the run"
         r.everyone.extend(r.children)
         r.by_name = {c.name: c for c in r.children}
+        waiting = list(getattr(launch, "listening_banners", []))
         while len(r.children) == len(procs):
+            waiting = print_when_listening(waiting)
             progress.pump()
             if r.step():
                 break
