@@ -206,6 +206,7 @@ def make_room(config: ConsoleConfig, hub: Hub, rt: ServiceRuntime) -> None:
     for person in list(hub.people.values()):
         if now - person.last_heard > 6.0 and person.close is not None:
             rt.counters["page_idle_closed"] += 1
+            hub.leave(person)  # its seat is free now; its socket closes in the background
             person.close()
 
 

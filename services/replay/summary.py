@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from common.logs.mcap_log import LogRecoveryWarning, read_log
+from services.replay.people import people_report
 from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
                              WeightsSnapshot)
 
@@ -186,7 +187,13 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     status = reader.status
     not_from_run = drop_not_from_run(c)
     feedback: dict[str, list[int]] = collections.defaultdict(list)  # teacher -> seqs
+    republished = 0  # the same (teacher, seq) published again (a console page's re-sent press): counted once
+    seen_fb: set[tuple[str, int]] = set()
     for m in c.feedback_msgs:
+        if (m.teacher_id, m.seq) in seen_fb:
+            republished += 1
+            continue
+        seen_fb.add((m.teacher_id, m.seq))
         feedback[m.teacher_id].append(m.seq)
     feedback_values = collections.Counter(m.value for m in c.feedback_msgs)
 
@@ -241,6 +248,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "feedback_negative": feedback_values.get(-1, 0),
         "feedback_credited": by_status.get("credited", 0),
         "feedback_rejected": rejected,
+        "feedback_republished": republished,
+        "people": people_report(c.statuses, feedback, lr.outcome, teacher_id_of),
         "weights_logged": sum(len(v) for v in c.weights.values()),  # snapshots (Weights in older logs)
         "learners": lr.learners,
         "episodes": ep_rows,

@@ -24,6 +24,7 @@ const CLOCK_GOOD_RTT = 0.05, CLOCK_SAMPLES = 16;
 function ping() { send({ type: "ping", t0: pageNow(), ready: hitl.clock.ready }); }
 function onPong(m) {
   const t3 = pageNow();
+  hitl.pongs = (hitl.pongs || 0) + 1;
   const rtt = (t3 - m.t0) - (m.t2 - m.t1);
   const offset = ((m.t1 - m.t0) + (m.t2 - t3)) / 2;
   const c = hitl.clock;
