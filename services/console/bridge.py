@@ -258,8 +258,6 @@ class Hub:
         """Publish a press (a re-sent one with the seq it had: the learner drops it if it was consumed, and its
         duplicate Credit acknowledges it to the page)."""
         seq, again = self.ledger.seq_for(person.teacher_id, person.page_id, m["press"])
-        if not again:
-            self.ledger.received(person.teacher_id)
         actor, shown = person.timeline.window(m["t_sys"], self.config.span)
         fb = Feedback(run=self.config.run, teacher_id=person.teacher_id, seq=seq,
                       t_reaction=m["t_sys"], value=m["value"], source=m["source"], t_page=max(0.0, m["t_page"]),
@@ -271,7 +269,6 @@ class Hub:
 
     def press_dropped(self, person: Person, reason: str) -> None:
         """A press the page gate refused (flood, absurd time, ...): counted for the person's summary."""
-        self.ledger.received(person.teacher_id)
         self.ledger.dropped(person.teacher_id, reason)
 
     def control(self, person: Person, m: dict) -> None:

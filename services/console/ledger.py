@@ -56,10 +56,9 @@ class Ledger:
         while len(self.pages) > MAX_PAGES:
             self.pages.popitem(last=False)
 
-    def received(self, tid: str) -> None:
-        self.teacher(tid)["received"] += 1
-
     def dropped(self, tid: str, reason: str) -> None:
+        """A press refused before it got a seq: received, and dropped for `reason`."""
+        self.teacher(tid)["received"] += 1
         dropped = self.teacher(tid)["dropped"]
         dropped[reason] = dropped.get(reason, 0) + 1
 
@@ -75,6 +74,7 @@ class Ledger:
         seq = int(t["next_seq"])
         t["next_seq"] = seq + 1
         t["published"] += 1
+        t["received"] += 1  # (a re-send of a press this console never got is its first receipt)
         if key is not None:
             page["presses"][key] = seq
             while len(page["presses"]) > MAX_PRESSES:
