@@ -39,6 +39,9 @@ class ConsoleConfig(TaskConfig):
                                           "recognises presses their pages re-send")
     token_file: str | None = option(None, "file holding the console's secret token (made, mode 0600, if missing; "
                                           "the launcher puts it in the run directory). None: a new token per start")
+    server_names: tuple[str, ...] = option((), "more names the page may reach the console by (its Host header), "
+                                                "comma-separated: e.g. the machine's DNS name with --host 0.0.0.0 "
+                                                "and --security; loopback names and --host always pass")
     max_people: int = option(8, "pages that may be open at once (a page idle for idle-timeout s is closed)")
     idle_timeout: float = option(30.0, "close a page that sent nothing for this many seconds (a page pings every 2 s)")
     max_control_rate: float = option(2.0, "pace / pause / resume / end controls per second accepted per person "

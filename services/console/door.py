@@ -58,11 +58,12 @@ def console_address(scheme: str, host: str, port: int, token: str) -> str:
 class Door:
     """The checks above, as an aiohttp middleware (`door.middleware`); counts every refusal by reason."""
 
-    def __init__(self, token: str, host: str, port: int, scheme: str, counters):
+    def __init__(self, token: str, host: str, port: int, scheme: str, counters, server_names: tuple[str, ...] = ()):
         self.token, self.port, self.scheme, self.counters = token, int(port), scheme, counters
         names = set(LOOPBACK_NAMES)
-        if host not in ("0.0.0.0", "::", ""):
-            names.add(f"[{host}]" if ":" in host and not host.startswith("[") else host)
+        for name in (host, *server_names):
+            if name not in ("0.0.0.0", "::", ""):
+                names.add(f"[{name}]" if ":" in name and not name.startswith("[") else name.lower())
         self.hosts = {f"{n}:{self.port}" for n in names}
         self.origins = {f"{scheme}://{h}" for h in self.hosts}
         self.cookie_name = f"hitl-console-{self.port}"

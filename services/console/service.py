@@ -216,7 +216,8 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     hub.subscribe()
     tls = tls_context(config)
     scheme = "https" if tls else "http"
-    door = Door(read_or_make_token(config.token_file), config.host, config.port, scheme, rt.counters)
+    door = Door(read_or_make_token(config.token_file), config.host, config.port, scheme, rt.counters,
+                config.server_names)
     pages = Pages(config, rt, hub)
     app = make_app(config, pages, door)
     runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)

@@ -176,6 +176,17 @@ def actor_steps_sent(by_pid: dict[tuple[str, int], ServiceStatus],
     return actor_sent, killed_actors
 
 
+def logged_feedback(msgs: list[Feedback]) -> tuple[dict[str, list[int]], int]:
+    """teacher -> its logged seqs, each once; and how many were logged again (a console page's re-sent press)."""
+    feedback: dict[str, list[int]] = collections.defaultdict(list)
+    seen: set[tuple[str, int]] = set()
+    for m in msgs:
+        if (m.teacher_id, m.seq) not in seen:
+            seen.add((m.teacher_id, m.seq))
+            feedback[m.teacher_id].append(m.seq)
+    return feedback, len(msgs) - len(seen)
+
+
 def summarize(path: str | os.PathLike) -> dict[str, Any]:
     """Read the log (also a truncated one: recovered up to its last complete chunk, with a warning)."""
     reader = read_log(path)
@@ -186,15 +197,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         warnings.warn(w.message, w.category, stacklevel=2)
     status = reader.status
     not_from_run = drop_not_from_run(c)
-    feedback: dict[str, list[int]] = collections.defaultdict(list)  # teacher -> seqs
-    republished = 0  # the same (teacher, seq) published again (a console page's re-sent press): counted once
-    seen_fb: set[tuple[str, int]] = set()
-    for m in c.feedback_msgs:
-        if (m.teacher_id, m.seq) in seen_fb:
-            republished += 1
-            continue
-        seen_fb.add((m.teacher_id, m.seq))
-        feedback[m.teacher_id].append(m.seq)
+    feedback, republished = logged_feedback(c.feedback_msgs)
     feedback_values = collections.Counter(m.value for m in c.feedback_msgs)
 
     # Steps: contiguous per incarnation (all seqs once; after a recorder restart the re-sent ones come later in

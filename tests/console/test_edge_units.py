@@ -56,6 +56,8 @@ async def door_checks() -> None:
     assert counters["door_refused_no_token"] == 1 and counters["door_refused_token"] == 1
     secure = Door(TOKEN, "10.0.0.5", 8443, "https", counters)
     assert "10.0.0.5:8443" in secure.hosts and "Secure" in secure.cookie_header()
+    wild = Door(TOKEN, "0.0.0.0", 8443, "https", counters, ("Lab-PC.example",))
+    assert wild.hosts == {"127.0.0.1:8443", "localhost:8443", "[::1]:8443", "lab-pc.example:8443"}
     assert console_address("http", "::1", 80, TOKEN) == f"http://[::1]:80/?token={TOKEN}"
 
 
