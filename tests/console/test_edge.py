@@ -161,6 +161,6 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
     assert stats["page_refused_full"] >= 1 and stats["page_idle_closed"] >= 1
     controls = [r.message for r in read_log(run.rundir / "session.mcap") if isinstance(r.message, Control)]
     assert len([c for c in controls if c.command == "pace"]) <= 20, len(controls)
-    summary = json.loads((run.rundir / "summary.json").read_text())
-    assert summary["feedback_rejected"] == {} or summary["feedback_credited"] >= 0
+    people = json.loads((run.rundir / "summary.json").read_text())["people"]
+    assert people["web-1"]["dropped"] == {"bad_value": 1}, people  # the 400-digit press, named per person
     assert [c.command for c in controls if c.source.startswith("web")].count("end") == 1
