@@ -120,6 +120,9 @@ function showTrail() {
       ? "steps " + f.credit.steps.map((s) => `${s.seq} (${s.weight.toFixed(2)})`).join(", ") : f.credit.status) : "...";
     return `<li class="${f.value > 0 ? "pos" : "neg"}">${f.value > 0 ? "+1" : "-1"} #${f.seq} -> ${where}</li>`;
   }).join("");
+  const waiting = hitl.held.length, dropped = hitl.dropped.length;  // kept until the learner acknowledges them
+  if (waiting || dropped) ol.insertAdjacentHTML("afterbegin", `<li>${waiting} press(es) waiting for the learner` +
+    (dropped ? `, ${dropped} dropped (${[...new Set(hitl.dropped.map((d) => d.reason))].join(", ")})` : "") + "</li>");
 }
 
 // ---------------------------------------------------------------- painting a step, and saying when
@@ -168,7 +171,7 @@ function keepHeld() { store.setItem("hitl-held", JSON.stringify(hitl.held)); }
 function nextPress() { const n = Number(store.getItem("hitl-press-no") || "0"); store.setItem("hitl-press-no", String(n + 1)); return n; }
 function acknowledge(m) {
   const i = hitl.held.findIndex((h) => h.seq === m.seq && h.teacher === m.teacher_id);
-  if (i >= 0) { hitl.held.splice(i, 1); keepHeld(); }
+  if (i >= 0) { hitl.held.splice(i, 1); keepHeld(); showTrail(); }
 }
 function resendHeld() {  // after (re)connecting: the presses not yet acknowledged, paced below the press limit
   const queue = hitl.held.slice();
@@ -291,7 +294,7 @@ function onMessage(m) {
     case "rejected": {
       hitl.rejected[m.reason] = (hitl.rejected[m.reason] || 0) + 1;
       const i = m.press === null || m.press === undefined ? -1 : hitl.held.findIndex((h) => h.press === m.press);
-      if (i >= 0) { hitl.dropped.push({ ...hitl.held[i], reason: m.reason }); hitl.held.splice(i, 1); keepHeld(); }
+      if (i >= 0) { hitl.dropped.push({ ...hitl.held[i], reason: m.reason }); hitl.held.splice(i, 1); keepHeld(); showTrail(); }
       break;
     }
     case "refused": hitl.refused = m; document.getElementById("who").textContent = `not connected: ${m.why}`; break;
