@@ -8,8 +8,10 @@ Clock: the page estimates its offset to this server as NTP does (`ping` t0 -> `p
 ((t1 - t0) + (t2 - t3)) / 2 from the exchange with the smallest round trip) and stamps presses, paints and
 webcam frames with its own clock and that offset; the server checks the result against its clock.
 
-Loopback only by default. With `--security` (the run's security.json) the console serves other machines
-only after a person gives a teacher name and password that the security file knows.
+Loopback only by default, and only to its own pages: every request passes the door (`door.py`: Host, Origin,
+the per-run token of the printed address exchanged for a cookie). With `--security` (the run's security.json) the
+console serves other machines over HTTPS, and only after a person gives a teacher name and password that the
+security file knows. What one page sends or breaks stays with that page (`Pages`).
 """
 from __future__ import annotations
 
