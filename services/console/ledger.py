@@ -14,6 +14,7 @@ re-sent presses.
 from __future__ import annotations
 
 import collections
+import time
 from typing import Any
 
 from services.common.statefiles import atomic_write_json, read_json
@@ -31,10 +32,12 @@ class Ledger:
         self.teachers: dict[str, dict[str, Any]] = state.get("teachers", {})
         self.pages: collections.OrderedDict[str, dict[str, Any]] = collections.OrderedDict(state.get("pages", {}))
         self.restarted = bool(state)
+        self.saved_at = 0.0
 
     def save(self) -> None:
         if self.path:
             atomic_write_json(self.path, {"joined": self.joined, "teachers": self.teachers, "pages": self.pages})
+            self.saved_at = time.monotonic()
 
     def teacher(self, tid: str) -> dict[str, Any]:
         return self.teachers.setdefault(tid, {"next_seq": 0, "received": 0, "published": 0, "resent": 0,
@@ -61,6 +64,8 @@ class Ledger:
         self.teacher(tid)["received"] += 1
         dropped = self.teacher(tid)["dropped"]
         dropped[reason] = dropped.get(reason, 0) + 1
+        if time.monotonic() - self.saved_at > 1.0:  # (a flood of refusals does not rewrite the file each time)
+            self.save()
 
     def seq_for(self, tid: str, page_id: str | None, press: int | None) -> tuple[int, bool]:
         """(the seq this press is published with, whether it is a re-send of one published before). Saved."""

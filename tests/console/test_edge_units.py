@@ -104,6 +104,7 @@ def test_the_ledger_never_reuses_a_seq_and_recognises_a_resent_press(tmp_path):
     ledger = Ledger(path)
     ledger.bind("page-aaaaaaaa", "web-alice")
     assert [ledger.seq_for("web-alice", "page-aaaaaaaa", n) for n in range(3)] == [(0, False), (1, False), (2, False)]
+    ledger.saved_at -= 2.0  # a second later: a refusal is saved too (at most once a second)
     ledger.dropped("web-alice", "flood")
     restarted = Ledger(path)  # a console SIGKILLed and started again
     assert restarted.page_teacher("page-aaaaaaaa") == "web-alice"
@@ -111,5 +112,5 @@ def test_the_ledger_never_reuses_a_seq_and_recognises_a_resent_press(tmp_path):
     restarted.bind("page-bbbbbbbb", "web-alice")  # alice comes back in a new tab
     assert restarted.seq_for("web-alice", "page-bbbbbbbb", 0) == (3, False)
     assert restarted.seq_for("web-alice", None, None) == (4, False)
-    assert restarted.counters("web-alice") == {"feedback_published": 5, "presses_received": 5,
-                                               "presses_resent": 1}
+    assert restarted.counters("web-alice") == {"feedback_published": 5, "presses_received": 6,
+                                               "presses_resent": 1, "presses_dropped_flood": 1}
