@@ -6,10 +6,12 @@
             equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)
   size      bytes per 1,000 steps, and per topic
 
-A file that is not MCAP (a video, random bytes) gets a one-line error and exit code 2.
+LOG may be a run directory (its session.mcap). A log cut short by a crash is read up to its last complete
+chunk, a damaged chunk is skipped and the reading goes on, each with a warning saying what was lost.
 
-A log cut short by a crash is read up to its last complete chunk, with a warning saying how much was
-recovered. LOG may be a run directory (its session.mcap).
+Exit codes of `summary`: 0 every message of the log was read; 1 the log was read but data was lost (cut off
+at the end, damaged chunks skipped, undecodable messages: each named on a `lost:` line); 2 there is no log to
+read (no such file, an empty file, a directory without session.mcap, a file that is not MCAP), in one line.
 """
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ def cmd_summary(args) -> int:
         plot = Path(args.plot) if args.plot else (log if log.is_dir() else log.parent) / "replay_curve.png"
         plot_summary(s, plot)
         print(f"plot: {plot}", file=sys.stderr)
-    return 0
+    return 1 if s["log"]["lost"] else 0
 
 
 def cmd_play(args) -> int:
@@ -132,8 +134,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="as JSON")
     args = parser.parse_args(argv)
     warnings.showwarning = _warn_to_stderr
-    if not Path(args.log).exists():
-        parser.error(f"{args.log}: no such file or directory")
+    problem = no_log_here(Path(args.log))
+    if problem:
+        print(f"error: {args.log}: {problem}", file=sys.stderr)
+        return 2
     from common.logs.mcap_log import NotMcapError
 
     try:
@@ -142,6 +146,24 @@ def main(argv: list[str] | None = None) -> int:
     except NotMcapError as e:  # a video, a random file: say so in one line
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except (FileNotFoundError, PermissionError, IsADirectoryError) as e:
+        print(f"error: {e.filename or args.log}: {e.strerror or e}", file=sys.stderr)
+        return 2
+
+
+def no_log_here(path: Path) -> str | None:
+    """Why there is no log to read at `path` (one line), or None."""
+    if not path.exists():
+        return "no such file or directory"
+    if path.is_dir():
+        if not (path / "session.mcap").is_file():
+            return "a directory without a session.mcap (give a log file or a run directory)"
+        path = path / "session.mcap"
+    if not path.is_file():
+        return "not a regular file"
+    if path.stat().st_size == 0:
+        return "an empty file (0 bytes): nothing was recorded"
+    return None
 
 
 def cli(argv: list[str] | None = None) -> int:

@@ -215,7 +215,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     out = {
         "run": reader.run_config.run if reader.run_config else None,
         "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
-                "truncated_files": status.truncated, "recovery": status.summary(), "by_kind": dict(c.kinds),
+                "truncated_files": status.truncated, "recovery": status.summary(), "lost": status.losses(),
+                "by_kind": dict(c.kinds),
                 "warnings": [str(w.message) for w in caught], "not_from_run": dict(not_from_run)},
         "steps_sent": actor_sent if any(k[0] == "actor" for k in c.by_pid) else None,
         "actor_incarnations_killed": killed_actors,
@@ -312,9 +313,10 @@ def rejected_inputs(by_pid: dict[tuple[str, int], ServiceStatus],
 
 
 def format_summary(s: dict[str, Any]) -> str:
-    lines = [f"run {s['run']}: {s['log']['messages']} messages ({'complete' if s['log']['complete'] else 'INCOMPLETE'})"]
-    if s["log"]["truncated_files"]:
-        lines.append(f"  recovered: {s['log']['recovery']}")
+    lost = s["log"].get("lost", [])
+    state = "DATA LOST" if lost else "complete" if s["log"]["complete"] else "all data read, file summary missing"
+    lines = [f"run {s['run']}: {s['log']['messages']} messages read ({state})"]
+    lines += [f"  lost: {line}" for line in lost]
     lines.append(f"  steps: sent {s['steps_sent']}, logged {s['steps_logged']} "
                  f"(contiguous: {s['steps_seq_contiguous_in_log']}), learned {s['steps_learned']}")
     lines.append(f"  feedback: sent {s['feedback_sent']}, logged {s['feedback_logged']}, "
