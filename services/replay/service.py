@@ -11,7 +11,11 @@ chunk, a damaged chunk is skipped and the reading goes on, each with a warning s
 
 Exit codes of `summary`: 0 every message of the log was read; 1 the log was read but data was lost (cut off
 at the end, damaged chunks skipped, undecodable messages: each named on a `lost:` line); 2 there is no log to
-read (no such file, an empty file, a directory without session.mcap, a file that is not MCAP), in one line.
+read (no such file, an empty file, a directory without session.mcap, a file that is not MCAP), in one line,
+or `--write` cannot finish the run now (its launcher or services still run).
+
+`summary --write` on a run directory whose launcher was killed (summary.json still `{"outcome": "running"}`)
+writes its summary.json and learning_curve.png from the log, outcome `interrupted`, as the launcher would have.
 """
 from __future__ import annotations
 
@@ -31,7 +35,20 @@ def _warn_to_stderr(message, category, filename, lineno, file=None, line=None):
 def cmd_summary(args) -> int:
     from services.replay.summary import format_summary, plot_summary, summarize
 
-    s = summarize(args.log)
+    s = None
+    if args.write:  # a run whose launcher was killed: its summary.json, from the log
+        from services.launcher.rundir import RunDirError
+        from services.launcher.unfinished import finish_from_log
+
+        log = Path(args.log)
+        try:
+            s, line = finish_from_log(log if log.is_dir() else log.parent,
+                                      by="`python -m services.replay RUN_DIR summary --write`")
+        except RunDirError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(line, file=sys.stderr)
+    s = s or summarize(args.log)
     if args.json:
         print(json.dumps(s, indent=2))
     else:
@@ -119,6 +136,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print the whole summary as JSON")
     p.add_argument("--plot", help="learning-curve PNG (default: replay_curve.png beside the log)")
     p.add_argument("--no-plot", action="store_true", help="no plot")
+    p.add_argument("--write", action="store_true",
+                   help="finish a run whose launcher was killed (summary.json still 'running'): write its "
+                        "summary.json and learning_curve.png from the log, outcome 'interrupted'")
     p = sub.add_parser("play", help="re-publish over Zenoh")
     p.add_argument("--connect", help="router endpoint(s) to publish through (default: run an embedded router)")
     p.add_argument("--port", type=int, default=0, help="embedded router port (0 = a free one)")
