@@ -206,12 +206,10 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     steps_not_ingested = sum(1 for inc, seqs in step_seqs.items() for q in seqs if (inc, q) not in learned_keys)
 
     def counter(service: str, name: str) -> int | None:
-        st = c.statuses.get(service)
-        return None if st is None or name not in st.counters else int(st.counters[name])
+        return status_counter(c, service, name)
 
     actor_sent, killed_actors = actor_steps_sent(c.by_pid, step_seqs)
-    teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
-    sent = [counter(s, "feedback_published") for s in teacher_services]  # kept across restarts (state file)
+    sent, steps_learned, stale = counts_sent_and_learned(c, lr, feedback)
     out = {
         "run": reader.run_config.run if reader.run_config else None,
         "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
@@ -223,7 +221,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "steps_logged": sum(len(v) for v in step_seqs.values()),
         "steps_seq_contiguous_in_log": all(_contiguous(v) for v in step_seqs.values()),
         "actor_incarnations": len(step_seqs),
-        "steps_learned": counter("learner", "steps_learned"),
+        "steps_learned": steps_learned,
         "steps_lost_at_learner": counter("learner", "steps_lost"),
         "learner_step_entries": dict(lr.step_entries),
         "learner_chain": lr.chain,
@@ -250,12 +248,37 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
                                 for r in ep_rows if r["unfinished"]],
         "services": {name: {"state": st.state, "counters": dict(st.counters)}
                      for name, st in sorted(c.statuses.items())},
+        "services_not_stopped": stale,  # their counters are from an earlier status (see steps_learned)
     }
     if c.reactions:  # face-video: what the perception path did to the observer's reactions
         from services.teacher.face_metrics import face_metrics
 
         out["face"] = face_metrics(c.reactions, c.feedback_msgs)
     return out
+
+
+def status_counter(c: LogContents, service: str, name: str) -> int | None:
+    """A counter of the service's latest status (None without one)."""
+    st = c.statuses.get(service)
+    return None if st is None or name not in st.counters else int(st.counters[name])
+
+
+def counts_sent_and_learned(c: LogContents, lr: LearnerRecord,
+                            feedback: dict[str, list[int]]) -> tuple[list[int | None], int | None, list[str]]:
+    """Feedback sent per teacher service, steps learned, and the services whose latest status is not 'stopped'.
+
+    Counters come from each service's latest status (kept across restarts: state files, checkpoints). A service
+    that never reported 'stopped' (killed, or its launcher was, and with it the router its final status needed)
+    did more than its last status says: what the log shows it did is then the better lower bound."""
+    stale = sorted(name for name, st in c.statuses.items() if st.state != "stopped")
+    teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
+    sent = [status_counter(c, svc, "feedback_published") for svc in teacher_services]
+    sent = [x if svc not in stale else max(x or 0, len(feedback.get(teacher_id_of(svc), [])))
+            for svc, x in zip(teacher_services, sent)]
+    steps_learned = status_counter(c, "learner", "steps_learned")
+    if "learner" in stale:
+        steps_learned = max(steps_learned or 0, lr.step_entries.get("learned", 0))
+    return sent, steps_learned, stale
 
 
 def effective_ingest(ingest: dict[str, list[Ingest]]) -> tuple[list, list[str], int]:
