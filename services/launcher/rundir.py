@@ -15,6 +15,7 @@ from typing import Any
 SUBDIRS = ("config", "logs", "stats", "state")
 SUMMARY_RESERVE = 64 * 1024  # bytes summary.json holds from the start, so a full disk can still say why
 LOCK_FILE = ".lock"
+RUNNING = json.dumps({"outcome": "running"})  # summary.json until the launcher writes the real one
 
 
 class RunDirError(Exception):
@@ -93,8 +94,7 @@ class RunDir:
 
     def reserve_summary(self) -> None:
         """Write summary.json now, padded: its blocks are ours, so the final summary fits even on a full disk."""
-        text = json.dumps({"outcome": "running"})
-        (self.path / "summary.json").write_text(text + " " * (SUMMARY_RESERVE - len(text)))
+        (self.path / "summary.json").write_text(RUNNING + " " * (SUMMARY_RESERVE - len(RUNNING)))
 
     def write_summary(self, summary: dict[str, Any]) -> None:
         """The final summary.json: whole if the disk allows, else the essentials in the reserved space."""

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from services.launcher.report import write_summary_from_log
-from services.launcher.rundir import RunDir, RunDirError
+from services.launcher.rundir import RUNNING, RunDir, RunDirError
 
 KILLED_NOTE = ("the launcher ended without writing this summary (killed?); the counts were recomputed from the log "
                "by {by}; exit codes, restarts and wall time are unknown")
@@ -25,6 +25,15 @@ def summary_state(path: Path) -> str | None:
         return None
     except (OSError, ValueError, AttributeError):
         return "unreadable"
+
+
+def left_running(path: Path) -> bool:
+    """summary.json is still the launcher's first one (read without parsing a large final summary)."""
+    try:
+        with open(path / "summary.json", "rb") as f:
+            return f.read(len(RUNNING)) == RUNNING.encode()
+    except OSError:
+        return False
 
 
 def services_running(path: Path) -> list[int]:
@@ -54,6 +63,8 @@ def finish_from_log(path: str | os.PathLike, by: str) -> tuple[dict[str, Any] | 
     user); RunDirError when it cannot be done now (a launcher or its services still run it)."""
     path = Path(path)
     state = summary_state(path)
+    if state is None:
+        return None, f"{path}: no summary.json (not a run of `services up`): nothing written"
     if state not in ("running", "unreadable"):
         return None, f"{path}/summary.json is final already (outcome {state}): left as it is"
     rundir = RunDir(path.parent, path.name)
@@ -90,7 +101,7 @@ def finish_unfinished_runs(out: str | os.PathLike) -> None:
     out = Path(out)
     if not out.is_dir():
         return
-    for path in sorted(p for p in out.iterdir() if p.is_dir() and summary_state(p) == "running"):
+    for path in sorted(p for p in out.iterdir() if p.is_dir() and left_running(p)):
         try:
             written, line = finish_from_log(path, by="the next `services up` in its --out")
         except (RunDirError, OSError):

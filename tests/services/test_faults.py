@@ -3,6 +3,7 @@ must not reach a model (property-based), the resend ring is bounded, state files
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 
@@ -15,7 +16,7 @@ from common.protocol import Feedback, ServiceStatus, Step
 from services.common.config import LearnerConfig
 from services.common.gate import GATE_REASONS, InputGate
 from services.common.resend import ResendRing
-from services.common.statefiles import atomic_write_json, read_json
+from services.common.statefiles import atomic_write, atomic_write_json, read_json
 from services.common.progress import ProgressFile
 from services.learner import checkpoint
 from services.learner.core import LearnerCore
@@ -141,7 +142,6 @@ def test_gate_rejects_wrong_shapes_actions_times_teachers_and_seq_jumps():
 
 
 def test_gate_state_round_trips_through_json():
-    import json
 
     g = gate()
     g.admit_step(step(0), NOW)
@@ -211,8 +211,6 @@ def test_gate_seq_window_is_bounded_and_survives_a_restart():
     """Jumps may leave at most `feedback_window` seqs outstanding (a forger cannot walk the window away from the
     real teacher); the outstanding ones round-trip through the learner's checkpoint; a teacher restarted with
     its state file continues its seq, a new incarnation (a new teacher id) starts at 0."""
-    import json
-
     g = gate(max_feedback_jump=100, feedback_window=250)
     assert g.admit_feedback(fb(0, NOW), NOW) is None
     assert [g.admit_feedback(fb(s, NOW), NOW) for s in (100, 200, 300)] == [None, None, "bad_seq"]
@@ -258,6 +256,32 @@ def test_atomic_json_state_file(tmp_path):
     atomic_write_json(p, {"episodes_done": 4})
     assert read_json(p) == {"episodes_done": 4}
     assert sorted(os.listdir(p.parent)) == ["actor.json"]
+
+
+def test_a_failed_state_file_write_leaves_no_temporary_file(tmp_path):
+    """A write that fails after its temporary file was made (a full disk; here a directory in the way of the
+    rename) leaves no temporary file behind (issue 25: 0-byte stats/*.json.tmp were left)."""
+    (tmp_path / "stats").mkdir()
+    with pytest.raises(OSError):
+        atomic_write(tmp_path / "stats", b'{"counters": {}}')
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["stats"]
+
+
+def test_summary_that_must_fit_its_reserve_keeps_every_count():
+    """summary.json on a full disk: the bulky lists are left out first, every count and the outcome stay."""
+    from services.launcher.rundir import SUMMARY_RESERVE, fit_reserve
+
+    counts = {"run": "r", "outcome": "disk_full", "error": "disk full", "steps_sent": 123456, "steps_logged": 123450,
+              "steps_learned": 123400, "feedback_sent": 999, "feedback_credited": 990,
+              "feedback_rejected": {"stale": 9}, "rejected_inputs": {"learner": {"bad_seq": 1}}}
+    big = {**counts, "episodes": [{"actor": "actor-1", "episode": i, "return": 0.5, "steps": 20} for i in range(5000)],
+           "returns": [0.5] * 5000}
+    text = fit_reserve(big)
+    s = json.loads(text)
+    assert len(text.encode()) <= SUMMARY_RESERVE
+    assert {k: s[k] for k in counts} == counts and "episodes" in s["left_out"] and "episodes" not in s
+    small = fit_reserve(counts)
+    assert json.loads(small) == counts  # nothing left out when it fits
 
 
 def test_progress_file_rewritten_in_place(tmp_path):
