@@ -270,7 +270,7 @@ def counts_sent_and_learned(c: LogContents, lr: LearnerRecord,
     Counters come from each service's latest status (kept across restarts: state files, checkpoints). A service
     that never reported 'stopped' (killed, or its launcher was, and with it the router its final status needed)
     did more than its last status says: what the log shows it did is then the better lower bound."""
-    stale = sorted(name for name, st in c.statuses.items() if st.state != "stopped")
+    stale = sorted(name for name, st in c.statuses.items() if st.state != "stopped" and name != "launcher")
     teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
     sent = [status_counter(c, svc, "feedback_published") for svc in teacher_services]
     sent = [x if svc not in stale else max(x or 0, len(feedback.get(teacher_id_of(svc), [])))

@@ -44,6 +44,7 @@ def steps_in_log(path):
 def test_no_step_lost_and_every_feedback_accounted_for(live_run):
     s = live_run.summary()
     assert s["outcome"] == "ok" and set(s["exit_codes"].values()) == {0}
+    assert s["services_not_stopped"] == []  # every service said its last word: its counts are final
     n = s["steps_sent"]
     assert n > 0 and s["steps_logged"] == n and s["steps_learned"] == n
     assert s["steps_seq_contiguous_in_log"] and s["actor_incarnations"] == 1

@@ -41,6 +41,7 @@ def assert_finished_from_log(rundir) -> dict:
     assert s["run"] == rundir.name and s["endpoint"].startswith("tcp/")
     # Without its router no service could publish a final status: the counts come from what the log shows.
     assert {"actor", "learner", "teacher.oracle"} <= set(s["services_not_stopped"]), s["services_not_stopped"]
+    assert "launcher" not in s["services_not_stopped"]  # (it never says 'stopped': not a service of the run)
     n = s["steps_sent"]
     assert n > 100 and s["steps_logged"] == n and s["steps_seq_contiguous_in_log"], s
     assert s["steps_learned"] == s["learner_step_entries"]["learned"] > 0, s
