@@ -26,6 +26,8 @@ GATE_REASONS: dict[str, str] = {
 DEDUP_REASON = "duplicate"  # already consumed (a re-sent input): dropped silently, counted apart
 
 MAX_ANNOUNCED = 64  # incarnations / teachers remembered from statuses (bounded: statuses may be forged)
+MAX_FEEDBACK_JUMP = 1024  # a teacher's feedback seq at most this far beyond its newest admitted one
+FEEDBACK_WINDOW = 4096  # skipped feedback seqs a teacher may have outstanding (awaited: they may come late)
 
 
 class InputGate:
@@ -38,8 +40,8 @@ class InputGate:
     """
 
     def __init__(self, obs_dim: int, n_actions: int, *, teachers: Iterable[str] = (), max_future: float = 10.0,
-                 max_past: float = 600.0, max_seq_jump: int = 4096, max_feedback_jump: int = 1024,
-                 feedback_window: int = 4096):
+                 max_past: float = 600.0, max_seq_jump: int = 4096, max_feedback_jump: int = MAX_FEEDBACK_JUMP,
+                 feedback_window: int = FEEDBACK_WINDOW):
         self.obs_dim, self.n_actions = int(obs_dim), int(n_actions)
         self.max_future, self.max_past, self.max_seq_jump = float(max_future), float(max_past), int(max_seq_jump)
         self.max_feedback_jump, self.feedback_window = int(max_feedback_jump), int(feedback_window)

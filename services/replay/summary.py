@@ -63,8 +63,11 @@ def drop_not_from_run(c: LogContents) -> collections.Counter:
 
     Forged or garbage messages: the recorder keeps whatever decodes. Left out are steps of actor
     incarnations no actor status announced, weights of learner incarnations no learner status announced, and
-    feedback of teachers without a status or with a seq far beyond the teacher's count.
+    feedback of teachers without a status or with a seq beyond the teacher's final count by more than the
+    learner's gate admits (`MAX_FEEDBACK_JUMP`: a forged jump, refused there as `bad_seq`).
     """
+    from services.common.gate import MAX_FEEDBACK_JUMP
+
     actor_incs = {st.incarnation for (svc, _), st in c.by_pid.items() if svc == "actor" and st.incarnation}
     not_from_run = collections.Counter()
     if actor_incs:
@@ -81,7 +84,8 @@ def drop_not_from_run(c: LogContents) -> collections.Counter:
             teacher_count[tid] = max(teacher_count.get(tid, 0), int(st.counters.get("feedback_published", 0)))
     kept = []
     for m in c.feedback_msgs:
-        if teacher_count and (m.teacher_id not in teacher_count or m.seq > teacher_count[m.teacher_id] + 4096):
+        if teacher_count and (m.teacher_id not in teacher_count
+                              or m.seq > teacher_count[m.teacher_id] + MAX_FEEDBACK_JUMP):
             not_from_run["feedback"] += 1
             continue
         kept.append(m)

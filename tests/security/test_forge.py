@@ -225,6 +225,9 @@ def test_forge_sequence_jumps_silence_no_real_sender(runs):
     assert learner.get("duplicates_feedback", 0) == counters(calm.rundir, "learner").get("duplicates_feedback", 0)
     # the jump signed with the teacher's stolen credential: authentic once (the copies are replays), refused
     assert learner["rejected_bad_seq"] == 1 and learner["auth_replayed_feedback"] >= sent["stolen_teacher_seq_jump"] - 1
+    s = attacked.summary()  # recorded (it is authentic), but not counted as the teacher's: not from the run
+    assert s["feedback_logged"] == s["feedback_sent"] and s["log"]["not_from_run"].get("feedback") == 1, s["log"]
+    assert "unresolved" not in s["feedback_rejected"], s["feedback_rejected"]
 
 
 def test_forge_fake_incarnation_retires_no_real_actor(runs):
