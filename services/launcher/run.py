@@ -15,6 +15,7 @@ from services.launcher.config import Launch, UpConfig, build_processes
 from services.launcher.report import Progress, finish
 from services.launcher.rundir import RunDir, RunDirError, default_run_name, describe, is_disk_full
 from services.launcher.supervise import Supervisor
+from services.launcher.unfinished import finish_unfinished_runs
 
 DISK_CHECK_PERIOD = 1.0  # s between free-space checks
 DISK_FULL_TEXT = "No space left on device"
@@ -216,6 +217,7 @@ def up(cfg: UpConfig) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    finish_unfinished_runs(cfg.out)  # runs in this --out whose launcher was killed get their summary.json
     try:
         run, rundir, launch, procs, router_cfg = prepare(cfg)
     except RunDirError as exc:
