@@ -6,11 +6,18 @@
             equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)
   size      bytes per 1,000 steps, and per topic
 
-A file that is not MCAP (a video, random bytes) gets a one-line error and exit code 2.
+LOG may be a run directory (its session.mcap). A log cut short by a crash is read up to its last complete
+chunk, a damaged chunk is skipped and the reading goes on, each with a warning saying what was lost.
 
-A log cut short by a crash is read up to its last complete chunk, with a warning saying how much was
-recovered. LOG may be a run directory (its session.mcap); it may also come before the command
-(`python -m services.replay LOG summary`).
+Exit codes of `summary`: 0 every message of the log was read; 1 the log was read but data was lost (cut off
+at the end, damaged chunks skipped, undecodable messages: each named on a `lost:` line); 2 there is no log to
+read (no such file, an empty file, a directory without session.mcap, a file that is not MCAP), in one line,
+or `--write` cannot finish the run now (its launcher or services still run).
+
+`summary --write` on a run directory whose launcher was killed (summary.json still `{"outcome": "running"}`)
+writes its summary.json and learning_curve.png from the log, outcome `interrupted`, as the launcher would have.
+
+LOG may also come before the command (`python -m services.replay LOG summary`).
 """
 from __future__ import annotations
 
@@ -22,16 +29,12 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-from common.config import Command, fail, option
+from common.config import Command, option
 
 
 @dataclass(frozen=True)
 class LogConfig:
     log: str = option("", "session.mcap (or a run directory); later segments are read too", positional=True)
-
-    def __post_init__(self):
-        if not Path(self.log).exists():
-            raise ValueError(f"{self.log}: no such file or directory")
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,8 @@ class SummaryConfig(LogConfig):
     json: bool = option(False, "print the whole summary as JSON")
     plot: str | None = option(None, "learning-curve PNG (default: replay_curve.png beside the log)")
     no_plot: bool = option(False, "no plot")
+    write: bool = option(False, "finish a run whose launcher was killed (summary.json still 'running'): write its "
+                                "summary.json and learning_curve.png from the log, outcome 'interrupted'")
 
 
 @dataclass(frozen=True)
@@ -79,7 +84,20 @@ def _warn_to_stderr(message, category, filename, lineno, file=None, line=None):
 def cmd_summary(args) -> int:
     from services.replay.summary import format_summary, plot_summary, summarize
 
-    s = summarize(args.log)
+    s = None
+    if args.write:  # a run whose launcher was killed: its summary.json, from the log
+        from services.launcher.rundir import RunDirError
+        from services.launcher.unfinished import finish_from_log
+
+        log = Path(args.log)
+        try:
+            s, line = finish_from_log(log if log.is_dir() else log.parent,
+                                      by="`python -m services.replay summary RUN_DIR --write`")
+        except RunDirError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(line, file=sys.stderr)
+    s = s or summarize(args.log)
     if args.json:
         print(json.dumps(s, indent=2))
     else:
@@ -89,7 +107,7 @@ def cmd_summary(args) -> int:
         plot = Path(args.plot) if args.plot else (log if log.is_dir() else log.parent) / "replay_curve.png"
         plot_summary(s, plot)
         print(f"plot: {plot}", file=sys.stderr)
-    return 0
+    return 1 if s["log"]["lost"] else 0
 
 
 def cmd_play(args) -> int:
@@ -158,16 +176,38 @@ def cmd_size(args) -> int:
     return 0
 
 
+def no_log_here(path: Path) -> str | None:
+    """Why there is no log to read at `path` (one line), or None."""
+    if not path.exists():
+        return "no such file or directory"
+    if path.is_dir():
+        if not (path / "session.mcap").is_file():
+            return "a directory without a session.mcap (give a log file or a run directory)"
+        path = path / "session.mcap"
+    if not path.is_file():
+        return "not a regular file"
+    if path.stat().st_size == 0:
+        return "an empty file (0 bytes): nothing was recorded"
+    return None
+
+
 def _guarded(run):
-    """A file that is not MCAP (a video, a random file): one line, exit 2."""
+    """No log to read, or a file that is not MCAP (a video, a random file): one line, exit 2."""
     def guarded(args) -> int:
         from common.logs.mcap_log import NotMcapError
 
         warnings.showwarning = _warn_to_stderr
+        problem = no_log_here(Path(args.log))
+        if problem:
+            print(f"error: {args.log}: {problem}", file=sys.stderr)
+            return 2
         try:
             return run(args)
         except NotMcapError as e:
-            fail(str(e))
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        except (FileNotFoundError, PermissionError, IsADirectoryError) as e:
+            print(f"error: {e.filename or args.log}: {e.strerror or e}", file=sys.stderr)
             return 2
     return guarded
 
