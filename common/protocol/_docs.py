@@ -41,6 +41,10 @@ def markdown() -> str:
       "dataclass whose fields carry their validation rules; the JSON Schemas (draft 2020-12), the validating "
       "decoders, the MCAP schemas and this page all derive from it.")
     w("")
+    w("Read a message type's JSON Schema with `python -m services protocol --schema Step`; watch a run's messages "
+      "from any Zenoh client by subscribing to `hitl/<run>/**` with a credential of the run (docs/security.md), or "
+      "open its `session.mcap` (docs/logs.md). This page is the reference for writing such a client.")
+    w("")
     _conventions(w)
     _decode_errors(w)
     _key_expressions(w)
