@@ -66,13 +66,15 @@ def finish(cfg: UpConfig, run: str, rundir: RunDir, endpoint: str, children: lis
                                                 for c in (everyone or children)]}
     if error:
         summary["error"] = error
+    figure = ""
     if log.exists():
         try:
             summary.update(summarize(log))
             summary["outcome"] = outcome
             summary["restarts"] = restarts or []
-            plot_summary(summary, rundir.path / "learning_curve.png",
-                         f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})")
+            if plot_summary(summary, rundir.path / "learning_curve.png",
+                            f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})"):
+                figure = ", learning_curve.png"
         except Exception as exc:  # a damaged log (or a full disk) still gets a summary.json saying so
             summary["summary_error"] = f"{type(exc).__name__}: {exc}"
     summary["latency_ms"] = latency_table(read_stats(rundir))
@@ -84,8 +86,7 @@ def finish(cfg: UpConfig, run: str, rundir: RunDir, endpoint: str, children: lis
         print(format_summary(summary), file=sys.stderr)
     if error:
         print(f"error: {error}", file=sys.stderr)
-    print(f"wrote {rundir.path}/session.mcap, summary.json, learning_curve.png ({outcome}, {wall:.1f} s)",
-          file=sys.stderr)
+    print(f"wrote {rundir.path}/session.mcap, summary.json{figure} ({outcome}, {wall:.1f} s)", file=sys.stderr)
     return EXIT_CODES.get(outcome, 1)
 
 

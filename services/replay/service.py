@@ -37,8 +37,8 @@ def cmd_summary(args) -> int:
     if not args.no_plot and s["returns"]:
         log = Path(args.log)
         plot = Path(args.plot) if args.plot else (log if log.is_dir() else log.parent) / "replay_curve.png"
-        plot_summary(s, plot)
-        print(f"plot: {plot}", file=sys.stderr)
+        if plot_summary(s, plot):
+            print(f"plot: {plot}", file=sys.stderr)
     return 0
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import collections
 import os
+import sys
 import warnings
 from dataclasses import dataclass, field
 from typing import Any
@@ -344,10 +345,18 @@ def format_summary(s: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> None:
+def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> bool:
+    """Draw the learning curve into `path`; without matplotlib (the `experiments` extra), say so in one line on
+    stderr and return False."""
     import numpy as np
 
-    from common.logs.plots import plot_curves
+    try:
+        from common.logs.plots import plot_curves
+    except ImportError as exc:
+        print(f"no {os.path.basename(path)}: {exc.name} is not installed (pip install 'hitl-tamer[experiments]')",
+              file=sys.stderr)
+        return False
 
     rets = np.asarray(s["returns"], dtype=float)
     plot_curves({"live": rets}, str(path), title or f"live run {s['run']}: return per episode")
+    return True
