@@ -156,7 +156,7 @@ class FitJob:
     weights [n, N] (weights None for an unweighted loss). x1, optional: x with a column of ones appended, which
     the numpy MLP uses instead of making it (replay stores it); other networks ignore it."""
 
-    net: "ValueNetworks"
+    net: ValueNetworks
     rows: np.ndarray
     x: np.ndarray
     actions: np.ndarray
@@ -179,7 +179,7 @@ class ValueNetworks(Protocol):
     def fit(self, job: FitJob) -> None:
         """One gradient step of its optimiser on `job`."""
 
-    def sync_from(self, other: "ValueNetworks", rows: np.ndarray) -> None:
+    def sync_from(self, other: ValueNetworks, rows: np.ndarray) -> None:
         """Copy other's weights into rows `rows` (a target network's sync)."""
 
     def select(self, rows: np.ndarray) -> None: ...
@@ -253,7 +253,7 @@ class StackedMLP:
     def fit(self, job: FitJob) -> None:
         fit_together([job])
 
-    def sync_from(self, other: "StackedMLP", rows: np.ndarray) -> None:
+    def sync_from(self, other: StackedMLP, rows: np.ndarray) -> None:
         self.flat[rows] = other.flat[rows]
 
     def select(self, idx: np.ndarray) -> None:

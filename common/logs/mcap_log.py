@@ -221,7 +221,7 @@ class LogWriter:
 
     close = finish
 
-    def __enter__(self) -> "LogWriter":
+    def __enter__(self) -> LogWriter:
         return self
 
     def __exit__(self, *exc: Any) -> None:

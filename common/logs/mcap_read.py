@@ -18,7 +18,8 @@ import dataclasses
 import os
 import warnings
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
+from collections.abc import Iterable, Iterator
 
 from mcap.records import Channel, Message as McapMessage, Metadata, Schema
 

@@ -102,7 +102,7 @@ class SceneBuilder:
                          for row in (b"".join(r) for r in t._env.desc)]
 
     @classmethod
-    def from_run_config(cls, config: dict) -> "SceneBuilder | None":
+    def from_run_config(cls, config: dict) -> SceneBuilder | None:
         """From a run config (the launcher's `run.json`, a service's config, or the learner's Ingest config):
         the first `env` found (with its `layout`); None when there is none, no scene for it, or no foxglove-sdk."""
         if fm is None:
@@ -262,7 +262,7 @@ class SceneBuilder:
         return walls
 
 
-def derived_records(run: str, message: Any, scene: "SceneBuilder | None") -> list[tuple[str, bytes]]:
+def derived_records(run: str, message: Any, scene: SceneBuilder | None) -> list[tuple[str, bytes]]:
     """(key, bytes) a log or a live viewer adds for one decoded message of `run`: the Credits an Ingest carries,
     each as if it had come alone on its own key, and the scene drawn from the message and from those Credits."""
     from common.protocol import carried

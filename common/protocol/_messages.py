@@ -285,7 +285,7 @@ class Time:
     nsec: int
 
     @classmethod
-    def from_seconds(cls, t: float) -> "Time":
+    def from_seconds(cls, t: float) -> Time:
         ns = int(round(t * 1e9))
         return cls(ns // 1_000_000_000, ns % 1_000_000_000)
 
@@ -374,7 +374,7 @@ class RunConfig(Message):
     config: dict = fld(AnyJSON(object_only=True, description="The run's configuration (free-form JSON object)."))
 
     @classmethod
-    def create(cls, run: str, config: dict[str, Any], t_created: float | None = None) -> "RunConfig":
+    def create(cls, run: str, config: dict[str, Any], t_created: float | None = None) -> RunConfig:
         import time
 
         return cls(run=run, t_created=time.time() if t_created is None else t_created,

@@ -24,7 +24,6 @@ authenticated restart), never an older one. No zenoh import: the pure core may u
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import hmac
 import json
 import os
@@ -33,7 +32,8 @@ import struct
 import threading
 import time
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 from common.protocol import (SERVICE_ROLES, kind_of, may_publish, observer_service_name, sender_of, split_identity,
                              teacher_service_name)
@@ -93,7 +93,7 @@ class Credential:
         return out
 
     @classmethod
-    def from_json(cls, obj: Any, where: str = "credential") -> "Credential":
+    def from_json(cls, obj: Any, where: str = "credential") -> Credential:
         try:
             secret = bytes.fromhex(obj["secret"]) if "secret" in obj else None
             cred = cls(identity=str(obj["identity"]), run=str(obj["run"]), key=bytes.fromhex(obj["key"]),

@@ -21,16 +21,15 @@ stops on SIGTERM/SIGINT).
 from __future__ import annotations
 
 import argparse
-import collections
 import contextlib
-import dataclasses
 import json
 import signal
 import socket
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
 import zenoh
 
@@ -186,7 +185,7 @@ class MessagePublisher:
         with contextlib.suppress(Exception):
             self.publisher.undeclare()
 
-    def __enter__(self) -> "MessagePublisher":
+    def __enter__(self) -> MessagePublisher:
         return self
 
     def __exit__(self, *exc: Any) -> None:

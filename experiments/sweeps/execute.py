@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Hashable, Iterable
+from collections.abc import Callable, Hashable, Iterable
 
 from experiments.trialcache import Task, make_jobs, read_cached, result_record, trial_key, write_json_atomic
 from experiments.runner import TrialSpec, run_trials

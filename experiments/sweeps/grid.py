@@ -137,7 +137,7 @@ def split_top(text: str) -> list[str]:
     """Split at commas that are not inside brackets: 'a,[1,0],b' -> ['a', '[1,0]', 'b']."""
     parts, depth, cur = [], 0, ""
     for ch in text:
-        depth += ch in "[(" 
+        depth += ch in "[("
         depth -= ch in "])"
         if ch == "," and depth == 0:
             parts.append(cur)

@@ -15,7 +15,8 @@ import threading
 import time
 import uuid
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
 from common.protocol import (ServiceStatus, alive_key, incarnation_alive_key, status_key, teacher_id_of,
                              validate_name)
@@ -257,7 +258,7 @@ class ServiceRuntime:
         tmp.replace(path)
 
 
-_CURRENT: list["ServiceRuntime | None"] = [None]  # this process's runtime (its final state sets the exit code)
+_CURRENT: list[ServiceRuntime | None] = [None]  # this process's runtime (its final state sets the exit code)
 
 
 def load_auth(name: str, config: Any, incarnation: str, process_default: bool = True) -> Any:

@@ -194,11 +194,11 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     fields = lambda cfg: {f.name for f in dataclasses.fields(cfg)}  # noqa: E731
     for i, p in enumerate(procs):
         extra = {}
-        if "security" in fields(p.config) and getattr(p.config, "security") is None and c.security:
+        if "security" in fields(p.config) and p.config.security is None and c.security:
             extra["security"] = c.security
-        if "credentials" in fields(p.config) and getattr(p.config, "credentials") is None:
+        if "credentials" in fields(p.config) and p.config.credentials is None:
             extra["credentials"] = launch.credentials_path(p.name)
-        if "state_file" in fields(p.config) and getattr(p.config, "state_file") is None:
+        if "state_file" in fields(p.config) and p.config.state_file is None:
             extra["state_file"] = launch.state_path(p.name)
         if extra:
             procs[i] = dataclasses.replace(p, config=dataclasses.replace(p.config, **extra))

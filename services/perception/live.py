@@ -24,7 +24,8 @@ from __future__ import annotations
 import os
 import sys
 import time
-from typing import Any, Iterator
+from typing import Any
+from collections.abc import Iterator
 
 import cv2
 import numpy as np

@@ -109,7 +109,7 @@ class ClipLibrary:
     size: tuple[int, int]
 
     @classmethod
-    def load(cls, width: int = 320, quality: int = 80) -> "ClipLibrary":
+    def load(cls, width: int = 320, quality: int = 80) -> ClipLibrary:
         import cv2
 
         from common.perception import assets
