@@ -119,7 +119,8 @@ def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: 
     slope = h * h
     np.subtract(np.float32(1), slope, out=slope)                     # tanh' = 1 - tanh^2
     d_pre *= slope
-    g1 = (with_ones(x) if x1 is None else x1).transpose(0, 2, 1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
+    g1 = (with_ones(x) if x1 is None else x1).transpose(0, 2,
+                                                        1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
     return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1)
 
 

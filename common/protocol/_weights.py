@@ -150,7 +150,8 @@ class Weights:
         for name, info in header.items():
             _check_tensor_name(name)
             if not isinstance(info, dict) or info.get("dtype") != "F32":
-                raise ProtocolError("bad_shape", f"{name}: dtype {info.get('dtype') if isinstance(info, dict) else info!r}, expected F32")
+                dtype = info.get("dtype") if isinstance(info, dict) else info
+                raise ProtocolError("bad_shape", f"{name}: dtype {dtype!r}, expected F32")
             shape = info.get("shape")
             if not isinstance(shape, list) or len(shape) > MAX_NDIM:
                 raise ProtocolError("bad_shape", f"{name}: bad shape {shape!r}")
@@ -180,7 +181,8 @@ class Weights:
 
     def same_as(self, other: Weights) -> bool:
         return (self.run, self.incarnation, self.version, self.t_published) == (
-            other.run, other.incarnation, other.version, other.t_published) and self.tensors.keys() == other.tensors.keys() and all(
+            other.run, other.incarnation, other.version,
+            other.t_published) and self.tensors.keys() == other.tensors.keys() and all(
             np.array_equal(np.asarray(self.tensors[k]), np.asarray(other.tensors[k])) for k in self.tensors)
 
     @classmethod

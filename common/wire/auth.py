@@ -345,7 +345,8 @@ def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
     w = Weights(run=run, incarnation="learner-1-abcdef01", version=12345, t_published=time.time(), tensors=tensors)
     out = []
     for name, key, payload, sender, count in (("Step", step_key(run), step.encode(), "actor", n),
-                                              ("Feedback", feedback_key(run, "oracle"), fb.encode(), "teacher.oracle", n),
+                                              ("Feedback", feedback_key(run, "oracle"), fb.encode(),
+                                               "teacher.oracle", n),
                                               ("Weights", weights_key(run), w.encode(), "learner", max(1, n // 20))):
         sign_s, check_s, bad = [], [], 0
         for _ in range(repeats):  # the best of several rounds: other processes only ever add time

@@ -176,7 +176,7 @@ def run_local(jobs: list[list], workers: int, on_message: Emit) -> list[dict]:
             except queue.Empty:
                 dead = [p for p in procs if not p.is_alive() and p.exitcode not in (0, None)]
                 if dead:
-                    raise RuntimeError(f"a worker died (exit code {dead[0].exitcode})")
+                    raise RuntimeError(f"a worker died (exit code {dead[0].exitcode})") from None
                 continue
             if msg[0] == "error":
                 raise RuntimeError(msg[1])

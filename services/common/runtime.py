@@ -250,7 +250,8 @@ class ServiceRuntime:
             return
         data = {"service": self.name, "incarnation": self.incarnation, "pid": os.getpid(),
                 "cpu_s": round(time.process_time(), 3),
-                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3), "counters": self.all_counters(), "samples": {k: list(v) for k, v in self.samples.items()},
+                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3),
+                "counters": self.all_counters(), "samples": {k: list(v) for k, v in self.samples.items()},
                 **extra}
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(f"{path}.tmp")

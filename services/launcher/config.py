@@ -172,7 +172,8 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             screen_credit=c.screen_credit, idle_updates=c.idle_updates)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
-                        episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
+                        episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate,
+                        max_ahead=c.max_ahead, wait_for=tuple(others),
                         start_paused=c.start_paused,
                         start_timeout=c.start_timeout, max_lag=c.max_lag, render_frames=c.render_frames,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights

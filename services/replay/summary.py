@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from common.logs.mcap_log import LogRecoveryWarning, read_log
-from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
+from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus,
+                             Step, Weights,
                              WeightsSnapshot)
 
 
@@ -24,13 +25,16 @@ def _contiguous(seqs: list[int]) -> bool:
 class LogContents:
     """The messages of a session log that the summary reads, sorted by kind."""
 
-    steps: dict[str, list[Step]] = field(default_factory=lambda: collections.defaultdict(list))  # by actor incarnation, in log order
+    # by actor incarnation, in log order
+    steps: dict[str, list[Step]] = field(default_factory=lambda: collections.defaultdict(list))
     feedback_msgs: list[Feedback] = field(default_factory=list)
-    reactions: list[ObserverReaction] = field(default_factory=list)  # a video-backed observer's diagnostics (face-video teacher)
+    # a video-backed observer's diagnostics (face-video teacher)
+    reactions: list[ObserverReaction] = field(default_factory=list)
     ingest: dict[str, list[Ingest]] = field(default_factory=lambda: collections.defaultdict(list))
     episodes: list[EpisodeSummary] = field(default_factory=list)
     statuses: dict[str, ServiceStatus] = field(default_factory=dict)  # the latest of each service
-    by_pid: dict[tuple[str, int], ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
+    by_pid: dict[tuple[str, int],
+                 ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
     weights: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(list))
     kinds: collections.Counter = field(default_factory=collections.Counter)
 
@@ -313,7 +317,8 @@ def rejected_inputs(by_pid: dict[tuple[str, int], ServiceStatus],
 
 
 def format_summary(s: dict[str, Any]) -> str:
-    lines = [f"run {s['run']}: {s['log']['messages']} messages ({'complete' if s['log']['complete'] else 'INCOMPLETE'})"]
+    complete = "complete" if s["log"]["complete"] else "INCOMPLETE"
+    lines = [f"run {s['run']}: {s['log']['messages']} messages ({complete})"]
     if s["log"]["truncated_files"]:
         lines.append(f"  recovered: {s['log']['recovery']}")
     lines.append(f"  steps: sent {s['steps_sent']}, logged {s['steps_logged']} "
