@@ -4,6 +4,7 @@
 not bring: those outside the closure of pyproject's `dependencies` (each dependency's own requirements
 followed, markers evaluated without extras). site/sitecustomize.py turns that list into ImportErrors.
 """
+
 from __future__ import annotations
 
 import tomllib
@@ -26,7 +27,8 @@ def base_requirements() -> list[Requirement]:
 def _applies(req: Requirement, extras: set[str]) -> bool:
     if req.marker is None:
         return True
-    return any(req.marker.evaluate({**default_environment(), "extra": e}) for e in (extras or {""}))
+    env = {key: str(value) for key, value in default_environment().items()}
+    return any(req.marker.evaluate({**env, "extra": e}) for e in (extras or {""}))
 
 
 def base_closure() -> set[str]:

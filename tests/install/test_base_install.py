@@ -6,12 +6,14 @@ they were not installed (base_only.py computes that closure from pyproject.toml 
 fresh venv would test the same within the minute only from a prepared wheel cache, and one with
 --system-site-packages would see everything; this checks the same imports on the real services in ~15 s.
 """
+
 from __future__ import annotations
 
 import json
 import os
 import subprocess
 import sys
+from subprocess import PIPE, STDOUT
 
 import pytest
 
@@ -33,18 +35,21 @@ def base_only_env() -> dict[str, str]:
 def test_optional_dependencies_are_outside_the_base_install_and_blocked():
     blocked = set(blocked_modules())
     assert set(OPTIONAL) <= blocked, f"in the base install: {sorted(set(OPTIONAL) - blocked)}"
-    probe = "import importlib, sys\nfor m in sys.argv[1:]:\n    try:\n        importlib.import_module(m)\n" \
-            "    except ImportError:\n        continue\n    print('imported', m)\nimport numpy, torch, zenoh, mcap"
-    out = subprocess.run([sys.executable, "-c", probe, *OPTIONAL], env=base_only_env(), capture_output=True,
-                         text=True, timeout=60)
+    probe = (
+        "import importlib, sys\nfor m in sys.argv[1:]:\n    try:\n        importlib.import_module(m)\n"
+        "    except ImportError:\n        continue\n    print('imported', m)\nimport numpy, torch, zenoh, mcap"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe, *OPTIONAL], env=base_only_env(), capture_output=True, text=True, timeout=60
+    )
     assert out.returncode == 0 and "imported" not in out.stdout, out.stdout + out.stderr
 
 
 def test_base_install_runs_actor_learner_and_oracle_teacher(tmp_path):
-    cmd = [sys.executable, "-m", "services", "up", "--env", "maze", "--algo", "dqn-tamer", "--teacher", "oracle",
-           "--episodes", "2", "--out", str(tmp_path), "--run", "base", "--progress", "false"]
-    popen = subprocess.Popen(cmd, cwd=ROOT, env=base_only_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                             text=True, start_new_session=True)
+    args = "up --env maze --algo dqn-tamer --teacher oracle --episodes 2 --run base --progress false".split()
+    cmd = [sys.executable, "-m", "services", *args, "--out", str(tmp_path)]
+    env = base_only_env()
+    popen = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=PIPE, stderr=STDOUT, text=True, start_new_session=True)
     try:
         out, _ = popen.communicate(timeout=120)
     finally:

@@ -3,6 +3,7 @@
 It makes the installed distributions outside the base install unimportable, as if only `pip install .` had run:
 BASE_ONLY_BLOCKED names their top-level modules (comma-separated; tests/install/base_only.py computes them).
 """
+
 import os
 import sys
 from importlib.abc import MetaPathFinder
