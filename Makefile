@@ -44,7 +44,8 @@ $(STAMP): pyproject.toml $(LOCK) Makefile
 run: setup
 	@$(PY) -m services up --env maze --algo dqn-tamer --teacher oracle --episodes 50 --out runs/
 
-# The checks a maintainer runs, then the tests (two workers; tests sharing a browser or a port group stay on one).
+# The checks a maintainer runs, then the tests on two workers (tests/conftest.py keeps those that share an expensive
+# fixture on one worker).
 test: setup lint
 	$(PY) -m pytest -q -n 2 --dist loadgroup
 
@@ -54,7 +55,7 @@ lint: setup lock-check
 	$(VENV)/bin/mypy
 
 # Files that `ruff format` already keeps (the whole tree once the lead has formatted it after the merges).
-FORMATTED := tests/install
+FORMATTED := tests/install tests/conftest.py
 
 lock:
 	$(UV) pip compile $(LOCK_ARGS) -o $(LOCK)

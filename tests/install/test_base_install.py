@@ -20,7 +20,7 @@ import pytest
 from tests.install.base_only import ROOT, SITE, blocked_modules
 from tests.services.live import kill_tree
 
-pytestmark = [pytest.mark.live, pytest.mark.xdist_group("live")]
+pytestmark = pytest.mark.live
 # The heavy optional dependencies the issue names, and the extras' own modules: none may be in the base install.
 OPTIONAL = ("cv2", "onnx", "onnxruntime", "h5py", "matplotlib", "pyarrow", "foxglove", "aiohttp", "ray", "pytest")
 
