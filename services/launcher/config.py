@@ -17,7 +17,7 @@ from common.core.observer import ObserverConfig
 from common.core.task import Task
 from common.protocol import teacher_id_of
 from services.common.config import ActorConfig, FoxgloveConfig, LearnerConfig, RecorderConfig
-from services.teacher.registry import TEACHERS, ProcessSpec
+from services.teacher.registry import TEACHERS, ProcessSpec, missing_extra
 
 
 @dataclass(frozen=True)
@@ -98,6 +98,8 @@ class UpConfig:
         why = TEACHERS[self.teacher].available()
         if why:
             raise ValueError(f"teacher {self.teacher!r}: {why}")
+        if self.foxglove is not None and (why := missing_extra("foxglove", "foxglove")):
+            raise ValueError(f"foxglove: {why}")
         for name, value in TEACHERS[self.teacher].defaults(self).items():  # e.g. face-video's pace
             object.__setattr__(self, name, value)
         if self.episodes < 0:

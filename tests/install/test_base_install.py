@@ -65,3 +65,14 @@ def test_base_install_runs_actor_learner_and_oracle_teacher(tmp_path):
     logs = {p.name: p.read_text() for p in (tmp_path / "base" / "logs").glob("*.log")}
     assert {"actor.log", "learner.log", "recorder.log"} <= set(logs) and any("oracle" in n for n in logs), logs
     assert not [n for n, text in logs.items() if "Traceback" in text], logs
+
+
+@pytest.mark.parametrize(
+    ("args", "extra"),
+    [("--teacher web", "console"), ("--teacher face-video", "perception"), ("--foxglove 8766", "foxglove")],
+)
+def test_a_part_outside_the_base_install_names_its_extra(tmp_path, args, extra):
+    cmd = [sys.executable, "-m", "services", "up", *args.split(), "--episodes", "1", "--out", str(tmp_path)]
+    out = subprocess.run(cmd, cwd=ROOT, env=base_only_env(), capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and f"pip install 'hitl-tamer[{extra}]'" in out.stderr, out.stdout + out.stderr
+    assert "Traceback" not in out.stderr and not list(tmp_path.iterdir())
