@@ -2,7 +2,8 @@
 
 Tests that share an expensive module- or session-scoped fixture (a converted face model and decoded clips, a
 live run that several tests read) stay on one xdist worker, so the fixture is built once rather than on each
-worker; every other test goes to whichever worker is free.
+worker; every other test goes to whichever worker is free. The long ones (live, browser, slow) are handed out
+first, so that the session ends on short tests rather than with one worker idle beside a minute-long run.
 """
 
 from __future__ import annotations
@@ -29,3 +30,11 @@ def pytest_itemcollected(item: pytest.Item) -> None:
     group = next((prefix for prefix in SHARED_FIXTURES if path.startswith(prefix)), None)
     if group is not None:
         item.add_marker(pytest.mark.xdist_group(group))
+
+
+LONG = ("live", "browser", "slow")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Long tests first (a stable sort: within each kind, the collection order)."""
+    items.sort(key=lambda item: not any(item.get_closest_marker(mark) for mark in LONG))
