@@ -45,9 +45,9 @@ run: setup
 	@$(PY) -m services up --env maze --algo dqn-tamer --teacher oracle --episodes 50 --out runs/
 
 # The checks a maintainer runs, then the tests on two workers (tests/conftest.py keeps those that share an expensive
-# fixture on one worker).
+# fixture on one worker). `make test PYTEST_ARGS="tests/core -x"` runs a part.
 test: setup lint
-	$(PY) -m pytest -q -n 2 --dist loadgroup
+	$(PY) -m pytest -q -n 2 --dist loadgroup $(PYTEST_ARGS)
 
 lint: setup lock-check
 	$(VENV)/bin/ruff check .
