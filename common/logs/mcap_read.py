@@ -195,6 +195,8 @@ class LogReader:
             except ProtocolError as e:
                 error = e
                 self.status.undecodable[e.reason] += 1
+            except ImportError as e:  # a part whose decoder is an extra (the scene: foxglove-sdk) is not installed
+                self.status.undecodable[f"needs {e.name}"] += 1
         if self.decode_messages and isinstance(message, RunConfig):
             if self.run_config is None:
                 self.run_config = message

@@ -67,6 +67,23 @@ def test_base_install_runs_actor_learner_and_oracle_teacher(tmp_path):
     assert not [n for n, text in logs.items() if "Traceback" in text], logs
 
 
+def test_a_log_recorded_with_every_extra_reads_in_the_base_install(tmp_path):
+    """The full install's recorder draws the scene (foxglove-sdk) into the log; the base install's replay skips it."""
+    args = "up --env maze --algo dqn-tamer --teacher oracle --episodes 2 --run full --progress false".split()
+    cmd = [sys.executable, "-m", "services", *args, "--out", str(tmp_path)]
+    full_env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    run = subprocess.run(cmd, cwd=ROOT, env=full_env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    full = json.loads((tmp_path / "full" / "summary.json").read_text())
+    log = str(tmp_path / "full" / "session.mcap")
+    cmd = [sys.executable, "-m", "services.replay", log, "summary", "--json", "--no-plot"]
+    out = subprocess.run(cmd, cwd=ROOT, env=base_only_env(), capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    base = json.loads(out.stdout)
+    assert base["steps_logged"] == full["steps_logged"] > 0 and base["returns"] == full["returns"], out.stderr
+    assert base["log"]["messages"] == full["log"]["messages"]
+
+
 @pytest.mark.parametrize(
     ("args", "extra"),
     [("--teacher web", "console"), ("--teacher face-video", "perception"), ("--foxglove 8766", "foxglove")],
