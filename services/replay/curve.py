@@ -14,8 +14,10 @@ def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None =
     try:
         from common.logs.plots import plot_curves
     except ImportError as exc:
-        print(f"no {os.path.basename(path)}: {exc.name} is not installed (pip install 'hitl-tamer[experiments]')",
-              file=sys.stderr)
+        print(
+            f"no {os.path.basename(path)}: {exc.name} is not installed (pip install 'hitl-tamer[experiments]')",
+            file=sys.stderr,
+        )
         return False
     rets = np.asarray(s["returns"], dtype=float)
     plot_curves({"live": rets}, str(path), title or f"live run {s['run']}: return per episode")
