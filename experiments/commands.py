@@ -1,5 +1,6 @@
 """The configs and bodies of `python -m experiments reproduce` and `python -m experiments bench` (the table of
 commands is experiments/__main__.py)."""
+
 from __future__ import annotations
 
 import json
@@ -16,22 +17,30 @@ class ReproduceConfig:
     """Every condition of the paper with all four agents: figures, claims with computed verdicts, timing (cached:
     re-running only re-plots)."""
 
-    quick: bool = option(False, "the small form: 8 layouts, 40 maze episodes, no Taxi (--quick --only taxi-stop runs "
-                                "4 Taxi trials x 40 episodes), about 2 minutes on 2 free cores, written to "
-                                "runs/reproduce-quick unless --out is given")
+    quick: bool = option(
+        False,
+        "the small form: 8 layouts, 40 maze episodes, no Taxi (--quick --only taxi-stop runs "
+        "4 Taxi trials x 40 episodes), about 2 minutes on 2 free cores, written to "
+        "runs/reproduce-quick unless --out is given",
+    )
     layouts: int | None = option(None, "maze layouts (default 60: 30 honest, 30 misleading, all generated)")
     reps: int | None = option(None, "seeds per layout (default 1)")
     maze_episodes: int | None = option(None, "episodes per maze trial")
     taxi_episodes: int | None = option(None, "episodes per Taxi trial (both Taxi variants)")
-    taxi_random_episodes: int | None = option(None, "episodes per trial of Gymnasium's Taxi (random passenger and "
-                                                    "destination) only")
+    taxi_random_episodes: int | None = option(
+        None, "episodes per trial of Gymnasium's Taxi (random passenger and destination) only"
+    )
     taxi_trials: int | None = option(None, "Taxi trials per arm")
-    only: tuple[str, ...] = option((), f"run only these conditions ({', '.join(BY_NAME)})", nargs="+",
-                                   choices=tuple(BY_NAME), metavar="NAME")
+    only: tuple[str, ...] = option(
+        (), f"run only these conditions ({', '.join(BY_NAME)})", nargs="+", choices=tuple(BY_NAME), metavar="NAME"
+    )
     out: str | None = option(None, "output directory (default: docs/results, or runs/reproduce-quick with --quick)")
     workers: int = option(2, "worker processes (1 = in this process)")
-    ray: str | None = option(None, "run the trials as Ray tasks on that cluster, as `sweep --ray` does "
-                                   "(docs/sweeps.md)", metavar="auto|local|ADDRESS")
+    ray: str | None = option(
+        None,
+        "run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)",
+        metavar="auto|local|ADDRESS",
+    )
     no_progress: bool = option(False, "no progress bar")
 
     def __post_init__(self):
@@ -47,22 +56,33 @@ def reproduce_main(args: ReproduceConfig, argv: list[str]) -> int:
     if args.quick and not args.only:  # Taxi's 1000-step episodes alone cost more than the quick form's minutes
         conds = [c for c in conds if not c.is_taxi]
     scale = QUICK if args.quick else FULL
-    changes = {k: v for k, v in (("layouts", args.layouts), ("reps", args.reps),
-                                 ("maze_episodes", args.maze_episodes), ("taxi_episodes", args.taxi_episodes),
-                                 ("taxi_random_episodes", args.taxi_random_episodes or args.taxi_episodes),
-                                 ("taxi_trials", args.taxi_trials)) if v is not None}
+    changes = {
+        k: v
+        for k, v in (
+            ("layouts", args.layouts),
+            ("reps", args.reps),
+            ("maze_episodes", args.maze_episodes),
+            ("taxi_episodes", args.taxi_episodes),
+            ("taxi_random_episodes", args.taxi_random_episodes or args.taxi_episodes),
+            ("taxi_trials", args.taxi_trials),
+        )
+        if v is not None
+    }
     scale = replace(scale, **changes)
     out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
     try:
-        stats = reproduce(conds, scale, out, workers=args.workers, progress=not args.no_progress, argv=argv,
-                          ray=args.ray)
+        stats = reproduce(
+            conds, scale, out, workers=args.workers, progress=not args.no_progress, argv=argv, ray=args.ray
+        )
     except RuntimeError as exc:  # a worker or Ray failed: finished trials are cached, re-run resumes
         print(f"error: {exc}", file=sys.stderr)
         return 1
     with open(os.path.join(out, "claims.json")) as fh:
         verdicts = {k: v["verdict"] for k, v in json.load(fh)["claims"].items()}
-    print(f"{stats.trials} trials ({stats.trials_run} run, {stats.trials_cached} cached, {stats.trials_shared} "
-          f"shared) in {stats.total_s:.1f} s; wrote {out}/REPORT.md, claims.json, timing.json, *.png")
+    print(
+        f"{stats.trials} trials ({stats.trials_run} run, {stats.trials_cached} cached, {stats.trials_shared} "
+        f"shared) in {stats.total_s:.1f} s; wrote {out}/REPORT.md, claims.json, timing.json, *.png"
+    )
     for claim, verdict in verdicts.items():
         print(f"  {claim}: {verdict}")
     return 0
@@ -73,14 +93,14 @@ class BenchConfig:
     """Speed-up of batched, parallel trials over the plain per-trial loop, measured side by side on the same trials;
     then the paper's MLP on the numpy path and on the torch path."""
 
-    conditions: tuple[str, ...] = option(tuple(BY_NAME), "conditions to draw trials from", nargs="+",
-                                         choices=tuple(BY_NAME), metavar="NAME")
+    conditions: tuple[str, ...] = option(
+        tuple(BY_NAME), "conditions to draw trials from", nargs="+", choices=tuple(BY_NAME), metavar="NAME"
+    )
     trials: int = option(2, "trials per agent and condition")
     episodes: int = option(30, "episodes per trial")
     workers: int = option(2, "processes for the parallel mode")
     out: str | None = option(None, "also write the numbers to this JSON file")
-    paths_only: bool = option(False, "only the network paths (numpy MLP vs torch MLP, on the first condition's "
-                                     "trials)")
+    paths_only: bool = option(False, "only the network paths (numpy MLP vs torch MLP, on the first condition's trials)")
 
     def __post_init__(self):
         if self.trials < 1 or self.episodes < 1:
@@ -96,9 +116,9 @@ def bench_main(args: BenchConfig) -> int:
         report = bench(list(args.conditions), args.trials, args.episodes, workers=args.workers, out=args.out)
         print(format_report(report))
     first = select(list(args.conditions))[:1]  # the torch path is slower: one condition's trials
-    scale = replace(QUICK, maze_episodes=args.episodes, taxi_episodes=args.episodes,
-                    taxi_random_episodes=args.episodes)
-    specs = [trial_spec(c, algo, k, scale) for c in first for algo in ALGOS if algo in c.arms
-             for k in range(args.trials)]
+    scale = replace(QUICK, maze_episodes=args.episodes, taxi_episodes=args.episodes, taxi_random_episodes=args.episodes)
+    specs = [
+        trial_spec(c, algo, k, scale) for c in first for algo in ALGOS if algo in c.arms for k in range(args.trials)
+    ]
     print(format_paths(bench_paths(specs)))
     return 0

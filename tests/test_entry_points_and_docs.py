@@ -8,6 +8,7 @@
 - No page of docs/ (study logs, declared designs, bench tables and session history live in docs/notes/, dated)
   holds a dated study log, and no Markdown under docs/ names a path of one machine.
 """
+
 from __future__ import annotations
 
 import ast
@@ -49,9 +50,18 @@ def test_at_most_14_entry_points_each_a_job():
     found = entry_points()
     assert len(found) <= MAX_ENTRY_POINTS, f"{len(found)} entry points: {found}"
     # the design card's shells are among them
-    assert {"services", "experiments", "services.actor", "services.learner", "services.teacher",
-            "services.perception", "services.recorder", "services.replay", "services.console",
-            "services.foxglove"} <= set(found), found
+    assert {
+        "services",
+        "experiments",
+        "services.actor",
+        "services.learner",
+        "services.teacher",
+        "services.perception",
+        "services.recorder",
+        "services.replay",
+        "services.console",
+        "services.foxglove",
+    } <= set(found), found
 
 
 def imports_argparse(path: Path) -> bool:
@@ -78,9 +88,11 @@ def test_the_readme_is_short():
 
 
 MACHINE_PATH = re.compile(r"(?<![\w.<])(/work/|/root/|/tmp/|/home/)")
-DATED = re.compile(r"Declared before the runs? of|\b20\d\d-[01]\d-[0-3]\d\b|"
-                   r"\b[0-3]?\d (January|February|March|April|May|June|July|August|September|October|November|"
-                   r"December) 20\d\d\b")
+DATED = re.compile(
+    r"Declared before the runs? of|\b20\d\d-[01]\d-[0-3]\d\b|"
+    r"\b[0-3]?\d (January|February|March|April|May|June|July|August|September|October|November|"
+    r"December) 20\d\d\b"
+)
 
 
 NOTE_LINK = re.compile(r"notes/[\w.-]+")  # a link to a dated note is how a page points at its history
@@ -92,14 +104,22 @@ def user_pages() -> list[Path]:
 
 def test_no_machine_path_in_any_doc():
     pages = sorted((ROOT / "docs").rglob("*.md")) + [ROOT / "README.md"]
-    hits = [f"{p.relative_to(ROOT)}:{n + 1}: {line.strip()[:100]}" for p in pages
-            for n, line in enumerate(p.read_text().splitlines()) if MACHINE_PATH.search(line)]
+    hits = [
+        f"{p.relative_to(ROOT)}:{n + 1}: {line.strip()[:100]}"
+        for p in pages
+        for n, line in enumerate(p.read_text().splitlines())
+        if MACHINE_PATH.search(line)
+    ]
     assert not hits, "\n".join(hits)
 
 
 def test_no_dated_study_log_outside_docs_notes():
-    hits = [f"{p.relative_to(ROOT)}:{n + 1}: {line.strip()[:100]}" for p in user_pages()
-            for n, line in enumerate(p.read_text().splitlines()) if DATED.search(NOTE_LINK.sub("", line))]
+    hits = [
+        f"{p.relative_to(ROOT)}:{n + 1}: {line.strip()[:100]}"
+        for p in user_pages()
+        for n, line in enumerate(p.read_text().splitlines())
+        if DATED.search(NOTE_LINK.sub("", line))
+    ]
     assert not hits, "move it to docs/notes/ (dated) and link it:\n" + "\n".join(hits)
 
 

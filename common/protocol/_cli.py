@@ -1,4 +1,5 @@
 """`python -m services protocol`: the protocol's documentation (docs/protocol.md) or one type's JSON Schema."""
+
 from __future__ import annotations
 
 import json
@@ -7,6 +8,7 @@ from dataclasses import dataclass
 
 from common.config import fail, option
 
+from ._base import Message
 from ._docs import markdown
 from ._keys import MESSAGE_TYPES
 
@@ -28,7 +30,7 @@ def protocol_main(args: ProtocolConfig) -> int:
         sys.stdout.write(markdown())
         return 0
     for cls in MESSAGE_TYPES:
-        if args.schema in (cls.__name__, cls.TYPE_NAME):
+        if issubclass(cls, Message) and args.schema in (cls.__name__, cls.TYPE_NAME):
             print(json.dumps(cls.json_schema(), indent=2))
             return 0
     fail(f"unknown type {args.schema!r}; one of {[c.__name__ for c in MESSAGE_TYPES]}")

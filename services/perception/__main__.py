@@ -19,11 +19,10 @@ each decision to a ``sink`` (what tests and other programs embed; no Zenoh).
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from common.config import Command, option, run_commands
-
 from common.perception.assets import AssetsMissingError
 from common.perception.media import MediaError
 from common.perception.pipeline import PerceptionPipeline, PipelineConfig

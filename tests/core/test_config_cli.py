@@ -1,5 +1,6 @@
 """common/config.py as the command line of every command: a renamed or misspelt flag names its new spelling,
 settings of several words add up, a bool flag alone means true, and subcommands (groups too) parse their config."""
+
 from __future__ import annotations
 
 import json
@@ -17,13 +18,16 @@ from experiments.run_config import RunConfig
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.mark.parametrize("argv, hint", [
-    (["--p-feedback", "0.2"], "did you mean --observer.p-feedback?"),  # the flat flag before configs nested
-    (["--p-feedback=0.2"], "did you mean --observer.p-feedback?"),
-    (["--delay-probs", "1,0,0"], "--observer.delay-probs"),
-    (["--observer.p-feedbak", "0.2"], "did you mean --observer.p-feedback?"),  # a typo: the closest spelling
-    (["--zzz-qqq", "1e-3"], ""),  # nothing near: no guess
-])
+@pytest.mark.parametrize(
+    "argv, hint",
+    [
+        (["--p-feedback", "0.2"], "did you mean --observer.p-feedback?"),  # the flat flag before configs nested
+        (["--p-feedback=0.2"], "did you mean --observer.p-feedback?"),
+        (["--delay-probs", "1,0,0"], "--observer.delay-probs"),
+        (["--observer.p-feedbak", "0.2"], "did you mean --observer.p-feedback?"),  # a typo: the closest spelling
+        (["--zzz-qqq", "1e-3"], ""),  # nothing near: no guess
+    ],
+)
 def test_an_unknown_flag_names_its_new_spelling(argv, hint, capsys):
     with pytest.raises(SystemExit) as exc:
         parse_config(RunConfig, argv, prog="run")
@@ -40,8 +44,10 @@ def test_a_subcommand_names_the_new_spelling_too(capsys):
         experiments_main(["run", "--p-feedback", "0.2", "--out", "/nonexistent/never-written"])
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip()
-    assert err == ("python -m experiments run: error: unknown setting --p-feedback; did you mean "
-                   "--observer.p-feedback? (see --help)")
+    assert err == (
+        "python -m experiments run: error: unknown setting --p-feedback; did you mean "
+        "--observer.p-feedback? (see --help)"
+    )
 
 
 def test_a_config_file_with_an_old_flat_setting_names_the_nested_one(tmp_path, capsys):
@@ -69,9 +75,17 @@ class Tool:
 
 
 def test_several_words_add_up_a_bool_alone_is_true_and_groups_dispatch():
-    seen = []
-    commands = {"tool": Command(Tool, lambda c: seen.append(c) or 0),
-                "group": {"": "a group", "inner": Command(Tool, lambda c: seen.append(("inner", c)) or 3)}}
+    seen: list = []
+
+    def tool(config: Tool) -> int:
+        seen.append(config)
+        return 0
+
+    def inner(config: Tool) -> int:
+        seen.append(("inner", config))
+        return 3
+
+    commands = {"tool": Command(Tool, tool), "group": {"": "a group", "inner": Command(Tool, inner)}}
     assert run_commands("prog", "doc", commands, ["tool", "P", "--words", "x", "y", "--words", "z", "--loud"]) == 0
     assert seen[-1] == Tool(words=("x", "y", "z"), loud=True, path="P")
     assert run_commands("prog", "doc", commands, ["tool", "P", "--loud", "false"]) == 0
@@ -80,11 +94,14 @@ def test_several_words_add_up_a_bool_alone_is_true_and_groups_dispatch():
     assert seen[-1] == ("inner", Tool(path="Q"))
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["services", "up", "--p-feedback", "0.1"], "did you mean --observer.p-feedback?"),
-    (["services", "security", "init", "DIR", "--no-perception"], "did you mean --perception?"),
-    (["services", "bench-compare"], "moved: python -m experiments bench-compare --what live"),  # one, there
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["services", "up", "--p-feedback", "0.1"], "did you mean --observer.p-feedback?"),
+        (["services", "security", "init", "DIR", "--no-perception"], "did you mean --perception?"),
+        (["services", "bench-compare"], "moved: python -m experiments bench-compare --what live"),  # one, there
+    ],
+)
 def test_the_services_command_line_names_new_spellings(argv, message):
     done = subprocess.run([sys.executable, "-m", *argv], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert done.returncode == 2 and message in done.stderr, done.stderr

@@ -28,7 +28,7 @@ from common.security import (client_config_for, client_settings, load_security, 
 from common.wire.transport import make_config, open_session, wait_for_matching  # noqa: E402
 
 
-def sub(args: "ClientArgs") -> int:
+def sub(args: ClientArgs) -> int:
     sec = load_security(args.security)
     samples: queue.Queue = queue.Queue()
     closed = threading.Event()
@@ -55,7 +55,7 @@ def sub(args: "ClientArgs") -> int:
     return 0
 
 
-def client_config(sec: SecurityConfig, args: "ClientArgs") -> zenoh.Config:
+def client_config(sec: SecurityConfig, args: ClientArgs) -> zenoh.Config:
     if args.tcp:
         endpoint = f"tcp/127.0.0.1:{args.tcp}"
     else:
@@ -77,7 +77,7 @@ def client_config(sec: SecurityConfig, args: "ClientArgs") -> zenoh.Config:
     return config
 
 
-def pub(args: "ClientArgs") -> int:
+def pub(args: ClientArgs) -> int:
     sec = load_security(args.security)
     try:
         session = zenoh.open(client_config(sec, args))
