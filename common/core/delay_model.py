@@ -206,32 +206,37 @@ class LearnedDelay:
         out = {"kind": LEARNED, "config": asdict(self.config), "probs": self.probs.tolist(),
                "feedbacks": self.feedbacks}
         if window:
-            out["by_rate"], out["scores"] = self.by_rate.tolist(), self.scores.tolist()
-        if window:
             held = np.flatnonzero(self.seen > 0)
-            out["rows"] = {"at": held.tolist(), "seen": self.seen[held].tolist(), "like": self.rows[held].tolist()}
+            out.update(by_rate=self.by_rate.tolist(), scores=self.scores.tolist(), informative=self.informative,
+                       rows={"at": held.tolist(), "seen": self.seen[held].tolist(), "like": self.rows[held].tolist()})
         return out
 
     @classmethod
     def from_state(cls, state: dict) -> "LearnedDelay":
-        """The model `state()` described (a profile without rows continues from its estimate)."""
-        model = cls(LearnedDelayConfig(**state.get("config", {})))
-        probs = np.asarray(state["probs"], np.float64)
-        if probs.shape != model.probs.shape or not np.all(np.isfinite(probs)) or probs.min() < 0 or probs.sum() <= 0:
-            raise ValueError("delay state: probs do not match the config's bins")
-        model.probs = probs / probs.sum()
-        model.feedbacks = int(state.get("feedbacks", 0))
-        rows = state.get("rows")
-        if rows:
-            at = np.asarray(rows["at"], np.int64)
-            model.rows[at] = np.asarray(rows["like"], np.float64)
-            model.seen[at] = np.asarray(rows["seen"], np.int64)
-            model.by_rate = np.asarray(state["by_rate"], np.float64)
-            model.scores = np.asarray(state["scores"], np.float64)
-        else:  # a returning person: their last estimate becomes the prior
-            model.prior = (1.0 - model.config.floor) * model.probs + model.config.floor / len(model.probs)
-            model.probs = model.prior.copy()
-            model.by_rate = np.stack([model.prior, model.prior])
+        """The model `state()` described (a profile without rows continues from its estimate). A state that does
+        not fit its config is a one-line ValueError."""
+        try:
+            model = cls(LearnedDelayConfig(**state.get("config", {})))
+            probs = np.asarray(state["probs"], np.float64)
+            if probs.shape != model.probs.shape or not np.all(np.isfinite(probs)) or probs.min() < 0 \
+                    or not probs.sum() > 0:
+                raise ValueError("probs do not match the config's bins")
+            model.feedbacks = int(state.get("feedbacks", 0))
+            if "rows" in state:
+                at = np.asarray(state["rows"]["at"], np.int64)
+                model.rows[at] = np.asarray(state["rows"]["like"], np.float64)
+                model.seen[at] = np.asarray(state["rows"]["seen"], np.int64)
+                model.by_rate = np.asarray(state["by_rate"], np.float64).reshape(model.by_rate.shape)
+                model.scores = np.asarray(state["scores"], np.float64).reshape(2)
+                model.informative = int(state["informative"])
+                model.probs = probs
+            else:  # a returning person: their last estimate becomes the prior
+                probs = probs / probs.sum()
+                model.prior = (1.0 - model.config.floor) * probs + model.config.floor / len(probs)
+                model.probs = model.prior.copy()
+                model.by_rate = np.stack([model.prior, model.prior])
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise ValueError(f"delay state: {exc}") from None
         return model
 
 
