@@ -29,7 +29,7 @@ def cmd_run(config: RunConfig) -> int:
     os.makedirs(config.out, exist_ok=True)
     task = config.task
     spec = TrialSpec(task.env, config.agent, config.observer, task.seed, task.layout, config.episodes,
-                     task.teacher_rule)
+                     task.teacher_rule, config.step_seconds)
     with open(os.path.join(config.out, "config.json"), "w") as fh:
         json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
     bar = tqdm(total=config.episodes, desc=f"{config.algo} on {task.env}", unit="ep", file=sys.stderr)
@@ -49,8 +49,13 @@ def cmd_run(config: RunConfig) -> int:
     plot_curves({config.algo: result.returns}, os.path.join(config.out, "curve.png"),
                 f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
                 stop_episode=config.observer.stop_episode)
+    summary = {"episodes": len(result.episodes), "steps": result.total_steps, "wall_s": round(wall, 3),
+               "returns": result.returns.tolist(), "delay": {"observer": result.delay}}
+    with open(os.path.join(config.out, "summary.json"), "w") as fh:
+        json.dump(summary, fh, indent=1)
     print(f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
-          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, curve.png")
+          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, summary.json, "
+          f"curve.png")
     return 0
 
 

@@ -247,7 +247,8 @@ class _Batch:
                       # who decides: greedy actions this episode, and those where H overruled argmax Q
                       "h_decided": int(agent.h_decided_count[row]), "greedy": int(agent.greedy_count[row]),
                       "mean_lag": float(lag_now[j]),  # mean of the lag distribution credit uses now (steps)
-                      "delay_median_s": float(delay_now[j])}  # the learned delay's median (nan: not learned)
+                      # the learned delay's median in seconds (None: not learned)
+                      "delay_median_s": None if np.isnan(delay_now[j]) else float(delay_now[j])}
             agent.h_decided_count[row] = agent.greedy_count[row] = 0
             if self.greedy_eval:
                 record["greedy_steps"] = greedy_steps(agent, int(row), self.specs[i])

@@ -52,7 +52,7 @@ class LearnedDelayConfig:
     forget_fast: float = 0.96
     """The same for the estimate that follows drift (about 25 feedbacks); credit uses whichever of the two
     predicted the recent feedbacks better (`score_memory`)."""
-    score_memory: float = 0.95
+    score_memory: float = 0.99
     """Decay per informative feedback of each estimate's running log-likelihood of the feedbacks it had not seen."""
     window: int = 300
     """Rows kept (older ones weigh forget^window, under 1%)."""
@@ -79,7 +79,7 @@ class LearnedDelayConfig:
             raise ValueError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
 
 
-def polarity_likelihood(value: int, polarities, reliability: float = 0.9) -> np.ndarray:
+def polarity_likelihood(value: int, polarities, reliability: float = 0.95) -> np.ndarray:
     """P(value | step k was rated) for a teacher who agrees with a rule's polarity (+1/-1; 0 = unknown: 1/2)
     of each candidate step with probability `reliability`."""
     pol = np.asarray(polarities, np.float64) * float(value)
@@ -171,19 +171,26 @@ class LearnedDelay:
         held = self.seen > 0
         rows = self.rows[held]
         age = (self.informative - self.seen[held]).astype(np.float64)
-        half = len(self.kernel) // 2
-        for j, rate in enumerate(self.rates):
-            weight = rate ** age
-            prior = c.prior_weight * (1.0 - self.rates[0]) / (1.0 - rate) * self.prior if rate < 1 else \
-                c.prior_weight * self.prior
-            p = self.by_rate[j]
-            for _ in range(c.iterations):
-                post = rows * p
-                post /= post.sum(axis=1, keepdims=True)
-                p = np.convolve(np.pad(weight @ post + prior, half, mode="edge"), self.kernel, mode="valid")
-                p /= p.sum()
-            self.by_rate[j] = p
+        weight = self.rates[:, None] ** age[None, :]  # [2, rows]
+        # The prior weighs as much against the fast estimate's few remembered rows as against the steady one's.
+        strength = c.prior_weight * np.where(self.rates < 1, (1 - self.rates[0]) / np.maximum(1 - self.rates, 1e-12), 1)
+        prior = strength[:, None] * self.prior
+        p = self.by_rate
+        for _ in range(c.iterations):
+            post = rows[None, :, :] * p[:, None, :]  # [2, rows, bins]
+            post /= post.sum(axis=2, keepdims=True)
+            p = np.einsum("jn,jnb->jb", weight, post) + prior
+            p = self.smooth(p)
+            p /= p.sum(axis=1, keepdims=True)
+        self.by_rate = p
         self.probs = self.by_rate[int(self.scores[1] > self.scores[0])]
+
+    def smooth(self, p: np.ndarray) -> np.ndarray:
+        """Each row of p convolved with the Gaussian kernel (edges repeated)."""
+        half = len(self.kernel) // 2
+        padded = np.pad(p, ((0, 0), (half, half)), mode="edge")
+        windows = np.lib.stride_tricks.sliding_window_view(padded, len(self.kernel), axis=1)
+        return windows @ self.kernel[::-1]
 
     # -- reading -----------------------------------------------------------------------------------------------
     def quantile(self, q: float) -> float:
