@@ -204,7 +204,7 @@ class _Batch:
         a = agent.act(st["obs"], st["active"])[sel]
         nxt, rew, term, trunc, intended = self.world.step(rows, a)
         if self.on_input is not None:
-            self.trace_steps(rows, step, a, rew, nxt, term, trunc)
+            self.trace_steps(rows, step, a, rew, nxt, term, trunc, intended)
         episode = st["episode"][sel]
         t = step.astype(np.float64)
         self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, t, episode, t * st["step_s"][sel], intended)
@@ -226,13 +226,13 @@ class _Batch:
         st["obs"][sel] = nxt
         return rows[term | trunc]
 
-    def trace_steps(self, rows, step, a, rew, nxt, term, trunc) -> None:
+    def trace_steps(self, rows, step, a, rew, nxt, term, trunc, intended) -> None:
         st = self.st
         for k, row in enumerate(rows):
             self.on_input(int(st["orig"][row]), "step", {
                 "t": float(step[k]), "episode": int(st["episode"][row]), "obs": st["obs"][row].copy(),
                 "action": int(a[k]), "reward": float(rew[k]), "next_obs": np.array(nxt[k]),
-                "terminated": bool(term[k]), "truncated": bool(trunc[k])})
+                "terminated": bool(term[k]), "truncated": bool(trunc[k]), "polarity": int(intended[k])})
 
     def end_episodes(self, ended: np.ndarray) -> None:
         st, agent = self.st, self.agent
@@ -297,7 +297,8 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     `profile`, if given, receives per batch-size bucket ("1", "2-4", "5-16", "17-64", "65+" running
     trials) the ticks run and the CPU seconds they took. `on_input(i, kind, record)`, if given, sees every
     input of trial i's step loop in the order it is consumed ("feedback": t, value; "step": t, episode, obs,
-    action, reward, next_obs, terminated, truncated): what a live learner would be sent.
+    action, reward, next_obs, terminated, truncated, and the teacher rule's polarity): what a live learner would
+    be sent.
     """
     if not specs:
         return []
