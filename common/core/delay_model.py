@@ -231,7 +231,7 @@ class LearnedDelay:
             model.feedbacks = int(state.get("feedbacks", 0))
             if "rows" in state:
                 at = np.asarray(state["rows"]["at"], np.int64)
-                model.rows[at] = np.asarray(state["rows"]["like"], np.float64)
+                model.rows[at] = np.asarray(state["rows"]["like"], np.float64).reshape(len(at), model.rows.shape[1])
                 model.seen[at] = np.asarray(state["rows"]["seen"], np.int64)
                 model.by_rate = np.asarray(state["by_rate"], np.float64).reshape(model.by_rate.shape)
                 model.scores = np.asarray(state["scores"], np.float64).reshape(2)
