@@ -12,11 +12,13 @@ the candidate steps shown during [start_k, end_k) on the same clock (seconds), i
   observe   one EM row: the likelihood of each delay bin given the feedback and a model of the rated event
             (P(value | step k was rated), e.g. the task's teacher rule's polarity of each candidate step:
             `polarity_likelihood`). The caller gives that model, never H trained with this very credit, so
-            the estimate cannot confirm itself. Each observation then refits the density by a few EM
-            steps over the last `window` rows, row i weighted `forget`^age (drift: the estimate follows a
-            person who slows down), plus `prior_weight` pseudo-feedbacks of the prior, smoothed by a
-            Gaussian kernel (`smooth_s`) per step (EMS). A row that cannot tell delays apart (every candidate
-            equally likely) leaves the density where it is, so an empty model of the event keeps the prior.
+            the estimate cannot confirm itself. A row that cannot tell delays apart (every candidate equally
+            likely: a stuck agent's run of one polarity, or a model that knows nothing) is counted and not
+            stored, so the density stays where it is (at the prior until something is learned). Each stored
+            row refits two estimates by a few EM steps over the last `window` rows plus the prior, smoothed
+            by a Gaussian kernel (`smooth_s`) per step (EMS): a steady one (row weight `forget`^age) and a
+            fast one (`forget_fast`^age) that follows a person who slows down; credit uses whichever
+            predicted the recent rows better (a running log-likelihood, `score_memory`).
 
 `FixedDelay` wraps a fixed distribution (`common.core.delay.delay_from_spec`) behind the same interface: its
 weights are the credit function's (`common.core.credit`), unnormalised (mass on steps not held is lost),
