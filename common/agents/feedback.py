@@ -48,10 +48,12 @@ class FeedbackDoor:
         value = float(np.dot(probs, np.arange(len(probs)))) if probs is not None else float("nan")
         return np.full(len(rows), value)
 
-    def median_delay_s(self, rows: np.ndarray) -> np.ndarray:
-        """The learned median delay (s) of each trial's teacher (nan where it is not learned)."""
+    def median_delay_s(self, rows: np.ndarray, mean: bool = False) -> np.ndarray:
+        """The learned median (or `mean`) delay (s) of each trial's teacher (nan where it is not learned)."""
         d = self.assumed_delay
-        return d.median_s(rows) if isinstance(d, TrialDelays) else np.full(len(rows), np.nan)
+        if not isinstance(d, TrialDelays):
+            return np.full(len(rows), np.nan)
+        return d.mean_s(rows) if mean else d.median_s(rows)
 
     def delay_summary(self, i: int) -> dict | None:
         """Trial i's learned delay (`LearnedDelay.summary`), None where it is not learned."""

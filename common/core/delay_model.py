@@ -200,6 +200,10 @@ class LearnedDelay:
         cdf = np.concatenate([[0.0], np.cumsum(self.probs)])
         return float(np.interp(q * cdf[-1], cdf, self.edges))
 
+    def mean(self) -> float:
+        """The mean delay (s)."""
+        return float(self.probs @ (self.edges[:-1] + self.edges[1:]) / 2)
+
     def summary(self) -> dict:
         """{"median_s", "p10_s", "p90_s", "feedbacks"}: the block `summary.json` writes per teacher."""
         return {"median_s": round(self.quantile(0.5), 4), "p10_s": round(self.quantile(0.1), 4),
