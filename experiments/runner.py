@@ -79,10 +79,12 @@ def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 1
     return None
 
 
-def fixed_delay_summary(spec: TrialSpec) -> dict:
-    """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock."""
+def fixed_delay_summary(spec: TrialSpec, feedbacks: int) -> dict:
+    """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock, and
+    the feedbacks credited with them."""
     probs = ",".join(repr(float(p)) for p in spec.agent.assumed_delay_probs)
-    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "learned": False}
+    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "feedbacks": int(feedbacks),
+            "learned": False}
 
 
 def _bucket(n: int) -> str:
@@ -293,7 +295,8 @@ class _Batch:
         self.st["inbox"][row] = 0
         self.results[i].total_steps = int(self.agent.steps[row])
         self.results[i].weights = self.agent.policy_weights(row)
-        self.results[i].delay = self.agent.delay_summary(row) or fixed_delay_summary(self.specs[i])
+        credited = sum(e["feedback_credited"] for e in self.results[i].episodes)
+        self.results[i].delay = self.agent.delay_summary(row) or fixed_delay_summary(self.specs[i], credited)
         self.finished_rows += 1
         if self.on_trial_done is not None:
             self.on_trial_done(i, self.results[i])
