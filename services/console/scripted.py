@@ -67,7 +67,8 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
         name = f"{cfg.run}-{algo}"
     cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
            "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
-           "--screen-delay", cfg.screen_delay, "--screen-credit", cfg.screen_credit, "--out", cfg.out, "--run", name, "--progress", "false",
+           "--screen-delay", cfg.screen_delay, "--screen-credit", cfg.screen_credit, "--out", cfg.out, "--run", name,
+           "--progress", "false",
            "--webcam", str(cfg.webcam).lower()]
     if cfg.episode_steps is not None:
         cmd += ["--episode-steps", str(cfg.episode_steps)]
