@@ -9,12 +9,14 @@ here too. (A pilot with a 0.4/0.6 bimodal person put the true median on the edge
 where a 0.1 error in the estimated weight of a mode moves the median by a third; the declared person is 0.3/0.7:
 docs/notes/2026-11-25-learned-delay.md.)
 """
+
 from __future__ import annotations
 
 import dataclasses
 import json
 import os
 from dataclasses import dataclass
+from typing import Any
 
 from common.agents.config import agent_for
 from common.config import nested, option
@@ -24,8 +26,10 @@ from common.core.task import Task
 from experiments.runner import TrialSpec, run_trials
 
 PRESSES, TOLERANCE, DRIFT_TOLERANCE = 200, 0.15, 0.2
-RULE = (f"each person: |learned median - true median then| <= {TOLERANCE} * true median at the first episode end "
-        f"after {PRESSES} presses (the drifting person: {DRIFT_TOLERANCE})")
+RULE = (
+    f"each person: |learned median - true median then| <= {TOLERANCE} * true median at the first episode end "
+    f"after {PRESSES} presses (the drifting person: {DRIFT_TOLERANCE})"
+)
 
 # name -> (delay_s, late_delay_s): the true delay from a step's onset to the press, in seconds.
 PEOPLE = {
@@ -40,8 +44,12 @@ PEOPLE = {
 class DelayCheckConfig:
     """Recover simulated people's delays (seconds) while the agent learns from their feedback."""
 
-    task: Task = option(Task(env="maze"), "environment (small: the check must be quick), layout, seed", flatten=True,
-                        exclude=("teacher_rule",))
+    task: Task = option(
+        Task(env="maze"),
+        "environment (small: the check must be quick), layout, seed",
+        flatten=True,
+        exclude=("teacher_rule",),
+    )
     people: tuple[str, ...] = option(tuple(PEOPLE), f"which of the declared people ({', '.join(PEOPLE)})")
     episodes: int = option(80, f"episodes of the session (at most; it must hold {PRESSES} presses)")
     p_feedback: float = option(0.6, "probability that a step gets a press")
@@ -65,13 +73,16 @@ def check_person(config: DelayCheckConfig, name: str) -> dict:
     """One person's session: the learned median against the true one, by the declared rule."""
     early, late = PEOPLE[name]
     agent = dataclasses.replace(agent_for("dqn-tamer", None), learn_delay=True)
-    observer = ObserverConfig(p_feedback=config.p_feedback, delay_s=early, late_delay_s=late,
-                              drift_steps=int(PRESSES / config.p_feedback))
+    observer = ObserverConfig(
+        p_feedback=config.p_feedback, delay_s=early, late_delay_s=late, drift_steps=int(PRESSES / config.p_feedback)
+    )
     task = config.task
-    spec = TrialSpec(task.env, agent, observer, task.seed, task.layout, config.episodes, step_seconds=config.step_seconds)
+    spec = TrialSpec(
+        task.env, agent, observer, task.seed, task.layout, config.episodes, step_seconds=config.step_seconds
+    )
     result = run_trials([spec])[0]
     given = steps = 0
-    out = {"person": name, "delay_s": early, "late_delay_s": late, "learned_end": result.delay}
+    out: dict[str, Any] = {"person": name, "delay_s": early, "late_delay_s": late, "learned_end": result.delay}
     for e in result.episodes:
         given, steps = given + e["feedback_given"], steps + e["steps"]
         if given >= PRESSES:
@@ -83,9 +94,13 @@ def check_person(config: DelayCheckConfig, name: str) -> dict:
     truth = (1 - w) * true_median(early) + w * true_median(late or early)
     tol = DRIFT_TOLERANCE if late else TOLERANCE
     learned = e["delay_median_s"]
-    out.update(true_median_s=round(truth, 4), learned_median_s=round(learned, 4), presses=given,
-               compared_at=f"episode {e['episode']} ({given} presses, {steps} steps)",
-               relative_error=round(abs(learned - truth) / truth, 4))
+    out.update(
+        true_median_s=round(truth, 4),
+        learned_median_s=round(learned, 4),
+        presses=given,
+        compared_at=f"episode {e['episode']} ({given} presses, {steps} steps)",
+        relative_error=round(abs(learned - truth) / truth, 4),
+    )
     out["passed"] = bool(out["relative_error"] <= tol)
     return out
 
@@ -100,9 +115,11 @@ def main(config: DelayCheckConfig) -> int:
     results = delay_check(config)
     for r in results:
         got, truth = r.get("learned_median_s", float("nan")), r.get("true_median_s", float("nan"))
-        print(f"{r['person']:10s} true median {truth:.3f} s, learned {got:.3f} s "
-              f"({r.get('compared_at', r.get('why'))}), error {r.get('relative_error', float('nan')):.1%}: "
-              f"{'pass' if r['passed'] else 'FAIL'}")
+        print(
+            f"{r['person']:10s} true median {truth:.3f} s, learned {got:.3f} s "
+            f"({r.get('compared_at', r.get('why'))}), error {r.get('relative_error', float('nan')):.1%}: "
+            f"{'pass' if r['passed'] else 'FAIL'}"
+        )
     if config.out:
         os.makedirs(os.path.dirname(config.out) or ".", exist_ok=True)
         with open(config.out, "w") as fh:

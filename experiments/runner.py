@@ -2,10 +2,10 @@
 
 Virtual time: trial i's k-th action is taken at t = k (one unit per step), which is k * `step_seconds` seconds
 (0.5 s: 2 steps/s), the clock of a delay learned in seconds. The observer's reactions land between steps (see
-`common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in `common.core.steploop`'s order (Algorithm 2 of
-the paper): credit the feedback that arrived since the previous action, act, step the env, record the step
-and run the every-b-steps updates; the observer watches the step and its reaction is delivered on the tick
-after it lands.
+`common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in
+`common.core.steploop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
+action, act, step the env, record the step and run the every-b-steps updates; the observer watches the step and
+its reaction is delivered on the tick after it lands.
 
 Trials batched together only share arithmetic: each has its own env, observer, agent state and random
 streams, so a trial's actions and returns do not depend on which other trials run beside it. Every

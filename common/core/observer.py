@@ -218,7 +218,8 @@ class SimulatedObserver:
         self.emitted += 1
         self.flipped += value != intended
         t_reaction = t_action + (lag + REACTION_OFFSET) * self.step_unit
-        if self._batch.in_seconds:  # a delay in seconds (t_action is on a clock of seconds)
-            delay = float(self._batch.last_delay_s[0])
+        delays = self._batch.last_delay_s
+        if delays is not None:  # a delay in seconds (t_action is on a clock of seconds)
+            delay = float(delays[0])
             t_reaction, lag = t_action + delay, int(delay // self.step_unit)
         return FeedbackEvent(t_reaction, value, intended, global_step if step_ref is None else step_ref, lag)

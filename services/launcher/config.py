@@ -165,7 +165,7 @@ class Launch:
                     credentials=self.credentials_path(service))
 
 
-def oracle_delay(c: "UpConfig") -> str:
+def oracle_delay(c: UpConfig) -> str:
     """The learner's delay of a teacher without a screen: `oracle_delay`, auto resolved by the actor's pace."""
     if c.oracle_delay == "auto":
         return "learned" if c.rate > 0 else "steps"

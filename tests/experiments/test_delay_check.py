@@ -2,6 +2,7 @@
 simulated people of known delay teach DQN-TAMER on the maze, which learns their delay in seconds while it learns
 from their feedback; after 200 presses each learned median is within 15% of the true one (the drifting person's
 within 20%)."""
+
 import json
 
 from experiments.delay_check import PEOPLE, DelayCheckConfig, delay_check, main
