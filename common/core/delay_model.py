@@ -82,6 +82,17 @@ class LearnedDelayConfig:
             raise ValueError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
 
 
+def summarise(model) -> dict:
+    """A delay model's median, 10th and 90th percentiles (s) and the feedbacks it has seen."""
+    q = model.quantile
+    return {
+        "median_s": round(q(0.5), 4),
+        "p10_s": round(q(0.1), 4),
+        "p90_s": round(q(0.9), 4),
+        "feedbacks": int(model.feedbacks),
+    }
+
+
 def polarity_likelihood(value: int, polarities, reliability: float = 0.95) -> np.ndarray:
     """P(value | step k was rated) for a teacher who agrees with a rule's polarity (+1/-1; 0 = unknown: 1/2)
     of each candidate step with probability `reliability`."""
@@ -207,12 +218,7 @@ class LearnedDelay:
 
     def summary(self) -> dict:
         """{"median_s", "p10_s", "p90_s", "feedbacks"}: the block `summary.json` writes per teacher."""
-        return {
-            "median_s": round(self.quantile(0.5), 4),
-            "p10_s": round(self.quantile(0.1), 4),
-            "p90_s": round(self.quantile(0.9), 4),
-            "feedbacks": int(self.feedbacks),
-        }
+        return summarise(self)
 
     def density(self) -> tuple[np.ndarray, np.ndarray]:
         """(bin edges in seconds [bins + 1], probability of each bin [bins])."""
@@ -297,12 +303,7 @@ class FixedDelay:
         return float(lags[min(np.searchsorted(np.cumsum(probs), q - 1e-12), len(lags) - 1)])
 
     def summary(self) -> dict:
-        return {
-            "median_s": round(self.quantile(0.5), 4),
-            "p10_s": round(self.quantile(0.1), 4),
-            "p90_s": round(self.quantile(0.9), 4),
-            "feedbacks": int(self.feedbacks),
-        }
+        return summarise(self)
 
     def density(self, max_s: float = 6.0, bin_s: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
         edges = np.linspace(0.0, max_s, int(round(max_s / bin_s)) + 1)
