@@ -55,8 +55,10 @@ lint: setup lock-check
 	$(VENV)/bin/mypy
 
 # Files kept by `ruff format`; new files join this list. The rest keeps its compact hand wrapping (why: pyproject.toml).
-FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py services/replay/curve.py common/protocol/_cli.py \
-	experiments/commands.py tests/test_entry_points_and_docs.py tests/core/test_config_cli.py
+FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py services/replay/curve.py \
+	common/core/delay_model.py common/agents/feedback.py experiments/delay_check.py tests/core/test_credit_boundary.py \
+	tests/experiments/test_delay_check.py common/protocol/_cli.py experiments/commands.py tests/test_entry_points_and_docs.py \
+	tests/core/test_config_cli.py
 
 lock:
 	$(UV) pip compile $(LOCK_ARGS) -o $(LOCK)

@@ -31,7 +31,7 @@ def cmd_run(config: RunConfig) -> int:
     os.makedirs(config.out, exist_ok=True)
     task = config.task
     spec = TrialSpec(task.env, config.agent, config.observer, task.seed, task.layout, config.episodes,
-                     task.teacher_rule)
+                     task.teacher_rule, config.step_seconds)
     with open(os.path.join(config.out, "config.json"), "w") as fh:
         json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
     bar = tqdm(total=config.episodes, desc=f"{config.algo} on {task.env}", unit="ep", file=sys.stderr)
@@ -51,8 +51,13 @@ def cmd_run(config: RunConfig) -> int:
     plot_curves({config.algo: result.returns}, os.path.join(config.out, "curve.png"),
                 f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
                 stop_episode=config.observer.stop_episode)
+    summary = {"episodes": len(result.episodes), "steps": result.total_steps, "wall_s": round(wall, 3),
+               "returns": result.returns.tolist(), "delay": {"observer": result.delay}}
+    with open(os.path.join(config.out, "summary.json"), "w") as fh:
+        json.dump(summary, fh, indent=1)
     print(f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
-          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, curve.png")
+          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, summary.json, "
+          f"curve.png")
     return 0
 
 
@@ -68,6 +73,7 @@ def commands() -> dict:
     from experiments.bench_compare import BenchCompareConfig, main as bench_compare
     from experiments.commands import BenchConfig, ReproduceConfig, bench_main, reproduce_main
     from experiments.console_pilot import ConsolePilotConfig, main as console_pilot
+    from experiments.delay_check import DelayCheckConfig, main as delay_check
     from experiments.machines import MachinesConfig, main as machines
     from experiments.maze_pilot import MazePilotConfig, main as maze_pilot
     from experiments.minigrid import MinigridConfig, main as minigrid
@@ -82,7 +88,8 @@ def commands() -> dict:
                       "console": Command(ConsolePilotConfig, console_pilot)},
             "minigrid": Command(MinigridConfig, minigrid), "machines": Command(MachinesConfig, machines),
             "bench": Command(BenchConfig, bench_main), "sweep-bench": Command(SweepBenchConfig, sweep_bench),
-            "bench-compare": Command(BenchCompareConfig, bench_compare)}
+            "bench-compare": Command(BenchCompareConfig, bench_compare),
+            "delay-check": Command(DelayCheckConfig, delay_check)}
 
 
 def main(argv: list[str] | None = None) -> int:
