@@ -6,7 +6,7 @@ from services.console import compare
 
 
 def rows(dqn: list, tamer: list) -> list[dict]:
-    pairs = compare.FIRST.pairs
+    pairs = compare.DESIGNS['first'].pairs
     out = []
     for (layout, seed), d, t in zip(pairs, dqn, tamer):
         out += [{"arm": "DQN", "layout": layout, "seed": seed, "first_good_episode": d},
@@ -15,15 +15,15 @@ def rows(dqn: list, tamer: list) -> list[dict]:
 
 
 def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_wilcoxon():
-    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.FIRST)
+    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.DESIGNS['first'])
     assert clear["differences"][0] == 11 - 2 and clear["wins"] == 8 and clear["verdict"] == "fewer episodes"
     assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
-    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.FIRST)
+    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.DESIGNS['first'])
     assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
 
 
 def test_goals_measure_counts_episodes_to_the_tenth_goal_and_decides_at_alpha_over_the_looks():
-    design = compare.GOALS
+    design = compare.DESIGNS['goals']
     early = {"reached_goal": [True] * 15, "first_good_episode": 1}
     late = {"reached_goal": [False, False, False] + [True] * 12, "first_good_episode": 5}
     short = {"reached_goal": [True, False] * 7 + [True], "first_good_episode": 1}  # 8 goals: 15 + 2 missing
