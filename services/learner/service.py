@@ -137,7 +137,9 @@ class Learner:
         done = time.time()
         for r in results:
             if r.feedback is not None:  # what became of it: consoles and the log's scene show it
-                credit = credit_message(self.config.run, r, self.core.actor, done)
+                screen = r.feedback.shown is not None  # a person's screen: their delay estimate goes along
+                delay = self.core.delays.estimate(r.feedback.teacher_id) if screen else None
+                credit = credit_message(self.config.run, r, self.core.actor, done, delay)
                 if credit.teacher_id in self.config.credits_in_ingest:
                     self.ingest_credits.append(credit)
                 else:
@@ -297,10 +299,13 @@ class Learner:
             if (config.checkpoint and core.steps_learned != self.last_ckpt["steps"]
                     and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period):
                 self.save_checkpoint()
+            self.core.delays.save()  # returning people's profiles, every few seconds while they change
             if self.finished():
                 break
             self.rt.tick()
         self.note_latency(core.end(time.time()))
+        self.rt.counters["profiles_written"] += core.delays.save(force=True)
+        self.rt.counters["profiles_damaged"] += core.delays.damaged
         self.flush_ingest()
         self.publish_weights(core.steps_learned + 1, final=True)
         self.ring.add(self.wpub, self.last_weights["data"])  # the final weights too, if the recorder must get them again
@@ -353,13 +358,14 @@ def main(config: LearnerConfig) -> int:
     return 0
 
 
-def credit_message(run: str, result, actor: str | None, t_done: float) -> Credit:
-    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights."""
+def credit_message(run: str, result, actor: str | None, t_done: float, delay=None) -> Credit:
+    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights (and the teacher's
+    delay estimate, `delay`, for a person's console)."""
     fb = result.feedback
     return Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
                   t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
                   steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
-                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))))
+                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))), delay=delay)
 
 
 def publish_credit(session, pubs: dict, credit: Credit) -> None:

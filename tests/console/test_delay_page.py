@@ -1,0 +1,79 @@
+"""The person's delay estimate on the console page, in a real headless Chromium against a live run: every Credit of
+a press carries the learner's current estimate of that person's delay (`Credit.delay`), and the page draws it
+(a density over 0-6 s with its median marked in red) with the numbers beside it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from common.logs.mcap_read import read_log
+from common.protocol import Credit
+
+from .harness import SCRIPTED, WebRun, browser, open_console
+
+pytestmark = [pytest.mark.live, pytest.mark.browser]
+
+RED_BGR = np.array([0x2B, 0x39, 0xC0])  # #c0392b, the median line
+
+
+def delay_pixels(page) -> np.ndarray:
+    import cv2
+
+    png = page.locator("#delay").screenshot()
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    return img[1:-1, 1:-1]  # (its 1 px border)
+
+
+def test_page_draws_the_delay_estimate_each_credit_carries(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    run = WebRun(tmp_path, "delay", "--env", "maze", "--layout", "2", "--algo", "dqn-tamer", "--episodes", "200",
+                 "--episode-steps", "60", "--rate", "4", "--seed", "3", "--start-paused", "true")
+    try:
+        url = run.url()
+        with sync_playwright() as pw:
+            ctx = browser(pw, tmp_path / "profile")
+            page = open_console(ctx, url + "?name=alice")
+            assert page.evaluate("hitl.me") == "web-alice"
+            assert page.locator("#delaytext").inner_text() == "after your first press"
+            page.add_script_tag(path=str(SCRIPTED))
+            page.evaluate("hitlScriptedPerson({p: 0.6, lagMin: 0.4, lagMax: 1.2, seed: 5})")
+            page.wait_for_function("[...hitl.mine.values()].filter(f => f.credit).length >= 12", timeout=90_000)
+            page.evaluate("hitl.onShown = []")  # the person stops; their last presses (<= 1.2 s) are credited
+            page.wait_for_timeout(2500)
+            shown = page.evaluate("hitl.delay")
+            credits = page.evaluate("[...hitl.mine.values()].filter(f => f.credit).map(f => f.credit)")
+            text = page.locator("#delaytext").inner_text()
+            pixels = delay_pixels(page)
+            width = page.evaluate("document.getElementById('delay').width")
+            assert page.errors == []
+            page.click("#end")
+            assert run.wait(120) == 0, run.out[-3000:]
+            ctx.close()
+    finally:
+        run.close()
+
+    # Every credit the page got carries an estimate; the one drawn is the newest.
+    assert all(c["delay"] is not None for c in credits)
+    newest = max(credits, key=lambda c: c["t_credited"])["delay"]
+    assert shown == newest
+    assert len(shown["probs"]) * shown["bin_s"] == pytest.approx(6.0)
+    assert sum(shown["probs"]) == pytest.approx(1.0, abs=1e-3)
+    assert 0 < shown["p10_s"] <= shown["median_s"] <= shown["p90_s"] < 6
+    assert shown["feedbacks"] >= len(credits) - 1  # (the newest credit's press is counted too)
+    assert text.startswith(f"median {shown['median_s']:.2f} s") and f"from {shown['feedbacks']} presses" in text
+    # The median line, where the median is: red pixels in the column at median / 6 s of the canvas's width.
+    red = np.abs(pixels.astype(int) - RED_BGR).max(axis=2) <= 40
+    columns = np.flatnonzero(red.sum(axis=0) >= pixels.shape[0] // 2)
+    assert columns.size, "no median line drawn"
+    assert abs(columns.mean() - shown["median_s"] / 6.0 * width) <= 3
+    # ... and the density: blue pixels (the curve) in most of the columns between p10 and p90.
+    blue = np.abs(pixels.astype(int) - np.array([0xB9, 0x80, 0x29])).max(axis=2) <= 40
+    lo, hi = int(shown["p10_s"] / 6 * width) + 2, int(shown["p90_s"] / 6 * width) - 2
+    assert blue[:, lo:hi].any(axis=0).mean() > 0.9
+
+    # The log holds the same estimates: each Credit of the person's presses, with its delay.
+    logged = [m.message for m in read_log(run.rundir / "session.mcap") if isinstance(m.message, Credit)
+              and m.message.teacher_id == "web-alice"]
+    assert len(logged) >= len(credits) and all(c.delay is not None for c in logged)
+    assert max(c.delay.feedbacks for c in logged) >= len(credits)

@@ -1,0 +1,108 @@
+"""Returning people (`--profiles DIR`, services/learner/teacher_delays.py): a named person's learned delay is written
+atomically as a small JSON file and the next session starts from it; numbered people are not profiled; a damaged
+profile is set aside and counted, never fatal and never overwritten unseen."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from common.core.delay_model import LearnedDelay
+from common.protocol import Credit, DelayEstimate
+from services.common.config import LearnerConfig
+from services.learner.teacher_delays import TeacherDelays, delay_message, profiled
+
+
+def teach(model, lag: float = 1.4, n: int = 120, seed: int = 0) -> None:
+    """A person at 2 steps/s who presses `lag` s (+-0.2) after the step they rate, which the rule tells apart."""
+    rng = np.random.default_rng(seed)
+    for _ in range(n):
+        starts = np.arange(12) * 0.5
+        rated = int(rng.integers(4, 10))
+        t = starts[rated] + lag + rng.uniform(-0.2, 0.2)
+        pol = np.where(np.arange(12) == rated, 1.0, -1.0)
+        ok = starts <= t
+        model.observe(float(t), starts[ok], likelihood=np.where(pol[ok] > 0, 0.9, 0.1))
+
+
+def test_a_named_person_starts_from_their_last_estimate(tmp_path):
+    first = TeacherDelays("learned", "onset", tmp_path, save_period=0.0)
+    alice = first.model("web-alice")
+    assert isinstance(alice, LearnedDelay) and alice.summary()["median_s"] == pytest.approx(2.1, abs=0.1)
+    teach(alice)
+    first.observed("web-alice")
+    learned = alice.summary()
+    assert learned["median_s"] == pytest.approx(1.4, abs=0.2)
+    assert first.save() == 1
+    stored = json.loads((tmp_path / "web-alice.json").read_text())
+    assert "rows" not in stored and len(stored["probs"]) == 60  # a small file: the estimate, not the window
+    assert not list(tmp_path.glob(".*.tmp"))  # written whole (services/common/statefiles.py)
+
+    second = TeacherDelays("learned", "onset", tmp_path)
+    again = second.model("web-alice")
+    assert second.returning == {"web-alice"}
+    assert again.summary()["median_s"] == pytest.approx(learned["median_s"], abs=0.05)
+    assert second.estimate("web-alice").feedbacks == learned["feedbacks"]
+    assert second.model("web-bob").summary()["median_s"] == pytest.approx(2.1, abs=0.1)  # new: the prior
+
+
+def test_numbered_people_and_fixed_delays_leave_no_profile(tmp_path):
+    delays = TeacherDelays("learned", "onset", tmp_path, save_period=0.0)
+    teach(delays.model("web-1"))
+    delays.observed("web-1")
+    assert not profiled("web-1") and profiled("web-alice") and profiled("web-alice-2b")
+    assert delays.save() == 0 and not list(tmp_path.iterdir())
+    fixed = TeacherDelays("uniform:0.2,4", "interval", tmp_path, save_period=0.0)
+    fixed.model("web-alice").observe(3.0, [0.0, 0.5, 1.0])
+    fixed.observed("web-alice")
+    assert fixed.save() == 0 and not list(tmp_path.iterdir())
+    assert fixed.estimate("web-alice").median_s == pytest.approx(2.1)
+
+
+@pytest.mark.parametrize("content", [b"{not json", b'{"kind": "learned", "probs": [1, 2]}', b"[]",
+                                     b'{"kind": "learned", "probs": [NaN]}'])
+def test_a_damaged_profile_is_set_aside_and_counted(tmp_path, content):
+    (tmp_path / "web-alice.json").write_bytes(content)
+    delays = TeacherDelays("learned", "onset", tmp_path, save_period=0.0)
+    model = delays.model("web-alice")
+    assert model.summary()["median_s"] == pytest.approx(2.1, abs=0.1) and delays.damaged == 1
+    assert (tmp_path / "web-alice.json.damaged").read_bytes() == content
+    teach(model, n=10)
+    delays.observed("web-alice")
+    assert delays.save() == 1 and json.loads((tmp_path / "web-alice.json").read_text())["kind"] == "learned"
+
+
+def test_the_estimate_sent_to_the_console_is_the_models_density_and_fits_a_credit():
+    model = LearnedDelay()
+    teach(model, lag=0.9)
+    est = delay_message(model)
+    edges, probs = model.density()
+    assert est.bin_s == pytest.approx(0.1) and len(est.probs) == len(probs) == 60
+    assert np.allclose(est.probs, probs, atol=1e-5) and est.median_s == model.summary()["median_s"]
+    import dataclasses
+
+    def credit(n: int) -> Credit:
+        return Credit.from_json_obj({"run": "r", "teacher_id": "web-alice", "seq": 1, "value": 1,
+                                     "status": "credited", "t_reaction": 1.0, "t_credited": 2.0, "actor": "a",
+                                     "steps": [{"seq": 10 ** 9 + i, "weight": 1 / 3} for i in range(n)],
+                                     "lost_mass": 0.0})
+
+    n = 1
+    while len(credit(n + 1).encode()) <= 8192:  # the largest credit that fit before the field
+        n += 1
+    big = dataclasses.replace(credit(n), delay=est)
+    assert Credit.decode(big.encode()).delay == est
+    uniform = delay_message(TeacherDelays("uniform:0.2,4", "interval").model("web-1"))
+    want = np.diff(scipy.stats.uniform(0.2, 3.8).cdf(np.linspace(0, 6, 61)))
+    assert np.allclose(uniform.probs, want, atol=1e-5) and isinstance(uniform, DelayEstimate)
+
+
+def test_the_learner_and_the_launcher_take_a_profiles_directory(tmp_path):
+    from common.config import parse_config
+    from services.launcher.config import UpConfig
+
+    assert LearnerConfig(run="r", profiles=str(tmp_path)).profiles == str(tmp_path)
+    up = parse_config(UpConfig, ["--teacher", "web", "--profiles", str(tmp_path)])
+    assert up.profiles == str(tmp_path)
