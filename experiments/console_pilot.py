@@ -78,11 +78,25 @@ def measures(steps: list[int], reached: list[bool], shortest: int) -> dict:
     return {"goals": tenth, "first_good": good[0] if good else EPISODES + 1, "steps": int(sum(steps))}
 
 
-def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS) -> dict[str, list[dict]]:
+def observer_for(person: str | None, rate: float = 2.0) -> ObserverConfig:
+    """The scripted person on the step clock: the browser designs' uniform 0.3-1.5 s (`PERSON_LAGS`), or a lag
+    shape in seconds (services/console/lags.py) at `rate` steps/s, drifting from its first episode's lags to its
+    last's (a `drift:` shape)."""
+    if person is None:
+        return ObserverConfig(p_feedback=0.5, delay_probs=PERSON_LAGS)
+    from services.console.lags import step_lag_schedule
+
+    early, late = step_lag_schedule(person, rate, EPISODES, EPISODE_STEPS)
+    return ObserverConfig(p_feedback=0.5, delay_probs=early, late_delay_probs=late if late != early else (),
+                          drift_episodes=EPISODES - 1)
+
+
+def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS, person: str | None = None,
+        rate: float = 2.0) -> dict[str, list[dict]]:
     from experiments.runner import TrialSpec, run_trials
 
     env = _register_cut_maze()
-    observer = ObserverConfig(p_feedback=0.5, delay_probs=PERSON_LAGS)
+    observer = observer_for(person, rate)
     pairs = [(layouts[k % len(layouts)], PILOT_SEED0 + k) for k in range(trials)]
     specs = [(arm, L, TrialSpec(env, ARMS[arm](), observer, seed=s, layout=L, episodes=EPISODES))
              for arm in arms for L, s in pairs]
@@ -118,7 +132,11 @@ class ConsolePilotConfig:
 
     trials: int = option(48, "(layout, seed) pairs per arm")
     idle_updates: int = option(IDLE_UPDATES, "idle-time minibatch steps after each step (the console's learner: 8)")
-    layouts: tuple[int, ...] = option(PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one)")
+    layouts: tuple[int, ...] = option(PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one; odd "
+                                                     "ones are misleading)")
+    person: str | None = option(None, "the person's lag shape in seconds (services/console/lags.py, e.g. "
+                                      "drift:0.5,2,0.2), on the step clock at --rate (none: uniform 0.3-1.5 s)")
+    rate: float = option(2.0, "steps per second the person's lags in seconds are counted at")
     arms: tuple[str, ...] = option(tuple(ARMS), "arms besides dqn (always run): dqn-tamer/matched (credit on the "
                                                 "true candidates: onset credit), /interval (the interval reading's "
                                                 "kernel), /0.2-4s (lags uniform 0-6), /adaptive (adaptive alpha_h, "
@@ -128,6 +146,10 @@ class ConsolePilotConfig:
         unknown = [a for a in self.arms if a not in ARMS]
         if unknown:
             raise ValueError(f"unknown arm(s) {unknown}; choose from {list(ARMS)}")
+        if self.person is not None:
+            from services.console.lags import check_lag_spec
+
+            check_lag_spec(self.person)
         if self.trials < 1 or self.idle_updates < 0 or not self.layouts:
             raise ValueError("trials must be >= 1, idle-updates >= 0, and some layout given")
         bad = [L for L in self.layouts if not 0 <= L < LAYOUT_COUNT]
@@ -140,7 +162,7 @@ def main(cfg: ConsolePilotConfig) -> int:
     if cfg.idle_updates:
         _with_idle_updates(cfg.idle_updates)
     t0 = time.time()
-    summary(run(arms, cfg.trials, cfg.layouts))
+    summary(run(arms, cfg.trials, cfg.layouts, cfg.person, cfg.rate))
     print(f"({cfg.trials} pairs per arm, idle updates {cfg.idle_updates}, {time.time() - t0:.0f} s)")
     return 0
 
