@@ -55,3 +55,52 @@ def test_every_design_runs_pairs_no_earlier_design_or_pilot_used_and_counts_its_
     onset = compare.DESIGNS["onset"]
     assert onset.looks == 5 and onset.arms[0].screen_credit == "onset" and onset.primary[0] == "DQN"
     assert compare.DESIGNS["replicate"].looks == 6 and len(compare.DESIGNS["replicate"].pairs) == 18
+
+
+def test_holm_steps_down_and_stops_at_the_first_test_that_fails():
+    # p sorted: 0.001 (< 0.05/4), 0.01 (< 0.05/3), 0.03 (> 0.05/2: stops), 0.04 (never reached)
+    assert compare.holm([0.03, 0.001, 0.04, 0.01], 0.05) == pytest.approx([0.025, 0.0125, 0.0, 0.05 / 3])
+    assert compare.holm([0.5], 0.05) == [0.05]
+
+
+def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
+    from services.console.design import design_from_dict
+
+    design = design_from_dict({
+        "name": "t", "pairs": [[0, 200], [2, 201], [4, 202], [6, 203], [1, 204], [3, 205]],
+        "arms": [{"name": "T", "algo": "dqn-tamer", "screen_delay": "learned"}, {"name": "D", "algo": "dqn"}],
+        "primary": ["D", "T"], "episodes": 15, "measure": "goals", "multiplicity": "holm",
+        "people": {"slow": "uniform:1,2", "drifting": "drift:0.5,2,0.2"}})
+    assert design.tests() == [("slow", "honest"), ("slow", "misleading"), ("drifting", "honest"),
+                              ("drifting", "misleading")]
+    early = {"reached_goal": [True] * 15, "first_good_episode": 1, "total_steps": 300}
+    late = {"reached_goal": [False] * 5 + [True] * 10, "first_good_episode": 6, "total_steps": 900}
+    rows = []
+    for person in design.people:
+        for layout, seed in design.pairs:
+            dqn = late if person == "slow" and layout % 2 == 0 else early
+            rows += [{"arm": "D", "person": person, "layout": layout, "seed": seed, **dqn},
+                     {"arm": "T", "person": person, "layout": layout, "seed": seed, **early}]
+    tests = compare.declared_tests(rows, design)
+    slow_honest = tests[0]
+    assert slow_honest["wins"] == 4 and slow_honest["wilcoxon_p"] == pytest.approx(1 / 16)
+    assert slow_honest["alpha"] == pytest.approx(0.05 / 4) and slow_honest["verdict"] == "not shown"
+    assert all(t["wilcoxon_p"] == 1.0 for t in tests[1:])
+    assert "| slow | 0 | 200 |" in compare.table(rows, design)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"colour": "red"}, "unknown fields"),
+    ({"primary": ["D", "X"]}, "primary"),
+    ({"people": {"p": "drift:1"}}, "drift"),
+    ({"pairs": [[0, 1], [0, 1]]}, "distinct"),
+    ({"pairs": [[60, 1]]}, "layouts"),
+    ({"multiplicity": "holm"}, "holm tests one hypothesis per declared person"),
+])
+def test_a_design_file_that_says_something_wrong_is_refused(change, message):
+    from services.console.design import design_from_dict
+
+    raw = {"name": "t", "pairs": [[0, 1]], "arms": [{"name": "T", "algo": "dqn-tamer"}, {"name": "D", "algo": "dqn"}],
+           "primary": ["D", "T"], **change}
+    with pytest.raises(ValueError, match=message):
+        design_from_dict(raw)
