@@ -9,7 +9,7 @@ from typing import ClassVar
 from ._base import Message, fld
 from ._messages import RUN, Count, Name, Seconds, Token
 from ._containers import List, Nullable, Obj
-from ._spec import Float, Int, ProtocolError, Str
+from ._spec import Bool, Float, Int, ProtocolError, Str
 
 CONTROL_COMMANDS = ("pause", "resume", "pace", "end")
 MAX_RATE = 50.0  # steps per second a console may ask for
@@ -86,6 +86,7 @@ class DelayEstimate:
     feedbacks: int
     bin_s: float
     probs: list
+    returning: bool = False
 
 
 MAX_DELAY_BINS = 120
@@ -95,7 +96,8 @@ DELAY_ESTIMATE_SPEC = Obj({
     "p90_s": Float(0.0, 60.0, description="90th percentile (s)."),
     "feedbacks": Int(0, description="Feedbacks the estimate has seen (0: the prior, or a returning person's last)."),
     "bin_s": Float(0.001, 10.0, description="Width (s) of each density bin; bin i covers [i * bin_s, (i+1) * bin_s)."),
-    "probs": List(Float(0.0, 1.0), max_items=MAX_DELAY_BINS, description="Probability of each bin, from 0 s.")},
+    "probs": List(Float(0.0, 1.0), max_items=MAX_DELAY_BINS, description="Probability of each bin, from 0 s."),
+    "returning": Bool(description="The estimate started from this person's profile (their last session's).")},
     cls=DelayEstimate, description="The learner's current estimate of this teacher's reaction delay, in seconds.")
 
 

@@ -34,13 +34,13 @@ def profiled(teacher_id: str) -> bool:
     return not NUMBERED.match(teacher_id)
 
 
-def delay_message(model) -> DelayEstimate:
+def delay_message(model, returning: bool = False) -> DelayEstimate:
     """A model's current estimate as sent to the person's console (the density's bins and its quantiles)."""
     edges, probs = model.density()
     s = model.summary()
     return DelayEstimate(median_s=float(s["median_s"]), p10_s=float(s["p10_s"]), p90_s=float(s["p90_s"]),
                          feedbacks=int(s["feedbacks"]), bin_s=float(edges[1] - edges[0]),
-                         probs=[round(float(p), 5) for p in np.clip(probs, 0.0, 1.0)])
+                         probs=[round(float(p), 5) for p in np.clip(probs, 0.0, 1.0)], returning=returning)
 
 
 class TeacherDelays:
@@ -67,7 +67,8 @@ class TeacherDelays:
         self.dirty.add(teacher_id)
 
     def estimate(self, teacher_id: str) -> DelayEstimate:
-        return delay_message(self.model(teacher_id))
+        model = self.model(teacher_id)
+        return delay_message(model, teacher_id in self.returning)
 
     def summaries(self) -> dict[str, dict]:
         """{teacher: {median_s, p10_s, p90_s, feedbacks}} for every teacher seen (`summary.json`'s delay block)."""

@@ -44,7 +44,8 @@ def test_a_named_person_starts_from_their_last_estimate(tmp_path):
     again = second.model("web-alice")
     assert second.returning == {"web-alice"}
     assert again.summary()["median_s"] == pytest.approx(learned["median_s"], abs=0.05)
-    assert second.estimate("web-alice").feedbacks == learned["feedbacks"]
+    assert second.estimate("web-alice").feedbacks == learned["feedbacks"] and second.estimate("web-alice").returning
+    assert not first.estimate("web-alice").returning
     assert second.model("web-bob").summary()["median_s"] == pytest.approx(2.1, abs=0.1)  # new: the prior
 
 

@@ -19,5 +19,5 @@ function showDelay(d) {
   for (let s = 0; s <= maxS; s += 1) g.fillText(`${s}s`, Math.min(x(s), w - 14), h - 2);
   document.getElementById("delaytext").textContent = `median ${d.median_s.toFixed(2)} s ` +
     `(80% within ${d.p10_s.toFixed(2)}-${d.p90_s.toFixed(2)} s), from ${d.feedbacks} presses` +
-    (d.feedbacks ? "" : " (the learner's starting assumption)");
+    (d.returning ? " (counting your earlier sessions: welcome back)" : d.feedbacks ? "" : " (the learner's starting assumption)");
 }
