@@ -1,13 +1,21 @@
 """The person's delay estimate on the console page, in a real headless Chromium against a live run: every Credit of
 a press carries the learner's current estimate of that person's delay (`Credit.delay`), and the page draws it
-(a density over 0-6 s with its median marked in red) with the numbers beside it."""
+(a density over 0-6 s with its median marked in red) with the numbers beside it. The run's recorded log then
+tells credit settings apart (`replay LOG retrain --screen-delay ...`): the person's own delay predicts their later
+presses better than a wrong one."""
 from __future__ import annotations
+
+import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 from common.logs.mcap_read import read_log
 from common.protocol import Credit
+
+from tests.services.live import ROOT, env
 
 from .harness import SCRIPTED, WebRun, browser, open_console
 
@@ -38,7 +46,7 @@ def test_page_draws_the_delay_estimate_each_credit_carries(tmp_path):
             assert page.locator("#delaytext").inner_text() == "after your first press"
             page.add_script_tag(path=str(SCRIPTED))
             page.evaluate("hitlScriptedPerson({p: 0.6, lagMin: 0.4, lagMax: 1.2, seed: 5})")
-            page.wait_for_function("[...hitl.mine.values()].filter(f => f.credit).length >= 12", timeout=90_000)
+            page.wait_for_function("[...hitl.mine.values()].filter(f => f.credit).length >= 20", timeout=120_000)
             page.evaluate("hitl.onShown = []")  # the person stops; their last presses (<= 1.2 s) are credited
             page.wait_for_timeout(2500)
             shown = page.evaluate("hitl.delay")
@@ -77,3 +85,12 @@ def test_page_draws_the_delay_estimate_each_credit_carries(tmp_path):
               and m.message.teacher_id == "web-alice"]
     assert len(logged) >= len(credits) and all(c.delay is not None for c in logged)
     assert max(c.delay.feedbacks for c in logged) >= len(credits)
+
+    # Which delay fits this person, from the recorded log: their own (0.4-1.2 s) against a wrong one (2.5-5.5 s).
+    scored = subprocess.run([sys.executable, "-m", "services.replay", str(run.rundir), "retrain", "--screen-delay",
+                             "uniform:0.4,1.2", "--screen-delay", "uniform:2.5,5.5", "--screen-credit", "onset",
+                             "--json"], cwd=ROOT, env=env(), capture_output=True, text=True, timeout=300)
+    assert scored.returncode == 0, scored.stderr[-2000:]
+    rows = {r["delay"]: r for r in json.loads(scored.stdout)}
+    assert rows["uniform:0.4,1.2"]["scored"] >= 5 and rows["uniform:0.4,1.2"]["fitted"] >= 12
+    assert rows["uniform:0.4,1.2"]["mean_loglik"] > rows["uniform:2.5,5.5"]["mean_loglik"] + 0.3
