@@ -137,6 +137,13 @@ def declared_tests(rows: list[dict], design: Design) -> list[dict]:
     return tests
 
 
+def secondary_tests(rows: list[dict], design: Design) -> list[dict]:
+    """Shown, never deciding: each person on each layout kind, where the declared tests pool the kinds."""
+    if design.multiplicity != "holm" or design.tests_by != "person":
+        return []
+    return [one_test(rows, design, person, kind) for person in design.people for kind in design.kinds()]
+
+
 def primary_test(rows: list[dict], design: Design) -> dict:
     """The one declared test of a `looks` design."""
     return declared_tests(rows, design)[0]
@@ -190,8 +197,9 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
 def report(rows: list[dict], design: Design, out: Path) -> None:
     tests = declared_tests(rows, design)
     figure(rows, design, out / "compare.png")
+    secondary = secondary_tests(rows, design)
     (out / "compare.json").write_text(json.dumps({"design": asdict(design), "tests": tests, "primary": tests[0],
-                                                  "runs": rows}, indent=1))
+                                                  "secondary": secondary, "runs": rows}, indent=1))
     (out / "compare.md").write_text(table(rows, design) + "\n")
     print(table(rows, design))
     measure = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
@@ -201,13 +209,41 @@ def report(rows: list[dict], design: Design, out: Path) -> None:
               f"{t['mean']:+.2f}, {t['wins']} wins / {t['ties']} ties / {t['losses']} losses, Wilcoxon p "
               f"{t['wilcoxon_p']:.4f} (decides at {t['alpha']:.4f}, {design.multiplicity}), sign p "
               f"{t['sign_p']:.4f}: {t['verdict']}")
+    for t in secondary:
+        print(f"  secondary (never deciding), {t['person']} on {t['kind']} layouts: mean {t['mean']:+.2f}, "
+              f"{t['wins']}/{t['ties']}/{t['losses']}, Wilcoxon p {t['wilcoxon_p']:.4f}")
     for a in design.arms:
         print(f"  {a.name}: {sum(r['total_steps'] for r in rows if r['arm'] == a.name)} steps in all")
     print(f"wrote {out / 'compare.json'}, compare.md, compare.png")
 
 
+def preflight(design: Design) -> str | None:
+    """Why this checkout cannot run the design's arms (each arm's settings as `services up` would take them), or
+    None: checked before any run starts, so that a design never runs half."""
+    from services.common.config import LearnerConfig
+    from services.console.config import ConsoleConfig
+    from services.console.scripted import DEFAULT
+    from services.launcher.config import UpConfig
+
+    for arm in design.arms:
+        flags = ["--teacher", "web", "--algo", arm.algo]
+        for flag, value in (("--screen-delay", arm.screen_delay), ("--screen-credit", arm.screen_credit)):
+            flags += [flag, value] if value != DEFAULT else []
+        try:
+            up = parse_config(UpConfig, flags)  # and what the launcher makes of it for the learner and the console
+            LearnerConfig(run="preflight", algo=arm.algo, screen_delay=up.screen_delay, screen_credit=up.screen_credit)
+            ConsoleConfig(run="preflight", algo=arm.algo, screen_delay=up.screen_delay)
+        except (SystemExit, ValueError) as exc:
+            return f"arm {arm.name!r} ({' '.join(flags)}): {exc}"
+    return None
+
+
 def main(cfg: CompareConfig) -> int:
     design = DESIGNS[cfg.design]
+    refused = preflight(design)
+    if refused:
+        print(f"[compare] design {design.name} cannot run here: {refused}", file=sys.stderr)
+        return 2
     pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
     jobs = [(a, who, l, s) for who in design.persons() for l, s in pairs for a in design.arms]
     print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {design.episodes} episodes at {design.rate} steps/s",

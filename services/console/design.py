@@ -5,7 +5,8 @@ decides it by the test the file declares. The file holds what is compared (arms,
 seed), the measure, and the multiplicity rule:
 
     looks  the one primary test at alpha / looks (Bonferroni over the designs that tested the same claim)
-    holm   one test per (person, layout kind) declared in the file, Holm's step-down at alpha over them all
+    holm   one test per declared person (`tests_by: person`, over all its pairs, honest and misleading layouts
+           alike) or per person and layout kind (`tests_by: person_kind`), Holm's step-down at alpha over them all
 
 Older designs have one person, the uniform 0.3-1.5 s lag of `static/scripted_person.js` (`people` absent).
 """
@@ -22,6 +23,7 @@ from services.console.lags import check_lag_spec
 DESIGN_DIR = Path(__file__).resolve().parent / "designs"
 MEASURES = ("first_good", "goals")
 MULTIPLICITY = ("looks", "holm")
+TESTS_BY = ("person", "person_kind")
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,7 @@ class Design:
     looks: int = 1
     """Designs tested so far for the same claim, this one included: with `looks`, the verdict is at alpha / looks."""
     multiplicity: str = "looks"
+    tests_by: str = "person_kind"
     people: dict[str, str] = field(default_factory=dict)
     """Scripted people by name: their lag shape (services/console/lags.py); empty = uniform 0.3-1.5 s."""
     p_press: float = 0.5
@@ -61,16 +64,21 @@ class Design:
         """The declared tests: (person, layout kind) for holm; one (None, None) test over every pair for looks."""
         if self.multiplicity == "looks":
             return [(None, None)]
-        kinds = sorted({layout_kind(l) for l, _ in self.pairs})
-        return [(person, kind) for person in self.people for kind in kinds]
+        if self.tests_by == "person":
+            return [(person, None) for person in self.people]
+        return [(person, kind) for person in self.people for kind in self.kinds()]
+
+    def kinds(self) -> list[str]:
+        return sorted({layout_kind(l) for l, _ in self.pairs})
 
     def persons(self) -> list[str | None]:
         return list(self.people) or [None]
 
 
 def _check(d: Design) -> Design:
-    if d.measure not in MEASURES or d.multiplicity not in MULTIPLICITY:
-        raise ValueError(f"design {d.name}: measure in {MEASURES}, multiplicity in {MULTIPLICITY}")
+    if d.measure not in MEASURES or d.multiplicity not in MULTIPLICITY or d.tests_by not in TESTS_BY:
+        raise ValueError(f"design {d.name}: measure in {MEASURES}, multiplicity in {MULTIPLICITY}, tests_by in "
+                         f"{TESTS_BY}")
     names = [a.name for a in d.arms]
     if len(set(names)) != len(names) or not set(d.primary) <= set(names):
         raise ValueError(f"design {d.name}: arm names must be distinct and include the primary {d.primary}")

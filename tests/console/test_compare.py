@@ -1,5 +1,8 @@
 """The console comparison's declared test (`services.console.compare`): paired episodes-to-goal differences, an
 agent that never reached the goal scored episodes + 1, the Wilcoxon verdict."""
+import dataclasses
+
+import numpy as np
 import pytest
 
 from services.console import compare
@@ -87,6 +90,10 @@ def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
     assert slow_honest["alpha"] == pytest.approx(0.05 / 4) and slow_honest["verdict"] == "not shown"
     assert all(t["wilcoxon_p"] == 1.0 for t in tests[1:])
     assert "| slow | 0 | 200 |" in compare.table(rows, design)
+    pooled = compare.declared_tests(rows, dataclasses.replace(design, tests_by="person"))
+    assert [(t["person"], t["kind"]) for t in pooled] == [("slow", None), ("drifting", None)]
+    assert pooled[0]["wins"] == 4 and pooled[0]["ties"] == 2 and pooled[0]["alpha"] == pytest.approx(0.025)
+    assert len(compare.secondary_tests(rows, dataclasses.replace(design, tests_by="person"))) == 4
 
 
 @pytest.mark.parametrize("change, message", [
@@ -104,3 +111,25 @@ def test_a_design_file_that_says_something_wrong_is_refused(change, message):
            "primary": ["D", "T"], **change}
     with pytest.raises(ValueError, match=message):
         design_from_dict(raw)
+
+
+def test_the_unknown_teacher_design_is_declared_as_issue_24_asks():
+    """Three people the learner is not told about (one drifting 0.5 -> 2 s, one long-tailed lognormal, one bimodal),
+    the learned delay against DQN by the episode of the tenth goal, honest and misleading layouts, Holm."""
+    from common.envs.maze import layout_kind
+    from services.console.lags import lag_plan
+
+    d = compare.DESIGNS["unknown-teacher"]
+    assert list(compare.DESIGNS)[-1] == "unknown-teacher"
+    assert d.multiplicity == "holm" and d.tests_by == "person" and d.alpha == 0.05
+    assert d.measure == "goals" and d.goals == 10 and d.primary == ("DQN", "DQN-TAMER, learned delay")
+    tamer = next(a for a in d.arms if a.name == d.primary[1])
+    assert tamer.algo == "dqn-tamer" and tamer.screen_delay == "learned"
+    assert {layout_kind(l) for l, _ in d.pairs} == {"honest", "misleading"}
+    plans = {name: lag_plan(spec, d.episodes, d.episode_steps, 0) for name, spec in d.people.items()}
+    drifting = np.median(plans["drifting"], axis=1)
+    assert drifting[0] == pytest.approx(0.5, rel=0.1) and drifting[-1] == pytest.approx(2.0, rel=0.1)
+    tail = plans["long-tailed"]
+    assert np.percentile(tail, 99) > 3 * np.median(tail)  # long-tailed
+    bimodal = np.histogram(plans["bimodal"], bins=np.arange(0, 3.01, 0.2))[0]
+    assert bimodal[2:4].sum() > bimodal[5] and bimodal[8:10].sum() > bimodal[5]  # two modes, about 0.6 and 1.8 s
