@@ -34,7 +34,6 @@ from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
 from services.learner.screen import ScreenCredit
-from services.learner.teacher_delays import TeacherDelays
 
 REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
 ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
@@ -76,7 +75,6 @@ class LearnerCore:
         self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
         self.screen = ScreenCredit(config.screen_delay, self.agent_config.history_steps, config.screen_credit)
-        self.delays = TeacherDelays(config.screen_delay, config.screen_credit, config.profiles)
         self.actor: str | None = None
         self.next_seq = 0
         self.teacher_next: dict[str, int] = {}
@@ -265,9 +263,6 @@ class LearnerCore:
     def _credit(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
         if fb.shown is not None:  # a person's screen: seconds over the on-screen intervals
             out, credited = self.screen.credit(self.loop, fb, self.actor)
-            if fb.shown and fb.actor == self.actor:  # the person's delay model sees it (a fixed one only counts)
-                self.delays.model(fb.teacher_id).observe(float(fb.t_reaction), [s.t for s in fb.shown])
-                self.delays.observed(fb.teacher_id)
             result = self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
             result.feedback, result.credited = fb, credited
             return result

@@ -1,14 +1,15 @@
-"""Each teacher's delay model in seconds (`common.core.delay_model`), and returning people's profiles.
+"""Returning people's delay estimates (`--profiles DIR`), and the estimate a person's console is sent.
 
-The learner credits a person's screen feedback with their own delay model, made on first use from its
-`screen-delay` setting (`learned`, `learned:PRIOR` or a fixed spec). With `profiles DIR`, a named person
-(`web-alice`: the console's `?name=alice`) starts from the estimate their last session ended with,
-`DIR/web-alice.json` (`LearnedDelay.state(window=False)`: their last density becomes the prior), and the learner
-writes it back atomically every `save_period` seconds while it changes and at the end. Numbered people
-(`web-1`, `web-2`: whoever opened a page first) are not profiled: the next `web-1` is someone else.
+The learner keeps one delay model per teacher (`LearnerCore.delays`, `common.core.delay_model`). With
+`profiles DIR`, a named person (`web-alice`: the console's `?name=alice`) starts from the estimate their last
+session ended with, `DIR/web-alice.json` (`LearnedDelay.state(window=False)`: their last density becomes the
+prior), and the learner writes it back atomically every `save_period` seconds while it moves and at the end.
+Numbered people (`web-1`, `web-2`: whoever opened a page first) are not profiled: the next `web-1` is someone
+else. Nor is a fixed delay, which learns nothing.
 
-A profile that cannot be read (damaged, another config's bins) is set aside as `NAME.json.damaged`, counted, and
-the person starts from the prior: a bad file never stops a run, and is never silently overwritten.
+A profile that cannot be read (damaged, not a learned delay) is set aside as `NAME.json.damaged`, counted, and
+the person starts from the prior: a bad file never stops a run, and is never silently overwritten. The file
+gives only the estimate; the bins and settings are this run's own (a file never sizes the arrays).
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from common.core.delay_model import LearnedDelay, delay_estimate
+from common.core.delay_model import LearnedDelay
 from common.protocol import DelayEstimate
 from services.common.statefiles import atomic_write_json
 
@@ -31,7 +32,7 @@ SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.:-]{0,63}")  # a protocol name (
 
 def profiled(teacher_id: str) -> bool:
     """True for a named person whose estimate is kept across sessions."""
-    return not NUMBERED.match(teacher_id)
+    return not NUMBERED.match(teacher_id) and bool(SAFE_NAME.fullmatch(teacher_id))
 
 
 def delay_message(model, returning: bool = False) -> DelayEstimate:
@@ -43,73 +44,54 @@ def delay_message(model, returning: bool = False) -> DelayEstimate:
                          probs=[round(float(p), 5) for p in np.clip(probs, 0.0, 1.0)], returning=returning)
 
 
-class TeacherDelays:
-    def __init__(self, spec: str, reference: str, profiles: str | os.PathLike | None = None,
-                 save_period: float = 10.0):
-        self.spec, self.reference = spec, reference
-        self.profiles = Path(profiles) if profiles else None
+class Profiles:
+    """The profile directory: a returning person's model on first use, and every learned model written back."""
+
+    def __init__(self, directory: str | os.PathLike | None, save_period: float = 10.0):
+        self.directory = Path(directory) if directory else None
         self.save_period = save_period
-        self.models: dict[str, object] = {}
-        self.dirty: set[str] = set()  # teachers whose estimate moved since their profile was written
         self.returning: set[str] = set()  # teachers who started from their profile
         self.damaged = 0
+        self._saved: dict[str, int] = {}  # teacher -> feedbacks its model had when its profile was last written
         self._saved_at = time.monotonic()
 
-    def model(self, teacher_id: str):
-        """The teacher's delay model (made, or read from their profile, on first use)."""
-        m = self.models.get(teacher_id)
-        if m is None:
-            m = self.models[teacher_id] = self._load(teacher_id) or delay_estimate(self.spec, self.reference)
-        return m
-
-    def observed(self, teacher_id: str) -> None:
-        """The teacher's model learned from a feedback (its profile is due for writing)."""
-        self.dirty.add(teacher_id)
-
-    def estimate(self, teacher_id: str) -> DelayEstimate:
-        model = self.model(teacher_id)
-        return delay_message(model, teacher_id in self.returning)
-
-    def summaries(self) -> dict[str, dict]:
-        """{teacher: {median_s, p10_s, p90_s, feedbacks}} for every teacher seen (`summary.json`'s delay block)."""
-        return {t: m.summary() for t, m in self.models.items()}
-
-    # -- profiles ------------------------------------------------------------------------------------------------
-    def _path(self, teacher_id: str) -> Path | None:
-        if self.profiles is None or not profiled(teacher_id) or not SAFE_NAME.fullmatch(teacher_id):
+    def path(self, teacher_id: str) -> Path | None:
+        if self.directory is None or not profiled(teacher_id):
             return None
-        return self.profiles / f"{teacher_id}.json"  # (teacher ids are protocol names: no separators)
+        return self.directory / f"{teacher_id}.json"
 
-    def _load(self, teacher_id: str):
-        path = self._path(teacher_id)
-        fresh = delay_estimate(self.spec, self.reference)
-        if path is None or not path.exists() or not isinstance(fresh, LearnedDelay):
-            return None
+    def load(self, teacher_id: str, fresh):
+        """The person's model from their profile (a `LearnedDelay` like `fresh`, the new session's), or `fresh`."""
+        path = self.path(teacher_id)
+        if path is None or not isinstance(fresh, LearnedDelay) or not path.exists():
+            return fresh
         try:
             state = json.loads(path.read_text())
-            if not isinstance(state, dict) or state.get("kind") != "learned" or "rows" in state:
+            if not isinstance(state, dict) or state.get("kind") != "learned":
                 raise ValueError("not a learned delay's profile")
-            # this run's own bins and settings (a file never sizes the arrays); the file gives the estimate
             model = LearnedDelay.from_state({"kind": "learned", "config": dataclasses.asdict(fresh.config),
                                              "probs": state["probs"], "feedbacks": int(state.get("feedbacks", 0))})
         except (OSError, ValueError, KeyError, TypeError) as exc:
             self.damaged += 1
             os.replace(path, path.with_name(path.name + ".damaged"))
             print(f"warning: profile {path} set aside ({str(exc)[:80]}): {teacher_id} starts from the prior")
-            return None
+            return fresh
         self.returning.add(teacher_id)
+        self._saved[teacher_id] = model.feedbacks
         return model
 
-    def save(self, force: bool = False) -> int:
-        """Write the profiles of teachers whose estimate moved (every `save_period` s, or now with `force`)."""
-        if not self.dirty or (not force and time.monotonic() - self._saved_at < self.save_period):
+    def save(self, models: dict, force: bool = False) -> int:
+        """Write the profiles of named people whose learned estimate moved since it was last written (at most every
+        `save_period` s, or now with `force`). Returns how many were written."""
+        if self.directory is None or (not force and time.monotonic() - self._saved_at < self.save_period):
             return 0
         written = 0
-        for teacher_id in sorted(self.dirty):
-            path, m = self._path(teacher_id), self.models.get(teacher_id)
-            if path is not None and isinstance(m, LearnedDelay):
-                atomic_write_json(path, m.state(window=False))
-                written += 1
-        self.dirty.clear()
+        for teacher_id, model in sorted(models.items()):
+            path = self.path(teacher_id)
+            if path is None or not isinstance(model, LearnedDelay) or self._saved.get(teacher_id) == model.feedbacks:
+                continue
+            atomic_write_json(path, model.state(window=False))
+            self._saved[teacher_id] = model.feedbacks
+            written += 1
         self._saved_at = time.monotonic()
         return written
