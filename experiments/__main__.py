@@ -170,7 +170,17 @@ def main(argv: list[str] | None = None) -> int:
     p_cmp.add_argument("--trials", type=int, default=1, help="trials per agent and environment (default: 1)")
     p_cmp.add_argument("--episodes", type=int, default=10, help="episodes per trial (default: 10)")
     p_cmp.add_argument("--out", default=None, help="also write every run's figures and the ratios to this JSON file")
+    from experiments.delay_check import DelayCheckConfig
+    p_delay = sub.add_parser("delay-check", help=DelayCheckConfig.__doc__, description=DelayCheckConfig.__doc__)
+    add_config_arguments(p_delay, DelayCheckConfig)
     args = parser.parse_args(argv)
+    if args.command == "delay-check":
+        from experiments.delay_check import main as delay_check_main
+        try:
+            check = config_from_namespace(DelayCheckConfig, args)
+        except ValueError as exc:
+            p_delay.error(str(exc))
+        return delay_check_main(check)
     if args.command == "bench-compare":
         return cmd_bench_compare(args, p_cmp)
     if args.command == "sweep":

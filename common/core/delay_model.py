@@ -15,7 +15,7 @@ the candidate steps shown during [start_k, end_k) on the same clock (seconds), i
             the estimate cannot confirm itself. Each observation then refits the density by a few EM
             steps over the last `window` rows, row i weighted `forget`^age (drift: the estimate follows a
             person who slows down), plus `prior_weight` pseudo-feedbacks of the prior, smoothed by a
-            [1/4, 1/2, 1/4] kernel per step (EMS). A row that cannot tell delays apart (every candidate
+            Gaussian kernel (`smooth_s`) per step (EMS). A row that cannot tell delays apart (every candidate
             equally likely) leaves the density where it is, so an empty model of the event keeps the prior.
 
 `FixedDelay` wraps a fixed distribution (`common.core.delay.delay_from_spec`) behind the same interface: its
@@ -30,13 +30,12 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from common.core.credit import credit_weights, onset_weights
+from common.core.credit import credit_weights, interval_mass, onset_weights
 from common.core.delay import check_delay_spec, delay_from_spec
 
 LEARNED = "learned"
 DEFAULT_PRIOR = "uniform:0.2,4"
 REFERENCES = ("onset", "interval")
-SMOOTHING = np.array([0.25, 0.5, 0.25])
 
 
 @dataclass(frozen=True)
@@ -48,12 +47,19 @@ class LearnedDelayConfig:
     bin_s: float = 0.1
     prior_weight: float = 2.0
     """Pseudo-feedbacks of the prior (it weighs as much as this many feedbacks)."""
-    forget: float = 0.97
-    """Weight of a row per later feedback: about 1 / (1 - forget) = 33 feedbacks remembered (drift)."""
-    window: int = 150
+    forget: float = 0.995
+    """Weight of a row per later feedback for the steady estimate: about 1 / (1 - forget) = 200 feedbacks."""
+    forget_fast: float = 0.96
+    """The same for the estimate that follows drift (about 25 feedbacks); credit uses whichever of the two
+    predicted the recent feedbacks better (`score_memory`)."""
+    score_memory: float = 0.95
+    """Decay per informative feedback of each estimate's running log-likelihood of the feedbacks it had not seen."""
+    window: int = 300
     """Rows kept (older ones weigh forget^window, under 1%)."""
     iterations: int = 3
     """EM steps after each feedback, from the current estimate."""
+    smooth_s: float = 0.1
+    """Width (s, a Gaussian's sd) of the smoothing after each EM step: a density, not a comb of step-spaced spikes."""
     floor: float = 0.02
     """Share of the prior spread over all of 0..max_s, so that the data can revive any delay."""
     reference: str = "onset"
@@ -63,8 +69,10 @@ class LearnedDelayConfig:
         check_delay_spec(self.prior)
         if not (0 < self.bin_s < self.max_s and math.isfinite(self.max_s)):
             raise ValueError(f"need 0 < bin_s < max_s, got {self.bin_s}, {self.max_s}")
-        if not (0 < self.forget <= 1 and self.prior_weight > 0 and 0 <= self.floor < 1):
-            raise ValueError("need 0 < forget <= 1, prior_weight > 0 and 0 <= floor < 1")
+        if not (0 < self.forget_fast <= 1 and 0 <= self.score_memory < 1):
+            raise ValueError("need 0 < forget_fast <= 1 and 0 <= score_memory < 1")
+        if not (0 < self.forget <= 1 and self.prior_weight > 0 and 0 <= self.floor < 1 and 0 <= self.smooth_s < 1):
+            raise ValueError("need 0 < forget <= 1, prior_weight > 0, 0 <= floor < 1 and 0 <= smooth_s < 1")
         if self.window < 1 or self.iterations < 1:
             raise ValueError("window and iterations must be >= 1")
         if self.reference not in REFERENCES:
@@ -90,9 +98,16 @@ class LearnedDelay:
         mass = mass / mass.sum() if mass.sum() > 0 else np.full(n, 1.0 / n)
         self.prior = (1.0 - c.floor) * mass + c.floor / n
         self.probs = self.prior.copy()
-        self.rows = np.zeros((c.window, n), np.float64)  # likelihood of each bin, per observed feedback
-        self.seen = np.zeros(c.window, np.int64)  # the feedback count at which each row was observed
+        self.rates = np.array([c.forget, c.forget_fast])
+        self.by_rate = np.stack([self.prior, self.prior])  # the steady and the fast estimate
+        self.scores = np.zeros(2)  # their running log-likelihood of new feedback (before fitting it)
+        self.rows = np.zeros((c.window, n), np.float64)  # likelihood of each bin, per informative feedback
+        self.seen = np.zeros(c.window, np.int64)  # the informative feedback count at which each row came
+        self.informative = 0  # feedbacks that told something about the delay
         self.feedbacks = 0  # feedbacks observed (informative or not)
+        half = max(1, int(np.ceil(3 * c.smooth_s / c.bin_s)))
+        kernel = np.exp(-0.5 * (np.arange(-half, half + 1) * c.bin_s / max(c.smooth_s, 1e-9)) ** 2)
+        self.kernel = kernel / kernel.sum()
 
     # -- credit ------------------------------------------------------------------------------------------------
     def bin_matrix(self, t_feedback: float, starts, ends=None) -> np.ndarray:
@@ -128,34 +143,47 @@ class LearnedDelay:
     # -- learning ----------------------------------------------------------------------------------------------
     def observe(self, t_feedback: float, starts, ends=None, likelihood=None) -> bool:
         """Learn from one feedback: `likelihood[k]` = P(its value | candidate k was rated) under a model of the
-        rated event that was not fitted with this credit (None: uninformative). False when no candidate lies
-        in 0..max_s (nothing learned)."""
+        rated event that was not fitted with this credit (None: uninformative). False when it tells nothing
+        about the delay (no candidate in 0..max_s, or all equally likely): nothing learned, only counted."""
         m = self.bin_matrix(t_feedback, starts, ends)
         like = np.ones(len(m)) if likelihood is None else np.asarray(likelihood, np.float64)
-        row = like @ m  # P(feedback | delay in bin b), up to a constant
         self.feedbacks += 1
-        if not row.any():
+        reached = m.any(axis=1)
+        if not reached.any() or np.ptp(like[reached]) <= 1e-12 * like[reached].max():
+            # No candidate, or every candidate explains it equally: it tells nothing about the delay (stored, it
+            # would only let the smoothing spread the density: a stuck agent's long runs of one polarity).
             return False
-        at = self.feedbacks % self.config.window
-        self.rows[at] = row / row.max()
-        self.seen[at] = self.feedbacks
+        row = like @ m  # P(feedback | delay in bin b), up to a constant
+        row = row / row.max()
+        self.scores = self.config.score_memory * self.scores + np.log(np.maximum(self.by_rate @ row, 1e-300))
+        self.informative += 1
+        at = self.informative % self.config.window
+        self.rows[at] = row
+        self.seen[at] = self.informative
         self._refit()
         return True
 
     def _refit(self) -> None:
+        """A few EM steps of each estimate over the held rows (row i weighted rate^age in informative feedbacks,
+        the prior as heavy against them in both), from where it was; credit then uses the one whose running
+        score is higher (the steady one on ties)."""
         c = self.config
         held = self.seen > 0
         rows = self.rows[held]
-        age = self.feedbacks - self.seen[held]
-        weight = c.forget ** age.astype(np.float64)
-        p = self.probs
-        for _ in range(c.iterations):
-            post = rows * p
-            post /= post.sum(axis=1, keepdims=True)
-            p = weight @ post + c.prior_weight * self.prior
-            p = np.convolve(np.pad(p, 1, mode="edge"), SMOOTHING, mode="valid")
-            p /= p.sum()
-        self.probs = p
+        age = (self.informative - self.seen[held]).astype(np.float64)
+        half = len(self.kernel) // 2
+        for j, rate in enumerate(self.rates):
+            weight = rate ** age
+            prior = c.prior_weight * (1.0 - self.rates[0]) / (1.0 - rate) * self.prior if rate < 1 else \
+                c.prior_weight * self.prior
+            p = self.by_rate[j]
+            for _ in range(c.iterations):
+                post = rows * p
+                post /= post.sum(axis=1, keepdims=True)
+                p = np.convolve(np.pad(weight @ post + prior, half, mode="edge"), self.kernel, mode="valid")
+                p /= p.sum()
+            self.by_rate[j] = p
+        self.probs = self.by_rate[int(self.scores[1] > self.scores[0])]
 
     # -- reading -----------------------------------------------------------------------------------------------
     def quantile(self, q: float) -> float:
@@ -179,26 +207,36 @@ class LearnedDelay:
                "feedbacks": self.feedbacks}
         if window:
             held = np.flatnonzero(self.seen > 0)
-            out["rows"] = {"at": held.tolist(), "seen": self.seen[held].tolist(), "like": self.rows[held].tolist()}
+            out.update(by_rate=self.by_rate.tolist(), scores=self.scores.tolist(), informative=self.informative,
+                       rows={"at": held.tolist(), "seen": self.seen[held].tolist(), "like": self.rows[held].tolist()})
         return out
 
     @classmethod
     def from_state(cls, state: dict) -> "LearnedDelay":
-        """The model `state()` described (a profile without rows continues from its estimate)."""
-        model = cls(LearnedDelayConfig(**state.get("config", {})))
-        probs = np.asarray(state["probs"], np.float64)
-        if probs.shape != model.probs.shape or not np.all(np.isfinite(probs)) or probs.min() < 0 or probs.sum() <= 0:
-            raise ValueError("delay state: probs do not match the config's bins")
-        model.probs = probs / probs.sum()
-        model.feedbacks = int(state.get("feedbacks", 0))
-        rows = state.get("rows")
-        if rows:
-            at = np.asarray(rows["at"], np.int64)
-            model.rows[at] = np.asarray(rows["like"], np.float64)
-            model.seen[at] = np.asarray(rows["seen"], np.int64)
-        else:  # a returning person: their last estimate becomes the prior
-            model.prior = (1.0 - model.config.floor) * model.probs + model.config.floor / len(model.probs)
-            model.probs = model.prior.copy()
+        """The model `state()` described (a profile without rows continues from its estimate). A state that does
+        not fit its config is a one-line ValueError."""
+        try:
+            model = cls(LearnedDelayConfig(**state.get("config", {})))
+            probs = np.asarray(state["probs"], np.float64)
+            if probs.shape != model.probs.shape or not np.all(np.isfinite(probs)) or probs.min() < 0 \
+                    or not probs.sum() > 0:
+                raise ValueError("probs do not match the config's bins")
+            model.feedbacks = int(state.get("feedbacks", 0))
+            if "rows" in state:
+                at = np.asarray(state["rows"]["at"], np.int64)
+                model.rows[at] = np.asarray(state["rows"]["like"], np.float64)
+                model.seen[at] = np.asarray(state["rows"]["seen"], np.int64)
+                model.by_rate = np.asarray(state["by_rate"], np.float64).reshape(model.by_rate.shape)
+                model.scores = np.asarray(state["scores"], np.float64).reshape(2)
+                model.informative = int(state["informative"])
+                model.probs = probs
+            else:  # a returning person: their last estimate becomes the prior
+                probs = probs / probs.sum()
+                model.prior = (1.0 - model.config.floor) * probs + model.config.floor / len(probs)
+                model.probs = model.prior.copy()
+                model.by_rate = np.stack([model.prior, model.prior])
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise ValueError(f"delay state: {exc}") from None
         return model
 
 
@@ -206,9 +244,9 @@ class FixedDelay:
     """A delay that is not learned (a fixed distribution from `delay_from_spec`), with `LearnedDelay`'s
     interface: weights are `common.core.credit`'s (not normalised: mass on steps not held is lost)."""
 
-    def __init__(self, spec: str, reference: str = "interval"):
-        self.spec, self.reference = spec, reference
-        self.distribution = delay_from_spec(spec)
+    def __init__(self, spec: str, reference: str = "interval", unit: float = 1.0):
+        self.spec, self.reference, self.unit = spec, reference, unit
+        self.distribution = delay_from_spec(spec, unit)  # (unit: seconds per lag of a steps: spec)
         self.feedbacks = 0
 
     def weights(self, t_feedback: float, starts, ends=None, likelihood=None) -> np.ndarray:
@@ -223,7 +261,10 @@ class FixedDelay:
         return False
 
     def quantile(self, q: float) -> float:
-        return float(self.distribution.ppf(q)) if hasattr(self.distribution, "ppf") else float("nan")
+        if hasattr(self.distribution, "ppf"):
+            return float(self.distribution.ppf(q))
+        lags, probs = self.distribution.point_masses()  # (a DelayModel: the smallest lag reaching q)
+        return float(lags[min(np.searchsorted(np.cumsum(probs), q - 1e-12), len(lags) - 1)])
 
     def summary(self) -> dict:
         return {"median_s": round(self.quantile(0.5), 4), "p10_s": round(self.quantile(0.1), 4),
@@ -231,14 +272,16 @@ class FixedDelay:
 
     def density(self, max_s: float = 6.0, bin_s: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
         edges = np.linspace(0.0, max_s, int(round(max_s / bin_s)) + 1)
-        return edges, np.diff(np.asarray(self.distribution.cdf(edges), np.float64))
+        # P(lo <= D < hi) per bin (a point mass on an edge falls in the bin it opens)
+        return edges, interval_mass(self.distribution, edges[:-1] - 1e-12, edges[1:] - 1e-12)
 
     def state(self, window: bool = True) -> dict:
-        return {"kind": "fixed", "spec": self.spec, "reference": self.reference, "feedbacks": self.feedbacks}
+        return {"kind": "fixed", "spec": self.spec, "reference": self.reference, "unit": self.unit,
+                "feedbacks": self.feedbacks}
 
     @classmethod
     def from_state(cls, state: dict) -> "FixedDelay":
-        model = cls(state["spec"], state.get("reference", "interval"))
+        model = cls(state["spec"], state.get("reference", "interval"), float(state.get("unit", 1.0)))
         model.feedbacks = int(state.get("feedbacks", 0))
         return model
 

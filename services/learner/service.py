@@ -41,6 +41,7 @@ from services.learner import checkpoint
 from services.learner.catchup import catch_up
 from services.learner.core import LearnerCore
 from services.learner.snapshots import Snapshots
+from services.learner.teacher_delays import delay_message
 
 
 
@@ -138,7 +139,9 @@ class Learner:
         for r in results:
             if r.feedback is not None:  # what became of it: consoles and the log's scene show it
                 screen = r.feedback.shown is not None  # a person's screen: their delay estimate goes along
-                delay = self.core.delays.estimate(r.feedback.teacher_id) if screen else None
+                model = self.core.delays.get(r.feedback.teacher_id) if screen else None
+                delay = None if model is None else delay_message(
+                    model, r.feedback.teacher_id in self.core.profiles.returning)
                 credit = credit_message(self.config.run, r, self.core.actor, done, delay)
                 if credit.teacher_id in self.config.credits_in_ingest:
                     self.ingest_credits.append(credit)
@@ -299,13 +302,13 @@ class Learner:
             if (config.checkpoint and core.steps_learned != self.last_ckpt["steps"]
                     and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period):
                 self.save_checkpoint()
-            self.core.delays.save()  # returning people's profiles, every few seconds while they change
+            self.core.profiles.save(self.core.delays)  # returning people's profiles, every 10 s while they move
             if self.finished():
                 break
             self.rt.tick()
         self.note_latency(core.end(time.time()))
-        self.rt.counters["profiles_written"] += core.delays.save(force=True)
-        self.rt.counters["profiles_damaged"] += core.delays.damaged
+        self.rt.counters["profiles_written"] += core.profiles.save(core.delays, force=True)
+        self.rt.counters["profiles_damaged"] += core.profiles.damaged
         self.flush_ingest()
         self.publish_weights(core.steps_learned + 1, final=True)
         self.ring.add(self.wpub, self.last_weights["data"])  # the final weights too, if the recorder must get them again
@@ -353,7 +356,8 @@ def main(config: LearnerConfig) -> int:
             actors.close()
             for s in subs:
                 s.undeclare()
-    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed)
+    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed,
+                   delay=core.delay_summary())
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0
 

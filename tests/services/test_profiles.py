@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from common.core.delay_model import LearnedDelay
+from common.core.delay_model import LearnedDelay, delay_estimate
 from common.protocol import Credit, DelayEstimate
 from services.common.config import LearnerConfig
-from services.learner.teacher_delays import TeacherDelays, delay_message, profiled
+from services.learner.teacher_delays import Profiles, delay_message, profiled
 
 
 def teach(model, lag: float = 1.4, n: int = 120, seed: int = 0) -> None:
@@ -28,51 +28,53 @@ def teach(model, lag: float = 1.4, n: int = 120, seed: int = 0) -> None:
 
 
 def test_a_named_person_starts_from_their_last_estimate(tmp_path):
-    first = TeacherDelays("learned", "onset", tmp_path, save_period=0.0)
-    alice = first.model("web-alice")
-    assert isinstance(alice, LearnedDelay) and alice.summary()["median_s"] == pytest.approx(2.1, abs=0.1)
+    first = Profiles(tmp_path, save_period=0.0)
+    alice = first.load("web-alice", delay_estimate("learned"))
+    assert isinstance(alice, LearnedDelay) and not first.returning
+    assert alice.summary()["median_s"] == pytest.approx(2.1, abs=0.15)
     teach(alice)
-    first.observed("web-alice")
     learned = alice.summary()
     assert learned["median_s"] == pytest.approx(1.4, abs=0.2)
-    assert first.save() == 1
+    assert first.save({"web-alice": alice}) == 1
+    assert first.save({"web-alice": alice}) == 0  # unchanged since: not written again
     stored = json.loads((tmp_path / "web-alice.json").read_text())
     assert "rows" not in stored and len(stored["probs"]) == 60  # a small file: the estimate, not the window
     assert not list(tmp_path.glob(".*.tmp"))  # written whole (services/common/statefiles.py)
 
-    second = TeacherDelays("learned", "onset", tmp_path)
-    again = second.model("web-alice")
+    second = Profiles(tmp_path)
+    again = second.load("web-alice", delay_estimate("learned"))
     assert second.returning == {"web-alice"}
     assert again.summary()["median_s"] == pytest.approx(learned["median_s"], abs=0.05)
-    assert second.estimate("web-alice").feedbacks == learned["feedbacks"] and second.estimate("web-alice").returning
-    assert not first.estimate("web-alice").returning
-    assert second.model("web-bob").summary()["median_s"] == pytest.approx(2.1, abs=0.1)  # new: the prior
+    assert again.summary()["feedbacks"] == learned["feedbacks"]
+    assert delay_message(again, True).returning and not delay_message(alice).returning
+    bob = second.load("web-bob", delay_estimate("learned"))  # new: the prior
+    assert bob.summary()["median_s"] == pytest.approx(2.1, abs=0.15)
 
 
 def test_numbered_people_and_fixed_delays_leave_no_profile(tmp_path):
-    delays = TeacherDelays("learned", "onset", tmp_path, save_period=0.0)
-    teach(delays.model("web-1"))
-    delays.observed("web-1")
-    assert not profiled("web-1") and profiled("web-alice") and profiled("web-alice-2b")
-    assert delays.save() == 0 and not list(tmp_path.iterdir())
-    fixed = TeacherDelays("uniform:0.2,4", "interval", tmp_path, save_period=0.0)
-    fixed.model("web-alice").observe(3.0, [0.0, 0.5, 1.0])
-    fixed.observed("web-alice")
-    assert fixed.save() == 0 and not list(tmp_path.iterdir())
-    assert fixed.estimate("web-alice").median_s == pytest.approx(2.1)
+    profiles = Profiles(tmp_path, save_period=0.0)
+    one = profiles.load("web-1", delay_estimate("learned"))
+    teach(one)
+    assert not profiled("web-1") and profiled("web-alice") and profiled("web-alice-2b") and not profiled("../x")
+    fixed = profiles.load("web-alice", delay_estimate("uniform:0.2,4", "interval"))
+    fixed.observe(3.0, [0.0, 0.5, 1.0])
+    assert profiles.save({"web-1": one, "web-alice": fixed}) == 0 and not list(tmp_path.iterdir())
+    assert delay_message(fixed).median_s == pytest.approx(2.1)
+    assert Profiles(None).load("web-alice", one) is one and Profiles(None).save({"web-alice": one}) == 0
 
 
 @pytest.mark.parametrize("content", [b"{not json", b'{"kind": "learned", "probs": [1, 2]}', b"[]",
-                                     b'{"kind": "learned", "probs": [NaN]}'])
+                                     b'{"kind": "learned", "probs": [NaN]}', b'{"kind": "fixed", "spec": "x"}'])
 def test_a_damaged_profile_is_set_aside_and_counted(tmp_path, content):
     (tmp_path / "web-alice.json").write_bytes(content)
-    delays = TeacherDelays("learned", "onset", tmp_path, save_period=0.0)
-    model = delays.model("web-alice")
-    assert model.summary()["median_s"] == pytest.approx(2.1, abs=0.1) and delays.damaged == 1
+    profiles = Profiles(tmp_path, save_period=0.0)
+    model = profiles.load("web-alice", delay_estimate("learned"))
+    assert model.summary()["median_s"] == pytest.approx(2.1, abs=0.15) and profiles.damaged == 1
+    assert not profiles.returning
     assert (tmp_path / "web-alice.json.damaged").read_bytes() == content
     teach(model, n=10)
-    delays.observed("web-alice")
-    assert delays.save() == 1 and json.loads((tmp_path / "web-alice.json").read_text())["kind"] == "learned"
+    assert profiles.save({"web-alice": model}) == 1
+    assert json.loads((tmp_path / "web-alice.json").read_text())["kind"] == "learned"
 
 
 def test_the_estimate_sent_to_the_console_is_the_models_density_and_fits_a_credit():
@@ -95,7 +97,7 @@ def test_the_estimate_sent_to_the_console_is_the_models_density_and_fits_a_credi
         n += 1
     big = dataclasses.replace(credit(n), delay=est)
     assert Credit.decode(big.encode()).delay == est
-    uniform = delay_message(TeacherDelays("uniform:0.2,4", "interval").model("web-1"))
+    uniform = delay_message(delay_estimate("uniform:0.2,4", "interval"))
     want = np.diff(scipy.stats.uniform(0.2, 3.8).cdf(np.linspace(0, 6, 61)))
     assert np.allclose(uniform.probs, want, atol=1e-5) and isinstance(uniform, DelayEstimate)
 
