@@ -32,11 +32,14 @@ def delay_pixels(page) -> np.ndarray:
     return img[1:-1, 1:-1]  # (its 1 px border)
 
 
-def test_page_draws_the_delay_estimate_each_credit_carries(tmp_path):
+def alice_teaches(tmp_path) -> dict:
+    """A named person teaches; the page draws her delay estimate; her profile is written. Returns the profile."""
     from playwright.sync_api import sync_playwright
 
+    profiles = tmp_path / "profiles"
     run = WebRun(tmp_path, "delay", "--env", "maze", "--layout", "2", "--algo", "dqn-tamer", "--episodes", "200",
-                 "--episode-steps", "60", "--rate", "4", "--seed", "3", "--start-paused", "true")
+                 "--episode-steps", "60", "--rate", "4", "--seed", "3", "--start-paused", "true",
+                 "--profiles", str(profiles))
     try:
         url = run.url()
         with sync_playwright() as pw:
@@ -94,3 +97,37 @@ def test_page_draws_the_delay_estimate_each_credit_carries(tmp_path):
     rows = {r["delay"]: r for r in json.loads(scored.stdout)}
     assert rows["uniform:0.4,1.2"]["scored"] >= 5 and rows["uniform:0.4,1.2"]["fitted"] >= 12
     assert rows["uniform:0.4,1.2"]["mean_loglik"] > rows["uniform:2.5,5.5"]["mean_loglik"] + 0.3
+
+    # Alice's estimate outlives the run: her profile holds the last one the learner sent.
+    stored = json.loads((profiles / "web-alice.json").read_text())
+    last = max(logged, key=lambda c: c.t_credited).delay
+    assert stored["feedbacks"] == last.feedbacks and np.allclose(stored["probs"], last.probs, atol=1e-4)
+    assert not any(c.delay.returning for c in logged)
+    return stored
+
+
+def test_the_page_draws_the_delay_estimate_and_a_returning_person_starts_from_it(tmp_path):
+    from playwright.sync_api import sync_playwright
+
+    stored = alice_teaches(tmp_path)
+    run = WebRun(tmp_path, "again", "--env", "maze", "--layout", "4", "--algo", "dqn-tamer", "--episodes", "200",
+                 "--episode-steps", "60", "--rate", "4", "--seed", "4", "--start-paused", "true",
+                 "--profiles", str(tmp_path / "profiles"))
+    try:
+        url = run.url()
+        with sync_playwright() as pw:
+            ctx = browser(pw, tmp_path / "profile2")
+            page = open_console(ctx, url + "?name=alice")
+            page.wait_for_function("hitl.shownLog.length >= 6", timeout=30_000)
+            page.keyboard.press("+")
+            page.wait_for_function("hitl.delay", timeout=30_000)
+            first = page.evaluate("hitl.delay")
+            text = page.locator("#delaytext").inner_text()
+            assert page.errors == []
+            page.click("#end")
+            assert run.wait(120) == 0, run.out[-3000:]
+            ctx.close()
+    finally:
+        run.close()
+    assert first["returning"] and "welcome back" in text
+    assert first["feedbacks"] == stored["feedbacks"] + 1  # her earlier presses, and this one
