@@ -2,8 +2,8 @@
 
     uniform:0.3,1.5                      any `common.core.delay.delay_from_spec` distribution in seconds
     lognorm:0.6,0,0.9                    (scipy.stats names: shape(s), loc, scale)
-    mix:0.6*gamma:8,0,0.075|0.4*gamma:12,0,0.15
-                                         a mixture (weights summing to 1): a bimodal person
+    mix:0.6*gamma:8,0,0.075+0.4*gamma:12,0,0.15
+                                         a mixture (`common.core.delay`'s): a bimodal person
     drift:0.5,2,0.2                      lognormal with spread (sigma) 0.2 whose median moves linearly from 0.5 s
                                          in the first episode to 2 s in the last: a person who tires
 
@@ -18,20 +18,9 @@ import math
 
 import numpy as np
 
-from common.core.delay import delay_from_spec, parse_probs
+from common.core.delay import delay_from_spec
 
 MIN_LAG, MAX_LAG = 0.15, 5.9
-
-
-def _mixture(args: str) -> tuple[tuple[float, ...], list]:
-    weights, parts = [], []
-    for term in args.split("|"):
-        w, star, spec = term.partition("*")
-        if not star:
-            raise ValueError(f"lag mix term {term!r}: WEIGHT*SPEC")
-        weights.append(w)
-        parts.append(delay_from_spec(spec.strip()))
-    return parse_probs(",".join(weights), "lag mix weights"), parts
 
 
 def _drift(args: str) -> tuple[float, float, float]:
@@ -58,10 +47,10 @@ def lag_plan(spec: str, episodes: int, steps: int, seed: int) -> np.ndarray:
         start, end, sigma = _drift(args)
         medians = np.linspace(start, end, episodes) if episodes > 1 else np.array([start])
         lags = medians[:, None] * np.exp(sigma * rng.standard_normal((episodes, steps)))
-    elif name == "mix":
-        weights, parts = _mixture(args)
-        which = rng.choice(len(parts), size=(episodes, steps), p=weights)
-        draws = np.stack([p.rvs(size=(episodes, steps), random_state=rng) for p in parts])
+    elif name == "mix":  # the core's mixture (common.core.delay): each press from one of its parts
+        mixture = delay_from_spec(spec)
+        which = rng.choice(len(mixture.parts), size=(episodes, steps), p=mixture.weights)
+        draws = np.stack([p.rvs(size=(episodes, steps), random_state=rng) for p in mixture.parts])
         lags = np.take_along_axis(draws, which[None], 0)[0]
     else:
         dist = delay_from_spec(spec)

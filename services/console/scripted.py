@@ -51,7 +51,7 @@ class ScriptedConfig:
     lag_min: float = option(0.3, "shortest lag (s) from a step's paint to the press")
     lag_max: float = option(1.5, "longest lag (s)")
     lag: str | None = option(None, "instead of lag-min/lag-max: the person's lag shape (services/console/lags.py: "
-                                   "a scipy.stats name, mix:W*SPEC|W*SPEC, drift:START,END,SIGMA), drawn per step "
+                                   "a scipy.stats name, mix:W*SPEC+W*SPEC, drift:START,END,SIGMA), drawn per step "
                                    "from the run's seed")
     screen_delay: str = option("uniform:0.2,4", "the delay in seconds the learner assumes (default: the run's own)")
     screen_credit: str = option("interval", "the learner's credit over each step's time on screen (interval) or at "
