@@ -78,25 +78,29 @@ def measures(steps: list[int], reached: list[bool], shortest: int) -> dict:
     return {"goals": tenth, "first_good": good[0] if good else EPISODES + 1, "steps": int(sum(steps))}
 
 
-def observer_for(person: str | None, rate: float = 2.0) -> ObserverConfig:
-    """The scripted person on the step clock: the browser designs' uniform 0.3-1.5 s (`PERSON_LAGS`), or a lag
-    shape in seconds (services/console/lags.py) at `rate` steps/s, drifting from its first episode's lags to its
-    last's (a `drift:` shape)."""
+def observer_for(person: str | None) -> ObserverConfig:
+    """The scripted person: the browser designs' uniform 0.3-1.5 s on the step clock (`PERSON_LAGS`), or a lag
+    shape in seconds (services/console/lags.py) from each step's onset, a `drift:START,END,SIGMA` one as a
+    lognormal whose quantiles move from the first episode's to the last's."""
     if person is None:
         return ObserverConfig(p_feedback=0.5, delay_probs=PERSON_LAGS)
-    from services.console.lags import step_lag_schedule
+    from services.console.lags import check_lag_spec
 
-    early, late = step_lag_schedule(person, rate, EPISODES, EPISODE_STEPS)
-    return ObserverConfig(p_feedback=0.5, delay_probs=early, late_delay_probs=late if late != early else (),
-                          drift_episodes=EPISODES - 1)
+    check_lag_spec(person)
+    name, _, args = person.partition(":")
+    if name == "drift":
+        start, end, sigma = args.split(",")
+        return ObserverConfig(p_feedback=0.5, delay_s=f"lognorm:{sigma},0,{start}", late_delay_s=f"lognorm:{sigma},0,{end}",
+                              drift_episodes=EPISODES - 1)
+    return ObserverConfig(p_feedback=0.5, delay_s=person)
 
 
-def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS, person: str | None = None,
-        rate: float = 2.0) -> dict[str, list[dict]]:
+def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS, person: str | None = None
+        ) -> dict[str, list[dict]]:
     from experiments.runner import TrialSpec, run_trials
 
     env = _register_cut_maze()
-    observer = observer_for(person, rate)
+    observer = observer_for(person)
     pairs = [(layouts[k % len(layouts)], PILOT_SEED0 + k) for k in range(trials)]
     specs = [(arm, L, TrialSpec(env, ARMS[arm](), observer, seed=s, layout=L, episodes=EPISODES))
              for arm in arms for L, s in pairs]
@@ -135,8 +139,8 @@ class ConsolePilotConfig:
     layouts: tuple[int, ...] = option(PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one; odd "
                                                      "ones are misleading)")
     person: str | None = option(None, "the person's lag shape in seconds (services/console/lags.py, e.g. "
-                                      "drift:0.5,2,0.2), on the step clock at --rate (none: uniform 0.3-1.5 s)")
-    rate: float = option(2.0, "steps per second the person's lags in seconds are counted at")
+                                      "drift:0.5,2,0.2; the runner's virtual clock is 2 steps/s); none: uniform "
+                                      "0.3-1.5 s on the step clock")
     arms: tuple[str, ...] = option(tuple(ARMS), "arms besides dqn (always run): dqn-tamer/matched (credit on the "
                                                 "true candidates: onset credit), /interval (the interval reading's "
                                                 "kernel), /0.2-4s (lags uniform 0-6), /adaptive (adaptive alpha_h, "
@@ -162,7 +166,7 @@ def main(cfg: ConsolePilotConfig) -> int:
     if cfg.idle_updates:
         _with_idle_updates(cfg.idle_updates)
     t0 = time.time()
-    summary(run(arms, cfg.trials, cfg.layouts, cfg.person, cfg.rate))
+    summary(run(arms, cfg.trials, cfg.layouts, cfg.person))
     print(f"({cfg.trials} pairs per arm, idle updates {cfg.idle_updates}, {time.time() - t0:.0f} s)")
     return 0
 

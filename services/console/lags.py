@@ -58,28 +58,3 @@ def lag_plan(spec: str, episodes: int, steps: int, seed: int) -> np.ndarray:
             raise ValueError(f"lag {spec!r}: a distribution in seconds (not steps:...)")
         lags = np.asarray(dist.rvs(size=(episodes, steps), random_state=rng), np.float64)
     return np.clip(lags, MIN_LAG, MAX_LAG)
-
-
-def step_lag_probs(spec: str, rate: float, episodes: int, steps: int, seed: int = 0) -> tuple[float, ...]:
-    """The person's lag on the step clock at `rate` steps/s, over a whole session: P(a press on the step shown
-    i steps after the rated one's onset) (a drifting person's average)."""
-    return _step_probs(lag_plan(spec, episodes, steps, seed).ravel(), rate)
-
-
-def step_lag_schedule(spec: str, rate: float, episodes: int, steps: int, seed: int = 0
-                      ) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    """The person's lag on the step clock in the first and in the last episode (equal unless the shape drifts):
-    the in-process pilot's observer drifts linearly from one to the other (`ObserverConfig.late_delay_probs`)."""
-    plan = lag_plan(spec, episodes, steps, seed)
-    if not spec.startswith("drift:"):
-        whole = _step_probs(plan.ravel(), rate)
-        return whole, whole
-    return _step_probs(plan[0], rate), _step_probs(plan[-1], rate)
-
-
-def _step_probs(lags: np.ndarray, rate: float, max_lag: int = 12) -> tuple[float, ...]:
-    counts = np.bincount(np.minimum(np.floor(lags * rate).astype(int), max_lag), minlength=max_lag + 1)
-    probs = counts.astype(np.float64) / counts.sum()
-    while len(probs) > 1 and probs[-1] == 0:
-        probs = probs[:-1]
-    return tuple(float(p) for p in probs)
