@@ -86,6 +86,25 @@ class ReadStatus:
         """Files with damaged chunks that were skipped (the chunks after them were read)."""
         return [f.path for f in self.files if f.chunks_lost]
 
+    def losses(self) -> list[str]:
+        """One line per thing that could not be read (empty: every message of every file was read): data cut
+        off at the end, damaged chunks skipped, messages on channels defined in a lost chunk, undecodable ones.
+        A missing summary section (data complete, footer gone) loses nothing and is not listed."""
+        out = []
+        for f in self.files:
+            if not f.data_complete:
+                out.append(f"{f.path}: truncated: {f.size - f.bytes_read} bytes after the last complete record "
+                           f"(offset {f.bytes_read} of {f.size}) not read ({f.error})")
+            if f.chunks_lost:
+                out.append(f"{f.path}: skipped {f.chunks_lost} damaged chunk(s), {f.bytes_lost} bytes, "
+                           f"{f.messages_lost} messages by their index ({'; '.join(f.lost[:3])}"
+                           f"{'; ...' if len(f.lost) > 3 else ''})")
+            if f.unknown_channel:
+                out.append(f"{f.path}: skipped {f.unknown_channel} messages on channels defined in a lost chunk")
+        if self.undecodable:
+            out.append(f"{sum(self.undecodable.values())} messages did not decode: {dict(self.undecodable)}")
+        return out
+
     def summary(self) -> str:
         parts = [f"{self.messages} messages from {len(self.files)} file(s)"]
         for f in self.files:

@@ -203,6 +203,10 @@ class Learner:
             reason = self.gate.admit_feedback(msg, t_recv)
         if reason:
             self.reject(reason, "feedback", count=live)
+            if reason == DEDUP_REASON and live and msg.teacher_id not in self.config.credits_in_ingest:
+                publish_credit(self.session, self.credit_pubs, Credit(  # acknowledges a page's re-sent press
+                    run=self.config.run, teacher_id=msg.teacher_id, seq=msg.seq, value=msg.value, status="duplicate",
+                    t_reaction=msg.t_reaction, t_credited=time.time(), actor=msg.actor, steps=[], lost_mass=0.0))
             return False
         self.teachers_known.add(msg.teacher_id)
         results = self.core.on_feedback(msg, now)
