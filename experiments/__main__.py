@@ -29,7 +29,7 @@ def cmd_run(config: RunConfig) -> int:
     os.makedirs(config.out, exist_ok=True)
     task = config.task
     spec = TrialSpec(task.env, config.agent, config.observer, task.seed, task.layout, config.episodes,
-                     task.teacher_rule)
+                     task.teacher_rule, config.step_seconds)
     with open(os.path.join(config.out, "config.json"), "w") as fh:
         json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
     bar = tqdm(total=config.episodes, desc=f"{config.algo} on {task.env}", unit="ep", file=sys.stderr)
@@ -49,8 +49,13 @@ def cmd_run(config: RunConfig) -> int:
     plot_curves({config.algo: result.returns}, os.path.join(config.out, "curve.png"),
                 f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
                 stop_episode=config.observer.stop_episode)
+    summary = {"episodes": len(result.episodes), "steps": result.total_steps, "wall_s": round(wall, 3),
+               "returns": result.returns.tolist(), "delay": {"observer": result.delay}}
+    with open(os.path.join(config.out, "summary.json"), "w") as fh:
+        json.dump(summary, fh, indent=1)
     print(f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
-          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, curve.png")
+          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, summary.json, "
+          f"curve.png")
     return 0
 
 
@@ -119,6 +124,24 @@ def cmd_bench_compare(args, parser) -> int:
     return 0
 
 
+def add_delay_check(sub):
+    from experiments.delay_check import DelayCheckConfig
+
+    p_delay = sub.add_parser("delay-check", help=DelayCheckConfig.__doc__, description=DelayCheckConfig.__doc__)
+    add_config_arguments(p_delay, DelayCheckConfig)
+    return p_delay
+
+
+def cmd_delay_check(args, parser) -> int:
+    from experiments.delay_check import DelayCheckConfig, main as delay_check_main
+
+    try:
+        check = config_from_namespace(DelayCheckConfig, args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return delay_check_main(check)
+
+
 def main(argv: list[str] | None = None) -> int:
     from experiments.conditions import BY_NAME
 
@@ -170,17 +193,10 @@ def main(argv: list[str] | None = None) -> int:
     p_cmp.add_argument("--trials", type=int, default=1, help="trials per agent and environment (default: 1)")
     p_cmp.add_argument("--episodes", type=int, default=10, help="episodes per trial (default: 10)")
     p_cmp.add_argument("--out", default=None, help="also write every run's figures and the ratios to this JSON file")
-    from experiments.delay_check import DelayCheckConfig
-    p_delay = sub.add_parser("delay-check", help=DelayCheckConfig.__doc__, description=DelayCheckConfig.__doc__)
-    add_config_arguments(p_delay, DelayCheckConfig)
+    p_delay = add_delay_check(sub)
     args = parser.parse_args(argv)
     if args.command == "delay-check":
-        from experiments.delay_check import main as delay_check_main
-        try:
-            check = config_from_namespace(DelayCheckConfig, args)
-        except ValueError as exc:
-            p_delay.error(str(exc))
-        return delay_check_main(check)
+        return cmd_delay_check(args, p_delay)
     if args.command == "bench-compare":
         return cmd_bench_compare(args, p_cmp)
     if args.command == "sweep":

@@ -123,6 +123,7 @@ class _Batch:
         step_s = np.array([s.step_seconds for s in rows_specs], np.float64)
         if not np.all(step_s > 0):
             raise ValueError("step_seconds must be positive")
+        self.learns_delay = any(s.agent.learn_delay for s in rows_specs)
         self.R = self.observers.max_lag + 1  # a reaction lands within R ticks of its step
         if self.observers.in_seconds:
             self.R = max(self.R, int(np.ceil(MAX_REACTION_S / step_s.min())) + 1)
@@ -168,7 +169,8 @@ class _Batch:
             for row, t, n, v in zip(rows[k], t_f, counts[k], values):
                 for value in v[:n]:
                     self.on_input(int(st["orig"][row]), "feedback", {"t": float(t), "value": int(value)})
-        out = self.loop.credit(rows[k], t_f, values, counts[k], t_f * st["step_s"][rows[k]])
+        out = self.loop.credit(rows[k], t_f, values, counts[k], t_f * st["step_s"][rows[k]] if self.learns_delay
+                               else None)
         self.count_outcomes(rows[k], counts[k], out)
 
     def deliver_stamped(self, rk, due, stamps, counts) -> None:
@@ -204,20 +206,19 @@ class _Batch:
         a = agent.act(st["obs"], st["active"])[sel]
         nxt, rew, term, trunc, intended = self.world.step(rows, a)
         if self.on_input is not None:
-            self.trace_steps(rows, step, a, rew, nxt, term, trunc)
+            self.trace_steps(rows, step, a, rew, nxt, term, trunc, intended)
         episode = st["episode"][sel]
         t = step.astype(np.float64)
-        self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, t, episode, t * st["step_s"][sel], intended)
+        # (seconds and the rule's polarity are kept only where a delay is learned in seconds: the paper's
+        # step-clock credit needs neither, and the per-tick path stays as fast as it was)
+        seconds = (t * st["step_s"][sel], intended) if self.learns_delay else (None, None)
+        self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, t, episode, *seconds)
         give, value, lag = self.observers.react(rows, intended, episode, step)
-        stamp = t + lag + REACTION_OFFSET
-        if self.observers.in_seconds:  # a delay in seconds: its own stamp, lag = whole steps before it lands
-            delay = self.observers.last_delay_s / st["step_s"][sel]
-            timed = np.isfinite(delay)
-            stamp = np.where(timed, t + np.where(timed, delay, 0.0), stamp)
-            lag = np.where(timed, np.floor(stamp - t).astype(np.int64), lag)
-        g = nz(give)
-        st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
-        st["inbox_t"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = stamp[g]
+        if self.observers.in_seconds:
+            self.post_timed(rows, sel, t, give, value, lag)
+        else:
+            g = nz(give)
+            st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
         if self.record_actions:
             for i, act in zip(st["orig"][rows], a):
                 self.results[i].actions.append(int(act))
@@ -226,18 +227,34 @@ class _Batch:
         st["obs"][sel] = nxt
         return rows[term | trunc]
 
-    def trace_steps(self, rows, step, a, rew, nxt, term, trunc) -> None:
+    def post_timed(self, rows, sel, t, give, value, lag) -> None:
+        """Reactions with a delay in seconds: each its own stamp (steps), landing after whole steps."""
+        st = self.st
+        stamp = t + lag + REACTION_OFFSET
+        delay = self.observers.last_delay_s / st["step_s"][sel]
+        timed = np.isfinite(delay)
+        stamp = np.where(timed, t + np.where(timed, delay, 0.0), stamp)
+        lag = np.where(timed, np.floor(stamp - t).astype(np.int64), lag)
+        g, step = nz(give), t.astype(np.int64)
+        at = (rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g])
+        st["inbox"][at], st["inbox_t"][at] = value[g], stamp[g]
+
+    def trace_steps(self, rows, step, a, rew, nxt, term, trunc, intended) -> None:
         st = self.st
         for k, row in enumerate(rows):
             self.on_input(int(st["orig"][row]), "step", {
                 "t": float(step[k]), "episode": int(st["episode"][row]), "obs": st["obs"][row].copy(),
                 "action": int(a[k]), "reward": float(rew[k]), "next_obs": np.array(nxt[k]),
-                "terminated": bool(term[k]), "truncated": bool(trunc[k])})
+                "terminated": bool(term[k]), "truncated": bool(trunc[k]), "polarity": int(intended[k])})
 
     def end_episodes(self, ended: np.ndarray) -> None:
         st, agent = self.st, self.agent
         eps_now, alpha_now = agent.epsilons(ended), agent.alpha_h(ended)
-        lag_now, delay_now = agent.mean_lag(ended), agent.median_delay_s(ended)
+        delay_now = agent.median_delay_s(ended)
+        # mean_lag in steps; for a learned delay its mean in seconds as a lag (a lag-d reaction comes d + 0.5
+        # steps after its step), comparable with the observer's true mean lag
+        learned_lag = agent.median_delay_s(ended, mean=True) / st["step_s"][ended] - REACTION_OFFSET
+        lag_now = np.where(np.isnan(learned_lag), agent.mean_lag(ended), learned_lag)
         for j, row in enumerate(ended):
             i = int(st["orig"][row])
             record = {"episode": int(st["episode"][row]), "return": float(st["ep_return"][row]),
@@ -247,7 +264,8 @@ class _Batch:
                       # who decides: greedy actions this episode, and those where H overruled argmax Q
                       "h_decided": int(agent.h_decided_count[row]), "greedy": int(agent.greedy_count[row]),
                       "mean_lag": float(lag_now[j]),  # mean of the lag distribution credit uses now (steps)
-                      "delay_median_s": float(delay_now[j])}  # the learned delay's median (nan: not learned)
+                      # the learned delay's median in seconds (None: not learned)
+                      "delay_median_s": None if np.isnan(delay_now[j]) else float(delay_now[j])}
             agent.h_decided_count[row] = agent.greedy_count[row] = 0
             if self.greedy_eval:
                 record["greedy_steps"] = greedy_steps(agent, int(row), self.specs[i])
@@ -296,7 +314,8 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     `profile`, if given, receives per batch-size bucket ("1", "2-4", "5-16", "17-64", "65+" running
     trials) the ticks run and the CPU seconds they took. `on_input(i, kind, record)`, if given, sees every
     input of trial i's step loop in the order it is consumed ("feedback": t, value; "step": t, episode, obs,
-    action, reward, next_obs, terminated, truncated): what a live learner would be sent.
+    action, reward, next_obs, terminated, truncated, and the teacher rule's polarity): what a live learner would
+    be sent.
     """
     if not specs:
         return []

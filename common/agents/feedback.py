@@ -48,10 +48,12 @@ class FeedbackDoor:
         value = float(np.dot(probs, np.arange(len(probs)))) if probs is not None else float("nan")
         return np.full(len(rows), value)
 
-    def median_delay_s(self, rows: np.ndarray) -> np.ndarray:
-        """The learned median delay (s) of each trial's teacher (nan where it is not learned)."""
+    def median_delay_s(self, rows: np.ndarray, mean: bool = False) -> np.ndarray:
+        """The learned median (or `mean`) delay (s) of each trial's teacher (nan where it is not learned)."""
         d = self.assumed_delay
-        return d.median_s(rows) if isinstance(d, TrialDelays) else np.full(len(rows), np.nan)
+        if not isinstance(d, TrialDelays):
+            return np.full(len(rows), np.nan)
+        return d.mean_s(rows) if mean else d.median_s(rows)
 
     def delay_summary(self, i: int) -> dict | None:
         """Trial i's learned delay (`LearnedDelay.summary`), None where it is not learned."""
@@ -139,13 +141,14 @@ class FeedbackDoor:
         weights = np.zeros(len(positions))
         held = (positions >= 0) & (starts <= t_feedback)  # nothing shown after the press is a candidate
         r = np.array([row], np.int64)
-        if self.shaping[row]:
-            if not held.any():
-                return FeedbackOutcome("stale", 0, 1.0), weights
-            newest = np.flatnonzero(held)[-1]
-            weights[newest] = 1.0
-            self.replay.add_reward(r, self.history.slot[r, positions[newest:newest + 1]], np.array([value], np.float32))
-            return FeedbackOutcome("credited", 1, 0.0), weights
+        if self.shaping[row]:  # the newest held step shown before it, by the step clock's one shaping rule
+            newest = np.flatnonzero(held)[-1:]
+            t_step = self.history.times[row, positions[newest]] if len(newest) else np.array([-np.inf])
+            status, steps, lost = np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1)
+            self._shape(r, t_step, np.array([[value]]), np.ones(1, np.int64), np.zeros(1, np.int64), status, steps,
+                        lost)
+            weights[newest] = steps[0]
+            return FeedbackOutcome(STATUS_NAMES[status[0]], int(steps[0]), float(lost[0])), weights
         if not self.train_h[row]:
             return FeedbackOutcome("ignored"), weights
         if not held.any():

@@ -12,11 +12,13 @@ the candidate steps shown during [start_k, end_k) on the same clock (seconds), i
   observe   one EM row: the likelihood of each delay bin given the feedback and a model of the rated event
             (P(value | step k was rated), e.g. the task's teacher rule's polarity of each candidate step:
             `polarity_likelihood`). The caller gives that model, never H trained with this very credit, so
-            the estimate cannot confirm itself. Each observation then refits the density by a few EM
-            steps over the last `window` rows, row i weighted `forget`^age (drift: the estimate follows a
-            person who slows down), plus `prior_weight` pseudo-feedbacks of the prior, smoothed by a
-            Gaussian kernel (`smooth_s`) per step (EMS). A row that cannot tell delays apart (every candidate
-            equally likely) leaves the density where it is, so an empty model of the event keeps the prior.
+            the estimate cannot confirm itself. A row that cannot tell delays apart (every candidate equally
+            likely: a stuck agent's run of one polarity, or a model that knows nothing) is counted and not
+            stored, so the density stays where it is (at the prior until something is learned). Each stored
+            row refits two estimates by a few EM steps over the last `window` rows plus the prior, smoothed
+            by a Gaussian kernel (`smooth_s`) per step (EMS): a steady one (row weight `forget`^age) and a
+            fast one (`forget_fast`^age) that follows a person who slows down; credit uses whichever
+            predicted the recent rows better (a running log-likelihood, `score_memory`).
 
 `FixedDelay` wraps a fixed distribution (`common.core.delay.delay_from_spec`) behind the same interface: its
 weights are the credit function's (`common.core.credit`), unnormalised (mass on steps not held is lost),
@@ -52,7 +54,7 @@ class LearnedDelayConfig:
     forget_fast: float = 0.96
     """The same for the estimate that follows drift (about 25 feedbacks); credit uses whichever of the two
     predicted the recent feedbacks better (`score_memory`)."""
-    score_memory: float = 0.95
+    score_memory: float = 0.99
     """Decay per informative feedback of each estimate's running log-likelihood of the feedbacks it had not seen."""
     window: int = 300
     """Rows kept (older ones weigh forget^window, under 1%)."""
@@ -79,7 +81,7 @@ class LearnedDelayConfig:
             raise ValueError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
 
 
-def polarity_likelihood(value: int, polarities, reliability: float = 0.9) -> np.ndarray:
+def polarity_likelihood(value: int, polarities, reliability: float = 0.95) -> np.ndarray:
     """P(value | step k was rated) for a teacher who agrees with a rule's polarity (+1/-1; 0 = unknown: 1/2)
     of each candidate step with probability `reliability`."""
     pol = np.asarray(polarities, np.float64) * float(value)
@@ -171,25 +173,36 @@ class LearnedDelay:
         held = self.seen > 0
         rows = self.rows[held]
         age = (self.informative - self.seen[held]).astype(np.float64)
-        half = len(self.kernel) // 2
-        for j, rate in enumerate(self.rates):
-            weight = rate ** age
-            prior = c.prior_weight * (1.0 - self.rates[0]) / (1.0 - rate) * self.prior if rate < 1 else \
-                c.prior_weight * self.prior
-            p = self.by_rate[j]
-            for _ in range(c.iterations):
-                post = rows * p
-                post /= post.sum(axis=1, keepdims=True)
-                p = np.convolve(np.pad(weight @ post + prior, half, mode="edge"), self.kernel, mode="valid")
-                p /= p.sum()
-            self.by_rate[j] = p
+        weight = self.rates[:, None] ** age[None, :]  # [2, rows]
+        # The prior weighs as much against the fast estimate's few remembered rows as against the steady one's.
+        strength = c.prior_weight * np.where(self.rates < 1, (1 - self.rates[0]) / np.maximum(1 - self.rates, 1e-12), 1)
+        prior = strength[:, None] * self.prior
+        p = self.by_rate
+        for _ in range(c.iterations):
+            post = rows[None, :, :] * p[:, None, :]  # [2, rows, bins]
+            post /= post.sum(axis=2, keepdims=True)
+            p = np.einsum("jn,jnb->jb", weight, post) + prior
+            p = self.smooth(p)
+            p /= p.sum(axis=1, keepdims=True)
+        self.by_rate = p
         self.probs = self.by_rate[int(self.scores[1] > self.scores[0])]
+
+    def smooth(self, p: np.ndarray) -> np.ndarray:
+        """Each row of p convolved with the Gaussian kernel (edges repeated)."""
+        half = len(self.kernel) // 2
+        padded = np.pad(p, ((0, 0), (half, half)), mode="edge")
+        windows = np.lib.stride_tricks.sliding_window_view(padded, len(self.kernel), axis=1)
+        return windows @ self.kernel[::-1]
 
     # -- reading -----------------------------------------------------------------------------------------------
     def quantile(self, q: float) -> float:
         """The delay (s) below which a share q of the density lies (piecewise uniform within bins)."""
         cdf = np.concatenate([[0.0], np.cumsum(self.probs)])
         return float(np.interp(q * cdf[-1], cdf, self.edges))
+
+    def mean(self) -> float:
+        """The mean delay (s)."""
+        return float(self.probs @ (self.edges[:-1] + self.edges[1:]) / 2)
 
     def summary(self) -> dict:
         """{"median_s", "p10_s", "p90_s", "feedbacks"}: the block `summary.json` writes per teacher."""
@@ -224,7 +237,7 @@ class LearnedDelay:
             model.feedbacks = int(state.get("feedbacks", 0))
             if "rows" in state:
                 at = np.asarray(state["rows"]["at"], np.int64)
-                model.rows[at] = np.asarray(state["rows"]["like"], np.float64)
+                model.rows[at] = np.asarray(state["rows"]["like"], np.float64).reshape(len(at), model.rows.shape[1])
                 model.seen[at] = np.asarray(state["rows"]["seen"], np.int64)
                 model.by_rate = np.asarray(state["by_rate"], np.float64).reshape(model.by_rate.shape)
                 model.scores = np.asarray(state["scores"], np.float64).reshape(2)

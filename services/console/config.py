@@ -31,8 +31,8 @@ class ConsoleConfig(TaskConfig):
     episodes: int = option(50, "episodes of the run (the learning curve's width)")
     start_on_first_page: bool = option(False, "the actor waits paused (its --start-paused) until the first page "
                                               "opens; then this console resumes it")
-    screen_delay: str = option("learned", "the learner's delay in seconds (learned: 0-6 s, or a fixed one: its "
-                                          "longest lag sets how far back a feedback lists the steps shown)")
+    screen_delay: str = option("learned", "the learner's delay in seconds (its longest value sets how far back a "
+                                          "feedback lists the steps shown: 6 s for a learned one)")
     camera: str | None = option(None, "camera id to publish webcam frames on (hitl/<run>/camera/<camera>) for the "
                                       "perception service; none = no webcam panel")
     state_file: str | None = option(None, "the press ledger (services/console/ledger.py), rewritten before each "
@@ -77,8 +77,8 @@ class ConsoleConfig(TaskConfig):
 
     @property
     def span(self) -> float:
-        """How far back (s) a feedback may reach: a learned delay's range (0-6 s), or the fixed delay's largest
-        value (its 99.9th percentile if unbounded)."""
+        """How far back (s) a feedback may reach: the assumed delay's largest value (its 99.9th percentile if
+        unbounded; a learned delay's range)."""
         if is_learned(self.screen_delay):
             return LearnedDelayConfig().max_s
         d = delay_from_spec(self.screen_delay)

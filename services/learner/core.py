@@ -243,6 +243,8 @@ class LearnerCore:
         if est is None:
             c = self.config
             spec = c.screen_delay if fb.shown is not None else c.oracle_delay
+            if spec == "steps" and self.agent_config.learn_delay:  # the agent's own setting, as in the runner
+                spec = f"learned:{self.agent_config.delay_prior}"
             if spec == "steps":
                 return None
             est = delay_estimate(spec, c.screen_credit if fb.shown is not None else "onset")

@@ -109,6 +109,6 @@ def test_per_trial_delays_plug_into_the_runner_and_leave_other_trials_unchanged(
     together = run_trials([plain, learned])
     assert list(alone.returns) == list(together[0].returns)
     medians = [e["delay_median_s"] for e in together[1].episodes]
-    assert np.isnan(together[0].episodes[-1]["delay_median_s"]) and abs(medians[-1] - 2.1) > 0.3
+    assert together[0].episodes[-1]["delay_median_s"] is None and abs(medians[-1] - 2.1) > 0.3
     assert together[1].delay["feedbacks"] == sum(e["feedback_given"] for e in together[1].episodes)
     assert together[0].delay["learned"] is False and together[0].delay["median_s"] == pytest.approx(0.5)
