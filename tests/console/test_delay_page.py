@@ -14,6 +14,7 @@ import pytest
 
 from common.logs.mcap_read import read_log
 from common.protocol import Credit
+from services.console.lags import lag_plan
 
 from tests.services.live import ROOT, env
 
@@ -21,6 +22,7 @@ from .harness import SCRIPTED, WebRun, browser, open_console
 
 pytestmark = [pytest.mark.live, pytest.mark.browser]
 
+LAG = "uniform:0.4,1.2"  # the person's delay (s), which the learner is not told
 RED_BGR = np.array([0x2B, 0x39, 0xC0])  # #c0392b, the median line
 
 
@@ -48,13 +50,16 @@ def alice_teaches(tmp_path) -> dict:
             assert page.evaluate("hitl.me") == "web-alice"
             assert page.locator("#delaytext").inner_text() == "after your first press"
             page.add_script_tag(path=str(SCRIPTED))
-            page.evaluate("hitlScriptedPerson({p: 0.6, lagMin: 0.4, lagMax: 1.2, seed: 5})")
+            # the person's lags: a plan drawn from a shape in seconds (services/console/lags.py), as the designs do
+            plan = lag_plan(LAG, 200, 60, seed=5)
+            page.evaluate("o => { hitlScriptedPerson(o); }", {"p": 0.6, "seed": 6, "lags": plan.round(3).tolist()})
             page.wait_for_function("[...hitl.mine.values()].filter(f => f.credit).length >= 40", timeout=150_000)
             page.evaluate("hitl.onShown = []")  # the person stops; their last presses (<= 1.2 s) are credited
             page.wait_for_timeout(2500)
             shown = page.evaluate("hitl.delay")
             credits = page.evaluate("[...hitl.mine.values()].filter(f => f.credit).map(f => f.credit)")
             text = page.locator("#delaytext").inner_text()
+            planned = page.evaluate("hitlScriptedPlan")
             pixels = delay_pixels(page)
             width = page.evaluate("document.getElementById('delay').width")
             assert page.errors == []
@@ -64,6 +69,9 @@ def alice_teaches(tmp_path) -> dict:
     finally:
         run.close()
 
+    # Each press came at the lag the plan gave its step.
+    assert len(planned) >= 40
+    assert all(p["lag"] == pytest.approx(plan[p["episode"], p["t"]], abs=6e-4) for p in planned)
     # Every credit the page got carries an estimate; the one drawn is the newest.
     assert all(c["delay"] is not None for c in credits)
     newest = max(credits, key=lambda c: c["t_credited"])["delay"]
@@ -91,12 +99,12 @@ def alice_teaches(tmp_path) -> dict:
 
     # Which delay fits this person, from the recorded log: their own (0.4-1.2 s) against a wrong one (2.5-5.5 s).
     scored = subprocess.run([sys.executable, "-m", "services.replay", str(run.rundir), "retrain", "--screen-delay",
-                             "uniform:0.4,1.2", "--screen-delay", "uniform:2.5,5.5", "--screen-credit", "onset",
+                             LAG, "--screen-delay", "uniform:2.5,5.5", "--screen-credit", "onset",
                              "--fit-share", "0.3", "--json"], cwd=ROOT, env=env(), capture_output=True, text=True, timeout=300)
     assert scored.returncode == 0, scored.stderr[-2000:]
     rows = {r["delay"]: r for r in json.loads(scored.stdout)}
-    assert rows["uniform:0.4,1.2"]["scored"] >= 28 and rows["uniform:0.4,1.2"]["fitted"] >= 12
-    assert rows["uniform:0.4,1.2"]["mean_loglik"] > rows["uniform:2.5,5.5"]["mean_loglik"]
+    assert rows[LAG]["scored"] >= 28 and rows[LAG]["fitted"] >= 12
+    assert rows[LAG]["mean_loglik"] > rows["uniform:2.5,5.5"]["mean_loglik"]
 
     # Alice's estimate outlives the run: her profile holds the last one the learner sent.
     stored = json.loads((profiles / "web-alice.json").read_text())

@@ -22,7 +22,7 @@ window.hitlScriptedPerson = function (opts) {
     const row = o.lags && o.lags[Math.min(m.episode, o.lags.length - 1)];
     const lag = row ? row[m.t_in_episode % row.length] : o.lagMin + (o.lagMax - o.lagMin) * u;
     const due = tPage + lag;
-    planned.push({ seq: m.seq, value: good ? 1 : -1, lag, due });
+    planned.push({ seq: m.seq, episode: m.episode, t: m.t_in_episode, value: good ? 1 : -1, lag, due });
     const wait = Math.max(0, (due - (performance.timeOrigin + performance.now()) / 1000) * 1000);
     setTimeout(() => document.dispatchEvent(new KeyboardEvent("keydown", { key: good ? "+" : "-", bubbles: true })), wait);
   }]);
