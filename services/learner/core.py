@@ -279,7 +279,7 @@ class LearnerCore:
             "teacher_next": dict(self.teacher_next), "held": held, "arrivals": self._arrivals,
             "position": self.position, "counters": dict(self.counters), "ended": self.ended, "episode": dict(self._ep),
             "clock": [list(self.clock._index), list(self.clock._time)], "screen": self.screen.state(),
-            "delays": {t: d.state() for t, d in self.delays.items()},
+            "delays": {t: d.state() for t, d in self.delays.items()}, "returning": sorted(self.profiles.returning),
         }
         return self.agent.state_dict(), meta
 
@@ -301,6 +301,7 @@ class LearnerCore:
             self.clock.push(int(i), float(t))
         self.screen.load(meta["screen"])
         self.delays = {str(t): estimate_from_state(d) for t, d in meta.get("delays", {}).items()}
+        self.profiles.returning = {str(t) for t in meta.get("returning", [])}  # (their models come from the checkpoint)
         self.entries = []
 
     # -- internals ---------------------------------------------------------------------------------------------

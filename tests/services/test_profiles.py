@@ -109,3 +109,41 @@ def test_the_learner_and_the_launcher_take_a_profiles_directory(tmp_path):
     assert LearnerConfig(run="r", profiles=str(tmp_path)).profiles == str(tmp_path)
     up = parse_config(UpConfig, ["--teacher", "web", "--profiles", str(tmp_path)])
     assert up.profiles == str(tmp_path)
+
+
+def test_the_learner_starts_a_named_person_from_their_profile_and_a_checkpoint_remembers_it(tmp_path):
+    """LearnerCore: Alice's first press finds her profile (her model starts from it, she is `returning`), a restored
+    checkpoint keeps both; web-1 starts from the prior."""
+    from common.core.task import Task
+    from common.envs import make_env
+    from common.protocol import Feedback, ShownStep, Step
+    from services.learner.core import LearnerCore
+
+    earlier = LearnedDelay()
+    teach(earlier, lag=0.8)
+    (tmp_path / "web-alice.json").write_text(json.dumps(earlier.state(window=False)))
+    core = LearnerCore(LearnerConfig(run="r", task=Task(env="maze"), profiles=str(tmp_path)))
+    env, _ = make_env("maze", 0)
+    obs, t0 = env.reset(seed=0)[0], 1000.0
+    shown = [ShownStep(k, t0 + 0.5 * k + 0.05) for k in range(12)]
+    for n, who in enumerate(("web-alice", "web-1")):
+        core.on_feedback(Feedback(run="r", teacher_id=who, seq=0, t_reaction=t0 + 5.8 + n * 0.1, value=1,
+                                  source="key", actor="act-1", shown=shown))
+    for k in range(12):
+        nxt, r, term, _, _ = env.step(k % 4)
+        core.on_step(Step(run="r", incarnation="act-1", seq=k, t_action=t0 + 0.5 * k, episode=0, t_in_episode=k,
+                          obs=obs.tolist(), action=k % 4, reward=float(r), next_obs=nxt.tolist(),
+                          terminated=bool(term), truncated=False, weights_version=k, info={}))
+        obs = nxt
+    summary = core.delay_summary()
+    assert core.profiles.returning == {"web-alice"}
+    assert summary["web-alice"]["median_s"] == pytest.approx(earlier.summary()["median_s"], abs=0.15)
+    assert summary["web-alice"]["feedbacks"] == earlier.feedbacks + 1
+    assert summary["web-1"]["median_s"] == pytest.approx(2.1, abs=0.2)
+    core.take_entries()
+    tensors, meta = core.snapshot()
+    again = LearnerCore(LearnerConfig(run="r", task=Task(env="maze"), profiles=str(tmp_path)))
+    again.restore(tensors, json.loads(json.dumps(meta)))
+    assert again.profiles.returning == {"web-alice"} and again.delay_summary() == summary
+    assert again.profiles.save(again.delays, force=True) == 1  # Alice's estimate moved; web-1 has no profile
+    assert json.loads((tmp_path / "web-alice.json").read_text())["feedbacks"] == earlier.feedbacks + 1
