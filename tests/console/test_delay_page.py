@@ -34,6 +34,14 @@ def delay_pixels(page) -> np.ndarray:
     return img[1:-1, 1:-1]  # (its 1 px border)
 
 
+def end_from_the_page(page, run: WebRun, ctx) -> None:
+    """The person ends the run from the page; the page saw no error, the run ends cleanly."""
+    assert page.errors == []
+    page.click("#end")
+    assert run.wait(120) == 0, run.out[-3000:]
+    ctx.close()
+
+
 def alice_teaches(tmp_path) -> dict:
     """A named person teaches; the page draws her delay estimate; her profile is written. Returns the profile."""
     from playwright.sync_api import sync_playwright
@@ -62,10 +70,7 @@ def alice_teaches(tmp_path) -> dict:
             planned = page.evaluate("hitlScriptedPlan")
             pixels = delay_pixels(page)
             width = page.evaluate("document.getElementById('delay').width")
-            assert page.errors == []
-            page.click("#end")
-            assert run.wait(120) == 0, run.out[-3000:]
-            ctx.close()
+            end_from_the_page(page, run, ctx)
     finally:
         run.close()
 
@@ -131,10 +136,7 @@ def test_the_page_draws_the_delay_estimate_and_a_returning_person_starts_from_it
             page.wait_for_function("hitl.delay", timeout=30_000)
             first = page.evaluate("hitl.delay")
             text = page.locator("#delaytext").inner_text()
-            assert page.errors == []
-            page.click("#end")
-            assert run.wait(120) == 0, run.out[-3000:]
-            ctx.close()
+            end_from_the_page(page, run, ctx)
     finally:
         run.close()
     assert first["returning"] and "welcome back" in text
