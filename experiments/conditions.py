@@ -16,7 +16,8 @@ destination pairs).
 
 An arm is an agent variant: the paper's four (`dqn`, `dqn-rs`, `deep-tamer`, `dqn-tamer`) or ours:
 `<algo>/uniform` (lags assumed uniform over the learner's window 0..6), `<algo>/true` (the observer's
-true distribution), `<algo>/learned` (learned online, common.core.delay_learning), `dqn-tamer/adaptive`
+true distribution), `<algo>/learned` (the delay learned online in seconds, common.core.delay_model, on the
+runner's clock of 0.5 s per step), `dqn-tamer/adaptive`
 (alpha_h also follows H/Q agreement).
 """
 from __future__ import annotations

@@ -27,7 +27,7 @@ from common.config import option, parse_config
 from common.envs.maze import LAYOUT_COUNT, MazeEnv, make_layout
 from common.envs.registry import ENVS
 from common.core.observer import ObserverConfig
-from experiments.conditions import ADAPT_RATE, WINDOW, agent_for
+from experiments.conditions import ADAPT_RATE, agent_for
 from experiments.taxi_pilot import PILOT_SEED0
 
 PILOT_LAYOUTS = tuple(range(0, 60, 2))
@@ -90,7 +90,8 @@ def observer_for(person: str | None) -> ObserverConfig:
     name, _, args = person.partition(":")
     if name == "drift":
         start, end, sigma = args.split(",")
-        return ObserverConfig(p_feedback=0.5, delay_s=f"lognorm:{sigma},0,{start}", late_delay_s=f"lognorm:{sigma},0,{end}",
+        return ObserverConfig(p_feedback=0.5, delay_s=f"lognorm:{sigma},0,{start}",
+                              late_delay_s=f"lognorm:{sigma},0,{end}",
                               drift_episodes=EPISODES - 1)
     return ObserverConfig(p_feedback=0.5, delay_s=person)
 

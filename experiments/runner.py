@@ -2,10 +2,10 @@
 
 Virtual time: trial i's k-th action is taken at t = k (one unit per step), which is k * `step_seconds` seconds
 (0.5 s: 2 steps/s), the clock of a delay learned in seconds. The observer's reactions land between steps (see
-`common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in `common.core.steploop`'s order (Algorithm 2 of
-the paper): credit the feedback that arrived since the previous action, act, step the env, record the step
-and run the every-b-steps updates; the observer watches the step and its reaction is delivered on the tick
-after it lands.
+`common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in
+`common.core.steploop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
+action, act, step the env, record the step and run the every-b-steps updates; the observer watches the step and
+its reaction is delivered on the tick after it lands.
 
 Trials batched together only share arithmetic: each has its own env, observer, agent state and random
 streams, so a trial's actions and returns do not depend on which other trials run beside it. Every
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -79,10 +79,12 @@ def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 1
     return None
 
 
-def fixed_delay_summary(spec: TrialSpec) -> dict:
-    """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock."""
+def fixed_delay_summary(spec: TrialSpec, feedbacks: int) -> dict:
+    """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock, and
+    the feedbacks credited with them."""
     probs = ",".join(repr(float(p)) for p in spec.agent.assumed_delay_probs)
-    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "learned": False}
+    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "feedbacks": int(feedbacks),
+            "learned": False}
 
 
 def _bucket(n: int) -> str:
@@ -110,7 +112,8 @@ class _Batch:
             raise ValueError("trials batched together must share observation and action spaces")
         env_seeds = [derive_seed(s.seed, "env") % (2**31) for s in rows_specs]
         EnvBatch = TableEnvs if use_tables and TableEnvs.supports(envs) else LoopEnvs
-        self.world = EnvBatch(list(envs), list(rules), [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
+        self.world = EnvBatch(list(envs), list(rules),
+                              [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
         self.observers = ObserverBatch([s.observer for s in rows_specs],
                                        [derive_seed(s.seed, "observer") for s in rows_specs])
         self.agent = make_agent([s.agent for s in rows_specs], obs_shape(envs[0]), n_actions,
@@ -293,7 +296,8 @@ class _Batch:
         self.st["inbox"][row] = 0
         self.results[i].total_steps = int(self.agent.steps[row])
         self.results[i].weights = self.agent.policy_weights(row)
-        self.results[i].delay = self.agent.delay_summary(row) or fixed_delay_summary(self.specs[i])
+        credited = sum(e["feedback_credited"] for e in self.results[i].episodes)
+        self.results[i].delay = self.agent.delay_summary(row) or fixed_delay_summary(self.specs[i], credited)
         self.finished_rows += 1
         if self.on_trial_done is not None:
             self.on_trial_done(i, self.results[i])

@@ -83,6 +83,10 @@ class BatchStepHistory:
         k = np.minimum(k, self.capacity - 1)
         return np.where(held[0, k] == times, pos[0, k], -1)
 
+    def times_at(self, trial: int, positions) -> np.ndarray:
+        """The times at which trial's held steps at ring `positions` were taken (the inverse of `find`)."""
+        return self.times[trial, np.asarray(positions, np.int64)]
+
     def latest_at(self, trials: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Ring position of the newest step taken at or before t[k] for each trial, -1 if none."""
         pos, times = self.held(trials)

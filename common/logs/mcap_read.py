@@ -18,7 +18,8 @@ import dataclasses
 import os
 import warnings
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
+from collections.abc import Iterable, Iterator
 
 from mcap.records import Channel, Message as McapMessage, Metadata, Schema
 
@@ -69,6 +70,8 @@ class ReadStatus:
     files: list[FileStatus] = dataclasses.field(default_factory=list)
     messages: int = 0
     undecodable: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    # read whole but not decoded here: their decoder is an extra not installed (by module, e.g. foxglove)
+    needs_extra: collections.Counter = dataclasses.field(default_factory=collections.Counter)
     duplicate_configs_skipped: int = 0
     duplicates_skipped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # by kind
 
@@ -120,6 +123,8 @@ class ReadStatus:
                 parts.append(f"{f.path}: {f.unknown_channel} messages on channels defined in a lost chunk")
         if self.undecodable:
             parts.append(f"undecodable: {dict(self.undecodable)}")
+        if self.needs_extra:
+            parts.append(f"not decoded (their module is not installed): {dict(self.needs_extra)}")
         if self.duplicates_skipped:
             parts.append(f"duplicates skipped: {dict(self.duplicates_skipped)}")
         return "; ".join(parts)
@@ -213,6 +218,8 @@ class LogReader:
             except ProtocolError as e:
                 error = e
                 self.status.undecodable[e.reason] += 1
+            except ImportError as e:  # a part whose decoder is an extra (the scene: foxglove-sdk) is not installed
+                self.status.needs_extra[e.name] += 1
         if self.decode_messages and isinstance(message, RunConfig):
             if self.run_config is None:
                 self.run_config = message

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import collections
 import math
-import time
-from typing import Any, Callable, Iterable
+from typing import Any
+from collections.abc import Callable, Iterable
 
 from common.protocol import Feedback, ServiceStatus, Step, teacher_id_of
 

@@ -25,9 +25,10 @@ import numpy as np
 
 from common.envs import make_env, obs_shape
 from common.envs.scene import SceneTracker, static_scene
-from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary, ExpressionPrediction, Feedback,
+from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary,
+                             ExpressionPrediction, Feedback,
                              ProtocolError, ServiceStatus, Shown, Step, Time, Weights, camera_key, control_key,
-                             credit_key, decode, episode_key, feedback_key, perception_key, shown_key, status_key,
+                             decode, episode_key, feedback_key, perception_key, shown_key, status_key,
                              step_key, weights_key)
 from services.console.config import ConsoleConfig
 from services.console.ledger import Ledger

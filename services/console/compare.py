@@ -101,12 +101,13 @@ def one_test(rows: list[dict], design: Design, person: str | None = None, kind: 
 
     by = {(r["arm"], r.get("person"), r["layout"], r["seed"]): r for r in rows}
     first, second = design.primary
-    pairs = [(l, s) for l, s in design.pairs if kind is None or layout_kind(l) == kind]
-    d = np.array([episodes_to_goal(by[first, person, l, s], design) - episodes_to_goal(by[second, person, l, s], design)
-                  for l, s in pairs])
+    pairs = [(lay, s) for lay, s in design.pairs if kind is None or layout_kind(lay) == kind]
+    d = np.array([episodes_to_goal(by[first, person, lay, s], design)
+                  - episodes_to_goal(by[second, person, lay, s], design) for lay, s in pairs])
     nonzero = d[d != 0]
     p = float(stats.wilcoxon(nonzero, alternative="greater").pvalue) if len(nonzero) else 1.0
-    sign = stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue if len(nonzero) else 1.0
+    sign = (stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue
+            if len(nonzero) else 1.0)
     return {"person": person, "kind": kind, "differences": d.tolist(), "mean": float(d.mean()),
             "wins": int((d > 0).sum()), "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p,
             "sign_p": float(sign)}
@@ -163,9 +164,9 @@ def table(rows: list[dict], design: Design) -> str:
              "|" + "---|" * (len(design.arms) + 2 + (people != [None]))]
     by = {(r["arm"], r.get("person"), r["layout"], r["seed"]): r for r in rows}
     for person in people:
-        for l, s in design.pairs:
-            cells = [cell(by[a.name, person, l, s], design) for a in design.arms]
-            lines.append("| " + (f"{person} | " if person else "") + f"{l} | {s} | " + " | ".join(cells) + " |")
+        for lay, s in design.pairs:
+            cells = [cell(by[a.name, person, lay, s], design) for a in design.arms]
+            lines.append("| " + (f"{person} | " if person else "") + f"{lay} | {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -182,8 +183,9 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
             mine = {(r["layout"], r["seed"]): r for r in rows if r["arm"] == a.name and r.get("person") == person}
             steps = np.array([mine[p]["steps_per_episode"][:design.episodes] for p in design.pairs], float)
             right.plot(np.arange(1, steps.shape[1] + 1), np.median(steps, axis=0), marker="o", label=a.name)
-            left.plot([f"{l}/{s}" for l, s in design.pairs], [episodes_to_goal(mine[p], design) for p in design.pairs],
-                      marker="o", linestyle="none", label=a.name)
+            left.plot([f"{lay}/{s}" for lay, s in design.pairs],
+                      [episodes_to_goal(mine[p], design) for p in design.pairs], marker="o", linestyle="none",
+                      label=a.name)
         who = f"{person}: " if person else ""
         left.set(xlabel="layout/seed", ylabel="episodes (fewer is better)", title=who + title)
         left.tick_params(axis="x", labelrotation=60, labelsize=7)
@@ -245,7 +247,7 @@ def main(cfg: CompareConfig) -> int:
         print(f"[compare] design {design.name} cannot run here: {refused}", file=sys.stderr)
         return 2
     pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
-    jobs = [(a, who, l, s) for who in design.persons() for l, s in pairs for a in design.arms]
+    jobs = [(a, who, lay, s) for who in design.persons() for lay, s in pairs for a in design.arms]
     print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {design.episodes} episodes at {design.rate} steps/s",
           file=sys.stderr, flush=True)
     t0, rows = time.monotonic(), []

@@ -10,6 +10,7 @@ seed), the measure, and the multiplicity rule:
 
 Older designs have one person, the uniform 0.3-1.5 s lag of `static/scripted_person.js` (`people` absent).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
@@ -69,7 +70,7 @@ class Design:
         return [(person, kind) for person in self.people for kind in self.kinds()]
 
     def kinds(self) -> list[str]:
-        return sorted({layout_kind(l) for l, _ in self.pairs})
+        return sorted({layout_kind(lay) for lay, _ in self.pairs})
 
     def persons(self) -> list[str | None]:
         return list(self.people) or [None]
@@ -77,12 +78,13 @@ class Design:
 
 def _check(d: Design) -> Design:
     if d.measure not in MEASURES or d.multiplicity not in MULTIPLICITY or d.tests_by not in TESTS_BY:
-        raise ValueError(f"design {d.name}: measure in {MEASURES}, multiplicity in {MULTIPLICITY}, tests_by in "
-                         f"{TESTS_BY}")
+        raise ValueError(
+            f"design {d.name}: measure in {MEASURES}, multiplicity in {MULTIPLICITY}, tests_by in {TESTS_BY}"
+        )
     names = [a.name for a in d.arms]
     if len(set(names)) != len(names) or not set(d.primary) <= set(names):
         raise ValueError(f"design {d.name}: arm names must be distinct and include the primary {d.primary}")
-    if len(set(d.pairs)) != len(d.pairs) or not all(0 <= l < LAYOUT_COUNT for l, _ in d.pairs):
+    if len(set(d.pairs)) != len(d.pairs) or not all(0 <= lay < LAYOUT_COUNT for lay, _ in d.pairs):
         raise ValueError(f"design {d.name}: pairs must be distinct, layouts in 0..{LAYOUT_COUNT - 1}")
     if d.multiplicity == "holm" and not d.people:
         raise ValueError(f"design {d.name}: holm tests one hypothesis per declared person")
@@ -97,9 +99,18 @@ def design_from_dict(raw: dict) -> Design:
     if unknown:
         raise ValueError(f"design {raw.get('name')}: unknown fields {sorted(unknown)}")
     arms = tuple(Arm(**a) for a in raw["arms"])
-    pairs = tuple((int(l), int(s)) for l, s in raw["pairs"])
-    return _check(Design(**{**raw, "arms": arms, "pairs": pairs, "primary": tuple(raw["primary"]),
-                            "people": dict(raw.get("people") or {})}))
+    pairs = tuple((int(lay), int(s)) for lay, s in raw["pairs"])
+    return _check(
+        Design(
+            **{
+                **raw,
+                "arms": arms,
+                "pairs": pairs,
+                "primary": tuple(raw["primary"]),
+                "people": dict(raw.get("people") or {}),
+            }
+        )
+    )
 
 
 def load_design(path: Path) -> Design:

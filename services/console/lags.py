@@ -12,6 +12,7 @@ seeded by the run's seed, so two arms of a pair meet the same person (common ran
 person is as tired in episode e of either arm. Lags are kept in [MIN_LAG, MAX_LAG]: a press faster than a
 human's or later than the 6 s the learner's delay model covers would test something else.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,8 +28,9 @@ def _drift(args: str) -> tuple[float, float, float]:
     try:
         start, end, sigma = (float(a) for a in args.split(","))
     except ValueError:
-        raise ValueError(f"lag drift:{args}: drift:START_MEDIAN,END_MEDIAN,SIGMA (seconds, seconds, log-spread)") \
-            from None
+        raise ValueError(
+            f"lag drift:{args}: drift:START_MEDIAN,END_MEDIAN,SIGMA (seconds, seconds, log-spread)"
+        ) from None
     if not (0 < start and 0 < end and 0 < sigma < 3 and math.isfinite(start + end)):
         raise ValueError(f"lag drift:{args}: medians must be positive and sigma in (0, 3)")
     return start, end, sigma

@@ -150,7 +150,7 @@ class Pages:
         while True:
             try:
                 msg = await ws.receive(timeout=self.config.idle_timeout)
-            except asyncio.TimeoutError:  # a page pings every 2 s: this one is gone or idle
+            except TimeoutError:  # a page pings every 2 s: this one is gone or idle
                 self.rt.counters["page_idle_closed"] += 1
                 await ws.close(code=1001, message=b"idle")
                 return

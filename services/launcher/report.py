@@ -65,32 +65,36 @@ def finish(cfg: UpConfig, run: str, rundir: RunDir, endpoint: str, children: lis
                                                 for c in (everyone or children)]}
     if error:
         summary["error"] = error
-    write_summary_from_log(summary, rundir, f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})")
+    drawn = write_summary_from_log(summary, rundir,
+                                   f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})")
+    figure = ", learning_curve.png" if drawn else ""
     if "returns" in summary:
         print(format_summary(summary), file=sys.stderr)
     if error:
         print(f"error: {error}", file=sys.stderr)
-    print(f"wrote {rundir.path}/session.mcap, summary.json, learning_curve.png ({outcome}, {wall:.1f} s)",
-          file=sys.stderr)
+    print(f"wrote {rundir.path}/session.mcap, summary.json{figure} ({outcome}, {wall:.1f} s)", file=sys.stderr)
     return EXIT_CODES.get(outcome, 1)
 
 
-def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str) -> None:
+def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str) -> bool:
     """Add the log's counts to `summary` (its outcome and restarts stay), plot the learning curve, add the
-    latencies, and write summary.json: whatever the disk allows (the counts fit the space reserved for it)."""
-    from services.replay.summary import plot_summary, summarize
+    latencies, and write summary.json: whatever the disk allows (the counts fit the space reserved for it).
+    Whether learning_curve.png was drawn (not without matplotlib, the `experiments` extra)."""
+    from services.replay.curve import plot_summary
+    from services.replay.summary import summarize
 
     log = rundir.path / "session.mcap"
-    keep = {k: summary[k] for k in ("outcome", "restarts") if k in summary}
+    keep: dict[str, Any] = {k: summary[k] for k in ("outcome", "restarts") if k in summary}
     if log.exists() and log.stat().st_size:
         try:
             summary.update(summarize(log))
             summary.update(keep)
         except Exception as exc:  # a damaged log still gets a summary.json saying so
             summary["summary_error"] = f"{type(exc).__name__}: {exc}"
+    drawn = False
     if "returns" in summary:
         try:
-            plot_summary(summary, rundir.path / "learning_curve.png", title)
+            drawn = plot_summary(summary, rundir.path / "learning_curve.png", title)
         except Exception as exc:  # a full disk: no plot (and no 0-byte file), the counts still go out
             summary["plot_error"] = f"{type(exc).__name__}: {exc}"
     stats = read_stats(rundir)
@@ -101,6 +105,7 @@ def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str) 
         rundir.write_summary(summary)
     except OSError as exc:
         print(f"error: could not write {rundir.path}/summary.json: {exc.strerror or exc}", file=sys.stderr)
+    return drawn
 
 
 def read_stats(rundir: RunDir) -> dict[str, dict]:
@@ -120,7 +125,8 @@ def percentiles(values: list[float]) -> dict[str, float] | None:
     if not values:
         return None
     a = np.asarray(values, dtype=float) * 1e3
-    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 3), "p99": round(float(np.percentile(a, 99)), 3),
+    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 3),
+            "p99": round(float(np.percentile(a, 99)), 3),
             "max": round(float(a.max()), 3)}
 
 

@@ -339,7 +339,7 @@ class LearnerCore:
         c = agent.last_credit[1]
         n = int(c.counts[0])
         seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
-        times = agent.history.times[0, c.positions[0, :n]]
+        times = agent.history.times_at(0, c.positions[0, :n])
         return [(seq_of[int(i)], float(w)) for i, w in zip(times, c.weights[0, :n]) if int(i) in seq_of]
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:

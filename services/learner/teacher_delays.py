@@ -11,6 +11,7 @@ A profile that cannot be read (damaged, not a learned delay) is set aside as `NA
 the person starts from the prior: a bad file never stops a run, and is never silently overwritten. The file
 gives only the estimate; the bins and settings are this run's own (a file never sizes the arrays).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,9 +40,15 @@ def delay_message(model, returning: bool = False) -> DelayEstimate:
     """A model's current estimate as sent to the person's console (the density's bins and its quantiles)."""
     edges, probs = model.density()
     s = model.summary()
-    return DelayEstimate(median_s=float(s["median_s"]), p10_s=float(s["p10_s"]), p90_s=float(s["p90_s"]),
-                         feedbacks=int(s["feedbacks"]), bin_s=float(edges[1] - edges[0]),
-                         probs=[round(float(p), 5) for p in np.clip(probs, 0.0, 1.0)], returning=returning)
+    return DelayEstimate(
+        median_s=float(s["median_s"]),
+        p10_s=float(s["p10_s"]),
+        p90_s=float(s["p90_s"]),
+        feedbacks=int(s["feedbacks"]),
+        bin_s=float(edges[1] - edges[0]),
+        probs=[round(float(p), 5) for p in np.clip(probs, 0.0, 1.0)],
+        returning=returning,
+    )
 
 
 class Profiles:
@@ -69,8 +76,14 @@ class Profiles:
             state = json.loads(path.read_text())
             if not isinstance(state, dict) or state.get("kind") != "learned":
                 raise ValueError("not a learned delay's profile")
-            model = LearnedDelay.from_state({"kind": "learned", "config": dataclasses.asdict(fresh.config),
-                                             "probs": state["probs"], "feedbacks": int(state.get("feedbacks", 0))})
+            model = LearnedDelay.from_state(
+                {
+                    "kind": "learned",
+                    "config": dataclasses.asdict(fresh.config),
+                    "probs": state["probs"],
+                    "feedbacks": int(state.get("feedbacks", 0)),
+                }
+            )
         except (OSError, ValueError, KeyError, TypeError) as exc:
             self.damaged += 1
             os.replace(path, path.with_name(path.name + ".damaged"))

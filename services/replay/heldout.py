@@ -19,6 +19,7 @@ Each teacher's presses are split in time: the first `fit_share` (70%) fit the se
 them in order; a fixed one learns nothing), the rest are scored: their mean log-density in nats per press (higher
 predicts better). Every setting sees the same candidates and the same presses, so the numbers compare.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -53,16 +54,16 @@ def presses_from_log(path: str | os.PathLike) -> dict[str, list[Press]]:
         m = rec.message
         if isinstance(m, Step):
             steps[(m.incarnation, m.seq)] = m
-        elif isinstance(m, Feedback) and m.shown:
+        elif isinstance(m, Feedback) and m.shown and m.actor is not None:
             feedback.append(m)
     out: dict[str, list[Press]] = {}
     for fb in sorted(feedback, key=lambda f: (f.teacher_id, f.t_reaction, f.seq)):
-        shown = [s for s in fb.shown if s.t <= fb.t_reaction]
+        shown = [s for s in fb.shown or () if s.t <= fb.t_reaction]
         if not shown:
             continue
         starts = np.array([s.t for s in shown], np.float64)
         ends = np.append(starts[1:], fb.t_reaction)
-        polarity = np.array([_polarity(steps.get((fb.actor, s.seq))) for s in shown], np.float64)
+        polarity = np.array([_polarity(steps.get((fb.actor or "", s.seq))) for s in shown], np.float64)
         out.setdefault(fb.teacher_id, []).append(Press(float(fb.t_reaction), int(fb.value), starts, ends, polarity))
     return out
 
@@ -104,8 +105,9 @@ class SettingScore:
     estimate: dict  # teacher -> the fitted model's summary (median_s, p10_s, p90_s, feedbacks)
 
 
-def score_setting(presses: dict[str, list[Press]], delay: str, credit: str, fit_share: float = 0.7,
-                  reliability: float = 0.9) -> SettingScore:
+def score_setting(
+    presses: dict[str, list[Press]], delay: str, credit: str, fit_share: float = 0.7, reliability: float = 0.9
+) -> SettingScore:
     fitted = scored = 0
     total, estimate = 0.0, {}
     for teacher, mine in presses.items():
@@ -120,8 +122,9 @@ def score_setting(presses: dict[str, list[Press]], delay: str, credit: str, fit_
     return SettingScore(delay, credit, fitted, scored, total / scored if scored else float("nan"), estimate)
 
 
-def compare_settings(path: str | os.PathLike, delays: list[str], credits: list[str], fit_share: float = 0.7,
-                     teacher: str | None = None) -> list[SettingScore]:
+def compare_settings(
+    path: str | os.PathLike, delays: list[str], credits: list[str], fit_share: float = 0.7, teacher: str | None = None
+) -> list[SettingScore]:
     """Every (delay, credit) setting scored on the log's held-out presses, best first."""
     if not 0 < fit_share < 1:
         raise ValueError(f"fit share must be in (0, 1), got {fit_share}")
@@ -136,9 +139,10 @@ def compare_settings(path: str | os.PathLike, delays: list[str], credits: list[s
 
 def format_scores(scores: list[SettingScore]) -> str:
     best = scores[0].mean_loglik
-    lines = [f"held-out presses: fitted on {scores[0].fitted}, scored on {scores[0].scored} (the later ones in time)",
-             f"{'delay':<24} {'credit':<9} {'nats/press':>10} {'vs best':>8}   estimate after fitting "
-             "(median, p10-p90 s)"]
+    lines = [
+        f"held-out presses: fitted on {scores[0].fitted}, scored on {scores[0].scored} (the later ones in time)",
+        f"{'delay':<24} {'credit':<9} {'nats/press':>10} {'vs best':>8}   estimate after fitting (median, p10-p90 s)",
+    ]
     for s in scores:
         est = "; ".join(f"{t}: {e['median_s']:.2f} ({e['p10_s']:.2f}-{e['p90_s']:.2f})" for t, e in s.estimate.items())
         lines.append(f"{s.delay:<24} {s.credit:<9} {s.mean_loglik:10.4f} {s.mean_loglik - best:+8.4f}   {est}")

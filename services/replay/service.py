@@ -38,7 +38,8 @@ def _warn_to_stderr(message, category, filename, lineno, file=None, line=None):
 
 
 def cmd_summary(args) -> int:
-    from services.replay.summary import format_summary, plot_summary, summarize
+    from services.replay.curve import plot_summary
+    from services.replay.summary import format_summary, summarize
 
     s = None
     if args.write:  # a run whose launcher was killed: its summary.json, from the log
@@ -61,8 +62,8 @@ def cmd_summary(args) -> int:
     if not args.no_plot and s["returns"]:
         log = Path(args.log)
         plot = Path(args.plot) if args.plot else (log if log.is_dir() else log.parent) / "replay_curve.png"
-        plot_summary(s, plot)
-        print(f"plot: {plot}", file=sys.stderr)
+        if plot_summary(s, plot):
+            print(f"plot: {plot}", file=sys.stderr)
     return 1 if s["log"]["lost"] else 0
 
 

@@ -12,7 +12,8 @@ from typing import Any
 
 from common.logs.mcap_log import LogRecoveryWarning, read_log
 from services.replay.people import people_report
-from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
+from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus,
+                             Step, Weights,
                              WeightsSnapshot)
 
 
@@ -24,13 +25,14 @@ def _contiguous(seqs: list[int]) -> bool:
 class LogContents:
     """The messages of a session log that the summary reads, sorted by kind."""
 
-    steps: dict[str, list[Step]] = field(default_factory=lambda: collections.defaultdict(list))  # by actor incarnation, in log order
+    steps: dict[str, list[Step]] = field(default_factory=lambda: collections.defaultdict(list))  # by actor, in order
     feedback_msgs: list[Feedback] = field(default_factory=list)
-    reactions: list[ObserverReaction] = field(default_factory=list)  # a video-backed observer's diagnostics (face-video teacher)
+    reactions: list[ObserverReaction] = field(default_factory=list)  # a face-video observer's diagnostics
     ingest: dict[str, list[Ingest]] = field(default_factory=lambda: collections.defaultdict(list))
     episodes: list[EpisodeSummary] = field(default_factory=list)
     statuses: dict[str, ServiceStatus] = field(default_factory=dict)  # the latest of each service
-    by_pid: dict[tuple[str, int], ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
+    by_pid: dict[tuple[str, int],
+                 ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
     weights: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(list))
     kinds: collections.Counter = field(default_factory=collections.Counter)
 
@@ -383,12 +385,3 @@ def format_summary(s: dict[str, Any]) -> str:
                      f"{'n/a' if rate is None else f'{100 * rate:.1f}%'}, lag p50 "
                      f"{'n/a' if lag is None else f'{lag:.2f} s'}")
     return "\n".join(lines)
-
-
-def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> None:
-    import numpy as np
-
-    from common.logs.plots import plot_curves
-
-    rets = np.asarray(s["returns"], dtype=float)
-    plot_curves({"live": rets}, str(path), title or f"live run {s['run']}: return per episode")

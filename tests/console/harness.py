@@ -65,7 +65,7 @@ class WebRun:
             rc = self.popen.wait(timeout)
         except subprocess.TimeoutExpired:
             kill_tree(self.popen.pid)
-            raise AssertionError(f"services up still running after {timeout} s:\n{self.out[-3000:]}")
+            raise AssertionError(f"services up still running after {timeout} s:\n{self.out[-3000:]}") from None
         self._reader.join(5)
         return rc
 

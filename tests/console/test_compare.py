@@ -21,7 +21,8 @@ def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_w
     clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.DESIGNS['first'])
     assert clear["differences"][0] == 11 - 2 and clear["wins"] == 8 and clear["verdict"] == "fewer episodes"
     assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
-    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.DESIGNS['first'])
+    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]),
+                                 compare.DESIGNS["first"])
     assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
 
 
@@ -125,7 +126,7 @@ def test_the_unknown_teacher_design_is_declared_as_issue_24_asks():
     assert d.measure == "goals" and d.goals == 10 and d.primary == ("DQN", "DQN-TAMER, learned delay")
     tamer = next(a for a in d.arms if a.name == d.primary[1])
     assert tamer.algo == "dqn-tamer" and tamer.screen_delay == "learned"
-    assert {layout_kind(l) for l, _ in d.pairs} == {"honest", "misleading"}
+    assert {layout_kind(lay) for lay, _ in d.pairs} == {"honest", "misleading"}
     plans = {name: lag_plan(spec, d.episodes, d.episode_steps, 0) for name, spec in d.people.items()}
     drifting = np.median(plans["drifting"], axis=1)
     assert drifting[0] == pytest.approx(0.5, rel=0.1) and drifting[-1] == pytest.approx(2.0, rel=0.1)

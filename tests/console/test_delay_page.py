@@ -3,6 +3,7 @@ a press carries the learner's current estimate of that person's delay (`Credit.d
 (a density over 0-6 s with its median marked in red) with the numbers beside it. The run's recorded log then
 tells credit settings apart (`replay LOG retrain --screen-delay ...`): the person's own delay predicts their later
 presses better than a wrong one."""
+
 from __future__ import annotations
 
 import json
@@ -31,6 +32,7 @@ def delay_pixels(page) -> np.ndarray:
 
     png = page.locator("#delay").screenshot()
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    assert img is not None, "the screenshot is not an image"
     return img[1:-1, 1:-1]  # (its 1 px border)
 
 
@@ -47,9 +49,28 @@ def alice_teaches(tmp_path) -> dict:
     from playwright.sync_api import sync_playwright
 
     profiles = tmp_path / "profiles"
-    run = WebRun(tmp_path, "delay", "--env", "maze", "--layout", "2", "--algo", "dqn-tamer", "--episodes", "200",
-                 "--episode-steps", "60", "--rate", "4", "--seed", "3", "--start-paused", "true",
-                 "--profiles", str(profiles))
+    run = WebRun(
+        tmp_path,
+        "delay",
+        "--env",
+        "maze",
+        "--layout",
+        "2",
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "200",
+        "--episode-steps",
+        "60",
+        "--rate",
+        "4",
+        "--seed",
+        "3",
+        "--start-paused",
+        "true",
+        "--profiles",
+        str(profiles),
+    )
     try:
         url = run.url()
         with sync_playwright() as pw:
@@ -97,15 +118,39 @@ def alice_teaches(tmp_path) -> dict:
     assert blue[:, lo:hi].any(axis=0).mean() > 0.9
 
     # The log holds the same estimates: each Credit of the person's presses, with its delay.
-    logged = [m.message for m in read_log(run.rundir / "session.mcap") if isinstance(m.message, Credit)
-              and m.message.teacher_id == "web-alice"]
-    assert len(logged) >= len(credits) and all(c.delay is not None for c in logged)
-    assert max(c.delay.feedbacks for c in logged) >= len(credits)
+    logged = [
+        m.message
+        for m in read_log(run.rundir / "session.mcap")
+        if isinstance(m.message, Credit) and m.message.teacher_id == "web-alice"
+    ]
+    delays = [c.delay for c in logged if c.delay is not None]
+    assert len(logged) >= len(credits) and len(delays) == len(logged)
+    assert max(d.feedbacks for d in delays) >= len(credits)
 
     # Which delay fits this person, from the recorded log: their own (0.4-1.2 s) against a wrong one (2.5-5.5 s).
-    scored = subprocess.run([sys.executable, "-m", "services.replay", str(run.rundir), "retrain", "--screen-delay",
-                             LAG, "--screen-delay", "uniform:2.5,5.5", "--screen-credit", "onset",
-                             "--fit-share", "0.3", "--json"], cwd=ROOT, env=env(), capture_output=True, text=True, timeout=300)
+    scored = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "services.replay",
+            str(run.rundir),
+            "retrain",
+            "--screen-delay",
+            LAG,
+            "--screen-delay",
+            "uniform:2.5,5.5",
+            "--screen-credit",
+            "onset",
+            "--fit-share",
+            "0.3",
+            "--json",
+        ],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert scored.returncode == 0, scored.stderr[-2000:]
     rows = {r["delay"]: r for r in json.loads(scored.stdout)}
     assert rows[LAG]["scored"] >= 28 and rows[LAG]["fitted"] >= 12
@@ -114,8 +159,9 @@ def alice_teaches(tmp_path) -> dict:
     # Alice's estimate outlives the run: her profile holds the last one the learner sent.
     stored = json.loads((profiles / "web-alice.json").read_text())
     last = max(logged, key=lambda c: c.t_credited).delay
+    assert last is not None
     assert stored["feedbacks"] == last.feedbacks and np.allclose(stored["probs"], last.probs, atol=1e-4)
-    assert not any(c.delay.returning for c in logged)
+    assert not any(d.returning for d in delays)
     return stored
 
 
@@ -123,9 +169,28 @@ def test_the_page_draws_the_delay_estimate_and_a_returning_person_starts_from_it
     from playwright.sync_api import sync_playwright
 
     stored = alice_teaches(tmp_path)
-    run = WebRun(tmp_path, "again", "--env", "maze", "--layout", "4", "--algo", "dqn-tamer", "--episodes", "200",
-                 "--episode-steps", "60", "--rate", "4", "--seed", "4", "--start-paused", "true",
-                 "--profiles", str(tmp_path / "profiles"))
+    run = WebRun(
+        tmp_path,
+        "again",
+        "--env",
+        "maze",
+        "--layout",
+        "4",
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "200",
+        "--episode-steps",
+        "60",
+        "--rate",
+        "4",
+        "--seed",
+        "4",
+        "--start-paused",
+        "true",
+        "--profiles",
+        str(tmp_path / "profiles"),
+    )
     try:
         url = run.url()
         with sync_playwright() as pw:

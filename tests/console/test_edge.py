@@ -8,7 +8,6 @@ import http.client
 import http.server
 import json
 import threading
-import time
 from functools import partial
 from urllib.parse import urlsplit
 

@@ -3,6 +3,7 @@
 The log is a real MCAP file (`LogWriter`) of a simulated person at 2 steps/s who rates each step by the task's rule
 after a lognormal lag (median 1.2 s): the matched delay and the learned one must predict the later presses better
 than Deep TAMER's 0.2-4 s, which in turn beats a delay that is plainly wrong (2.5-5.5 s)."""
+
 from __future__ import annotations
 
 import io
@@ -34,13 +35,37 @@ def write_person_log(path, n_steps: int = 1200, rate: float = 2.0, seed: int = 3
         for k in range(n_steps):
             before = 10.0
             info = {"target_distance_before": before, "target_distance_after": before - 1 if closer[k] else before + 1}
-            w.write(step_key(RUN), Step(run=RUN, incarnation="a1", seq=k, t_action=float(shown[k] - 0.02),
-                                        episode=0, t_in_episode=k, obs=[0.0], action=0, reward=0.0, next_obs=[0.0],
-                                        terminated=False, truncated=False, weights_version=0, info=info).encode())
+            w.write(
+                step_key(RUN),
+                Step(
+                    run=RUN,
+                    incarnation="a1",
+                    seq=k,
+                    t_action=float(shown[k] - 0.02),
+                    episode=0,
+                    t_in_episode=k,
+                    obs=[0.0],
+                    action=0,
+                    reward=0.0,
+                    next_obs=[0.0],
+                    terminated=False,
+                    truncated=False,
+                    weights_version=0,
+                    info=info,
+                ).encode(),
+            )
         for n, (t, k) in enumerate(presses):
             window = [ShownStep(int(j), float(shown[j])) for j in range(n_steps) if t - 6.0 <= shown[j] <= t]
-            fb = Feedback(run=RUN, teacher_id="web-1", seq=n, t_reaction=float(t), value=1 if closer[k] else -1,
-                          source="console", actor="a1", shown=window[-64:])
+            fb = Feedback(
+                run=RUN,
+                teacher_id="web-1",
+                seq=n,
+                t_reaction=float(t),
+                value=1 if closer[k] else -1,
+                source="console",
+                actor="a1",
+                shown=window[-64:],
+            )
             w.write(feedback_key(RUN, "web-1"), fb.encode())
     return len(presses)
 
@@ -64,12 +89,26 @@ def test_the_command_prints_every_setting_best_first_and_refuses_a_log_without_p
     write_person_log(log, n_steps=300)
     out = io.StringIO()
     with redirect_stdout(out):
-        rc = replay_main([str(log), "retrain", "--screen-delay", "uniform:0.2,4", "--screen-delay", "learned",
-                          "--screen-credit", "onset", "--screen-credit", "interval", "--json"])
+        rc = replay_main(
+            [
+                str(log),
+                "retrain",
+                "--screen-delay",
+                "uniform:0.2,4",
+                "--screen-delay",
+                "learned",
+                "--screen-credit",
+                "onset",
+                "--screen-credit",
+                "interval",
+                "--json",
+            ]
+        )
     assert rc == 0
     rows = json.loads(out.getvalue())
     assert len(rows) == 4 and {(r["delay"], r["credit"]) for r in rows} == {
-        (d, c) for d in ("uniform:0.2,4", "learned") for c in ("onset", "interval")}
+        (d, c) for d in ("uniform:0.2,4", "learned") for c in ("onset", "interval")
+    }
     assert [r["mean_loglik"] for r in rows] == sorted((r["mean_loglik"] for r in rows), reverse=True)
     empty = tmp_path / "empty.mcap"
     with LogWriter(empty, RunConfig.create(RUN, {"env": "maze"}, t_created=1.0)):

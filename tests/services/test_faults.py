@@ -91,7 +91,7 @@ def test_checkpoint_is_not_a_pickle_and_rejects_other_files(tmp_path):
     raw = (tmp_path / "c.ckpt").read_bytes()
     assert b"\x80\x04" not in raw[:16] and raw[8:9] == b"{"  # a safetensors JSON header, not a pickle
     (tmp_path / "bad.ckpt").write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{\"__metadata__\":{}}  ")
-    with pytest.raises(Exception):
+    with pytest.raises(Exception):  # noqa: B017  (whatever safetensors raises: it never unpickles)
         checkpoint.load(tmp_path / "bad.ckpt")
 
 

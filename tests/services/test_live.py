@@ -134,7 +134,8 @@ def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
             assert not wait_alive(session, "it", ["recorder"], 60)
             play = subprocess.run([sys.executable, "-m", "services.replay", str(live_run.rundir / "session.mcap"),
                                    "play", "--connect", endpoint, "--speed", "0", "--kinds", "step,feedback,episode",
-                                   "--start-delay", "0", "--credentials", str(creds / "launcher.json")], cwd=ROOT, env=env(), capture_output=True, text=True,
+                                   "--start-delay", "0", "--credentials", str(creds / "launcher.json")], cwd=ROOT,
+                                   env=env(), capture_output=True, text=True,
                                   timeout=120)
             assert play.returncode == 0, play.stderr
             time.sleep(3.0)  # the recorder checks and writes what is still in flight

@@ -1,9 +1,11 @@
 """Returning people (`--profiles DIR`, services/learner/teacher_delays.py): a named person's learned delay is written
 atomically as a small JSON file and the next session starts from it; numbered people are not profiled; a damaged
 profile is set aside and counted, never fatal and never overwritten unseen."""
+
 from __future__ import annotations
 
 import json
+from typing import cast
 
 import numpy as np
 import pytest
@@ -63,8 +65,16 @@ def test_numbered_people_and_fixed_delays_leave_no_profile(tmp_path):
     assert Profiles(None).load("web-alice", one) is one and Profiles(None).save({"web-alice": one}) == 0
 
 
-@pytest.mark.parametrize("content", [b"{not json", b'{"kind": "learned", "probs": [1, 2]}', b"[]",
-                                     b'{"kind": "learned", "probs": [NaN]}', b'{"kind": "fixed", "spec": "x"}'])
+@pytest.mark.parametrize(
+    "content",
+    [
+        b"{not json",
+        b'{"kind": "learned", "probs": [1, 2]}',
+        b"[]",
+        b'{"kind": "learned", "probs": [NaN]}',
+        b'{"kind": "fixed", "spec": "x"}',
+    ],
+)
 def test_a_damaged_profile_is_set_aside_and_counted(tmp_path, content):
     (tmp_path / "web-alice.json").write_bytes(content)
     profiles = Profiles(tmp_path, save_period=0.0)
@@ -87,16 +97,29 @@ def test_the_estimate_sent_to_the_console_is_the_models_density_and_fits_a_credi
     import dataclasses
 
     def credit(n: int) -> Credit:
-        return Credit.from_json_obj({"run": "r", "teacher_id": "web-alice", "seq": 1, "value": 1,
-                                     "status": "credited", "t_reaction": 1.0, "t_credited": 2.0, "actor": "a",
-                                     "steps": [{"seq": 10 ** 9 + i, "weight": 1 / 3} for i in range(n)],
-                                     "lost_mass": 0.0})
+        return cast(
+            Credit,
+            Credit.from_json_obj(
+                {
+                    "run": "r",
+                    "teacher_id": "web-alice",
+                    "seq": 1,
+                    "value": 1,
+                    "status": "credited",
+                    "t_reaction": 1.0,
+                    "t_credited": 2.0,
+                    "actor": "a",
+                    "steps": [{"seq": 10**9 + i, "weight": 1 / 3} for i in range(n)],
+                    "lost_mass": 0.0,
+                }
+            ),
+        )
 
     n = 1
     while len(credit(n + 1).encode()) <= 8192:  # the largest credit that fit before the field
         n += 1
     big = dataclasses.replace(credit(n), delay=est)
-    assert Credit.decode(big.encode()).delay == est
+    assert cast(Credit, Credit.decode(big.encode())).delay == est
     uniform = delay_message(delay_estimate("uniform:0.2,4", "interval"))
     want = np.diff(scipy.stats.uniform(0.2, 3.8).cdf(np.linspace(0, 6, 61)))
     assert np.allclose(uniform.probs, want, atol=1e-5) and isinstance(uniform, DelayEstimate)
@@ -127,13 +150,38 @@ def test_the_learner_starts_a_named_person_from_their_profile_and_a_checkpoint_r
     obs, t0 = env.reset(seed=0)[0], 1000.0
     shown = [ShownStep(k, t0 + 0.5 * k + 0.05) for k in range(12)]
     for n, who in enumerate(("web-alice", "web-1")):
-        core.on_feedback(Feedback(run="r", teacher_id=who, seq=0, t_reaction=t0 + 5.8 + n * 0.1, value=1,
-                                  source="key", actor="act-1", shown=shown))
+        core.on_feedback(
+            Feedback(
+                run="r",
+                teacher_id=who,
+                seq=0,
+                t_reaction=t0 + 5.8 + n * 0.1,
+                value=1,
+                source="key",
+                actor="act-1",
+                shown=shown,
+            )
+        )
     for k in range(12):
         nxt, r, term, _, _ = env.step(k % 4)
-        core.on_step(Step(run="r", incarnation="act-1", seq=k, t_action=t0 + 0.5 * k, episode=0, t_in_episode=k,
-                          obs=obs.tolist(), action=k % 4, reward=float(r), next_obs=nxt.tolist(),
-                          terminated=bool(term), truncated=False, weights_version=k, info={}))
+        core.on_step(
+            Step(
+                run="r",
+                incarnation="act-1",
+                seq=k,
+                t_action=t0 + 0.5 * k,
+                episode=0,
+                t_in_episode=k,
+                obs=obs.tolist(),
+                action=k % 4,
+                reward=float(r),
+                next_obs=nxt.tolist(),
+                terminated=bool(term),
+                truncated=False,
+                weights_version=k,
+                info={},
+            )
+        )
         obs = nxt
     summary = core.delay_summary()
     assert core.profiles.returning == {"web-alice"}
