@@ -17,7 +17,9 @@ setting, the press at t with value v has the density
 
 Each teacher's presses are split in time: the first `fit_share` (70%) fit the setting (a learned delay observes
 them in order; a fixed one learns nothing), the rest are scored: their mean log-density in nats per press (higher
-predicts better). Every setting sees the same candidates and the same presses, so the numbers compare.
+predicts better). With `folds` K, forward chaining in time: the presses are cut into K blocks, and block k is
+scored by a setting fitted on the blocks before it (k = 1 .. K-1), so all but the first block are scored. Every
+setting sees the same candidates and the same presses, so the numbers compare.
 """
 
 from __future__ import annotations
@@ -105,42 +107,62 @@ class SettingScore:
     estimate: dict  # teacher -> the fitted model's summary (median_s, p10_s, p90_s, feedbacks)
 
 
+def _splits(n: int, fit_share: float, folds: int) -> list[tuple[int, int]]:
+    """(presses fitted, end of those scored) per split: one cut at `fit_share`, or forward chaining over `folds`
+    blocks in time order (fit on the blocks before block k, score block k, for k = 1 .. folds - 1)."""
+    if folds < 2:
+        return [(int(round(fit_share * n)), n)]
+    cuts = [int(round(k * n / folds)) for k in range(folds + 1)]
+    return [(cuts[k], cuts[k + 1]) for k in range(1, folds)]
+
+
 def score_setting(
-    presses: dict[str, list[Press]], delay: str, credit: str, fit_share: float = 0.7, reliability: float = 0.9
+    presses: dict[str, list[Press]],
+    delay: str,
+    credit: str,
+    fit_share: float = 0.7,
+    reliability: float = 0.9,
+    folds: int = 0,
 ) -> SettingScore:
     fitted = scored = 0
     total, estimate = 0.0, {}
     for teacher, mine in presses.items():
-        model = delay_estimate(delay, reference=credit)
-        cut = int(round(fit_share * len(mine)))
-        for p in mine[:cut]:
-            model.observe(p.t, p.starts, p.ends, polarity_likelihood(p.value, p.polarity, reliability))
-        binned = _binned(model, credit)
-        total += sum(log_density(binned, p, credit, reliability) for p in mine[cut:])
-        fitted, scored = fitted + cut, scored + len(mine) - cut
-        estimate[teacher] = model.summary()
+        for cut, end in _splits(len(mine), fit_share, folds):
+            model = delay_estimate(delay, reference=credit)
+            for p in mine[:cut]:
+                model.observe(p.t, p.starts, p.ends, polarity_likelihood(p.value, p.polarity, reliability))
+            binned = _binned(model, credit)
+            total += sum(log_density(binned, p, credit, reliability) for p in mine[cut:end])
+            fitted, scored = fitted + cut, scored + end - cut
+            estimate[teacher] = model.summary()  # (the last split's: fitted on the most)
     return SettingScore(delay, credit, fitted, scored, total / scored if scored else float("nan"), estimate)
 
 
 def compare_settings(
-    path: str | os.PathLike, delays: list[str], credits: list[str], fit_share: float = 0.7, teacher: str | None = None
+    path: str | os.PathLike,
+    delays: list[str],
+    credits: list[str],
+    fit_share: float = 0.7,
+    teacher: str | None = None,
+    folds: int = 0,
 ) -> list[SettingScore]:
     """Every (delay, credit) setting scored on the log's held-out presses, best first."""
-    if not 0 < fit_share < 1:
-        raise ValueError(f"fit share must be in (0, 1), got {fit_share}")
+    if not 0 < fit_share < 1 or folds < 0 or folds == 1:
+        raise ValueError(f"fit share must be in (0, 1) and folds 0 or >= 2, got {fit_share}, {folds}")
     presses = presses_from_log(path)
     if teacher is not None:
         presses = {teacher: presses.get(teacher, [])}
     if not any(len(p) >= 2 for p in presses.values()):
         raise ValueError(f"{path}: fewer than 2 console presses (Feedback listing the steps shown) to fit and score")
-    scores = [score_setting(presses, d, c, fit_share) for d, c in itertools.product(delays, credits)]
+    scores = [score_setting(presses, d, c, fit_share, folds=folds) for d, c in itertools.product(delays, credits)]
     return sorted(scores, key=lambda s: -s.mean_loglik if math.isfinite(s.mean_loglik) else math.inf)
 
 
 def format_scores(scores: list[SettingScore]) -> str:
     best = scores[0].mean_loglik
     lines = [
-        f"held-out presses: fitted on {scores[0].fitted}, scored on {scores[0].scored} (the later ones in time)",
+        f"held-out presses: scored on {scores[0].scored}, each by a fit on presses before it in time "
+        f"({scores[0].fitted} fitted in all)",
         f"{'delay':<24} {'credit':<9} {'nats/press':>10} {'vs best':>8}   estimate after fitting (median, p10-p90 s)",
     ]
     for s in scores:

@@ -133,7 +133,7 @@ def cmd_heldout(args) -> int:
 
     try:
         scores = compare_settings(args.log, args.screen_delay or ["learned"], args.screen_credit or ["onset"],
-                                  args.fit_share, args.teacher)
+                                  args.fit_share, args.teacher, args.folds)
     except ValueError as exc:
         print(f"cannot score: {exc}", file=sys.stderr)
         return 2
@@ -179,6 +179,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="with --screen-delay: a step's time is its onset or its interval (repeat to compare both)")
     p.add_argument("--fit-share", type=float, default=0.7,
                    help="the earliest share of each person's presses that fits a setting; the rest are scored")
+    p.add_argument("--folds", type=int, default=0,
+                   help="instead of one split: forward chaining over K blocks of presses in time (block k scored by "
+                        "a fit on the blocks before it)")
     p.add_argument("--teacher", help="only this teacher's presses (default: every console teacher's)")
     p.add_argument("--json", action="store_true", help="the scores as JSON")
     p = sub.add_parser("size", help="bytes per 1,000 steps and per topic")

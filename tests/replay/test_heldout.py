@@ -115,3 +115,14 @@ def test_the_command_prints_every_setting_best_first_and_refuses_a_log_without_p
         pass
     assert replay_main([str(empty), "retrain", "--screen-delay", "learned"]) == 2
     assert replay_main([str(log), "retrain", "--screen-delay", "nonsense:1"]) == 2
+
+
+def test_forward_chaining_scores_every_block_but_the_first_by_a_fit_on_the_blocks_before(tmp_path):
+    log = tmp_path / "session.mcap"
+    n = write_person_log(log, n_steps=600)
+    scores = {s.delay: s for s in compare_settings(log, [TRUE_LAG, "uniform:2.5,5.5"], ["onset"], folds=4)}
+    first_block = round(n / 4)
+    assert scores[TRUE_LAG].scored == n - first_block
+    assert scores[TRUE_LAG].fitted == sum(round(k * n / 4) for k in (1, 2, 3))
+    assert scores[TRUE_LAG].mean_loglik > scores["uniform:2.5,5.5"].mean_loglik
+    assert replay_main([str(log), "retrain", "--screen-delay", "learned", "--folds", "1"]) == 2
