@@ -6,6 +6,7 @@ presses better than a wrong one."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -44,56 +45,44 @@ def end_from_the_page(page, run: WebRun, ctx) -> None:
     ctx.close()
 
 
-def alice_teaches(tmp_path) -> dict:
-    """A named person teaches; the page draws her delay estimate; her profile is written. Returns the profile."""
+@contextlib.contextmanager
+def alice_on_a_page(tmp_path, name: str, layout: int, seed: int):
+    """A paced run (4 steps/s, episodes cut at 60 steps) whose people's profiles live in tmp_path/profiles, and
+    Alice's page on it: yields (run, browser context, page); the run is stopped however the block ends."""
     from playwright.sync_api import sync_playwright
 
-    profiles = tmp_path / "profiles"
-    run = WebRun(
-        tmp_path,
-        "delay",
-        "--env",
-        "maze",
-        "--layout",
-        "2",
-        "--algo",
-        "dqn-tamer",
-        "--episodes",
-        "200",
-        "--episode-steps",
-        "60",
-        "--rate",
-        "4",
-        "--seed",
-        "3",
-        "--start-paused",
-        "true",
-        "--profiles",
-        str(profiles),
-    )
+    common = "--env maze --algo dqn-tamer --episodes 200 --episode-steps 60 --rate 4 --start-paused true".split()
+    where = ["--layout", str(layout), "--seed", str(seed), "--profiles", str(tmp_path / "profiles")]
+    run = WebRun(tmp_path, name, *common, *where)
     try:
         url = run.url()
         with sync_playwright() as pw:
-            ctx = browser(pw, tmp_path / "profile")
-            page = open_console(ctx, url + ("&" if "?" in url else "?") + "name=alice")
-            assert page.evaluate("hitl.me") == "web-alice"
-            assert page.locator("#delaytext").inner_text() == "after your first press"
-            page.add_script_tag(path=str(SCRIPTED))
-            # the person's lags: a plan drawn from a shape in seconds (services/console/lags.py), as the designs do
-            plan = lag_plan(LAG, 200, 60, seed=5)
-            page.evaluate("o => { hitlScriptedPerson(o); }", {"p": 0.6, "seed": 6, "lags": plan.round(3).tolist()})
-            page.wait_for_function("[...hitl.mine.values()].filter(f => f.credit).length >= 40", timeout=150_000)
-            page.evaluate("hitl.onShown = []")  # the person stops; their last presses (<= 1.2 s) are credited
-            page.wait_for_timeout(2500)
-            shown = page.evaluate("hitl.delay")
-            credits = page.evaluate("[...hitl.mine.values()].filter(f => f.credit).map(f => f.credit)")
-            text = page.locator("#delaytext").inner_text()
-            planned = page.evaluate("hitlScriptedPlan")
-            pixels = delay_pixels(page)
-            width = page.evaluate("document.getElementById('delay').width")
-            end_from_the_page(page, run, ctx)
+            ctx = browser(pw, tmp_path / f"profile-{name}")
+            yield run, ctx, open_console(ctx, url + ("&" if "?" in url else "?") + "name=alice")
     finally:
         run.close()
+
+
+def alice_teaches(tmp_path) -> dict:
+    """A named person teaches; the page draws her delay estimate; her profile is written. Returns the profile."""
+    profiles = tmp_path / "profiles"
+    with alice_on_a_page(tmp_path, "delay", layout=2, seed=3) as (run, ctx, page):
+        assert page.evaluate("hitl.me") == "web-alice"
+        assert page.locator("#delaytext").inner_text() == "after your first press"
+        page.add_script_tag(path=str(SCRIPTED))
+        # the person's lags: a plan drawn from a shape in seconds (services/console/lags.py), as the designs do
+        plan = lag_plan(LAG, 200, 60, seed=5)
+        page.evaluate("o => { hitlScriptedPerson(o); }", {"p": 0.6, "seed": 6, "lags": plan.round(3).tolist()})
+        page.wait_for_function("[...hitl.mine.values()].filter(f => f.credit).length >= 40", timeout=150_000)
+        page.evaluate("hitl.onShown = []")  # the person stops; their last presses (<= 1.2 s) are credited
+        page.wait_for_timeout(2500)
+        shown = page.evaluate("hitl.delay")
+        credits = page.evaluate("[...hitl.mine.values()].filter(f => f.credit).map(f => f.credit)")
+        text = page.locator("#delaytext").inner_text()
+        planned = page.evaluate("hitlScriptedPlan")
+        pixels = delay_pixels(page)
+        width = page.evaluate("document.getElementById('delay').width")
+        end_from_the_page(page, run, ctx)
 
     # Each press came at the lag the plan gave its step.
     assert len(planned) >= 40
@@ -166,43 +155,13 @@ def alice_teaches(tmp_path) -> dict:
 
 
 def test_the_page_draws_the_delay_estimate_and_a_returning_person_starts_from_it(tmp_path):
-    from playwright.sync_api import sync_playwright
-
     stored = alice_teaches(tmp_path)
-    run = WebRun(
-        tmp_path,
-        "again",
-        "--env",
-        "maze",
-        "--layout",
-        "4",
-        "--algo",
-        "dqn-tamer",
-        "--episodes",
-        "200",
-        "--episode-steps",
-        "60",
-        "--rate",
-        "4",
-        "--seed",
-        "4",
-        "--start-paused",
-        "true",
-        "--profiles",
-        str(tmp_path / "profiles"),
-    )
-    try:
-        url = run.url()
-        with sync_playwright() as pw:
-            ctx = browser(pw, tmp_path / "profile2")
-            page = open_console(ctx, url + ("&" if "?" in url else "?") + "name=alice")
-            page.wait_for_function("hitl.shownLog.length >= 6", timeout=30_000)
-            page.keyboard.press("+")
-            page.wait_for_function("hitl.delay", timeout=30_000)
-            first = page.evaluate("hitl.delay")
-            text = page.locator("#delaytext").inner_text()
-            end_from_the_page(page, run, ctx)
-    finally:
-        run.close()
+    with alice_on_a_page(tmp_path, "again", layout=4, seed=4) as (run, ctx, page):
+        page.wait_for_function("hitl.shownLog.length >= 6", timeout=30_000)
+        page.keyboard.press("+")
+        page.wait_for_function("hitl.delay", timeout=30_000)
+        first = page.evaluate("hitl.delay")
+        text = page.locator("#delaytext").inner_text()
+        end_from_the_page(page, run, ctx)
     assert first["returning"] and "welcome back" in text
     assert first["feedbacks"] == stored["feedbacks"] + 1  # her earlier presses, and this one
