@@ -15,6 +15,12 @@ the episode of the 10th goal (short of 10: 15 + goals missing), the first episod
 path (never: 16), and steps over the 15 episodes; every arm is compared with DQN on the same (layout, seed).
 
     python -m experiments.console_pilot --trials 48
+
+With `--person SHAPE` the person reacts in seconds with a lag shape of `services/console/lags.py` (the runner's
+observer, `delay_s`; a `drift:` shape's quantiles move over the episodes), on the layouts given (odd ones are
+misleading): the unknown-teacher design's pilot (docs/notes/2026-11-25-unknown-teacher.md).
+
+    python -m experiments.console_pilot --trials 48 --arms dqn-tamer/learned --person drift:0.5,2,0.2
 """
 from __future__ import annotations
 
