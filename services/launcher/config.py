@@ -81,6 +81,8 @@ class UpConfig:
                                        "(in seconds, online), steps (assumed-delay-probs on the step clock, the "
                                        "paper's), a fixed NAME:ARGS in seconds, or auto: learned when the actor is "
                                        "paced (--rate > 0: a delay in seconds means something), else steps")
+    profiles: str | None = option(None, "--teacher web: directory of returning people's delay estimates (a named "
+                                        "person, ?name=alice, starts from DIR/web-alice.json; written as they teach)")
     idle_updates: int = option(0, "learner: extra minibatch steps between two steps while idle (--teacher web: 8)")
     console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
@@ -187,7 +189,7 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
                             debug_update_sleep=c.debug_update_sleep, debug_drop_steps=c.debug_drop_steps,
                             screen_delay=c.screen_delay, oracle_delay=oracle_delay(c),
-                            screen_credit=c.screen_credit, idle_updates=c.idle_updates)
+                            screen_credit=c.screen_credit, idle_updates=c.idle_updates, profiles=c.profiles)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
                         episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate,

@@ -42,6 +42,7 @@ from services.learner import checkpoint
 from services.learner.catchup import catch_up
 from services.learner.core import LearnerCore
 from services.learner.snapshots import Snapshots
+from services.learner.teacher_delays import delay_message
 
 
 
@@ -138,7 +139,11 @@ class Learner:
         done = time.time()
         for r in results:
             if r.feedback is not None:  # what became of it: consoles and the log's scene show it
-                credit = credit_message(self.config.run, r, self.core.actor, done)
+                screen = r.feedback.shown is not None  # a person's screen: their delay estimate goes along
+                model = self.core.delays.get(r.feedback.teacher_id) if screen else None
+                delay = None if model is None else delay_message(
+                    model, r.feedback.teacher_id in self.core.profiles.returning)
+                credit = credit_message(self.config.run, r, self.core.actor, done, delay)
                 if credit.teacher_id in self.config.credits_in_ingest:
                     self.ingest_credits.append(credit)
                 else:
@@ -303,10 +308,13 @@ class Learner:
             if (config.checkpoint and core.steps_learned != self.last_ckpt["steps"]
                     and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period):
                 self.save_checkpoint()
+            self.core.profiles.save(self.core.delays)  # returning people's profiles, every 10 s while they move
             if self.finished():
                 break
             self.rt.tick()
         self.note_latency(core.end(time.time()))
+        self.rt.counters["profiles_written"] += core.profiles.save(core.delays, force=True)
+        self.rt.counters["profiles_damaged"] += core.profiles.damaged
         self.flush_ingest()
         self.publish_weights(core.steps_learned + 1, final=True)
         # the final weights too, if the recorder must get them again
@@ -361,13 +369,14 @@ def main(config: LearnerConfig) -> int:
     return 0
 
 
-def credit_message(run: str, result, actor: str | None, t_done: float) -> Credit:
-    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights."""
+def credit_message(run: str, result, actor: str | None, t_done: float, delay=None) -> Credit:
+    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights (and the teacher's
+    delay estimate, `delay`, for a person's console)."""
     fb = result.feedback
     return Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
                   t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
                   steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
-                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))))
+                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))), delay=delay)
 
 
 def publish_credit(session, pubs: dict, credit: Credit) -> None:

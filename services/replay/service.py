@@ -3,7 +3,9 @@
   summary   counts, losses, what became of every feedback, per-episode returns, learning-curve plot
   play      re-publish the session over Zenoh at the recorded pace (or faster)
   retrain   feed a fresh learner the recorded inputs in the recorded order; says whether its final weights
-            equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)
+            equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell);
+            with --screen-delay / --screen-credit: how well each credit setting predicts the person's presses it
+            was not fitted on (held-out log-likelihood, services/replay/heldout.py)
   size      bytes per 1,000 steps, and per topic
 
 LOG may be a run directory (its session.mcap). A log cut short by a crash is read up to its last complete
@@ -21,6 +23,7 @@ LOG may also come before the command (`python -m services.replay LOG summary`).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 import threading
@@ -30,6 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from common.config import Command, option
+from common.core.delay_model import REFERENCES
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,17 @@ class RetrainConfig(LogConfig):
 
     learner: str | None = option(None, "learner incarnation (default: the last one in the log)")
     save: str | None = option(None, "write the retrained final weights to this safetensors file")
+    screen_delay: tuple[str, ...] = option((), "instead: score this credit setting's delay (learned, learned:PRIOR, "
+                                               "uniform:LOW,HIGH, NAME:ARGS; repeat to compare) by how well it "
+                                               "predicts the presses it was not fitted on", nargs="+", metavar="SPEC")
+    screen_credit: tuple[str, ...] = option((), "with --screen-delay: a step's time is its onset or its interval "
+                                                "(repeat to compare both)", nargs="+", choices=REFERENCES)
+    fit_share: float = option(0.7, "the earliest share of each person's presses that fits a setting; the rest are "
+                                   "scored")
+    folds: int = option(0, "instead of one split: forward chaining over K blocks of presses in time (block k scored "
+                           "by a fit on the blocks before it)")
+    teacher: str | None = option(None, "only this teacher's presses (default: every console teacher's)")
+    json: bool = option(False, "the scores as JSON")
 
 
 @dataclass(frozen=True)
@@ -151,6 +166,8 @@ def cmd_play(args) -> int:
 
 
 def cmd_retrain(args) -> int:
+    if args.screen_delay or args.screen_credit:
+        return cmd_heldout(args)
     from services.replay.retrain import retrain
 
     try:
@@ -167,6 +184,21 @@ def cmd_retrain(args) -> int:
     if not result.compared:
         return 2
     return 0 if result.identical and result.outcomes_match and not result.missing_inputs else 1
+
+
+def cmd_heldout(args) -> int:
+    """retrain with credit settings: each setting's held-out log-likelihood of the person's presses."""
+    from services.replay.heldout import compare_settings, format_scores
+
+    try:
+        scores = compare_settings(args.log, list(args.screen_delay) or ["learned"],
+                                  list(args.screen_credit) or ["onset"],
+                                  args.fit_share, args.teacher, args.folds)
+    except ValueError as exc:
+        print(f"cannot score: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps([dataclasses.asdict(s) for s in scores], indent=1) if args.json else format_scores(scores))
+    return 0
 
 
 def cmd_size(args) -> int:
