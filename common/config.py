@@ -29,8 +29,9 @@ T = TypeVar("T")
 
 def option(default: Any, help: str, **extra) -> Any:
     """A documented dataclass field; `choices=`, `positional=True`, `nargs=` ("+", "*", "?": a tuple field
-    given as several words, `--grid A B --grid C` adds up), `metavar=`, `cli=False`, `flatten=True` and
-    `exclude=(names)` (nested configs) are honoured by the CLI. A bool flag given alone means true."""
+    given as several words, `--grid A B --grid C` adds up), `metavar=`, `flag=` (the flag's name where the
+    field's cannot be it: `--from`), `cli=False`, `flatten=True` and `exclude=(names)` (nested configs) are
+    honoured by the CLI. A bool flag given alone means true."""
     if isinstance(default, (list, dict, set)) or dataclasses.is_dataclass(default):
         return dataclasses.field(default_factory=lambda: default, metadata={"help": help, **extra})
     return dataclasses.field(default=default, metadata={"help": help, **extra})
@@ -109,7 +110,7 @@ def _leaves(cls: type, flag_prefix: str = "", path: tuple[str, ...] = (), exclud
             prefix = flag_prefix if f.metadata.get("flatten") else f"{flag_prefix}{f.name.replace('_', '-')}."
             yield from _leaves(sub, prefix, path + (f.name,), f.metadata.get("exclude", ()))
         else:
-            yield path + (f.name,), flag_prefix + f.name.replace("_", "-"), f, hints[f.name]
+            yield path + (f.name,), flag_prefix + f.metadata.get("flag", f.name.replace("_", "-")), f, hints[f.name]
 
 
 def _default(f: dataclasses.Field) -> Any:

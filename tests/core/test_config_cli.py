@@ -72,6 +72,7 @@ class Tool:
     words: tuple[str, ...] = option(("a",), "several words", nargs="+")
     loud: bool = option(False, "a bool flag")
     path: str = option("", "where", positional=True)
+    source: str = option("", "a field whose flag is a keyword", flag="from")
 
 
 def test_several_words_add_up_a_bool_alone_is_true_and_groups_dispatch():
@@ -88,8 +89,8 @@ def test_several_words_add_up_a_bool_alone_is_true_and_groups_dispatch():
     commands = {"tool": Command(Tool, tool), "group": {"": "a group", "inner": Command(Tool, inner)}}
     assert run_commands("prog", "doc", commands, ["tool", "P", "--words", "x", "y", "--words", "z", "--loud"]) == 0
     assert seen[-1] == Tool(words=("x", "y", "z"), loud=True, path="P")
-    assert run_commands("prog", "doc", commands, ["tool", "P", "--loud", "false"]) == 0
-    assert seen[-1] == Tool(words=("a",), loud=False, path="P")
+    assert run_commands("prog", "doc", commands, ["tool", "P", "--loud", "false", "--from", "T"]) == 0
+    assert seen[-1] == Tool(words=("a",), loud=False, path="P", source="T")
     assert run_commands("prog", "doc", commands, ["group", "inner", "Q"]) == 3
     assert seen[-1] == ("inner", Tool(path="Q"))
 
