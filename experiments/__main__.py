@@ -1,4 +1,4 @@
-"""python -m experiments {run, sweep, reproduce, bench, bench-compare}: experiments on the in-process runner (virtual clock)."""
+"""python -m experiments {run, sweep, reproduce, report, bench, bench-compare}: experiments on the in-process runner (virtual clock)."""
 from __future__ import annotations
 
 import csv
@@ -86,6 +86,29 @@ def cmd_reproduce(args, argv: list[str]) -> int:
     return 0
 
 
+def cmd_report(args, argv: list[str]) -> int:
+    """Recompute claims.json, REPORT.md and the figures from a per-trial table alone."""
+    from experiments.reproduce import report_from_table
+    from experiments.trialcache import read_json_or_none
+
+    src = os.path.dirname(os.path.abspath(args.source))
+    timing = read_json_or_none(os.path.join(src, "timing.json")) or {}
+    if "scale" not in timing:
+        print(f"error: {src}/timing.json (the run's scale and cost, beside the table) is missing or unreadable",
+              file=sys.stderr)
+        return 1
+    previous = (read_json_or_none(os.path.join(src, "claims.json")) or {}).get("previous", {})
+    try:
+        result = report_from_table(args.source, args.out, timing, argv, args.n_boot, previous)
+    except (OSError, ValueError, EOFError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {args.out}/claims.json, REPORT.md and the figures from {args.source} (no trial run)")
+    for claim, c in result["claims"].items():
+        print(f"  {claim}: {c['verdict']}")
+    return 0
+
+
 def cmd_bench(args) -> int:
     from experiments.bench import bench, format_report
     from experiments.bench_paths import bench_paths, format_paths
@@ -150,6 +173,14 @@ def main(argv: list[str] | None = None) -> int:
     p_rep.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
                        help="run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)")
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p_report = sub.add_parser("report", help="every verdict, interval and figure recomputed from a per-trial "
+                              "table (docs/results/trials.csv.gz) without running a trial")
+    p_report.add_argument("--from", dest="source", required=True, metavar="TABLE",
+                          help="the table (its directory's timing.json and claims.json give the run's scale and "
+                          "the previous verdicts)")
+    p_report.add_argument("--out", required=True, help="directory for claims.json, REPORT.md and the figures")
+    p_report.add_argument("--n-boot", type=int, default=None, help="bootstrap resamples (default: the declared "
+                          "number, as the reproduction)")
     p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
                              "loop, measured side by side on the same trials")
     p_bench.add_argument("--conditions", nargs="+", default=list(BY_NAME), choices=list(BY_NAME),
@@ -179,6 +210,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.layouts is not None and args.layouts < 4:
             p_rep.error("--layouts must be at least 4 (intervals resample layouts)")
         return cmd_reproduce(args, argv)
+    if args.command == "report":
+        if args.n_boot is None:
+            from experiments.evaluate import N_BOOT
+            args.n_boot = N_BOOT
+        return cmd_report(args, argv)
     if args.command == "bench":
         if args.trials < 1 or args.episodes < 1:
             p_bench.error("--trials and --episodes must be positive")
