@@ -67,7 +67,8 @@ def cmd_reproduce(args, argv: list[str]) -> int:
     changes = {k: v for k, v in (("layouts", args.layouts), ("reps", args.reps),
                                  ("maze_episodes", args.maze_episodes), ("taxi_episodes", args.taxi_episodes),
                                  ("taxi_random_episodes", args.taxi_random_episodes or args.taxi_episodes),
-                                 ("taxi_trials", args.taxi_trials)) if v is not None}
+                                 ("taxi_trials", args.taxi_trials), ("taxi_fixed_trials", args.taxi_fixed_trials))
+               if v is not None}
     scale = replace(scale, **changes)
     out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
     args.out = out
@@ -142,6 +143,17 @@ def cmd_bench_compare(args, parser) -> int:
     return 0
 
 
+def add_report_parser(sub) -> None:
+    p_report = sub.add_parser("report", help="every verdict, interval and figure recomputed from a per-trial "
+                              "table (docs/results/trials.csv.gz) without running a trial")
+    p_report.add_argument("--from", dest="source", required=True, metavar="TABLE",
+                          help="the table (its directory's timing.json and claims.json give the run's scale and "
+                          "the previous verdicts)")
+    p_report.add_argument("--out", required=True, help="directory for claims.json, REPORT.md and the figures")
+    p_report.add_argument("--n-boot", type=int, default=None, help="bootstrap resamples (default: the declared "
+                          "number, as the reproduction)")
+
+
 def main(argv: list[str] | None = None) -> int:
     from experiments.conditions import BY_NAME
 
@@ -165,7 +177,8 @@ def main(argv: list[str] | None = None) -> int:
     p_rep.add_argument("--taxi-episodes", type=int, help="episodes per Taxi trial (both Taxi variants)")
     p_rep.add_argument("--taxi-random-episodes", type=int,
                        help="episodes per trial of Gymnasium's Taxi (random passenger and destination) only")
-    p_rep.add_argument("--taxi-trials", type=int, help="Taxi trials per arm")
+    p_rep.add_argument("--taxi-trials", type=int, help="trials per arm of Gymnasium's Taxi (default 6)")
+    p_rep.add_argument("--taxi-fixed-trials", type=int, help="trials per arm of the fixed-task Taxi (default 4)")
     p_rep.add_argument("--only", nargs="+", metavar="NAME", choices=list(BY_NAME),
                        help=f"run only these conditions ({', '.join(BY_NAME)})")
     p_rep.add_argument("--out", default=None, help="output directory (default: docs/results)")
@@ -173,14 +186,7 @@ def main(argv: list[str] | None = None) -> int:
     p_rep.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
                        help="run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)")
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p_report = sub.add_parser("report", help="every verdict, interval and figure recomputed from a per-trial "
-                              "table (docs/results/trials.csv.gz) without running a trial")
-    p_report.add_argument("--from", dest="source", required=True, metavar="TABLE",
-                          help="the table (its directory's timing.json and claims.json give the run's scale and "
-                          "the previous verdicts)")
-    p_report.add_argument("--out", required=True, help="directory for claims.json, REPORT.md and the figures")
-    p_report.add_argument("--n-boot", type=int, default=None, help="bootstrap resamples (default: the declared "
-                          "number, as the reproduction)")
+    add_report_parser(sub)
     p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
                              "loop, measured side by side on the same trials")
     p_bench.add_argument("--conditions", nargs="+", default=list(BY_NAME), choices=list(BY_NAME),

@@ -9,6 +9,7 @@ REPORT.md, timing.json.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import platform
@@ -151,6 +152,8 @@ def report_from_table(table_path: str, out: str, timing: dict, argv: list[str], 
     table = read_table(table_path)
     result = analyse(table.conditions, table.data, table.extras, out, n_boot)
     result["previous"] = previous or {}
+    with open(table_path, "rb") as fh:  # which table these numbers come from
+        result["table"] = {"file": os.path.basename(table_path), "sha256": hashlib.sha256(fh.read()).hexdigest()}
     with open(os.path.join(out, "claims.json"), "w") as fh:
         json.dump(result, fh, indent=1)
     _, drawn = layout_pool()
