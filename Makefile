@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: setup run test bench reproduce clean
+.PHONY: setup run test bench reproduce report clean
 
 setup: $(STAMP)
 
@@ -28,6 +28,10 @@ test: setup
 
 reproduce: setup
 	$(PY) -m experiments reproduce --out docs/results
+
+# Every verdict, interval and figure again from the committed per-trial table, without running a trial.
+report: setup
+	$(PY) -m experiments report --from docs/results/trials.csv.gz --out runs/report
 
 bench: setup
 	$(PY) -m experiments bench

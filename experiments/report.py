@@ -113,8 +113,10 @@ def _run_figures(t: dict) -> str:
     peak = f", up to {t['load_average_max']:.1f} during the run" if t.get("load_average_max") is not None else ""
     spread = (f"; the workers finished their last jobs {t['worker_end_spread_s']:.0f} s apart"
               if t.get("worker_end_spread_s") is not None else "")
+    m = t.get("machine") or {}
+    where = f" ({m['cpu_model']}, {m['cores_usable']} usable)" if m else ""
     return (f"wall {t['total_s']:.0f} s ({t['total_s'] / 60:.1f} min) on {t['workers']} worker process(es) and "
-            f"{t.get('cpus', '?')} CPUs, {cpu:.0f} CPU s in the workers{split}, {t.get('trial_steps', 0):,} "
+            f"{t.get('cpus', '?')} CPUs{where}, {cpu:.0f} CPU s in the workers{split}, {t.get('trial_steps', 0):,} "
             f"environment steps, load average {t.get('load_average_at_start', [0])[0]:.1f} at the start{peak} and "
             f"{t.get('load_average_at_end', [0])[0]:.1f} at the end (1-minute averages; a machine shared with other "
             f"jobs){spread}")

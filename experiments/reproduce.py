@@ -115,6 +115,7 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
     timing = {"total_s": time.perf_counter() - t_start, "run_s": run_wall, "trials": total, "trials_run": slots_todo,
               "trials_computed": len(todo), "trials_cached": done0 - reused,
               "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "ray": ray, "cpus": os.cpu_count(),
+              "machine": machine(),
               "python": platform.python_version(), "commit": git_commit(), "load_average_at_start": load_start,
               "load_average_at_end": list(os.getloadavg()), "load_average_max": load.max, "started_utc": started,
               "worker_end_spread_s": _end_spread(infos),
@@ -161,9 +162,21 @@ def report_from_table(table_path: str, out: str, timing: dict, argv: list[str], 
     return result
 
 
+def machine() -> dict:
+    """Which machine ran it: the CPU model, the cores this process may use, the host name."""
+    model = "?"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            model = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), "?")
+    except OSError:
+        pass
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return {"cpu_model": model, "cores_usable": usable, "host": platform.node(), "system": platform.platform()}
+
+
 def _scratch_summary(timing: dict) -> dict:
     """What the report header says about a run that computed every trial."""
-    keys = ("total_s", "run_s", "trials", "trials_computed", "trial_steps", "workers", "cpus", "commit",
+    keys = ("total_s", "run_s", "trials", "trials_computed", "trial_steps", "workers", "cpus", "machine", "commit",
             "load_average_at_start", "load_average_at_end", "load_average_max", "worker_end_spread_s",
             "cpu_s_per_worker", "scale", "env", "started_utc")
     return {k: timing.get(k) for k in keys}
