@@ -29,7 +29,7 @@ def cmd_run(config: RunConfig) -> int:
     os.makedirs(config.out, exist_ok=True)
     task = config.task
     spec = TrialSpec(task.env, config.agent, config.observer, task.seed, task.layout, config.episodes,
-                     task.teacher_rule)
+                     task.teacher_rule, config.step_seconds)
     with open(os.path.join(config.out, "config.json"), "w") as fh:
         json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
     bar = tqdm(total=config.episodes, desc=f"{config.algo} on {task.env}", unit="ep", file=sys.stderr)
@@ -49,8 +49,13 @@ def cmd_run(config: RunConfig) -> int:
     plot_curves({config.algo: result.returns}, os.path.join(config.out, "curve.png"),
                 f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
                 stop_episode=config.observer.stop_episode)
+    summary = {"episodes": len(result.episodes), "steps": result.total_steps, "wall_s": round(wall, 3),
+               "returns": result.returns.tolist(), "delay": {"observer": result.delay}}
+    with open(os.path.join(config.out, "summary.json"), "w") as fh:
+        json.dump(summary, fh, indent=1)
     print(f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
-          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, curve.png")
+          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, summary.json, "
+          f"curve.png")
     return 0
 
 
@@ -143,6 +148,19 @@ def cmd_bench_compare(args, parser) -> int:
     return 0
 
 
+def add_bench_parser(sub, by_name) -> None:
+    p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
+                             "loop, measured side by side on the same trials")
+    p_bench.add_argument("--conditions", nargs="+", default=list(by_name), choices=list(by_name),
+                         help="conditions to draw trials from (default: all)")
+    p_bench.add_argument("--trials", type=int, default=2, help="trials per agent and condition (default: 2)")
+    p_bench.add_argument("--episodes", type=int, default=30, help="episodes per trial (default: 30)")
+    p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
+    p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
+    p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
+                         "torch MLP, on the first condition's trials)")
+
+
 def add_report_parser(sub) -> None:
     p_report = sub.add_parser("report", help="every verdict, interval and figure recomputed from a per-trial "
                               "table (docs/results/trials.csv.gz) without running a trial")
@@ -152,6 +170,24 @@ def add_report_parser(sub) -> None:
     p_report.add_argument("--out", required=True, help="directory for claims.json, REPORT.md and the figures")
     p_report.add_argument("--n-boot", type=int, default=None, help="bootstrap resamples (default: the declared "
                           "number, as the reproduction)")
+
+
+def add_delay_check(sub):
+    from experiments.delay_check import DelayCheckConfig
+
+    p_delay = sub.add_parser("delay-check", help=DelayCheckConfig.__doc__, description=DelayCheckConfig.__doc__)
+    add_config_arguments(p_delay, DelayCheckConfig)
+    return p_delay
+
+
+def cmd_delay_check(args, parser) -> int:
+    from experiments.delay_check import DelayCheckConfig, main as delay_check_main
+
+    try:
+        check = config_from_namespace(DelayCheckConfig, args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return delay_check_main(check)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -187,16 +223,7 @@ def main(argv: list[str] | None = None) -> int:
                        help="run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)")
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_report_parser(sub)
-    p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
-                             "loop, measured side by side on the same trials")
-    p_bench.add_argument("--conditions", nargs="+", default=list(BY_NAME), choices=list(BY_NAME),
-                         help="conditions to draw trials from (default: all)")
-    p_bench.add_argument("--trials", type=int, default=2, help="trials per agent and condition (default: 2)")
-    p_bench.add_argument("--episodes", type=int, default=30, help="episodes per trial (default: 30)")
-    p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
-    p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
-    p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
-                         "torch MLP, on the first condition's trials)")
+    add_bench_parser(sub, BY_NAME)
     p_cmp = sub.add_parser("bench-compare", help="the in-process runner of this checkout against another (a "
                            "worktree of an earlier commit), plain and batched, alternating, round after round: "
                            "steps/s ratios per round, the median ratio")
@@ -207,7 +234,10 @@ def main(argv: list[str] | None = None) -> int:
     p_cmp.add_argument("--trials", type=int, default=1, help="trials per agent and environment (default: 1)")
     p_cmp.add_argument("--episodes", type=int, default=10, help="episodes per trial (default: 10)")
     p_cmp.add_argument("--out", default=None, help="also write every run's figures and the ratios to this JSON file")
+    p_delay = add_delay_check(sub)
     args = parser.parse_args(argv)
+    if args.command == "delay-check":
+        return cmd_delay_check(args, p_delay)
     if args.command == "bench-compare":
         return cmd_bench_compare(args, p_cmp)
     if args.command == "sweep":

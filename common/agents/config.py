@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, fields, replace
 
 from common.config import option
-from common.core.delay import parse_probs
+from common.core.delay import check_delay_spec, parse_probs
 
 NETWORKS = ("auto", "mlp", "torch-mlp", "cnn")  # the built-in networks (common/agents/torch_net.py builds them)
 
@@ -60,8 +60,9 @@ class AgentConfig:
                                                     "2, ... steps (for credit)")
     history_steps: int = option(32, "recent steps a feedback may still be credited to; older targets are stale")
     # Beyond the paper (ours; docs/results/REPORT.md: learned delay, adaptive alpha_h).
-    learn_delay: bool = option(False, "learn the lag distribution online (common.core.delay_learning: EM over lags "
-                                      "0..len(assumed)-1, starting from assumed_delay_probs)")
+    learn_delay: bool = option(False, "learn the teacher's delay in seconds online (common.core.delay_model: a "
+                                      "density over 0-6 s, from delay_prior), instead of assumed_delay_probs")
+    delay_prior: str = option("uniform:0.2,4", "the learned delay's prior in seconds (Deep TAMER's uniform 0.2-4 s)")
     alpha_h_adapt: float = option(0.0, "if > 0, alpha_h is also multiplied by a running rate (this step size, "
                                        "from 1) of argmax H agreeing with argmax Q; 0 = the paper's schedule")
     alpha_h_trust: float = option(0.0, "if > 0, the teacher's reliability: a running rate (this step size, from 1) "
@@ -73,6 +74,7 @@ class AgentConfig:
     def __post_init__(self):
         object.__setattr__(self, "assumed_delay_probs",
                            parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        check_delay_spec(self.delay_prior)
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):

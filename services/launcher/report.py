@@ -75,7 +75,10 @@ def finish(cfg: UpConfig, run: str, rundir: RunDir, endpoint: str, children: lis
                          f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})")
         except Exception as exc:  # a damaged log (or a full disk) still gets a summary.json saying so
             summary["summary_error"] = f"{type(exc).__name__}: {exc}"
-    summary["latency_ms"] = latency_table(read_stats(rundir))
+    stats = read_stats(rundir)
+    summary["latency_ms"] = latency_table(stats)
+    # Each teacher's delay as the learner credited it at the end (learned in seconds, or what it assumed).
+    summary["delay"] = stats.get("learner", {}).get("delay", {})
     try:
         rundir.write_summary(summary)
     except OSError as exc:

@@ -348,7 +348,8 @@ def main(config: LearnerConfig) -> int:
             actors.close()
             for s in subs:
                 s.undeclare()
-    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed)
+    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed,
+                   delay=core.delay_summary())
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0
 
