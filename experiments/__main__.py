@@ -1,4 +1,5 @@
-"""python -m experiments {run, sweep, reproduce, report, bench, bench-compare}: experiments on the in-process runner (virtual clock)."""
+"""python -m experiments {run, sweep, reproduce, report, bench, bench-compare}: experiments on the in-process
+runner (virtual clock)."""
 from __future__ import annotations
 
 import csv
@@ -148,7 +149,7 @@ def cmd_bench_compare(args, parser) -> int:
     return 0
 
 
-def add_bench_parser(sub, by_name) -> None:
+def add_bench_parser(sub, by_name):
     p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
                              "loop, measured side by side on the same trials")
     p_bench.add_argument("--conditions", nargs="+", default=list(by_name), choices=list(by_name),
@@ -159,6 +160,7 @@ def add_bench_parser(sub, by_name) -> None:
     p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
     p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
                          "torch MLP, on the first condition's trials)")
+    return p_bench
 
 
 def add_report_parser(sub) -> None:
@@ -223,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
                        help="run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)")
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_report_parser(sub)
-    add_bench_parser(sub, BY_NAME)
+    p_bench = add_bench_parser(sub, BY_NAME)
     p_cmp = sub.add_parser("bench-compare", help="the in-process runner of this checkout against another (a "
                            "worktree of an earlier commit), plain and batched, alternating, round after round: "
                            "steps/s ratios per round, the median ratio")

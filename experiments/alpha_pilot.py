@@ -46,7 +46,7 @@ def parse_variants(text: str) -> dict[str, dict]:
 
 
 def summarise(steps: np.ndarray, returns: np.ndarray, alpha: np.ndarray, layouts: np.ndarray) -> dict:
-    out = {}
+    out: dict = {}
     for kind, mask in (("honest", layouts % 2 == 0), ("misleading", layouts % 2 == 1)):
         out[kind] = {"ln_steps": float(np.log(np.maximum(steps[mask], 1)).mean()),
                      "return": float(returns[mask].mean()), "alpha_h_mean": float(alpha[mask].mean()),

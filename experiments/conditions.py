@@ -16,8 +16,9 @@ destination pairs).
 
 An arm is an agent variant: the paper's four (`dqn`, `dqn-rs`, `deep-tamer`, `dqn-tamer`) or ours:
 `<algo>/uniform` (lags assumed uniform over the learner's window 0..6), `<algo>/true` (the observer's
-true distribution), `<algo>/learned` (learned online), `dqn-tamer/adaptive` (alpha_h also follows H/Q
-agreement), `dqn-tamer/matched` (A1's control: a fixed schedule with the adaptive arm's mean alpha_h),
+true distribution), `<algo>/learned` (the delay learned online in seconds, common.core.delay_model, on the
+runner's clock of 0.5 s per step), `dqn-tamer/adaptive` (alpha_h also follows H/Q agreement),
+`dqn-tamer/matched` (A1's control: a fixed schedule with the adaptive arm's mean alpha_h),
 `dqn-tamer/trusted` (M1: the teacher's reliability lowers alpha_h for a teacher Q keeps contradicting).
 
 Layouts and seeds of the deciding runs (`FULL`) are fresh: layouts 60-119 and seed block 2 (`Scale`);
@@ -26,6 +27,7 @@ Layouts and seeds of the deciding runs (`FULL`) are fresh: layouts 60-119 and se
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -51,7 +53,7 @@ MATCH_K = 0.3386
 alpha_h over the paper arm's (alpha_h at each episode's end, averaged over episodes and trials) on a pilot
 of maze-high-delay, 100 episodes, pilot layouts 44-59 (8 honest, 8 misleading), seeds 9000+:
 `python -m experiments.alpha_pilot --episodes 100 --reps 2` (PILOT)."""
-TRUST = {"alpha_h_trust": 0.01, "alpha_h_trust_after": 1000, "alpha_h_trust_ref": 0.35}
+TRUST: dict[str, Any] = {"alpha_h_trust": 0.01, "alpha_h_trust_after": 1000, "alpha_h_trust_ref": 0.35}
 """M1's arm `dqn-tamer/trusted`: the teacher's reliability (common/agents/explorer.py), chosen on the same
 pilot among the candidates it ran (PILOT)."""
 

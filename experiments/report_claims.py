@@ -90,11 +90,13 @@ def claim_section(cid: str, c: dict) -> list[str]:
     inter = c["extension"]["interaction"]
     if any(inter.values()):
         lines += ["Layout class x method (effect on honest minus on misleading layouts; two-sided Welch p):", "",
-                  "| metric | comparison | honest | misleading | difference [95% CI] | p |", "|---|---|---|---|---|---|"]
+                  "| metric | comparison | honest | misleading | difference [95% CI] | p |",
+                  "|---|---|---|---|---|---|"]
         for m in METRICS:
             for x in inter[m]:
                 lines.append(f"| {m} | {x['label']} | {x['honest']:+.3f} | {x['misleading']:+.3f} | "
-                             f"{x['difference']:+.3f} [{x['ci'][0]:+.3f}, {x['ci'][1]:+.3f}] | {fmt_p(x['p_two_sided'])} |")
+                             f"{x['difference']:+.3f} [{x['ci'][0]:+.3f}, {x['ci'][1]:+.3f}] | "
+                             f"{fmt_p(x['p_two_sided'])} |")
         lines.append("")
     for m in METRICS:
         comps = c["metrics"][m]["components"]
@@ -105,10 +107,12 @@ def claim_section(cid: str, c: dict) -> list[str]:
     rob = c["metrics"]["ln steps"].get("robustness", {})
     if rob:
         lines += ["Robustness (ln steps, never deciding): " + "; ".join(
-            f"{k}: {v['estimate']:+.3f}, Holm-factor p {fmt_p(v['p_adj'])} ({'reproduced' if v['reproduced'] else 'not'})"
+            f"{k}: {v['estimate']:+.3f}, Holm-factor p {fmt_p(v['p_adj'])} "
+            f"({'reproduced' if v['reproduced'] else 'not'})"
             for k, v in rob.items()), ""]
     if c.get("secondary"):
-        lines += ["| secondary test (never deciding) | metric | pooled | honest | misleading |", "|---|---|---|---|---|"]
+        lines += ["| secondary test (never deciding) | metric | pooled | honest | misleading |",
+                  "|---|---|---|---|---|"]
         for s in c["secondary"]:
             for m in METRICS:
                 cells = [f"{iv(r)} p {fmt_p(r['p'])}" if (r := s["by_layouts"].get(k, {}).get(m)) else "n/a"

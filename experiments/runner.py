@@ -2,10 +2,10 @@
 
 Virtual time: trial i's k-th action is taken at t = k (one unit per step), which is k * `step_seconds` seconds
 (0.5 s: 2 steps/s), the clock of a delay learned in seconds. The observer's reactions land between steps (see
-`common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in `common.core.steploop`'s order (Algorithm 2 of
-the paper): credit the feedback that arrived since the previous action, act, step the env, record the step
-and run the every-b-steps updates; the observer watches the step and its reaction is delivered on the tick
-after it lands.
+`common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in
+`common.core.steploop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
+action, act, step the env, record the step and run the every-b-steps updates; the observer watches the step and
+its reaction is delivered on the tick after it lands.
 
 Trials batched together only share arithmetic: each has its own env, observer, agent state and random
 streams, so a trial's actions and returns do not depend on which other trials run beside it. Every
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -79,10 +79,12 @@ def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 1
     return None
 
 
-def fixed_delay_summary(spec: TrialSpec) -> dict:
-    """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock."""
+def fixed_delay_summary(spec: TrialSpec, feedbacks: int) -> dict:
+    """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock, and
+    the feedbacks credited with them."""
     probs = ",".join(repr(float(p)) for p in spec.agent.assumed_delay_probs)
-    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "learned": False}
+    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "feedbacks": int(feedbacks),
+            "learned": False}
 
 
 def _bucket(n: int) -> str:
@@ -110,7 +112,8 @@ class _Batch:
             raise ValueError("trials batched together must share observation and action spaces")
         env_seeds = [derive_seed(s.seed, "env") % (2**31) for s in rows_specs]
         EnvBatch = TableEnvs if use_tables and TableEnvs.supports(envs) else LoopEnvs
-        self.world = EnvBatch(list(envs), list(rules), [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
+        self.world = EnvBatch(list(envs), list(rules),
+                              [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
         self.observers = ObserverBatch([s.observer for s in rows_specs],
                                        [derive_seed(s.seed, "observer") for s in rows_specs])
         self.agent = make_agent([s.agent for s in rows_specs], obs_shape(envs[0]), n_actions,
@@ -123,6 +126,7 @@ class _Batch:
         step_s = np.array([s.step_seconds for s in rows_specs], np.float64)
         if not np.all(step_s > 0):
             raise ValueError("step_seconds must be positive")
+        self.learns_delay = any(s.agent.learn_delay for s in rows_specs)
         self.R = self.observers.max_lag + 1  # a reaction lands within R ticks of its step
         if self.observers.in_seconds:
             self.R = max(self.R, int(np.ceil(MAX_REACTION_S / step_s.min())) + 1)
@@ -168,7 +172,8 @@ class _Batch:
             for row, t, n, v in zip(rows[k], t_f, counts[k], values):
                 for value in v[:n]:
                     self.on_input(int(st["orig"][row]), "feedback", {"t": float(t), "value": int(value)})
-        out = self.loop.credit(rows[k], t_f, values, counts[k], t_f * st["step_s"][rows[k]])
+        out = self.loop.credit(rows[k], t_f, values, counts[k], t_f * st["step_s"][rows[k]] if self.learns_delay
+                               else None)
         self.count_outcomes(rows[k], counts[k], out)
 
     def deliver_stamped(self, rk, due, stamps, counts) -> None:
@@ -207,17 +212,16 @@ class _Batch:
             self.trace_steps(rows, step, a, rew, nxt, term, trunc, intended)
         episode = st["episode"][sel]
         t = step.astype(np.float64)
-        self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, t, episode, t * st["step_s"][sel], intended)
+        # (seconds and the rule's polarity are kept only where a delay is learned in seconds: the paper's
+        # step-clock credit needs neither, and the per-tick path stays as fast as it was)
+        seconds = (t * st["step_s"][sel], intended) if self.learns_delay else (None, None)
+        self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, t, episode, *seconds)
         give, value, lag = self.observers.react(rows, intended, episode, step)
-        stamp = t + lag + REACTION_OFFSET
-        if self.observers.in_seconds:  # a delay in seconds: its own stamp, lag = whole steps before it lands
-            delay = self.observers.last_delay_s / st["step_s"][sel]
-            timed = np.isfinite(delay)
-            stamp = np.where(timed, t + np.where(timed, delay, 0.0), stamp)
-            lag = np.where(timed, np.floor(stamp - t).astype(np.int64), lag)
-        g = nz(give)
-        st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
-        st["inbox_t"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = stamp[g]
+        if self.observers.in_seconds:
+            self.post_timed(rows, sel, t, give, value, lag)
+        else:
+            g = nz(give)
+            st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
         if self.record_actions:
             for i, act in zip(st["orig"][rows], a):
                 self.results[i].actions.append(int(act))
@@ -225,6 +229,18 @@ class _Batch:
         st["ep_steps"][sel] += 1
         st["obs"][sel] = nxt
         return rows[term | trunc]
+
+    def post_timed(self, rows, sel, t, give, value, lag) -> None:
+        """Reactions with a delay in seconds: each its own stamp (steps), landing after whole steps."""
+        st = self.st
+        stamp = t + lag + REACTION_OFFSET
+        delay = self.observers.last_delay_s / st["step_s"][sel]
+        timed = np.isfinite(delay)
+        stamp = np.where(timed, t + np.where(timed, delay, 0.0), stamp)
+        lag = np.where(timed, np.floor(stamp - t).astype(np.int64), lag)
+        g, step = nz(give), t.astype(np.int64)
+        at = (rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g])
+        st["inbox"][at], st["inbox_t"][at] = value[g], stamp[g]
 
     def trace_steps(self, rows, step, a, rew, nxt, term, trunc, intended) -> None:
         st = self.st
@@ -237,7 +253,11 @@ class _Batch:
     def end_episodes(self, ended: np.ndarray) -> None:
         st, agent = self.st, self.agent
         eps_now, alpha_now = agent.epsilons(ended), agent.alpha_h(ended)
-        lag_now, delay_now = agent.mean_lag(ended), agent.median_delay_s(ended)
+        delay_now = agent.median_delay_s(ended)
+        # mean_lag in steps; for a learned delay its mean in seconds as a lag (a lag-d reaction comes d + 0.5
+        # steps after its step), comparable with the observer's true mean lag
+        learned_lag = agent.median_delay_s(ended, mean=True) / st["step_s"][ended] - REACTION_OFFSET
+        lag_now = np.where(np.isnan(learned_lag), agent.mean_lag(ended), learned_lag)
         for j, row in enumerate(ended):
             i = int(st["orig"][row])
             record = {"episode": int(st["episode"][row]), "return": float(st["ep_return"][row]),
@@ -276,7 +296,8 @@ class _Batch:
         self.st["inbox"][row] = 0
         self.results[i].total_steps = int(self.agent.steps[row])
         self.results[i].weights = self.agent.policy_weights(row)
-        self.results[i].delay = self.agent.delay_summary(row) or fixed_delay_summary(self.specs[i])
+        credited = sum(e["feedback_credited"] for e in self.results[i].episodes)
+        self.results[i].delay = self.agent.delay_summary(row) or fixed_delay_summary(self.specs[i], credited)
         self.finished_rows += 1
         if self.on_trial_done is not None:
             self.on_trial_done(i, self.results[i])

@@ -156,9 +156,9 @@ class TrialBatchAgent(FeedbackDoor):
                      next_obs: np.ndarray, terminated: np.ndarray, t_actions: np.ndarray,
                      episodes: np.ndarray, seconds: np.ndarray | None = None,
                      polarity: np.ndarray | None = None) -> None:
-        """Trials `rows` (distinct) took `actions` at times `t_actions` (`seconds` on the teacher's clock, default
-        t_actions) in episodes `episodes`; the task's teacher rule says `polarity` of each (+-1, 0 unknown: the
-        model of the rated event a learned delay is fitted on). Store transitions, remember steps."""
+        """Trials `rows` (distinct) took `actions` at times `t_actions` in episodes `episodes`: store transitions,
+        remember steps. Where a delay is learned in seconds the driver also gives `seconds` (the teacher's clock)
+        and the task rule's `polarity` of each (+-1, 0 unknown: the model of the rated event it is fitted on)."""
         rows = np.asarray(rows, np.int64)
         obs = np.asarray(obs, np.float32).reshape(len(rows), self.obs_dim)
         actions = np.asarray(actions, np.int64)

@@ -10,13 +10,17 @@ Shaping trials add the value to the reward of the newest step shown at or before
 grow D_global and take one H step on D_local. A feedback's candidates are the held steps shown before it,
 whatever their episode.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from common.agents.networks import SQUARED_SUM, FitJob
+from common.agents.history import BatchCredit, BatchStepHistory
+from common.agents.networks import SQUARED_SUM, FitJob, ValueNetworks
+from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.core.delay_learning import TrialDelays
 from common.core.delay_model import polarity_likelihood
 from common.core.util import nz
@@ -38,6 +42,18 @@ class FeedbackOutcome:
 class FeedbackDoor:
     """The feedback methods of `TrialBatchAgent` (they use its parts: history, replay, h, feedback_memory)."""
 
+    # What the agent gives them (`TrialBatchAgent.__init__`).
+    history: BatchStepHistory
+    replay: TransitionReplay
+    feedback_memory: FeedbackMemory
+    h: ValueNetworks
+    assumed_delay: Any
+    shaping: np.ndarray
+    train_h: np.ndarray
+    h_updates: np.ndarray
+    local_width: int
+    last_credit: tuple[np.ndarray, BatchCredit] | None
+
     def mean_lag(self, rows: np.ndarray) -> np.ndarray:
         """Mean of the lag distribution (in steps) credit uses now for trials `rows` (nan if not point masses,
         or learned in seconds: `median_delay_s`)."""
@@ -48,10 +64,12 @@ class FeedbackDoor:
         value = float(np.dot(probs, np.arange(len(probs)))) if probs is not None else float("nan")
         return np.full(len(rows), value)
 
-    def median_delay_s(self, rows: np.ndarray) -> np.ndarray:
-        """The learned median delay (s) of each trial's teacher (nan where it is not learned)."""
+    def median_delay_s(self, rows: np.ndarray, mean: bool = False) -> np.ndarray:
+        """The learned median (or `mean`) delay (s) of each trial's teacher (nan where it is not learned)."""
         d = self.assumed_delay
-        return d.median_s(rows) if isinstance(d, TrialDelays) else np.full(len(rows), np.nan)
+        if not isinstance(d, TrialDelays):
+            return np.full(len(rows), np.nan)
+        return d.mean_s(rows) if mean else d.median_s(rows)
 
     def delay_summary(self, i: int) -> dict | None:
         """Trial i's learned delay (`LearnedDelay.summary`), None where it is not learned."""
@@ -70,15 +88,22 @@ class FeedbackDoor:
                 raise ValueError(f"feedback must be -1 or +1, got {value!r}")
         if not events:
             return []
-        status, steps, lost = self.feedback_rounds(np.array([e[0] for e in events], np.int64),
-                                                   np.array([e[1] for e in events], np.float64),
-                                                   np.array([[e[2]] for e in events], np.int64),
-                                                   np.ones(len(events), np.int64))
+        status, steps, lost = self.feedback_rounds(
+            np.array([e[0] for e in events], np.int64),
+            np.array([e[1] for e in events], np.float64),
+            np.array([[e[2]] for e in events], np.int64),
+            np.ones(len(events), np.int64),
+        )
         return [FeedbackOutcome(STATUS_NAMES[s], int(n), float(m)) for s, n, m in zip(status, steps, lost)]
 
-    def feedback_rounds(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray,
-                        counts: np.ndarray, seconds: np.ndarray | None = None
-                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def feedback_rounds(
+        self,
+        rows: np.ndarray,
+        t_feedback: np.ndarray,
+        values: np.ndarray,
+        counts: np.ndarray,
+        seconds: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Rounds of feedback stamped at the same times: round r gives values[k, r] (+-1, not checked) to
         trial rows[k] if counts[k] > r. Shaping trials add it to the newest step's reward; H trials credit it
         by timestamp (computed once: nothing is recorded between rounds), grow D_global and update H on
@@ -98,8 +123,9 @@ class FeedbackDoor:
         if isinstance(delays, TrialDelays) and np.count_nonzero(learn & delays.learn[rows]):
             learned = learn & delays.learn[rows]
             learn &= ~learned
-            self._credit_learned(rows, t_feedback if seconds is None else seconds, values, counts, nz(learned),
-                                 status, steps, lost)
+            self._credit_learned(
+                rows, t_feedback if seconds is None else seconds, values, counts, nz(learned), status, steps, lost
+            )
         if np.count_nonzero(learn):
             self._credit_h(rows, t_feedback, values, counts, nz(learn), status, steps, lost)
         return status, steps, lost
@@ -109,8 +135,9 @@ class FeedbackDoor:
         for j in k:
             row = int(rows[j])
             for rnd in range(int(counts[j])):
-                out, _, _ = self.credit_in_seconds(row, float(seconds[j]), int(values[j, rnd]),
-                                                   self.assumed_delay.learned[row])
+                out, _, _ = self.credit_in_seconds(
+                    row, float(seconds[j]), int(values[j, rnd]), self.assumed_delay.learned[row]
+                )
                 status[j] = STATUS_NAMES.index(out.status)
                 steps[j], lost[j] = out.steps, out.lost_mass
 
@@ -125,8 +152,9 @@ class FeedbackDoor:
         out, weights = self.credit_shown(row, t_seconds, value, pos, starts, np.append(starts[1:], np.inf), delay)
         return out, times[0][held], weights
 
-    def credit_shown(self, row: int, t_feedback: float, value: int, positions, starts, ends,
-                     delay) -> tuple[FeedbackOutcome, np.ndarray]:
+    def credit_shown(
+        self, row: int, t_feedback: float, value: int, positions, starts, ends, delay
+    ) -> tuple[FeedbackOutcome, np.ndarray]:
         """The one door of a feedback on steps shown during [starts, ends) (oldest first; seconds on the clock of
         t_feedback): `positions` are the history's ring positions of those steps (`history.find`; -1: no longer
         held). `delay` (`common.core.delay_model`: learned or fixed) gives each its credit and learns from the
@@ -139,13 +167,15 @@ class FeedbackDoor:
         weights = np.zeros(len(positions))
         held = (positions >= 0) & (starts <= t_feedback)  # nothing shown after the press is a candidate
         r = np.array([row], np.int64)
-        if self.shaping[row]:
-            if not held.any():
-                return FeedbackOutcome("stale", 0, 1.0), weights
-            newest = np.flatnonzero(held)[-1]
-            weights[newest] = 1.0
-            self.replay.add_reward(r, self.history.slot[r, positions[newest:newest + 1]], np.array([value], np.float32))
-            return FeedbackOutcome("credited", 1, 0.0), weights
+        if self.shaping[row]:  # the newest held step shown before it, by the step clock's one shaping rule
+            newest = np.flatnonzero(held)[-1:]
+            t_step = self.history.times[row, positions[newest]] if len(newest) else np.array([-np.inf])
+            shaped, steps, lost_now = np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1)
+            self._shape(
+                r, t_step, np.array([[value]]), np.ones(1, np.int64), np.zeros(1, np.int64), shaped, steps, lost_now
+            )
+            weights[newest] = steps[0]
+            return FeedbackOutcome(STATUS_NAMES[shaped[0]], int(steps[0]), float(lost_now[0])), weights
         if not self.train_h[row]:
             return FeedbackOutcome("ignored"), weights
         if not held.any():
@@ -159,8 +189,14 @@ class FeedbackDoor:
             return FeedbackOutcome("stale", 0, lost), weights
         p = positions[k][None, :]
         obs, act = self.history.obs[r[:, None], p], self.history.action[r[:, None], p]
-        self._learn_local(r, np.array([len(k)]), obs, act, np.full((1, len(k)), value, np.float32),
-                          weights[k][None, :].astype(np.float32))
+        self._learn_local(
+            r,
+            np.array([len(k)]),
+            obs,
+            act,
+            np.full((1, len(k)), value, np.float32),
+            weights[k][None, :].astype(np.float32),
+        )
         return FeedbackOutcome("credited", int(len(k)), lost), weights
 
     def _shape(self, rows, t_feedback, values, counts, k, status, steps, lost) -> None:

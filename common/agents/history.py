@@ -43,8 +43,9 @@ class BatchStepHistory:
     def push(self, trials: np.ndarray, t: np.ndarray, obs: np.ndarray, action: np.ndarray,
              slot: np.ndarray, episode: np.ndarray, seconds: np.ndarray | None = None,
              polarity: np.ndarray | None = None) -> None:
-        """Trial trials[k] took action[k] at time t[k] (`seconds[k]` in seconds; default t) in its episode
-        episode[k], and the task's rule says polarity[k] of it (+-1, 0 unknown; default 0) (trials distinct)."""
+        """Trial trials[k] took action[k] at time t[k] in its episode episode[k] (trials distinct); where a delay
+        is learned in seconds, the driver also gives `seconds[k]` (when it was shown) and the task rule's
+        polarity[k] of it (+-1, 0 unknown)."""
         pos, count = self.head[trials], self.count[trials]
         newest = self.times[trials, (pos - 1) % self.capacity]
         older = (count > 0) & (t < newest)
@@ -52,8 +53,9 @@ class BatchStepHistory:
             k = int(nz(older)[0])
             raise ValueError(f"step time {t[k]} is older than the previous step {newest[k]}")
         self.times[trials, pos] = t
-        self.seconds[trials, pos] = t if seconds is None else seconds
-        self.polarity[trials, pos] = 0 if polarity is None else polarity
+        if seconds is not None:  # (kept only by drivers that credit in seconds: a learned delay)
+            self.seconds[trials, pos] = seconds
+            self.polarity[trials, pos] = 0 if polarity is None else polarity
         self.episode[trials, pos] = episode
         self.obs[trials, pos] = obs
         self.action[trials, pos] = action
@@ -80,6 +82,10 @@ class BatchStepHistory:
         k = np.searchsorted(held[0], times)
         k = np.minimum(k, self.capacity - 1)
         return np.where(held[0, k] == times, pos[0, k], -1)
+
+    def times_at(self, trial: int, positions) -> np.ndarray:
+        """The times at which trial's held steps at ring `positions` were taken (the inverse of `find`)."""
+        return self.times[trial, np.asarray(positions, np.int64)]
 
     def latest_at(self, trials: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Ring position of the newest step taken at or before t[k] for each trial, -1 if none."""

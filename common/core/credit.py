@@ -101,7 +101,8 @@ def _point_mass_on_steps(delay, since_start: np.ndarray) -> np.ndarray | None:
 
 def onset_weights(t_feedback: float, starts, delay) -> tuple[np.ndarray, float]:
     """Weights of each held step (1-d `starts`, ascending) for a feedback at `t_feedback` from a person reacting
-    to each step's onset, and the mass lost (all of it when no onset lies where the delay has density). `delay` needs a density (`pdf`: a scipy.stats distribution)."""
+    to each step's onset, and the mass lost (all of it when no onset lies where the delay has density). `delay`
+    needs a density (`pdf`: a scipy.stats distribution)."""
     pdf = getattr(delay, "pdf", None)
     if pdf is None:
         raise ValueError("onset credit needs a delay with a density (a distribution in seconds, not steps:...)")

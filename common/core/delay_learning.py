@@ -62,6 +62,10 @@ class TrialDelays:
         """The learned median delay in seconds (nan for trials that do not learn it)."""
         return np.array([np.nan if self.learned[r] is None else self.learned[r].quantile(0.5) for r in rows])
 
+    def mean_s(self, rows: np.ndarray) -> np.ndarray:
+        """The learned mean delay in seconds (nan for trials that do not learn it)."""
+        return np.array([np.nan if self.learned[r] is None else self.learned[r].mean() for r in rows])
+
     def select(self, rows: np.ndarray) -> None:
         self.assumed, self.learn = self.assumed[rows], self.learn[rows]
         self.learned = [self.learned[r] for r in rows]

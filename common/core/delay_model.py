@@ -25,6 +25,7 @@ weights are the credit function's (`common.core.credit`), unnormalised (mass on 
 and it learns nothing. `delay_estimate(spec)` builds either from the command line's text: ``learned``,
 ``learned:PRIOR`` (``learned:gamma:2,0,0.4``), or a fixed spec (``uniform:0.2,4``, ``steps:...``, ``NAME:...``).
 """
+
 from __future__ import annotations
 
 import math
@@ -79,6 +80,17 @@ class LearnedDelayConfig:
             raise ValueError("window and iterations must be >= 1")
         if self.reference not in REFERENCES:
             raise ValueError(f"reference must be one of {REFERENCES}, got {self.reference!r}")
+
+
+def summarise(model) -> dict:
+    """A delay model's median, 10th and 90th percentiles (s) and the feedbacks it has seen."""
+    q = model.quantile
+    return {
+        "median_s": round(q(0.5), 4),
+        "p10_s": round(q(0.1), 4),
+        "p90_s": round(q(0.9), 4),
+        "feedbacks": int(model.feedbacks),
+    }
 
 
 def polarity_likelihood(value: int, polarities, reliability: float = 0.95) -> np.ndarray:
@@ -200,10 +212,13 @@ class LearnedDelay:
         cdf = np.concatenate([[0.0], np.cumsum(self.probs)])
         return float(np.interp(q * cdf[-1], cdf, self.edges))
 
+    def mean(self) -> float:
+        """The mean delay (s)."""
+        return float(self.probs @ (self.edges[:-1] + self.edges[1:]) / 2)
+
     def summary(self) -> dict:
         """{"median_s", "p10_s", "p90_s", "feedbacks"}: the block `summary.json` writes per teacher."""
-        return {"median_s": round(self.quantile(0.5), 4), "p10_s": round(self.quantile(0.1), 4),
-                "p90_s": round(self.quantile(0.9), 4), "feedbacks": int(self.feedbacks)}
+        return summarise(self)
 
     def density(self) -> tuple[np.ndarray, np.ndarray]:
         """(bin edges in seconds [bins + 1], probability of each bin [bins])."""
@@ -212,23 +227,35 @@ class LearnedDelay:
     def state(self, window: bool = True) -> dict:
         """Plain JSON. With `window` (a checkpoint: `from_state` continues bit for bit) the rows are kept;
         without (a person's profile: a small file) only the estimate, which a new session starts from."""
-        out = {"kind": LEARNED, "config": asdict(self.config), "probs": self.probs.tolist(),
-               "feedbacks": self.feedbacks}
+        out = {
+            "kind": LEARNED,
+            "config": asdict(self.config),
+            "probs": self.probs.tolist(),
+            "feedbacks": self.feedbacks,
+        }
         if window:
             held = np.flatnonzero(self.seen > 0)
-            out.update(by_rate=self.by_rate.tolist(), scores=self.scores.tolist(), informative=self.informative,
-                       rows={"at": held.tolist(), "seen": self.seen[held].tolist(), "like": self.rows[held].tolist()})
+            out.update(
+                by_rate=self.by_rate.tolist(),
+                scores=self.scores.tolist(),
+                informative=self.informative,
+                rows={"at": held.tolist(), "seen": self.seen[held].tolist(), "like": self.rows[held].tolist()},
+            )
         return out
 
     @classmethod
-    def from_state(cls, state: dict) -> "LearnedDelay":
+    def from_state(cls, state: dict) -> LearnedDelay:
         """The model `state()` described (a profile without rows continues from its estimate). A state that does
         not fit its config is a one-line ValueError."""
         try:
             model = cls(LearnedDelayConfig(**state.get("config", {})))
             probs = np.asarray(state["probs"], np.float64)
-            if probs.shape != model.probs.shape or not np.all(np.isfinite(probs)) or probs.min() < 0 \
-                    or not probs.sum() > 0:
+            if (
+                probs.shape != model.probs.shape
+                or not np.all(np.isfinite(probs))
+                or probs.min() < 0
+                or not probs.sum() > 0
+            ):
                 raise ValueError("probs do not match the config's bins")
             model.feedbacks = int(state.get("feedbacks", 0))
             if "rows" in state:
@@ -276,8 +303,7 @@ class FixedDelay:
         return float(lags[min(np.searchsorted(np.cumsum(probs), q - 1e-12), len(lags) - 1)])
 
     def summary(self) -> dict:
-        return {"median_s": round(self.quantile(0.5), 4), "p10_s": round(self.quantile(0.1), 4),
-                "p90_s": round(self.quantile(0.9), 4), "feedbacks": int(self.feedbacks)}
+        return summarise(self)
 
     def density(self, max_s: float = 6.0, bin_s: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
         edges = np.linspace(0.0, max_s, int(round(max_s / bin_s)) + 1)
@@ -285,11 +311,16 @@ class FixedDelay:
         return edges, interval_mass(self.distribution, edges[:-1] - 1e-12, edges[1:] - 1e-12)
 
     def state(self, window: bool = True) -> dict:
-        return {"kind": "fixed", "spec": self.spec, "reference": self.reference, "unit": self.unit,
-                "feedbacks": self.feedbacks}
+        return {
+            "kind": "fixed",
+            "spec": self.spec,
+            "reference": self.reference,
+            "unit": self.unit,
+            "feedbacks": self.feedbacks,
+        }
 
     @classmethod
-    def from_state(cls, state: dict) -> "FixedDelay":
+    def from_state(cls, state: dict) -> FixedDelay:
         model = cls(state["spec"], state.get("reference", "interval"), float(state.get("unit", 1.0)))
         model.feedbacks = int(state.get("feedbacks", 0))
         return model

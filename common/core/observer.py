@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -47,7 +47,8 @@ class ObserverConfig:
                                             "(unsustainability); none = never")
     stop_step: int | None = option(None, "no feedback for this global step (0-based) and later; none = never")
     late_delay_probs: tuple[float, ...] = option((), "if given, the lag distribution drifts: at episode e it is "
-                                                 "(1 - w) delay_probs + w late_delay_probs, w = min(1, e / drift_episodes)")
+                                                 "(1 - w) delay_probs + w late_delay_probs, "
+                                                 "w = min(1, e / drift_episodes)")
     drift_episodes: int = option(1, "episodes over which a drifting lag distribution moves to late_delay_probs")
     delay_s: str = option("", "if given, the delay in seconds instead of delay_probs: a distribution NAME:ARGS "
                               "(common.core.delay, e.g. gamma:4,0,0.25), from the step's onset to the feedback")
@@ -217,7 +218,8 @@ class SimulatedObserver:
         self.emitted += 1
         self.flipped += value != intended
         t_reaction = t_action + (lag + REACTION_OFFSET) * self.step_unit
-        if self._batch.in_seconds:  # a delay in seconds (t_action is on a clock of seconds)
-            delay = float(self._batch.last_delay_s[0])
+        delays = self._batch.last_delay_s
+        if delays is not None:  # a delay in seconds (t_action is on a clock of seconds)
+            delay = float(delays[0])
             t_reaction, lag = t_action + delay, int(delay // self.step_unit)
         return FeedbackEvent(t_reaction, value, intended, global_step if step_ref is None else step_ref, lag)

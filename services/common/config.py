@@ -43,7 +43,8 @@ class ServiceConfig:
     connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
     security: str | None = option(None, "security.json of this machine (common/security.py: TLS, user/password, "
                                         "access control); connect to the secured router as this service's identity")
-    credentials: str | None = option(None, "this service's credential file (common/wire/auth.py): signs what it publishes, "
+    credentials: str | None = option(None,
+                                     "this service's credential file (common/wire/auth.py): signs what it publishes, "
                                            "checks what it receives; the launcher writes one per service, "
                                            "`python -m services credentials` for services started by hand")
 
@@ -193,6 +194,9 @@ class LearnerConfig(TaskConfig):
                                             "(the person reacts to its appearance: the delay's density at the time "
                                             "since it appeared, normalised over the steps shown)",
                                 choices=SCREEN_CREDIT)
+    profiles: str | None = option(None, "directory of returning people's delay estimates: a named person "
+                                        "(web-alice) starts from DIR/web-alice.json and it is rewritten as they "
+                                        "teach (services/learner/teacher_delays.py)")
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
                                     "learned steps while it is behind")
     snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "

@@ -18,7 +18,7 @@ from common.core.observer import ObserverConfig
 from common.core.task import Task
 from common.protocol import teacher_id_of
 from services.common.config import ActorConfig, FoxgloveConfig, LearnerConfig, RecorderConfig
-from services.teacher.registry import TEACHERS, ProcessSpec
+from services.teacher.registry import TEACHERS, ProcessSpec, missing_extra
 
 
 @dataclass(frozen=True)
@@ -81,6 +81,8 @@ class UpConfig:
                                        "(in seconds, online), steps (assumed-delay-probs on the step clock, the "
                                        "paper's), a fixed NAME:ARGS in seconds, or auto: learned when the actor is "
                                        "paced (--rate > 0: a delay in seconds means something), else steps")
+    profiles: str | None = option(None, "--teacher web: directory of returning people's delay estimates (a named "
+                                        "person, ?name=alice, starts from DIR/web-alice.json; written as they teach)")
     idle_updates: int = option(0, "learner: extra minibatch steps between two steps while idle (--teacher web: 8)")
     console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
@@ -104,6 +106,8 @@ class UpConfig:
         why = TEACHERS[self.teacher].available()
         if why:
             raise ValueError(f"teacher {self.teacher!r}: {why}")
+        if self.foxglove is not None and (why := missing_extra("foxglove", "foxglove")):
+            raise ValueError(f"foxglove: {why}")
         for name, value in TEACHERS[self.teacher].defaults(self).items():  # e.g. face-video's pace
             object.__setattr__(self, name, value)
         if self.episodes < 0:
@@ -163,7 +167,7 @@ class Launch:
                     credentials=self.credentials_path(service))
 
 
-def oracle_delay(c: "UpConfig") -> str:
+def oracle_delay(c: UpConfig) -> str:
     """The learner's delay of a teacher without a screen: `oracle_delay`, auto resolved by the actor's pace."""
     if c.oracle_delay == "auto":
         return "learned" if c.rate > 0 else "steps"
@@ -185,10 +189,11 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
                             debug_update_sleep=c.debug_update_sleep, debug_drop_steps=c.debug_drop_steps,
                             screen_delay=c.screen_delay, oracle_delay=oracle_delay(c),
-                            screen_credit=c.screen_credit, idle_updates=c.idle_updates)
+                            screen_credit=c.screen_credit, idle_updates=c.idle_updates, profiles=c.profiles)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
-                        episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
+                        episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate,
+                        max_ahead=c.max_ahead, wait_for=tuple(others),
                         start_paused=c.start_paused,
                         start_timeout=c.start_timeout, max_lag=c.max_lag, render_frames=c.render_frames,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights
@@ -210,11 +215,11 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     fields = lambda cfg: {f.name for f in dataclasses.fields(cfg)}  # noqa: E731
     for i, p in enumerate(procs):
         extra = {}
-        if "security" in fields(p.config) and getattr(p.config, "security") is None and c.security:
+        if "security" in fields(p.config) and p.config.security is None and c.security:
             extra["security"] = c.security
-        if "credentials" in fields(p.config) and getattr(p.config, "credentials") is None:
+        if "credentials" in fields(p.config) and p.config.credentials is None:
             extra["credentials"] = launch.credentials_path(p.name)
-        if "state_file" in fields(p.config) and getattr(p.config, "state_file") is None:
+        if "state_file" in fields(p.config) and p.config.state_file is None:
             extra["state_file"] = launch.state_path(p.name)
         if extra:
             procs[i] = dataclasses.replace(p, config=dataclasses.replace(p.config, **extra))

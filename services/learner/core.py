@@ -40,6 +40,7 @@ from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
 from services.learner.screen import ScreenCredit
+from services.learner.teacher_delays import Profiles
 
 REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
 ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
@@ -82,6 +83,7 @@ class LearnerCore:
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
         self.screen = ScreenCredit(self.agent_config.history_steps)
         self.delays: dict[str, Any] = {}  # teacher id -> its delay (common.core.delay_model), made when first heard
+        self.profiles = Profiles(config.profiles)  # returning people start from their last estimate
         self.actor: str | None = None
         self.next_seq = 0
         self.teacher_next: dict[str, int] = {}
@@ -245,8 +247,8 @@ class LearnerCore:
                 spec = f"learned:{self.agent_config.delay_prior}"
             if spec == "steps":
                 return None
-            est = self.delays[fb.teacher_id] = delay_estimate(spec, c.screen_credit if fb.shown is not None
-                                                              else "onset")
+            est = delay_estimate(spec, c.screen_credit if fb.shown is not None else "onset")
+            est = self.delays[fb.teacher_id] = self.profiles.load(fb.teacher_id, est) if fb.shown is not None else est
         return est
 
     def delay_summary(self) -> dict:
@@ -277,7 +279,7 @@ class LearnerCore:
             "teacher_next": dict(self.teacher_next), "held": held, "arrivals": self._arrivals,
             "position": self.position, "counters": dict(self.counters), "ended": self.ended, "episode": dict(self._ep),
             "clock": [list(self.clock._index), list(self.clock._time)], "screen": self.screen.state(),
-            "delays": {t: d.state() for t, d in self.delays.items()},
+            "delays": {t: d.state() for t, d in self.delays.items()}, "returning": sorted(self.profiles.returning),
         }
         return self.agent.state_dict(), meta
 
@@ -299,6 +301,7 @@ class LearnerCore:
             self.clock.push(int(i), float(t))
         self.screen.load(meta["screen"])
         self.delays = {str(t): estimate_from_state(d) for t, d in meta.get("delays", {}).items()}
+        self.profiles.returning = {str(t) for t in meta.get("returning", [])}  # (their models come from the checkpoint)
         self.entries = []
 
     # -- internals ---------------------------------------------------------------------------------------------
@@ -336,7 +339,7 @@ class LearnerCore:
         c = agent.last_credit[1]
         n = int(c.counts[0])
         seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
-        times = agent.history.times[0, c.positions[0, :n]]
+        times = agent.history.times_at(0, c.positions[0, :n])
         return [(seq_of[int(i)], float(w)) for i, w in zip(times, c.weights[0, :n]) if int(i) in seq_of]
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:

@@ -29,8 +29,10 @@ from __future__ import annotations
 import sys
 import time
 
-from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep, EpisodeSummary, Feedback,
-                             Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key, feedback_wildcard,
+from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep,
+                             EpisodeSummary, Feedback,
+                             Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key,
+                             feedback_wildcard,
                              ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
@@ -41,6 +43,7 @@ from services.learner import checkpoint
 from services.learner.catchup import catch_up
 from services.learner.core import LearnerCore
 from services.learner.snapshots import Snapshots
+from services.learner.teacher_delays import delay_message
 
 
 
@@ -137,7 +140,11 @@ class Learner:
         done = time.time()
         for r in results:
             if r.feedback is not None:  # what became of it: consoles and the log's scene show it
-                credit = credit_message(self.config.run, r, self.core.actor, done)
+                screen = r.feedback.shown is not None  # a person's screen: their delay estimate goes along
+                model = self.core.delays.get(r.feedback.teacher_id) if screen else None
+                delay = None if model is None else delay_message(
+                    model, r.feedback.teacher_id in self.core.profiles.returning)
+                credit = credit_message(self.config.run, r, self.core.actor, done, delay)
                 if credit.teacher_id in self.config.credits_in_ingest:
                     self.ingest_credits.append(credit)
                 else:
@@ -198,6 +205,10 @@ class Learner:
             reason = self.gate.admit_feedback(msg, t_recv)
         if reason:
             self.reject(reason, "feedback", count=live)
+            if reason == DEDUP_REASON and live and msg.teacher_id not in self.config.credits_in_ingest:
+                publish_credit(self.session, self.credit_pubs, Credit(  # acknowledges a page's re-sent press
+                    run=self.config.run, teacher_id=msg.teacher_id, seq=msg.seq, value=msg.value, status="duplicate",
+                    t_reaction=msg.t_reaction, t_credited=time.time(), actor=msg.actor, steps=[], lost_mass=0.0))
             return False
         self.teachers_known.add(msg.teacher_id)
         results = self.core.on_feedback(msg, now)
@@ -264,7 +275,8 @@ class Learner:
         """The actor stopped and all its steps are learned, and every known teacher's feedback has arrived
         (or `end_grace` s have passed waiting for it)."""
         core, config = self.core, self.config
-        if self.actor_final is None or len(self.inbox) or core.next_seq < self.actor_final or core.actor != self.gate.actor:
+        if (self.actor_final is None or len(self.inbox) or core.next_seq < self.actor_final
+                or core.actor != self.gate.actor):
             return False
         if self.caught_up_at is None:
             self.caught_up_at = time.monotonic()
@@ -297,13 +309,17 @@ class Learner:
             if (config.checkpoint and core.steps_learned != self.last_ckpt["steps"]
                     and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period):
                 self.save_checkpoint()
+            self.core.profiles.save(self.core.delays)  # returning people's profiles, every 10 s while they move
             if self.finished():
                 break
             self.rt.tick()
         self.note_latency(core.end(time.time()))
+        self.rt.counters["profiles_written"] += core.profiles.save(core.delays, force=True)
+        self.rt.counters["profiles_damaged"] += core.profiles.damaged
         self.flush_ingest()
         self.publish_weights(core.steps_learned + 1, final=True)
-        self.ring.add(self.wpub, self.last_weights["data"])  # the final weights too, if the recorder must get them again
+        # the final weights too, if the recorder must get them again
+        self.ring.add(self.wpub, self.last_weights["data"])
         self.watch.before_exit(self.ring, 20.0, self.rt.log)
         for pub in self.credit_pubs.values():
             pub.close()
@@ -354,13 +370,14 @@ def main(config: LearnerConfig) -> int:
     return 0
 
 
-def credit_message(run: str, result, actor: str | None, t_done: float) -> Credit:
-    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights."""
+def credit_message(run: str, result, actor: str | None, t_done: float, delay=None) -> Credit:
+    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights (and the teacher's
+    delay estimate, `delay`, for a person's console)."""
     fb = result.feedback
     return Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
                   t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
                   steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
-                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))))
+                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))), delay=delay)
 
 
 def publish_credit(session, pubs: dict, credit: Credit) -> None:

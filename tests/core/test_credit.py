@@ -157,12 +157,14 @@ def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
         starts[rng.random(6) < 0.3, :rng.integers(1, 12)] = np.inf
         starts = np.sort(starts, axis=1)
         t_f = np.where(np.isfinite(starts[:, -1]), starts[:, -1], 0) - rng.uniform(-2, 6, size=6)
-        for d, general in ((delay, _CdfOnly(delay)), (RowDelays(row_probs, unit), _CdfOnly(RowDelays(row_probs, unit)))):
+        for d, general in ((delay, _CdfOnly(delay)),
+                           (RowDelays(row_probs, unit), _CdfOnly(RowDelays(row_probs, unit)))):
             fast_w, fast_lost = credit_weights(t_f, starts, d)
             w, lost = credit_weights(t_f, starts, general)
             assert np.array_equal(fast_w, w) and np.array_equal(fast_lost, lost)
             for k in range(6):  # one feedback alone (1-d) as the console and the learner ask
-                w1, lost1 = credit_weights(t_f[k], starts[k], d if d is delay else RowDelays(row_probs[k:k + 1], unit))
+                one = d if d is delay else RowDelays(row_probs[k:k + 1], unit)
+                w1, lost1 = credit_weights(t_f[k], starts[k], one)
                 assert np.array_equal(w1, fast_w[k]) and lost1 == fast_lost[k]
 
 

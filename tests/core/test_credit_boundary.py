@@ -1,5 +1,6 @@
 """Credit by time across episode boundaries (issue 24): a press that lands just after the reset, on the move that
 reached the goal, is credited to that move; nothing shown after a press ever gets credit."""
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -18,9 +19,18 @@ def episode_then_reset(agent, step_seconds=0.5):
     (2.5 s). The rule says +1 of the goal-reaching move, -1 of the others."""
     for k in range(7):
         obs = np.array([[k / 10, 1.0]], np.float32)
-        agent.record_steps(np.array([0]), obs, np.array([3 if k == 4 else 0]), np.array([float(k == 4)]), obs,
-                           np.array([float(k == 4)]), np.array([float(k)]), np.array([0 if k <= 4 else 1]),
-                           np.array([k * step_seconds]), np.array([1 if k == 4 else -1]))
+        agent.record_steps(
+            np.array([0]),
+            obs,
+            np.array([3 if k == 4 else 0]),
+            np.array([float(k == 4)]),
+            obs,
+            np.array([float(k == 4)]),
+            np.array([float(k)]),
+            np.array([0 if k <= 4 else 1]),
+            np.array([k * step_seconds]),
+            np.array([1 if k == 4 else -1]),
+        )
 
 
 def test_a_press_after_the_reset_is_credited_to_the_goal_reaching_move():
@@ -54,8 +64,7 @@ step_times = st.lists(st.floats(0.01, 2.0), min_size=1, max_size=24).map(lambda 
 
 
 @settings(max_examples=60, deadline=None)
-@given(starts=step_times, t_f=st.floats(0.0, 60.0), spec=st.sampled_from(["learned", "uniform:0.2,4",
-                                                                        "gamma:2,0,0.5"]))
+@given(starts=step_times, t_f=st.floats(0.0, 60.0), spec=st.sampled_from(["learned", "uniform:0.2,4", "gamma:2,0,0.5"]))
 def test_nothing_shown_after_the_press_gets_credit(starts, t_f, spec):
     for reference in ("onset", "interval"):
         w = delay_estimate(spec, reference=reference).weights(t_f, starts)
@@ -67,19 +76,31 @@ def test_nothing_shown_after_the_press_gets_credit(starts, t_f, spec):
 
 
 @settings(max_examples=25, deadline=None)
-@given(gaps=st.lists(st.floats(0.05, 1.5), min_size=3, max_size=30), ends=st.lists(st.booleans(), min_size=30,
-                                                                                    max_size=30),
-       press=st.floats(0.0, 1.0), algo=st.sampled_from(["dqn-tamer", "deep-tamer", "dqn-rs"]))
+@given(
+    gaps=st.lists(st.floats(0.05, 1.5), min_size=3, max_size=30),
+    ends=st.lists(st.booleans(), min_size=30, max_size=30),
+    press=st.floats(0.0, 1.0),
+    algo=st.sampled_from(["dqn-tamer", "deep-tamer", "dqn-rs"]),
+)
 def test_the_agents_door_never_credits_a_step_shown_after_the_press(gaps, ends, press, algo):
     """Whatever the episodes and step times, the agent's one door (`credit_shown`) gives no step shown after the
     press any weight, learned delay or fixed, shaping or H."""
     agent = TrialBatchAgent([condition_agent(algo)], 2, 4, [0])
     t = np.cumsum(gaps)
-    episode = np.cumsum([0] + ends[:len(t) - 1])
+    episode = np.cumsum([0] + ends[: len(t) - 1])
     for k, tk in enumerate(t):
-        agent.record_steps(np.array([0]), np.zeros((1, 2)), np.array([k % 4]), np.zeros(1), np.zeros((1, 2)),
-                           np.array([float(ends[k])]), np.array([tk]), np.array([episode[k]]), np.array([tk]),
-                           np.array([1 if k % 3 else -1]))
+        agent.record_steps(
+            np.array([0]),
+            np.zeros((1, 2)),
+            np.array([k % 4]),
+            np.zeros(1),
+            np.zeros((1, 2)),
+            np.array([float(ends[k])]),
+            np.array([tk]),
+            np.array([episode[k]]),
+            np.array([tk]),
+            np.array([1 if k % 3 else -1]),
+        )
     t_f = float(t[0] + press * (t[-1] - t[0] + 1.0))
     for delay in (delay_estimate("learned"), delay_estimate("uniform:0.2,4", reference="interval")):
         out, times, weights = agent.credit_in_seconds(0, t_f, 1, delay)

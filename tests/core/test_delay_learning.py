@@ -112,3 +112,17 @@ def test_per_trial_delays_plug_into_the_runner_and_leave_other_trials_unchanged(
     assert together[0].episodes[-1]["delay_median_s"] is None and abs(medians[-1] - 2.1) > 0.3
     assert together[1].delay["feedbacks"] == sum(e["feedback_given"] for e in together[1].episodes)
     assert together[0].delay["learned"] is False and together[0].delay["median_s"] == pytest.approx(0.5)
+
+
+def test_presses_the_event_model_does_not_explain_leave_the_estimate_broad():
+    """A teacher whose values have nothing to do with the rule: no delay explains them better than another, so
+    the density stays spread over the range (it does not collapse onto whatever credit it gave)."""
+    rng = np.random.default_rng(3)
+    model = LearnedDelay()
+    polarity = np.where(rng.random(len(STEPS)) < 0.6, -1, 1)
+    for k in np.sort(rng.choice(np.arange(40, len(STEPS) - 20), 300, replace=False)):
+        t_f = STEPS[k] + rng.gamma(4, 0.25)
+        shown = slice(max(0, k - 31), np.searchsorted(STEPS, t_f, side="right"))
+        model.observe(t_f, STEPS[shown], None, polarity_likelihood(int(rng.choice([-1, 1])), polarity[shown]))
+    s = model.summary()
+    assert s["p90_s"] - s["p10_s"] > 3.0, s
