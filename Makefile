@@ -21,7 +21,7 @@ LOCK_ARGS := pyproject.toml --all-extras --python-version 3.11 --python-platform
 step = @echo "setup: $(2)"; mkdir -p $(LOGS); ( $(3) ) >$(LOGS)/$(1).log 2>&1 || \
 	{ cat $(LOGS)/$(1).log; echo "setup failed: $(2) (log: $(LOGS)/$(1).log)"; exit 1; }
 
-.PHONY: setup run test lint lock lock-check bench reproduce clean
+.PHONY: setup run test lint lock lock-check bench reproduce report clean
 
 setup: $(STAMP)
 
@@ -73,6 +73,10 @@ lock-check: setup
 
 reproduce: setup
 	$(PY) -m experiments reproduce --out docs/results
+
+# Every verdict, interval and figure again from the committed per-trial table, without running a trial.
+report: setup
+	$(PY) -m experiments report --from docs/results/trials.csv.gz --out runs/report
 
 bench: setup
 	$(PY) -m experiments bench

@@ -71,7 +71,9 @@ def run_main(config: RunConfig) -> int:
 
 def commands() -> dict:
     from experiments.bench_compare import BenchCompareConfig, main as bench_compare
-    from experiments.commands import BenchConfig, ReproduceConfig, bench_main, reproduce_main
+    from experiments.alpha_pilot import AlphaPilotConfig, main as alpha_pilot
+    from experiments.commands import BenchConfig, ReportConfig, ReproduceConfig, bench_main, report_main
+    from experiments.commands import reproduce_main
     from experiments.console_pilot import ConsolePilotConfig, main as console_pilot
     from experiments.delay_check import DelayCheckConfig, main as delay_check
     from experiments.machines import MachinesConfig, main as machines
@@ -83,9 +85,11 @@ def commands() -> dict:
 
     return {"run": Command(RunConfig, run_main), "sweep": Command(SweepConfig, sweep, argv=True),
             "reproduce": Command(ReproduceConfig, reproduce_main, argv=True),
+            "report": Command(ReportConfig, report_main, argv=True),
             "pilot": {"": "how a setting was chosen on pilot seeds, never the trials that use it",
                       "maze": Command(MazePilotConfig, maze_pilot), "taxi": Command(TaxiPilotConfig, taxi_pilot),
-                      "console": Command(ConsolePilotConfig, console_pilot)},
+                      "console": Command(ConsolePilotConfig, console_pilot),
+                      "alpha": Command(AlphaPilotConfig, alpha_pilot)},
             "minigrid": Command(MinigridConfig, minigrid), "machines": Command(MachinesConfig, machines),
             "bench": Command(BenchConfig, bench_main), "sweep-bench": Command(SweepBenchConfig, sweep_bench),
             "bench-compare": Command(BenchCompareConfig, bench_compare),

@@ -1,5 +1,5 @@
-"""The configs and bodies of `python -m experiments reproduce` and `python -m experiments bench` (the table of
-commands is experiments/__main__.py)."""
+"""The configs and bodies of `python -m experiments reproduce`, `report` and `bench` (the table of commands is
+experiments/__main__.py)."""
 
 from __future__ import annotations
 
@@ -30,7 +30,8 @@ class ReproduceConfig:
     taxi_random_episodes: int | None = option(
         None, "episodes per trial of Gymnasium's Taxi (random passenger and destination) only"
     )
-    taxi_trials: int | None = option(None, "Taxi trials per arm")
+    taxi_trials: int | None = option(None, "trials per arm of Gymnasium's Taxi (default 6)")
+    taxi_fixed_trials: int | None = option(None, "trials per arm of the fixed-task Taxi (default 4)")
     only: tuple[str, ...] = option(
         (), f"run only these conditions ({', '.join(BY_NAME)})", nargs="+", choices=tuple(BY_NAME), metavar="NAME"
     )
@@ -65,6 +66,7 @@ def reproduce_main(args: ReproduceConfig, argv: list[str]) -> int:
             ("taxi_episodes", args.taxi_episodes),
             ("taxi_random_episodes", args.taxi_random_episodes or args.taxi_episodes),
             ("taxi_trials", args.taxi_trials),
+            ("taxi_fixed_trials", args.taxi_fixed_trials),
         )
         if v is not None
     }
@@ -85,6 +87,52 @@ def reproduce_main(args: ReproduceConfig, argv: list[str]) -> int:
     )
     for claim, verdict in verdicts.items():
         print(f"  {claim}: {verdict}")
+    return 0
+
+
+@dataclass(frozen=True)
+class ReportConfig:
+    """Every verdict, interval and figure recomputed from a per-trial table (docs/results/trials.csv.gz) without
+    running a trial."""
+
+    source: str = option(
+        "",
+        "the table (its directory's timing.json and claims.json give the run's scale and the previous verdicts)",
+        flag="from",
+        metavar="TABLE",
+    )
+    out: str = option("", "directory for claims.json, REPORT.md and the figures")
+    n_boot: int | None = option(None, "bootstrap resamples (default: the declared number, as the reproduction)")
+
+    def __post_init__(self):
+        if not self.source or not self.out:
+            raise ValueError("--from TABLE and --out DIR are required")
+
+
+def report_main(args: ReportConfig, argv: list[str]) -> int:
+    """Recompute claims.json, REPORT.md and the figures from a per-trial table alone."""
+    from experiments.evaluate import N_BOOT
+    from experiments.reproduce import report_from_table
+    from experiments.trialcache import read_json_or_none
+
+    src = os.path.dirname(os.path.abspath(args.source))
+    timing = read_json_or_none(os.path.join(src, "timing.json")) or {}
+    if "scale" not in timing:
+        print(
+            f"error: {src}/timing.json (the run's scale and cost, beside the table) is missing or unreadable",
+            file=sys.stderr,
+        )
+        return 1
+    previous = (read_json_or_none(os.path.join(src, "claims.json")) or {}).get("previous", {})
+    try:
+        n_boot = N_BOOT if args.n_boot is None else args.n_boot
+        result = report_from_table(args.source, args.out, timing, argv, n_boot, previous)
+    except (OSError, ValueError, EOFError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {args.out}/claims.json, REPORT.md and the figures from {args.source} (no trial run)")
+    for claim, c in result["claims"].items():
+        print(f"  {claim}: {c['verdict']}")
     return 0
 
 

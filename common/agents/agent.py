@@ -143,7 +143,7 @@ class TrialBatchAgent(FeedbackDoor):
             self.greedy_count[sel] += both
             self.h_decided_count[sel] += both & (greedy != q_best)
             if self.mixture.adapting:  # (H's own argmax is needed only then)
-                self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1))
+                self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1), steps)
         chosen = self.explorer.choose(rows, steps, greedy)
         if n == self.B:
             return chosen
