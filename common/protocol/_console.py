@@ -96,3 +96,7 @@ class Credit(Message):
     actor: str | None = fld(Nullable(Token("The actor incarnation of the steps.")))
     steps: list = fld(List(CREDITED_STEP_SPEC, max_items=256, description="Steps credited, oldest first."))
     lost_mass: float = fld(Float(0.0, 1.0, description="Assumed-delay mass that fell on no step held."))
+    revision: int | None = fld(Nullable(Count(
+        "The weights revision that first includes this feedback's H update: a Step whose `weights_revision` is at "
+        "least this acted on it. Null when crediting it updated nothing at once (reward shaping, or not credited).")),
+        optional=True)

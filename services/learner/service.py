@@ -3,8 +3,9 @@
 One inbox receives both the actor's steps and every teacher's feedback, in arrival order; the learner
 consumes it in that order through `LearnerCore` (credit by timestamp, Q and H updates) and records the order
 in Ingest messages (`hitl/<run>/ingest`, first one carrying its config). It publishes Weights (version =
-steps learned) at least every `weights_every` steps and whenever it has caught up, and an EpisodeSummary per
-episode.
+steps learned; revision = Q and H updates made) at least every `weights_every` steps and whenever it has caught
+up and they changed (a feedback's H update or an idle update between two steps too: the next action uses it),
+and an EpisodeSummary per episode.
 
 Every input passes the `InputGate` first (docs/faults.md): undecodable bytes, wrong shapes, timestamps far
 off, unannounced actor incarnations, unknown teachers, seq jumps are dropped and counted
@@ -79,7 +80,7 @@ class Learner:
         self.snaps = Snapshots(config.run, rt.incarnation, config.snapshot_every,
                                lambda m: publish_kept(spub, m, self.ring))
         self.note_rejected = first_time_logger(rt.event, "input")
-        self.last_weights = {"v": 0 if resumed is None else -1, "data": None}
+        self.last_weights = {"v": 0 if resumed is None else -1, "r": core.revision, "data": None}
         self.last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
         self.actor_final: int | None = None
         self.teachers_final: dict[str, int] = {}
@@ -108,13 +109,13 @@ class Learner:
     def current_weights(self, version: int) -> tuple[dict, bytes]:
         tensors = self.core.policy_weights()
         return tensors, Weights(run=self.config.run, incarnation=self.rt.incarnation, version=version,
-                                t_published=time.time(), tensors=tensors).encode()
+                                revision=self.core.revision, t_published=time.time(), tensors=tensors).encode()
 
     def publish_weights(self, version: int, final: bool = False) -> None:
         t0 = time.perf_counter()
         tensors, data = self.current_weights(version)
         self.wpub.put(data)
-        self.last_weights.update(v=version, data=data)
+        self.last_weights.update(v=version, r=self.core.revision, data=data)
         # The log gets snapshots at a bounded rate, not every version (docs/logs.md).
         (self.snaps.final if final else self.snaps.on_weights)(version, tensors, data)
         self.rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
@@ -229,6 +230,7 @@ class Learner:
         if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
             if self.idle_left > 0 and self.core.idle(time.time()):
                 self.idle_left -= 1
+                self.publish_weights_if_due(idle=True)
             self.flush_ingest()  # (what waited for the period goes now: nothing else is coming)
             return
         if got.key.endswith("/step"):  # a new step: a new budget of idle-time updates before the next one
@@ -241,13 +243,17 @@ class Learner:
             self.reject(e.reason, kind_of(got.key))
         else:
             self.consume(msg, now, got.t_recv, t_sent)
-        idle = len(self.inbox) == 0
-        v = self.core.steps_learned
-        if v != self.last_weights["v"] and (idle or v - self.last_weights["v"] >= self.config.weights_every):
-            self.publish_weights(v)
+        self.publish_weights_if_due(idle=len(self.inbox) == 0)
         if (len(self.core.entries) >= self.config.ingest_batch or len(self.ingest_credits) >= MAX_INGEST_CREDITS
                 or time.monotonic() - self.last_ingest >= self.config.ingest_period):
             self.flush_ingest()
+
+    def publish_weights_if_due(self, idle: bool) -> None:
+        """New weights go out when they changed (a step, or any Q or H update between steps) and nothing else is
+        waiting, or after `weights_every` steps while catching up."""
+        v, last = self.core.steps_learned, self.last_weights
+        if (v, self.core.revision) != (last["v"], last["r"]) and (idle or v - last["v"] >= self.config.weights_every):
+            self.publish_weights(v)
 
     def on_restarts(self) -> None:
         """A (re)started recorder gets the recent outputs again; a restarted actor gets the current policy."""
@@ -359,7 +365,7 @@ def credit_message(run: str, result, actor: str | None, t_done: float) -> Credit
     return Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
                   t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
                   steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
-                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))))
+                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))), revision=result.revision)
 
 
 def publish_credit(session, pubs: dict, credit: Credit) -> None:
