@@ -249,9 +249,10 @@ def test_actor_never_goes_back_to_an_older_version():
     slot.announced = ["learner-1", "learner-2"]  # their ServiceStatus / liveliness announced them
     inbox = Inbox(8, "block")
 
-    def send(version: int, fill: float, learner: str = "learner-1") -> None:
+    def send(version: int, fill: float, learner: str = "learner-1", revision: int | None = None) -> None:
         tensors = {k: np.full(s, fill, np.float32) for k, s in spec.items()}
-        w = Weights(run=RUN, incarnation=learner, version=version, t_published=_time.time(), tensors=tensors)
+        w = Weights(run=RUN, incarnation=learner, version=version, t_published=_time.time(), tensors=tensors,
+                    revision=revision)
         inbox.put(Received(weights_key(RUN), w.encode(), _time.time(), None))
 
     send(5, 0.5)
@@ -265,6 +266,14 @@ def test_actor_never_goes_back_to_an_older_version():
     assert slot.adopt(inbox) and slot.version == 1 and rt.counters["learner_restarts"] == 1
     send(99, 0.9, learner="mallory")  # nobody announced it: dropped
     assert not slot.adopt(inbox) and slot.version == 1 and rt.counters["weights_dropped_unknown_incarnation"] == 1
+    # The same steps learned, then a press's H update between two steps: a new revision of version 1 is taken
+    send(1, 0.2, learner="learner-2", revision=4)
+    assert slot.adopt(inbox) and (slot.version, slot.revision) == (1, 4)
+    send(1, 0.25, learner="learner-2", revision=5)
+    send(1, 0.21, learner="learner-2", revision=3)  # an older revision arriving late: ignored
+    assert slot.adopt(inbox) and (slot.version, slot.revision) == (1, 5)
+    assert all(np.all(v == 0.25) for v in agent.policy_weights(0).values())
+    assert rt.counters["weights_not_newer"] == 2
 
 
 _CREDENTIALS: dict[str, str] = {}
