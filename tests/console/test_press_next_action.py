@@ -22,7 +22,7 @@ from common.protocol import Credit, Step
 
 from tests.services.live import ROOT, env
 
-from .harness import SCRIPTED, WebRun, browser, open_console
+from .harness import WebRun, scripted_person
 
 pytestmark = [pytest.mark.live, pytest.mark.browser]
 
@@ -42,22 +42,9 @@ def log_of(rundir):
 
 
 def test_a_press_credited_before_the_next_action_is_acted_on_by_it(tmp_path):
-    from playwright.sync_api import sync_playwright
-
     run = WebRun(tmp_path, "next", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "8",
                  "--episode-steps", "30", "--max-steps", "120", "--rate", str(RATE), "--seed", "3")
-    try:
-        url = run.url()
-        with sync_playwright() as pw:
-            ctx = browser(pw, tmp_path / "profile")
-            page = open_console(ctx, url)
-            page.add_script_tag(path=str(SCRIPTED))
-            page.evaluate("hitlScriptedPerson({p: 0.7, lagMin: 0.3, lagMax: 1.0, seed: 5})")
-            assert run.wait(180) == 0, run.out[-3000:]
-            assert page.errors == []
-            ctx.close()
-    finally:
-        run.close()
+    scripted_person(run, tmp_path / "profile", "{p: 0.7, lagMin: 0.3, lagMax: 1.0, seed: 5}")
 
     steps, credits = log_of(run.rundir)
     assert len(steps) == 120 and len({s.incarnation for s in steps}) == 1
