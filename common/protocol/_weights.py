@@ -42,8 +42,8 @@ METADATA_FIELDS = {
 #: Metadata keys a Weights message may omit (older logs have none); same string rules as the others.
 OPTIONAL_METADATA_FIELDS = {
     "revision": ("weights revision, decimal integer >= 0: the learner's count of Q and H updates, moved by every one "
-                 "(a credited press's H update too, between two steps); an actor takes weights newer in (revision, "
-                 "version)"),
+                 "(a credited press's H update too, between two steps); an actor takes weights newer in (version, "
+                 "revision)"),
 }
 
 Spec = Mapping[str, tuple[int, ...]]
@@ -185,9 +185,10 @@ class Weights:
     # -- helpers ------------------------------------------------------------------------------------------
     @property
     def progress(self) -> tuple[int, int]:
-        """(revision, version), increasing with each publication of one learner incarnation: a receiver takes
-        weights only when this is greater than what it holds (no revision, as in older logs: -1)."""
-        return (-1 if self.revision is None else int(self.revision), int(self.version))
+        """(version, revision), increasing with each publication of one learner incarnation: a receiver takes
+        weights only when this is greater than what it holds (no revision, as in older logs: -1). The version
+        first: it is bounded by the steps the actor sent, the revision is not."""
+        return (int(self.version), -1 if self.revision is None else int(self.revision))
 
     def spec(self) -> dict[str, tuple[int, ...]]:
         """Names and shapes, in the form ``decode(expected=...)`` takes."""

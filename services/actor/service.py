@@ -2,8 +2,8 @@
 
 The actor holds its own `TrialBatchAgent` (B = 1, the run's seed) only to act: epsilon-greedy on
 alpha_q Q + alpha_h H with the schedules at its step count, exactly as the in-process runner's agent acts.
-Its networks are the newest Weights it has received (never older ones after newer: newer in (revision,
-version), so weights changed between two steps by a feedback's H update or an idle update are taken too, and
+Its networks are the newest Weights it has received (never older ones after newer: newer in (version,
+revision), so weights changed between two steps by a feedback's H update or an idle update are taken too, and
 the next action uses them); before the first Weights arrive they are the seed's initial networks, which are the
 learner's too (version 0).
 
@@ -73,7 +73,7 @@ class WeightsSlot:
 
     @property
     def progress(self) -> tuple[int, int]:
-        return (-1 if self.revision is None else self.revision, self.version)
+        return (self.version, -1 if self.revision is None else self.revision)
 
     def known(self, incarnation: str) -> bool:
         return (incarnation == self.learner or incarnation in self.announced

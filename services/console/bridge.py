@@ -61,7 +61,7 @@ class Hub:
         self.start_sent_at = 0.0
         self.actor_stopped = self.learner_stopped = False
         self.weights_version = 0
-        self.weights_progress = (-1, 0)  # (revision, version) held: a press's H update shows before the next step
+        self.weights_progress = (0, -1)  # (version, revision) held: a press's H update shows before the next step
         self.control_seq = 0
         self.pub = lambda key: MessagePublisher(session, key)  # noqa: E731
         self.control_pub = MessagePublisher(session, control_key(config.run))

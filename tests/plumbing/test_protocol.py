@@ -312,18 +312,18 @@ def test_weights_shape_and_name_mismatch():
 
 
 def test_weights_revision_is_optional_and_orders_publications():
-    """Older logs' Weights have no revision (decoded as None); a revision orders weights of one learner before
-    the version does: the same steps learned plus a press's H update is newer."""
+    """Older logs' Weights have no revision (decoded as None); among weights of one version the revision orders
+    them: the same steps learned plus a press's H update is newer."""
     import safetensors.numpy
 
     w = example(Weights)
     meta = {k: v for k, v in w._metadata().items() if k != "revision"}
     old = Weights.decode(safetensors.numpy.save({"a": np.ones(2, np.float32)}, metadata=meta))
-    assert old.revision is None and old.progress == (-1, 5)
+    assert old.revision is None and old.progress == (5, -1)
     assert Weights.decode(w.encode()).revision == 9
     pressed = example(Weights, revision=10)
     assert pressed.progress > w.progress > old.progress
-    assert example(Weights, revision=9, version=6).progress > w.progress
+    assert example(Weights, revision=0, version=6).progress > w.progress  # a new step: newer, whatever the revision
     assert reason_of(example(Weights, revision=-1).encode) == "bad_value"
     assert reason_of(example(Weights, revision=True).encode) == "wrong_type"
 
