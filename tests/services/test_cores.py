@@ -97,6 +97,30 @@ def test_feedback_is_held_until_a_newer_step_arrives():
                      ("outcome", 0, "credited"), ("feedback", 2, ""), ("end", 0, ""), ("outcome", 2, "after_end")]
 
 
+def test_a_feedback_between_two_steps_moves_the_weights_revision():
+    """The H update of a feedback credited between two steps moves the revision (the version stays: no new step),
+    and the result says which revision first holds it; an uncredited one moves nothing."""
+    from common.protocol import ShownStep
+    from services.learner.service import credit_message
+
+    core = LearnerCore(config())
+    steps = make_steps(4, [100.0 + k for k in range(4)])
+    for s in steps:
+        core.on_step(s)
+    version, revision = core.steps_learned, core.revision
+    press = Feedback(run=RUN, teacher_id="web-1", seq=0, t_reaction=104.5, value=1, source="key", actor="actor-1",
+                     shown=[ShownStep(k, 100.05 + k) for k in range(4)])
+    [out] = core.on_feedback(press)
+    assert out.status == "credited" and core.steps_learned == version
+    assert core.revision == revision + 1 == out.revision
+    weights = core.policy_weights()
+    assert credit_message(RUN, out, "actor-1", 105.0).revision == out.revision
+    early = dataclasses.replace(press, seq=1, t_reaction=100.1, shown=press.shown[:1])  # 0.05 s after the 1st paint
+    [out] = core.on_feedback(early)  # nothing on screen 0.2-4 s before it: stale
+    assert out.status == "stale" and out.revision is None and core.revision == revision + 1
+    assert all(np.array_equal(weights[k], v) for k, v in core.policy_weights().items())
+
+
 def test_stale_feedback_and_gaps_are_counted():
     core = LearnerCore(config())
     steps = make_steps(60, [100.0 + k for k in range(60)])
