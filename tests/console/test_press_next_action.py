@@ -42,7 +42,7 @@ def log_of(rundir):
 
 
 def test_a_press_credited_before_the_next_action_is_acted_on_by_it(tmp_path):
-    run = WebRun(tmp_path, "next", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "8",
+    run = WebRun(tmp_path, "next", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "50",
                  "--episode-steps", "30", "--max-steps", "120", "--rate", str(RATE), "--seed", "3")
     scripted_person(run, tmp_path / "profile", "{p: 0.7, lagMin: 0.3, lagMax: 1.0, seed: 5}")
 
