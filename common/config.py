@@ -77,7 +77,8 @@ def _converter(tp, name: str):
             try:
                 return tuple(item(x) for x in text.split(",") if x.strip())
             except ValueError:
-                raise argparse.ArgumentTypeError(f"--{name} expects comma-separated {item.__name__}s, got {text!r}")
+                raise argparse.ArgumentTypeError(
+                    f"--{name} expects comma-separated {item.__name__}s, got {text!r}") from None
         if base is bool:
             if text.lower() in ("1", "true", "yes", "on"):
                 return True
@@ -87,7 +88,7 @@ def _converter(tp, name: str):
         try:
             return base(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"--{name} expects {base.__name__}, got {text!r}")
+            raise argparse.ArgumentTypeError(f"--{name} expects {base.__name__}, got {text!r}") from None
 
     convert.__name__ = getattr(base, "__name__", "value")
     return convert

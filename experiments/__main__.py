@@ -1,4 +1,5 @@
-"""python -m experiments {run, sweep, reproduce, bench, bench-compare}: experiments on the in-process runner (virtual clock)."""
+"""python -m experiments {run, sweep, reproduce, bench, bench-compare}: experiments on the in-process runner
+(virtual clock)."""
 from __future__ import annotations
 
 import csv

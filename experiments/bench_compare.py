@@ -102,5 +102,6 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
     print(f"batched, lockstep ticks per second (a batch's time follows its longest trial, not its steps; ticks: "
           f"other {runs[0]['other']['ticks']}, this {runs[0]['this']['ticks']}): median ratio this/other "
           f"{statistics.median(tick_ratios):.3f} (per round {', '.join(f'{x:.3f}' for x in tick_ratios)})")
-    return {"tick_ratios": tick_ratios, "against": str(other), "envs": envs, "trials": trials, "episodes": episodes, "runs": runs,
+    return {"tick_ratios": tick_ratios, "against": str(other), "envs": envs, "trials": trials, "episodes": episodes,
+            "runs": runs,
             "ratios": ratios, "medians": medians, "cpu_ratios": cpu_ratios, "cpu_medians": cpu_medians}

@@ -89,7 +89,8 @@ def _paper_claims() -> list[Claim]:
     fb = ("dqn-rs", "deep-tamer", "dqn-tamer")
     out = [
         Claim("C1", "paper", "Without delay, DQN+RS learns faster than DQN (Maze).",
-              Test("C1", "high frequency, no delay: DQN+RS needs fewer steps than DQN", (better(hnd, "dqn-rs", "dqn"),)),
+              Test("C1", "high frequency, no delay: DQN+RS needs fewer steps than DQN",
+                   (better(hnd, "dqn-rs", "dqn"),)),
               (Test("C1", "low frequency, no delay: DQN+RS fewer steps than DQN", (better(lnd, "dqn-rs", "dqn"),)),)),
         Claim("C2", "paper", "With delay, DQN+RS degrades and falls back to about DQN.",
               Test("C2", "high frequency: DQN+RS needs more steps with delay than without",
@@ -105,7 +106,8 @@ def _paper_claims() -> list[Claim]:
                     tuple(better(hnd, a, a, lnd) for a in fb)),)),
         Claim("C4", "paper", "At low feedback frequency Deep TAMER is particularly poor; DQN-TAMER is the most robust.",
               Test("C4", "with delay: DQN-TAMER loses fewer steps than DQN+RS and than Deep TAMER from p=0.5 to p=0.1",
-                   (degradation_gap(ld, hd, "dqn-tamer", "dqn-rs"), degradation_gap(ld, hd, "dqn-tamer", "deep-tamer"))),
+                   (degradation_gap(ld, hd, "dqn-tamer", "dqn-rs"),
+                    degradation_gap(ld, hd, "dqn-tamer", "deep-tamer"))),
               (Test("C4", "p=0.1 with delay: Deep TAMER needs more steps than each other agent",
                     tuple(better(ld, a, "deep-tamer") for a in ("dqn", "dqn-rs", "dqn-tamer"))),
                Test("C4", "p=0.1 with delay: DQN-TAMER needs fewer steps than each other agent",

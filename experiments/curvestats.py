@@ -14,7 +14,7 @@ Aggregation: 10%-trimmed mean across trials. Intervals: 95% percentile bootstrap
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

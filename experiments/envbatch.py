@@ -15,7 +15,7 @@ those draws before each reset so the start states are those a real stepped Taxi 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

@@ -49,7 +49,8 @@ def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
             keys = [k for (cn, a, k) in cached_b if cn == c.name and a == arm]
             differ = [k for k in keys if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]
                       or cached_a[(c.name, arm, k)]["return"] != cached_b[(c.name, arm, k)]["return"]]
-            first = [int(np.argmax(np.array(cached_a[(c.name, arm, k)]["steps"]) != np.array(cached_b[(c.name, arm, k)]["steps"])))
+            first = [int(np.argmax(np.array(cached_a[(c.name, arm, k)]["steps"])
+                                   != np.array(cached_b[(c.name, arm, k)]["steps"])))
                      for k in differ if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]]
             rows.append({"cond": c.name, "arm": arm, "trials": len(keys), "differ": len(differ),
                          "first_diverging_episode_median": float(np.median(first)) if first else None})

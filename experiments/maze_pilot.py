@@ -126,7 +126,8 @@ def main(cfg: MazePilotConfig) -> int:
     for name in cfg.conditions:
         res = run_condition(BY_NAME[name], cfg.episodes, cfg.seed0)
         out.append(res)
-        marks = " ".join(f"{r['episodes']}:{r['change_last']:+.3f}{'' if r['flat'] else '*'}" for r in res["checkpoints"])
+        marks = " ".join(f"{r['episodes']}:{r['change_last']:+.3f}{'' if r['flat'] else '*'}"
+                         for r in res["checkpoints"])
         print(f"{name}: {res['trials']} trials, {res['cpu_s']:.0f} CPU s, {res['env_steps']} steps "
               f"({res['cpu_per_env_step_us']:.1f} us/step), first-60 share of steps {res['steps_first_60_share']:.2f}; "
               f"flat from {res['flat_from']}; change by episodes (* not flat): {marks}", flush=True)

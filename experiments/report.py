@@ -22,11 +22,13 @@ def verdict_table(claims: dict, family: str, previous: dict) -> list[str]:
         if c["family"] != family:
             continue
         if c["verdict"] == "not evaluated":
-            lines.append(f"| {cid} | not evaluated | {previous.get(cid, '-')} | {c['primary_test']} | | | | | {c['text']} |")
+            lines.append(f"| {cid} | not evaluated | {previous.get(cid, '-')} | {c['primary_test']} | | | | | "
+                         f"{c['text']} |")
             continue
         mde = f"{c['mde']:.3f}" + ("" if c["mde"] <= MARGIN else " (> margin)")
+        window = f", {c['window']} episodes" if c["window"] != "all" else ""
         lines.append(f"| {cid} | {_verdict(c)} | {previous.get(cid, '-')} | {c['primary_test']} ({c['layouts']} layouts"
-                     f"{', ' + c['window'] + ' episodes' if c['window'] != 'all' else ''}) | {_iv(c)} | {fmt_p(c['p'])} "
+                     f"{window}) | {_iv(c)} | {fmt_p(c['p'])} "
                      f"| {fmt_p(c['p_holm'])} | {mde} | {c['text']} |")
     return lines
 
@@ -72,7 +74,8 @@ def claim_section(cid: str, c: dict) -> list[str]:
     alts = c.get("alternatives", {})
     if alts:
         lines += ["Other reasonable rules: " + "; ".join(
-            f"{k}: {v['estimate']:+.3f}, Holm-factor p {fmt_p(v['p_adj'])} ({'reproduced' if v['reproduced'] else 'not'})"
+            f"{k}: {v['estimate']:+.3f}, Holm-factor p {fmt_p(v['p_adj'])} "
+            f"({'reproduced' if v['reproduced'] else 'not'})"
             for k, v in alts.items()), ""]
     if c.get("secondary"):
         lines += ["| secondary test (never deciding) | pooled | honest | misleading |", "|---|---|---|---|"]
@@ -86,18 +89,21 @@ def claim_section(cid: str, c: dict) -> list[str]:
 
 def panel_lines(name: str, title: str, figure: str, panels: dict, hz: dict) -> list[str]:
     lines = [f"### {title} (`{name}`)", "", f"![{name}]({name}.png)", "",
-             f"{hz['episodes']} episodes; {figure}. Best arm at the end: {AGENT_NAMES.get(hz['best_arm'], hz['best_arm'])}, "
+             f"{hz['episodes']} episodes; {figure}. "
+             f"Best arm at the end: {AGENT_NAMES.get(hz['best_arm'], hz['best_arm'])}, "
              f"its mean ln steps changed by {hz['change_last']:+.3f} over the last {hz['window']} episodes "
              f"({'flat' if hz['flat'] else 'NOT flat'}; flat means |change| < {MARGIN:.3f}).", ""]
     for subset, rows in panels.items():
         lines += [f"{subset} layouts:", "",
-                  "| arm | trials | mean ln steps | ln steps, last 10 | success rate | mean return | alpha_h end | H decides |",
+                  "| arm | trials | mean ln steps | ln steps, last 10 | success rate | mean return | alpha_h end "
+                  "| H decides |",
                   "|---|---|---|---|---|---|---|---|"]
         for arm, r in rows.items():
             ah = f"{r['alpha_h_end']:.2f}" if "alpha_h_end" in r and r.get("h_decides_share") is not None else ""
             hd = f"{r['h_decides_share']:.1%}" if r.get("h_decides_share") is not None else ""
             lines.append(f"| {AGENT_NAMES.get(arm, arm)} | {r['trials']} | {_iv(r['ln_steps'], 2)} | "
-                         f"{_iv(r['ln_steps_last10'], 2)} | {_iv(r['success'], 2)} | {_iv(r['return'], 2)} | {ah} | {hd} |")
+                         f"{_iv(r['ln_steps_last10'], 2)} | {_iv(r['success'], 2)} | {_iv(r['return'], 2)} | "
+                         f"{ah} | {hd} |")
         lines.append("")
     return lines
 
@@ -120,7 +126,8 @@ def layouts_lines(drawn: dict) -> list[str]:
 def horizon_lines(result: dict, conds) -> list[str]:
     lines = ["## Horizons", "", "DQN converged: its curve flat over the last 20 episodes and its final geometric-mean "
              "episode below 100 steps (a tenth of the step limit). Steps to its level: mean environment steps of a "
-             "DQN trial up to the episode at which its curve (5-episode moving average) first comes within the margin of its final level.", "",
+             "DQN trial up to the episode at which its curve (5-episode moving average) first comes within the "
+             "margin of its final level.", "",
              "| condition | episodes | best arm | change of its mean ln steps, last 20 | flat | "
              "DQN within the margin of its final level from episode | steps to that level | DQN final steps "
              "(geo. mean) | DQN converged | DQN steps per trial |",
@@ -172,11 +179,14 @@ def machines_lines(out: str, timing: dict) -> list[str]:
     import os
     path = os.path.join(out, "machines.json")
     if not os.path.exists(path):
-        return ["## Across machines", "", "(no comparison recorded: `python -m experiments.machines DIR_A DIR_B` compares two runs' trials and verdicts)", ""]
+        return ["## Across machines", "",
+                "(no comparison recorded: `python -m experiments.machines DIR_A DIR_B` compares two runs' trials "
+                "and verdicts)", ""]
     m = json.load(open(path))
     stale = m.get("scale") != timing.get("scale") or m.get("commit") is None
     note = (f" (Compared at commit `{m.get('commit', '?')}` on a run of scale {m.get('scale')}: "
-            "NOT this report's trials; re-run the comparison: docs/hyperparameters.md, \"Across machines\".)" if stale else
+            "NOT this report's trials; re-run the comparison: docs/hyperparameters.md, \"Across machines\".)"
+            if stale else
             f" (Compared at commit `{m.get('commit')}`, this report's scale.)")
     lines = ["## Across machines (BLAS code path)", "", m["summary"] + note, "",
              "| condition | arm | trials | trials that differ |", "|---|---|---|---|"]
@@ -222,7 +232,8 @@ def body(result: dict, conds, timing: dict, argv: list[str], drawn: dict, out: s
     lines = ["# Reproduction of the paper's claims (generated)", "",
              f"Generated by `python -m experiments {' '.join(argv)}` at commit `{timing.get('commit', '?')}`: "
              f"{sc.get('layouts', '?')} maze layouts x {sc.get('reps', '?')} seed(s), {sc.get('maze_episodes', '?')} "
-             f"maze episodes, " + (f"{sc.get('taxi_trials', '?')} Taxi trials x {sc.get('taxi_episodes', '?')} episodes "
+             "maze episodes, " + (f"{sc.get('taxi_trials', '?')} Taxi trials x {sc.get('taxi_episodes', '?')} "
+                                  "episodes "
                                    f"(Gymnasium's Taxi: {sc.get('taxi_random_episodes', sc.get('taxi_episodes', '?'))})"
                                    if any(c.is_taxi for c in conds) else "no Taxi") + ". "
              + timing_sentence(timing) + " Every verdict is computed by `experiments/evaluate.py` from the tests "

@@ -16,7 +16,7 @@ import subprocess
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -83,7 +83,8 @@ def analyse(conds: list[Condition], data: dict, extras: dict, out: str, n_boot: 
         c = by_name[name]
         E = data[name][c.arms[0]].steps.shape[1]
         true = [float((1.0 - c.observer.lag_cdf(e)).sum()) for e in range(E)]  # E[lag] = sum of 1 - CDF
-        learned = {arm: extras[name][arm]["mean_lag"].mean(axis=0).tolist() for arm in c.arms if arm.endswith("/learned")}
+        learned = {arm: extras[name][arm]["mean_lag"].mean(axis=0).tolist()
+                   for arm in c.arms if arm.endswith("/learned")}
         result["learned_lags"][name] = {"true": true, "learned": learned}
     figures.plot_who_decides(result["who_decides"], os.path.join(out, "who-decides.png"))
     figures.plot_learned_lags(result["learned_lags"], os.path.join(out, "learned-lags.png"))
@@ -104,7 +105,8 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
     load_start = list(os.getloadavg())
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     with LoadSampler() as load:
-        run_plan, run = run_slots(paper_slots(conds, scale), paper_paths(cache_dir), workers, ray, progress, on_progress)
+        run_plan, run = run_slots(paper_slots(conds, scale), paper_paths(cache_dir), workers, ray,
+                                  progress, on_progress)
     cached, infos, total, reused = run_plan.records, run.jobs, run.cell_trials, run.reused
     done0, slots_todo, todo = run.cached, run.filled, run_plan.todo
     run_wall = time.perf_counter() - t_start
@@ -113,7 +115,8 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
     total_s = time.perf_counter() - t_start
     timing = {"total_s": total_s, "run_s": run_wall, "trials": total, "trials_run": slots_todo,
               "trials_computed": len(todo), "trials_cached": done0 - reused,
-              "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "ray": ray, "cpus": os.cpu_count(),
+              "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "ray": ray,
+              "cpus": os.cpu_count(),
               "python": platform.python_version(), "commit": git_commit(), "load_average_at_start": load_start,
               "load_average_at_end": list(os.getloadavg()), "load_average_max": load.max, "started_utc": started,
               "worker_end_spread_s": _end_spread(infos),
@@ -170,7 +173,7 @@ class LoadSampler:
         while not self._stop.wait(self.every):
             self.max = max(self.max, os.getloadavg()[0])
 
-    def __enter__(self) -> "LoadSampler":
+    def __enter__(self) -> LoadSampler:
         self._thread.start()
         return self
 

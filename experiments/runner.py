@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -100,7 +100,8 @@ class _Batch:
             raise ValueError("trials batched together must share observation and action spaces")
         env_seeds = [derive_seed(s.seed, "env") % (2**31) for s in rows_specs]
         EnvBatch = TableEnvs if use_tables and TableEnvs.supports(envs) else LoopEnvs
-        self.world = EnvBatch(list(envs), list(rules), [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
+        self.world = EnvBatch(list(envs), list(rules),
+                              [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
         self.observers = ObserverBatch([s.observer for s in rows_specs],
                                        [derive_seed(s.seed, "observer") for s in rows_specs])
         self.agent = make_agent([s.agent for s in rows_specs], obs_shape(envs[0]), n_actions,

@@ -147,9 +147,9 @@ JOBS_PER_WORKER = 4
 """Jobs are cut so that there are about this many per worker: small enough that the workers, taking the
 next job as they finish one (longest first), end within a small job of each other."""
 MIN_PART_TRIALS = {"maze": 100, "maze-pomdp": 100}
-"""A Maze batch is not cut below this many trials (beyond one part per worker): its steps are cheap (about 30 us of arithmetic per trial),
-so each part's own tail (a few trials stuck in 1000-step episodes, ticking with a per-tick overhead of
-several trials' arithmetic) would cost more than the balance gains. A Taxi step costs about ten times more,
+"""A Maze batch is not cut below this many trials (beyond one part per worker): its steps are cheap (about 30 us of
+arithmetic per trial), so each part's own tail (a few trials stuck in 1000-step episodes, ticking with a per-tick
+overhead of several trials' arithmetic) would cost more than the balance gains. A Taxi step costs about ten times more,
 so a few trials per part lose little."""
 
 
@@ -184,7 +184,9 @@ def make_jobs(tasks: list[Task], workers: int, per_worker: int = JOBS_PER_WORKER
     target = total / max(workers * per_worker, 1) if workers > 1 else float("inf")
     jobs = []
     for ts in groups.values():
-        ts = sorted(ts, key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "", t.slots[0].trial if t.slots else 0,
+        ts = sorted(ts,
+                    key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "",
+                                   t.slots[0].trial if t.slots else 0,
                                        t.key))
         # up to one part per worker always (so a lone group still uses every worker), more only while each
         # part keeps MIN_PART_TRIALS

@@ -24,7 +24,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -181,7 +181,8 @@ def analyse(rundir: Path) -> dict[str, Any]:
         stats[p.stem] = json.loads(p.read_text())
     n = summary.get("steps_sent") or 0
     zero_loss = (summary.get("steps_logged") == n and summary.get("steps_learned") == n
-                 and summary.get("steps_seq_contiguous_in_log") and summary.get("learner_step_entries") == {"learned": n}
+                 and summary.get("steps_seq_contiguous_in_log")
+                 and summary.get("learner_step_entries") == {"learned": n}
                  and summary.get("feedback_logged") == summary.get("feedback_sent")
                  and "unresolved" not in summary.get("feedback_rejected", {}))
     span = (max(learned_t) - min(t_action)) if t_action and learned_t else float("nan")

@@ -1,6 +1,6 @@
 """`python -m services bench-compare --against DIR`: `services bench` of this checkout and of another one (e.g. a
-worktree of an earlier commit), interleaved phase by phase and repeated, printed side by side with ratios (of the means, of each round, and
-their median): on a shared, noisy machine only a comparison within one run means anything."""
+worktree of an earlier commit), interleaved phase by phase and repeated, printed side by side with ratios (of the
+means, of each round, and their median): on a shared, noisy machine only a comparison within one run means anything."""
 from __future__ import annotations
 
 import json

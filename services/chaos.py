@@ -141,7 +141,7 @@ def kill_in_turn(cfg: ChaosConfig, rundir: Path, proc: subprocess.Popen) -> list
             t_kill = time.time()
             for pid in pids:
                 os.kill(pid, signal.SIGKILL)
-            back = wait_for(lambda: any(t > t_kill for t in puts.get(name, [])), 60)
+            back = wait_for(lambda name=name, t_kill=t_kill: any(t > t_kill for t in puts.get(name, [])), 60)
             t_back = min((t for t in puts.get(name, []) if t > t_kill), default=None)
             kills.append({"service": name, "pid": pids[0], "t_kill": t_kill,
                           "back_after_s": round(t_back - t_kill, 3) if back and t_back else None})

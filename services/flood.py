@@ -16,7 +16,8 @@ import signal
 import sys
 import time
 import uuid
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -22,7 +22,8 @@ from common.core.delay_learning import TrialLags
 from common.core.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
-SHARED_FIELDS = ("network", "device", "hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size", "replay_size",
+SHARED_FIELDS = ("network", "device", "hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size",
+                 "replay_size",
                  "replay_start", "target_update_interval", "update_interval", "h_batch_size",
                  "feedback_memory_size", "history_steps")
 

@@ -90,7 +90,7 @@ class AgentConfig:
 
             network_factory(self.network)  # a one-line error naming a bad name or module:factory
 
-    def with_(self, **changes) -> "AgentConfig":
+    def with_(self, **changes) -> AgentConfig:
         return replace(self, **changes)
 
 

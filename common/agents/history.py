@@ -103,7 +103,8 @@ class BatchStepHistory:
             setattr(self, name, getattr(self, name)[trials])
 
     def state_dict(self) -> dict:
-        return {name: getattr(self, name).copy() for name in ("times", "episode", "obs", "action", "slot", "count", "head")}
+        return {name: getattr(self, name).copy() for name in ("times", "episode", "obs", "action", "slot",
+                                                              "count", "head")}
 
     def load_state_dict(self, state: dict) -> None:
         for name, value in state.items():

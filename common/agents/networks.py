@@ -119,7 +119,8 @@ def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: 
     slope = h * h
     np.subtract(np.float32(1), slope, out=slope)                     # tanh' = 1 - tanh^2
     d_pre *= slope
-    g1 = (with_ones(x) if x1 is None else x1).transpose(0, 2, 1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
+    g1 = (with_ones(x) if x1 is None else x1).transpose(0, 2,
+                                                        1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
     return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1)
 
 
@@ -156,7 +157,7 @@ class FitJob:
     weights [n, N] (weights None for an unweighted loss). x1, optional: x with a column of ones appended, which
     the numpy MLP uses instead of making it (replay stores it); other networks ignore it."""
 
-    net: "ValueNetworks"
+    net: ValueNetworks
     rows: np.ndarray
     x: np.ndarray
     actions: np.ndarray
@@ -179,7 +180,7 @@ class ValueNetworks(Protocol):
     def fit(self, job: FitJob) -> None:
         """One gradient step of its optimiser on `job`."""
 
-    def sync_from(self, other: "ValueNetworks", rows: np.ndarray) -> None:
+    def sync_from(self, other: ValueNetworks, rows: np.ndarray) -> None:
         """Copy other's weights into rows `rows` (a target network's sync)."""
 
     def select(self, rows: np.ndarray) -> None: ...
@@ -253,7 +254,7 @@ class StackedMLP:
     def fit(self, job: FitJob) -> None:
         fit_together([job])
 
-    def sync_from(self, other: "StackedMLP", rows: np.ndarray) -> None:
+    def sync_from(self, other: StackedMLP, rows: np.ndarray) -> None:
         self.flat[rows] = other.flat[rows]
 
     def select(self, idx: np.ndarray) -> None:

@@ -17,9 +17,8 @@ optimisers only, so a trial learns the same alone or among others.
 """
 from __future__ import annotations
 
-import copy
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 import torch
@@ -156,7 +155,7 @@ class TorchValueNetworks:
         for r in job.rows:
             self.opts[int(r)].step()
 
-    def sync_from(self, other: "TorchValueNetworks", rows: np.ndarray) -> None:
+    def sync_from(self, other: TorchValueNetworks, rows: np.ndarray) -> None:
         for r in rows:
             self.modules[int(r)].load_state_dict(other.modules[int(r)].state_dict())
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -34,7 +34,8 @@ class ObserverConfig:
                                             "(unsustainability); none = never")
     stop_step: int | None = option(None, "no feedback for this global step (0-based) and later; none = never")
     late_delay_probs: tuple[float, ...] = option((), "if given, the lag distribution drifts: at episode e it is "
-                                                 "(1 - w) delay_probs + w late_delay_probs, w = min(1, e / drift_episodes)")
+                                                 "(1 - w) delay_probs + w late_delay_probs, "
+                                                 "w = min(1, e / drift_episodes)")
     drift_episodes: int = option(1, "episodes over which a drifting lag distribution moves to late_delay_probs")
 
     def lag_cdf(self, episode: int) -> np.ndarray:

@@ -18,7 +18,7 @@ where a distance function is known for the environment, `target_distance_before/
 from __future__ import annotations
 
 from collections import deque
-from typing import Callable
+from collections.abc import Callable
 
 import gymnasium as gym
 import numpy as np

@@ -16,7 +16,7 @@ Rules are named here (`RULES`) or given as `module:function`, so a user's rule n
 from __future__ import annotations
 
 import importlib
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 TeacherRule = Callable[[Mapping[str, float]], int]
 

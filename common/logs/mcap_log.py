@@ -31,8 +31,9 @@ from typing import Any
 
 from mcap.writer import CompressionType, Writer
 
-from common.logs.mcap_read import (CHANNEL_METADATA, METADATA_NAME, FileStatus, LogReader, LogRecord, LogRecoveryWarning,  # noqa: F401
-                              NotMcapError, ReadStatus, identity, load_log, read_log)
+from common.logs.mcap_read import (  # noqa: F401  (re-exported: the log's one import for readers and writers)
+    CHANNEL_METADATA, METADATA_NAME, FileStatus, LogReader, LogRecord, LogRecoveryWarning, NotMcapError, ReadStatus,
+    identity, load_log, read_log)
 from common.protocol import PROTOCOL_VERSION, RunConfig, config_key, log_topic, parse_key
 
 PROFILE = "hitl"
@@ -80,7 +81,7 @@ def schema_record(cls: type) -> tuple[str, bytes]:
     return "jsonschema", json.dumps(cls.json_schema(), indent=None).encode()
 
 
-# -- writer -------------------------------------------------------------------------------------------------------------
+# -- writer ------------------------------------------------------------------------------------------------------------
 
 class LogWriter:
     """Writes one run's log: an MCAP file (or several segments), chunked, zstd.
@@ -221,7 +222,7 @@ class LogWriter:
 
     close = finish
 
-    def __enter__(self) -> "LogWriter":
+    def __enter__(self) -> LogWriter:
         return self
 
     def __exit__(self, *exc: Any) -> None:

@@ -18,7 +18,8 @@ import dataclasses
 import os
 import warnings
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
+from collections.abc import Iterable, Iterator
 
 from mcap.records import Channel, Message as McapMessage, Metadata, Schema
 
@@ -69,6 +70,8 @@ class ReadStatus:
     files: list[FileStatus] = dataclasses.field(default_factory=list)
     messages: int = 0
     undecodable: collections.Counter = dataclasses.field(default_factory=collections.Counter)
+    # read whole but not decoded here: their decoder is an extra not installed (by module, e.g. foxglove)
+    needs_extra: collections.Counter = dataclasses.field(default_factory=collections.Counter)
     duplicate_configs_skipped: int = 0
     duplicates_skipped: collections.Counter = dataclasses.field(default_factory=collections.Counter)  # by kind
 
@@ -86,6 +89,25 @@ class ReadStatus:
         """Files with damaged chunks that were skipped (the chunks after them were read)."""
         return [f.path for f in self.files if f.chunks_lost]
 
+    def losses(self) -> list[str]:
+        """One line per thing that could not be read (empty: every message of every file was read): data cut
+        off at the end, damaged chunks skipped, messages on channels defined in a lost chunk, undecodable ones.
+        A missing summary section (data complete, footer gone) loses nothing and is not listed."""
+        out = []
+        for f in self.files:
+            if not f.data_complete:
+                out.append(f"{f.path}: truncated: {f.size - f.bytes_read} bytes after the last complete record "
+                           f"(offset {f.bytes_read} of {f.size}) not read ({f.error})")
+            if f.chunks_lost:
+                out.append(f"{f.path}: skipped {f.chunks_lost} damaged chunk(s), {f.bytes_lost} bytes, "
+                           f"{f.messages_lost} messages by their index ({'; '.join(f.lost[:3])}"
+                           f"{'; ...' if len(f.lost) > 3 else ''})")
+            if f.unknown_channel:
+                out.append(f"{f.path}: skipped {f.unknown_channel} messages on channels defined in a lost chunk")
+        if self.undecodable:
+            out.append(f"{sum(self.undecodable.values())} messages did not decode: {dict(self.undecodable)}")
+        return out
+
     def summary(self) -> str:
         parts = [f"{self.messages} messages from {len(self.files)} file(s)"]
         for f in self.files:
@@ -101,6 +123,8 @@ class ReadStatus:
                 parts.append(f"{f.path}: {f.unknown_channel} messages on channels defined in a lost chunk")
         if self.undecodable:
             parts.append(f"undecodable: {dict(self.undecodable)}")
+        if self.needs_extra:
+            parts.append(f"not decoded (their module is not installed): {dict(self.needs_extra)}")
         if self.duplicates_skipped:
             parts.append(f"duplicates skipped: {dict(self.duplicates_skipped)}")
         return "; ".join(parts)
@@ -194,6 +218,8 @@ class LogReader:
             except ProtocolError as e:
                 error = e
                 self.status.undecodable[e.reason] += 1
+            except ImportError as e:  # a part whose decoder is an extra (the scene: foxglove-sdk) is not installed
+                self.status.needs_extra[e.name] += 1
         if self.decode_messages and isinstance(message, RunConfig):
             if self.run_config is None:
                 self.run_config = message

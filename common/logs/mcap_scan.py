@@ -21,7 +21,7 @@ import mmap
 import struct
 import zlib
 from io import BytesIO
-from typing import Iterator
+from collections.abc import Iterator
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode

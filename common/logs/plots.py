@@ -1,6 +1,9 @@
 """Learning-curve plots (matplotlib, headless)."""
 from __future__ import annotations
 
+import os
+from pathlib import Path
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -27,5 +30,18 @@ def plot_curves(curves: dict[str, np.ndarray], path: str, title: str, ylabel: st
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    save_whole(fig, path)
+
+
+def save_whole(fig, path) -> None:
+    """Save to a temporary file beside `path`, then rename: a full disk leaves no 0-byte or partial image."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        fig.savefig(tmp, format=path.suffix.lstrip(".") or "png")
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        plt.close(fig)

@@ -20,7 +20,10 @@ from __future__ import annotations
 import collections
 from typing import Any
 
-import foxglove.messages as fm
+try:
+    import foxglove.messages as fm
+except ImportError:  # the `foxglove` extra is not installed: logs and the bridge carry no scene
+    fm = None
 
 PARTS = ("layout", "agent", "feedback")
 FRAME = "env"
@@ -99,9 +102,11 @@ class SceneBuilder:
                          for row in (b"".join(r) for r in t._env.desc)]
 
     @classmethod
-    def from_run_config(cls, config: dict) -> "SceneBuilder | None":
+    def from_run_config(cls, config: dict) -> SceneBuilder | None:
         """From a run config (the launcher's `run.json`, a service's config, or the learner's Ingest config):
-        the first `env` found (with its `layout`); None when there is none or no scene for it."""
+        the first `env` found (with its `layout`); None when there is none, no scene for it, or no foxglove-sdk."""
+        if fm is None:
+            return None
         stack = [config]
         while stack:
             node = stack.pop(0)
@@ -257,7 +262,7 @@ class SceneBuilder:
         return walls
 
 
-def derived_records(run: str, message: Any, scene: "SceneBuilder | None") -> list[tuple[str, bytes]]:
+def derived_records(run: str, message: Any, scene: SceneBuilder | None) -> list[tuple[str, bytes]]:
     """(key, bytes) a log or a live viewer adds for one decoded message of `run`: the Credits an Ingest carries,
     each as if it had come alone on its own key, and the scene drawn from the message and from those Credits."""
     from common.protocol import carried
@@ -285,3 +290,8 @@ def _taxi_passenger(obs: list) -> int:
 
 def _taxi_destination(obs: list) -> int:
     return _onehot(obs, 15, 4)
+
+
+def scene_available() -> bool:
+    """Whether foxglove-sdk (the `foxglove` extra) is installed, so that scenes can be drawn."""
+    return fm is not None

@@ -17,7 +17,8 @@ import json
 import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Protocol, Sequence
+from typing import Protocol
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -114,7 +115,7 @@ class ModelConfig:
             raise ValueError("a model config needs its label list")
 
     @classmethod
-    def from_dict(cls, data: dict, base_dir: Path | None = None) -> "ModelConfig":
+    def from_dict(cls, data: dict, base_dir: Path | None = None) -> ModelConfig:
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
@@ -129,7 +130,7 @@ class ModelConfig:
         return cls(**d)
 
     @classmethod
-    def from_file(cls, path: str | Path) -> "ModelConfig":
+    def from_file(cls, path: str | Path) -> ModelConfig:
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"model config {path} does not exist")

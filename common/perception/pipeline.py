@@ -39,7 +39,7 @@ class PerceptionPipeline:
 
     @classmethod
     def from_config(cls, config: PipelineConfig = PipelineConfig(),
-                    model: ExpressionModel | None = None) -> "PerceptionPipeline":
+                    model: ExpressionModel | None = None) -> PerceptionPipeline:
         if config.opencv_threads:
             cv2.setNumThreads(config.opencv_threads)
         return cls(make_detector(config.detector, config.detect_width),

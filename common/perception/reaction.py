@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Iterable, Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -158,6 +158,6 @@ def synthetic_predictions(sequence: Sequence[str | None], fps: float = 30.0,
             out.append(FramePrediction(i, t0 + i / fps, None, labels, None))
             continue
         rest = (1.0 - confidence) / max(1, len(labels) - 1)
-        probs = tuple(confidence if l == lab else rest for l in labels)
+        probs = tuple(confidence if label == lab else rest for label in labels)
         out.append(FramePrediction(i, t0 + i / fps, box, labels, probs))
     return out

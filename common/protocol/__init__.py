@@ -16,12 +16,15 @@ No zenoh or mcap import here: the pure core may use these types too.
 
 from ._base import PROTOCOL_VERSION, Message
 from ._console import CONTROL_COMMANDS, MAX_RATE, Control, Credit, CreditedStep, Shown
-from ._keys import (kind_of, KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, carried, config_key, decode, episode_key,
-                    control_key, credit_key, feedback_key, feedback_wildcard, shown_key, ingest_key, log_key, message_type, parse_key, perception_key, reaction_key,
+from ._keys import (kind_of, KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, carried, config_key,
+                    decode, episode_key,
+                    control_key, credit_key, feedback_key, feedback_wildcard, shown_key, ingest_key, log_key,
+                    message_type, parse_key, perception_key, reaction_key,
                     run_prefix,
                     status_key, step_key, validate_name, weights_key)
 from ._messages import (NAME_PATTERN, SERVICE_STATES, TOKEN_PATTERN, Box, CompressedImage, EpisodeSummary,
-                        ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log, MAX_INGEST_CREDITS, MAX_SHOWN,
+                        ExpressionPrediction, Feedback, Ingest, IngestEntry, LOG_LEVELS, Log,
+                        MAX_INGEST_CREDITS, MAX_SHOWN,
                         ObserverReaction, RunConfig,
                         ServiceStatus, ShownStep, Step, Time)
 from ._roles import (ALIVE, NAMED_ROLES, OBSERVER_PREFIX, OWN_KINDS, PUBLISHES, ROLES, SERVICE_ROLES, TEACHER_PREFIX,
@@ -38,11 +41,13 @@ __all__ = [
     "Step", "Feedback", "Weights", "Ingest", "IngestEntry", "EpisodeSummary", "ServiceStatus", "CompressedImage",
     "ExpressionPrediction", "Log", "LOG_LEVELS", "log_key",
     "RunConfig", "Time", "Box", "SERVICE_STATES", "NAME_PATTERN", "TOKEN_PATTERN", "check_spec",
-    "KEYS", "KeySpec", "ParsedKey", "MESSAGE_TYPES", "ROOT", "parse_key", "message_type", "decode", "carried", "validate_name",
+    "KEYS", "KeySpec", "ParsedKey", "MESSAGE_TYPES", "ROOT", "parse_key", "message_type", "decode", "carried",
+    "validate_name",
     "run_prefix", "step_key", "feedback_key", "feedback_wildcard", "weights_key", "episode_key", "ingest_key",
     "status_key",
     "camera_key", "perception_key", "config_key", "ObserverReaction", "reaction_key",
-    "Shown", "ShownStep", "MAX_SHOWN", "MAX_INGEST_CREDITS", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit", "CreditedStep",
+    "Shown", "ShownStep", "MAX_SHOWN", "MAX_INGEST_CREDITS", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit",
+    "CreditedStep",
     "shown_key", "control_key", "credit_key", "log_topic", "key_from_topic",
     "FoxgloveProto", "SceneUpdate", "Request", "TensorSummary", "WeightsSnapshot",
     "ALIVE", "NAMED_ROLES", "OBSERVER_PREFIX", "OWN_KINDS", "PUBLISHES", "ROLES", "SERVICE_ROLES", "TEACHER_PREFIX",

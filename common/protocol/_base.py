@@ -81,7 +81,7 @@ class Message:
         if cached is None:
             cached = [WireField(f.name, f.metadata.get("wire") or f.name, f.metadata["spec"], f.metadata["optional"])
                       for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
-            setattr(cls, "_wire_fields_cache", cached)
+            cls._wire_fields_cache = cached
         return cached
 
     @classmethod
@@ -92,7 +92,7 @@ class Message:
             fields = cls.wire_fields()
             cached = ({wf.wire: wf.attr for wf in fields}, {wf.wire: wf.spec for wf in fields},
                       {wf.wire for wf in fields if not wf.optional})
-            setattr(cls, "_decode_tables_cache", cached)
+            cls._decode_tables_cache = cached
         return cached
 
     # -- JSON Schema ---------------------------------------------------------------------------------
@@ -121,7 +121,7 @@ class Message:
         return {wf.wire: wf.spec.to_json(getattr(self, wf.attr)) for wf in self.wire_fields()}
 
     @classmethod
-    def from_json_obj(cls, obj: Any) -> "Message":
+    def from_json_obj(cls, obj: Any) -> Message:
         if not isinstance(obj, dict):
             raise ProtocolError("wrong_type", f"top level: expected object, got {type(obj).__name__}")
         attrs, specs, required = cls._decode_tables()
@@ -145,7 +145,7 @@ class Message:
         return data
 
     @classmethod
-    def decode(cls, data: bytes) -> "Message":
+    def decode(cls, data: bytes) -> Message:
         return cls.from_json_obj(parse_json(data, cls.MAX_BYTES))
 
     def validate(self) -> None:

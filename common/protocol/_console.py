@@ -13,7 +13,9 @@ from ._spec import Float, Int, ProtocolError, Str
 
 CONTROL_COMMANDS = ("pause", "resume", "pace", "end")
 MAX_RATE = 50.0  # steps per second a console may ask for
-CREDIT_STATUSES = ("credited", "stale", "ignored", "after_end", "actor_restarted")
+#: `duplicate`: a feedback re-sent after it was consumed (e.g. by a console page after a reconnect): not credited
+#: again; the Credit only tells the page that the learner has it.
+CREDIT_STATUSES = ("credited", "stale", "ignored", "after_end", "actor_restarted", "duplicate")
 
 
 @dataclasses.dataclass(frozen=True)

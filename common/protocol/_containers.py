@@ -73,7 +73,8 @@ class Map(Spec):
         return {k: self.value.to_json(v) for k, v in value.items()}
 
     def describe(self) -> str:
-        return f"object of string (1..{self.key_max_len} chars) to ({self.value.describe()}), at most {self.max_items} entries"
+        return (f"object of string (1..{self.key_max_len} chars) to ({self.value.describe()}), "
+                f"at most {self.max_items} entries")
 
 
 class Nullable(Spec):

@@ -60,7 +60,7 @@ class FoxgloveProto:
         return msg
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _message_class(type_name: str, fds: bytes) -> Any:
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 

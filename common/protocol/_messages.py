@@ -53,7 +53,8 @@ class Step(Message):
     run: str = fld(Name(RUN))
     incarnation: str = fld(Token("The actor process's own id, new at every start."))
     seq: int = fld(Count("Message counter, 0, 1, 2, ... without gaps within one incarnation."))
-    t_action: float = fld(Seconds("Wall-clock time (s since the Unix epoch; virtual time in-process) when the action was taken."))
+    t_action: float = fld(Seconds("Wall-clock time (s since the Unix epoch; virtual time in-process) when the "
+                                  "action was taken."))
     episode: int = fld(Count("Episode index within this incarnation."))
     t_in_episode: int = fld(Count("Step index within the episode (0 for the first action)."))
     obs: list = fld(List(Float(), min_items=1, max_items=MAX_OBS, description="Observation before the action."))
@@ -64,7 +65,8 @@ class Step(Message):
     truncated: bool = fld(Bool(description="The episode was cut by the step limit."))
     weights_version: int = fld(Count("Version of the weights the actor acted with (0 before any Weights arrived)."))
     info: dict = fld(Map(Float(), max_items=16, description=(
-        "Small numeric extras, e.g. `target_distance_before` / `target_distance_after` for the simulated teacher's rule.")))
+        "Small numeric extras, e.g. `target_distance_before` / `target_distance_after` for the simulated "
+        "teacher's rule.")))
     weights_revision: int | None = fld(Nullable(Count(
         "Revision of the weights the actor acted with (Weights' `revision`: moved by every Q or H update); null "
         "before any revised Weights arrived.")), optional=True)
@@ -109,8 +111,8 @@ class Feedback(Message):
     t_reaction: float = fld(Seconds("Wall-clock time (s) at which the teacher reacted."))
     value: int = fld(Int(enum=(-1, 1), description="The feedback: +1 good, -1 bad."))
     source: str = fld(Name("Where it came from, e.g. `oracle`, `face`."))
-    ref_seq: int | None = fld(Nullable(Count("Diagnostics: the Step.seq the simulated observer meant; null if unknown.")),
-                              optional=True)
+    ref_seq: int | None = fld(Nullable(Count("Diagnostics: the Step.seq the simulated observer meant; null if "
+                                             "unknown.")), optional=True)
     intended: int | None = fld(Nullable(Int(enum=(-1, 1), description=(
         "Diagnostics: the value before a simulated misread; null if unknown."))), optional=True)
     t_page: float | None = fld(Nullable(Float(0.0, description=(
@@ -145,7 +147,8 @@ class ObserverReaction(Message):
     CROSS_RULES: ClassVar[tuple[str, ...]] = ("`t_end >= t_start`, else `bad_value`",)
 
     run: str = fld(Name(RUN))
-    teacher_id: str = fld(Name("The teacher whose Feedback these frames should become; also the last chunk of the key."))
+    teacher_id: str = fld(Name("The teacher whose Feedback these frames should become; also the last chunk of "
+                               "the key."))
     seq: int = fld(Count("Reaction counter per teacher, without gaps."))
     ref_seq: int = fld(Count("The Step.seq the observer reacted to."))
     lag_steps: int = fld(Count("The observer's true lag in steps (drawn from its delay distribution)."))
@@ -237,7 +240,8 @@ class Ingest(Message):
     entries: list = fld(List(INGEST_ENTRY_SPEC, max_items=2048, description="Entries in consumption order."))
     config: dict | None = fld(Nullable(AnyJSON(object_only=True, description=(
         "The learner's config (first batch only): everything retrain needs to rebuild it."))), optional=True)
-    credits: list | None = fld(Nullable(List(Embedded(lambda: _credit_type()), max_items=MAX_INGEST_CREDITS, description=(
+    credits: list | None = fld(Nullable(List(Embedded(lambda: _credit_type()), max_items=MAX_INGEST_CREDITS,
+                                             description=(
         "What became of feedback from the teachers whose Credits ride here rather than on their own key (the "
         "learner's `credits-in-ingest`: a run's own teacher services, one message less per feedback). The "
         "recorder logs each on `/credit/<teacher_id>` as if it had come alone."))), optional=True)
@@ -271,7 +275,8 @@ class ServiceStatus(Message):
     pid: int = fld(Int(0, 2**32 - 1, description="Operating-system process id."))
     state: str = fld(Str(enum=SERVICE_STATES, description="Life-cycle state."))
     t: float = fld(Seconds("Wall-clock time (s) of this status."))
-    counters: dict = fld(Map(Count(""), max_items=256, description="Named counters, e.g. `steps_published`, `dropped_malformed`."))
+    counters: dict = fld(Map(Count(""), max_items=256,
+                             description="Named counters, e.g. `steps_published`, `dropped_malformed`."))
     incarnation: str | None = fld(Nullable(Token(
         "The process's own id (as Step.incarnation, Weights.incarnation, Ingest.learner): a subscriber accepts "
         "steps or weights from a new incarnation only once its status has announced it.")), optional=True)
@@ -288,7 +293,7 @@ class Time:
     nsec: int
 
     @classmethod
-    def from_seconds(cls, t: float) -> "Time":
+    def from_seconds(cls, t: float) -> Time:
         ns = int(round(t * 1e9))
         return cls(ns // 1_000_000_000, ns % 1_000_000_000)
 
@@ -377,7 +382,7 @@ class RunConfig(Message):
     config: dict = fld(AnyJSON(object_only=True, description="The run's configuration (free-form JSON object)."))
 
     @classmethod
-    def create(cls, run: str, config: dict[str, Any], t_created: float | None = None) -> "RunConfig":
+    def create(cls, run: str, config: dict[str, Any], t_created: float | None = None) -> RunConfig:
         import time
 
         return cls(run=run, t_created=time.time() if t_created is None else t_created,

@@ -12,7 +12,8 @@ import json
 import math
 import re
 import struct
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -115,7 +116,7 @@ class Weights:
 
     # -- decode -------------------------------------------------------------------------------------------
     @classmethod
-    def decode(cls, data: bytes, expected: Spec | None = None) -> "Weights":
+    def decode(cls, data: bytes, expected: Spec | None = None) -> Weights:
         """Parse and validate. ``expected`` maps every tensor name to its shape; when given, the names must
         match exactly and every shape must equal, else ``bad_shape``."""
         import safetensors.numpy
@@ -159,7 +160,8 @@ class Weights:
         for name, info in header.items():
             _check_tensor_name(name)
             if not isinstance(info, dict) or info.get("dtype") != "F32":
-                raise ProtocolError("bad_shape", f"{name}: dtype {info.get('dtype') if isinstance(info, dict) else info!r}, expected F32")
+                dtype = info.get("dtype") if isinstance(info, dict) else info
+                raise ProtocolError("bad_shape", f"{name}: dtype {dtype!r}, expected F32")
             shape = info.get("shape")
             if not isinstance(shape, list) or len(shape) > MAX_NDIM:
                 raise ProtocolError("bad_shape", f"{name}: bad shape {shape!r}")
@@ -194,9 +196,10 @@ class Weights:
         """Names and shapes, in the form ``decode(expected=...)`` takes."""
         return {k: tuple(np.shape(v)) for k, v in self.tensors.items()}
 
-    def same_as(self, other: "Weights") -> bool:
+    def same_as(self, other: Weights) -> bool:
         return (self.run, self.incarnation, self.version, self.revision, self.t_published) == (
-            other.run, other.incarnation, other.version, other.revision, other.t_published) and self.tensors.keys() == other.tensors.keys() and all(
+            other.run, other.incarnation, other.version, other.revision,
+            other.t_published) and self.tensors.keys() == other.tensors.keys() and all(
             np.array_equal(np.asarray(self.tensors[k]), np.asarray(other.tensors[k])) for k in self.tensors)
 
     @classmethod

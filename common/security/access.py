@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 from common.protocol import ALIVE, ROOT, publish_patterns
 from common.security.config import SecurityConfig, SecurityError

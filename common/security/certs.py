@@ -8,7 +8,8 @@ import os
 import secrets
 import shutil
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 from common.security.config import (CA_CERT, CA_KEY, CREDENTIALS_FILE, DEFAULT_PORT, ROUTER_CERT, ROUTER_KEY,
                                     SECURITY_FILE, SecurityConfig, SecurityError, save_security, write_credentials)
@@ -31,7 +32,7 @@ def generate_certificates(out_dir: str | os.PathLike, hosts: Iterable[str] = (),
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    now = datetime.datetime.now(datetime.timezone.utc) - datetime.timedelta(minutes=5)
+    now = datetime.datetime.now(datetime.UTC) - datetime.timedelta(minutes=5)
     until = now + datetime.timedelta(days=days)
 
     def key_pem(key: Any) -> bytes:

@@ -144,7 +144,7 @@ class SecurityConfig:
         return d
 
     def for_client(self, username: str, credentials_file: str = CREDENTIALS_FILE,
-                   ca_cert: str = CA_CERT) -> "SecurityConfig":
+                   ca_cert: str = CA_CERT) -> SecurityConfig:
         """The copy a client machine gets: no router files, its own credentials file."""
         self.role_of(username)
         return dataclasses.replace(self, router_cert=None, router_key=None, ca_cert=ca_cert,

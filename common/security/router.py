@@ -13,7 +13,8 @@ from pathlib import Path
 import zenoh
 
 from common.security.certs import init
-from common.security.config import DEFAULT_PORT, SECURITY_FILE, SecurityConfig, SecurityError, load_security, tls_endpoint
+from common.security.config import (DEFAULT_PORT, SECURITY_FILE, SecurityConfig, SecurityError, load_security,
+                                    tls_endpoint)
 from common.security.zenoh_config import router_config_dict, router_config_for
 from common.wire.transport import LOOPBACK
 

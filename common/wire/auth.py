@@ -24,7 +24,6 @@ authenticated restart), never an older one. No zenoh import: the pure core may u
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import hmac
 import json
 import os
@@ -33,7 +32,8 @@ import struct
 import threading
 import time
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 from common.protocol import (SERVICE_ROLES, kind_of, may_publish, observer_service_name, sender_of, split_identity,
                              teacher_service_name)
@@ -93,7 +93,7 @@ class Credential:
         return out
 
     @classmethod
-    def from_json(cls, obj: Any, where: str = "credential") -> "Credential":
+    def from_json(cls, obj: Any, where: str = "credential") -> Credential:
         try:
             secret = bytes.fromhex(obj["secret"]) if "secret" in obj else None
             cred = cls(identity=str(obj["identity"]), run=str(obj["run"]), key=bytes.fromhex(obj["key"]),
@@ -345,7 +345,8 @@ def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
     w = Weights(run=run, incarnation="learner-1-abcdef01", version=12345, t_published=time.time(), tensors=tensors)
     out = []
     for name, key, payload, sender, count in (("Step", step_key(run), step.encode(), "actor", n),
-                                              ("Feedback", feedback_key(run, "oracle"), fb.encode(), "teacher.oracle", n),
+                                              ("Feedback", feedback_key(run, "oracle"), fb.encode(),
+                                               "teacher.oracle", n),
                                               ("Weights", weights_key(run), w.encode(), "learner", max(1, n // 20))):
         sign_s, check_s, bad = [], [], 0
         for _ in range(repeats):  # the best of several rounds: other processes only ever add time

@@ -21,16 +21,15 @@ stops on SIGTERM/SIGINT).
 from __future__ import annotations
 
 import argparse
-import collections
 import contextlib
-import dataclasses
 import json
 import signal
 import socket
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
 import zenoh
 
@@ -135,7 +134,8 @@ def declare_publisher(session: zenoh.Session, key: str, *, congestion: str | Non
     step, feedback, weights, episode; DROP for status, camera, perception) unless ``congestion`` says."""
     spec = parse_key(key).spec
     cls = spec.message
-    encoding = zenoh.Encoding.APPLICATION_JSON if cls.MESSAGE_ENCODING == "json" else zenoh.Encoding.APPLICATION_OCTET_STREAM
+    json_encoded = cls.MESSAGE_ENCODING == "json"
+    encoding = zenoh.Encoding.APPLICATION_JSON if json_encoded else zenoh.Encoding.APPLICATION_OCTET_STREAM
     return session.declare_publisher(key, congestion_control=_congestion(congestion or spec.congestion),
                                      encoding=encoding.with_schema(cls.TYPE_NAME), express=express)
 
@@ -186,7 +186,7 @@ class MessagePublisher:
         with contextlib.suppress(Exception):
             self.publisher.undeclare()
 
-    def __enter__(self) -> "MessagePublisher":
+    def __enter__(self) -> MessagePublisher:
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -196,7 +196,8 @@ class MessagePublisher:
 # -- receiving -------------------------------------------------------------------------------------------------------
 
 def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None, *, maxsize: int = 1024,
-              policy: str | None = None, block_timeout: float = 5.0, auth: Any = None) -> tuple[zenoh.Subscriber, Inbox]:
+              policy: str | None = None, block_timeout: float = 5.0,
+              auth: Any = None) -> tuple[zenoh.Subscriber, Inbox]:
     """Declare a callback subscriber feeding an :class:`Inbox` (a new one unless given).
 
     Undeclare the subscriber (or close the session) and ``inbox.close()`` when done."""

@@ -212,6 +212,7 @@ def decide(ci: list[float], p_holm: float, margin: float, estimate: float) -> st
 
 def warning_line(row: dict) -> str:
     need = "any number of" if row["trials_needed"] is None else f"about {row['trials_needed']}"
-    return (f"warning: {row['metric']}: {row['contrast']} ({row['where']}): '{row['verdict']}' rests on {row['trials']} trials; "
+    return (f"warning: {row['metric']}: {row['contrast']} ({row['where']}): '{row['verdict']}' rests on "
+            f"{row['trials']} trials; "
             f"the minimum detectable effect there is {row['mde']:.3f}, and an effect of the size seen needs "
             f"{need} trials (80% power at the Holm-adjusted level)")

@@ -73,7 +73,8 @@ def format_report(rep: dict) -> str:
         lines.append(f"  round {i + 1}: local pool {lo['run_s']:.1f} s ({lo['tasks']} jobs) | Ray head "
                      f"{ra['run_s']:.1f} s ({ra['tasks']} tasks) | ratio {ra['run_s'] / lo['run_s']:.2f} | "
                      f"overhead per Ray task {r['overhead_per_task_s']:+.2f} s | identical: {r['identical']}")
-        lines.append(f"           CPU s in the jobs: local {lo['job_cpu_s']:.1f}, Ray {ra['job_cpu_s']:.1f}; start-up and "
+        lines.append(f"           CPU s in the jobs: local {lo['job_cpu_s']:.1f}, Ray {ra['job_cpu_s']:.1f}; "
+                     "start-up and "
                      f"collection (wall - longest job): local {lo['run_s'] - lo['job_wall_max_s']:.1f} s, Ray "
                      f"{ra['run_s'] - ra['job_wall_max_s']:.1f} s; load after: {lo['load_after']:.1f}, "
                      f"{ra['load_after']:.1f}")

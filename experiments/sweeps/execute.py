@@ -23,7 +23,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Callable, Hashable, Iterable
+from collections.abc import Callable, Hashable, Iterable
 
 from experiments.trialcache import Task, make_jobs, read_cached, result_record, trial_key, write_json_atomic
 from experiments.runner import TrialSpec, run_trials
@@ -176,7 +176,7 @@ def run_local(jobs: list[list], workers: int, on_message: Emit) -> list[dict]:
             except queue.Empty:
                 dead = [p for p in procs if not p.is_alive() and p.exitcode not in (0, None)]
                 if dead:
-                    raise RuntimeError(f"a worker died (exit code {dead[0].exitcode})")
+                    raise RuntimeError(f"a worker died (exit code {dead[0].exitcode})") from None
                 continue
             if msg[0] == "error":
                 raise RuntimeError(msg[1])

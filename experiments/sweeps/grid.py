@@ -137,7 +137,7 @@ def split_top(text: str) -> list[str]:
     """Split at commas that are not inside brackets: 'a,[1,0],b' -> ['a', '[1,0]', 'b']."""
     parts, depth, cur = [], 0, ""
     for ch in text:
-        depth += ch in "[(" 
+        depth += ch in "[("
         depth -= ch in "])"
         if ch == "," and depth == 0:
             parts.append(cur)
@@ -299,7 +299,8 @@ def from_mapping(data: dict, source: str = "sweep file") -> dict:
     kw["grid"] = {}
     for name, values in grid.items():
         path = field_path(name)
-        vals = parse_values(path, values) if isinstance(values, str) else [coerce(path, v) for v in _as_list(values, path)]
+        vals = (parse_values(path, values) if isinstance(values, str)
+                else [coerce(path, v) for v in _as_list(values, path)])
         kw["grid"][path] = vals
     kw["fixed"] = {field_path(name): coerce(field_path(name), v) for name, v in fixed.items()}
     kw["contrasts"] = [str(c) for c in _as_list(data.get("contrasts") or [], "contrasts")]

@@ -11,12 +11,12 @@ import os
 import queue
 import socket
 import threading
-from typing import Callable
+from collections.abc import Callable, Iterator
 
 _DONE = object()
 
 
-def job_messages(job_id: int, items: list) -> "iterator":
+def job_messages(job_id: int, items: list) -> Iterator:
     """Run one job in a thread of this (Ray worker) process; yield its messages as they come."""
     import torch
 

@@ -123,7 +123,8 @@ def write_markdown(path: str, sweep: Sweep, summary: dict, rows: list[dict], war
         for r in rows:
             need = "-" if r["trials_needed"] is None else str(r["trials_needed"])
             flag = " (underpowered)" if r["underpowered"] else ""
-            lines.append(f"| {r['metric']}: {r['contrast']} | {r['where']} | {_iv(r, 3)} | {stats.fmt_p(r['p_holm'])} | "
+            lines.append(f"| {r['metric']}: {r['contrast']} | {r['where']} | {_iv(r, 3)} | "
+                         f"{stats.fmt_p(r['p_holm'])} | "
                          f"{r['margin']:.3f} | **{r['verdict']}**{flag} | {r['mde']:.3f} | {need} |")
         lines.append("")
     if warnings:
@@ -136,7 +137,8 @@ def print_outcome(result: SweepResult, out: str, stream=None) -> None:
     stream = stream or sys.stdout
     r = result.run
     ran = f"{r.computed} trials computed on {r.backend}, filling {r.filled}" if r.computed else "nothing to compute"
-    print(f"{r.cell_trials} cell-trials ({ran}; {r.cached} from the cache) in {result.total_s:.1f} s; wrote {out}/SWEEP.md, trials.csv, "
+    print(f"{r.cell_trials} cell-trials ({ran}; {r.cached} from the cache) in {result.total_s:.1f} s; "
+          f"wrote {out}/SWEEP.md, trials.csv, "
           "trials.parquet, summary.csv, *.png", file=stream)
     for row in result.contrasts:
         print(f"  {row['metric']}: {row['contrast']} [{row['where']}]: {_iv(row, 3)} -> {row['verdict']}",

@@ -37,7 +37,8 @@ class FramePublisher:
             rgb = np.asarray(self.env.render(), np.uint8)
             scale = MAX_SIDE / max(rgb.shape[:2])
             if scale < 1:
-                rgb = cv2.resize(rgb, (int(rgb.shape[1] * scale), int(rgb.shape[0] * scale)), interpolation=cv2.INTER_AREA)
+                rgb = cv2.resize(rgb, (int(rgb.shape[1] * scale), int(rgb.shape[0] * scale)),
+                                 interpolation=cv2.INTER_AREA)
             ok, jpeg = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])
         except Exception:  # a picture must never stop the actor
             self.counters["render_failed"] += 1

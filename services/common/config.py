@@ -43,7 +43,8 @@ class ServiceConfig:
     connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
     security: str | None = option(None, "security.json of this machine (common/security.py: TLS, user/password, "
                                         "access control); connect to the secured router as this service's identity")
-    credentials: str | None = option(None, "this service's credential file (common/wire/auth.py): signs what it publishes, "
+    credentials: str | None = option(None,
+                                     "this service's credential file (common/wire/auth.py): signs what it publishes, "
                                            "checks what it receives; the launcher writes one per service, "
                                            "`python -m services credentials` for services started by hand")
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import collections
 import math
-import time
-from typing import Any, Callable, Iterable
+from typing import Any
+from collections.abc import Callable, Iterable
 
 from common.protocol import Feedback, ServiceStatus, Step, teacher_id_of
 
@@ -17,13 +17,17 @@ GATE_REASONS: dict[str, str] = {
     "unknown_incarnation": "a Step (Weights) from an actor (learner) incarnation no ServiceStatus has announced",
     "retired_incarnation": "a Step from an actor incarnation that a newer one has replaced",
     "unknown_teacher": "Feedback from a teacher that neither the config nor a ServiceStatus names",
-    "bad_seq": "a seq more than `max_seq_jump` ahead of the next expected one (would hide later real inputs)",
+    "bad_seq": "a seq too far ahead: a step more than `max_seq_jump` beyond the next expected one, a feedback more "
+               "than `max_feedback_jump` beyond its teacher's newest or one whose gap would leave more than "
+               "`feedback_window` of its teacher's seqs outstanding (it would hide later real inputs)",
     "obs_shape": "Step.obs / next_obs length differs from the environment's observation size",
     "action_range": "Step.action outside the environment's action space",
 }
 DEDUP_REASON = "duplicate"  # already consumed (a re-sent input): dropped silently, counted apart
 
 MAX_ANNOUNCED = 64  # incarnations / teachers remembered from statuses (bounded: statuses may be forged)
+MAX_FEEDBACK_JUMP = 1024  # a teacher's feedback seq at most this far beyond its newest admitted one
+FEEDBACK_WINDOW = 4096  # skipped feedback seqs a teacher may have outstanding (awaited: they may come late)
 
 
 class InputGate:
@@ -36,18 +40,22 @@ class InputGate:
     """
 
     def __init__(self, obs_dim: int, n_actions: int, *, teachers: Iterable[str] = (), max_future: float = 10.0,
-                 max_past: float = 600.0, max_seq_jump: int = 4096):
+                 max_past: float = 600.0, max_seq_jump: int = 4096, max_feedback_jump: int = MAX_FEEDBACK_JUMP,
+                 feedback_window: int = FEEDBACK_WINDOW):
         self.obs_dim, self.n_actions = int(obs_dim), int(n_actions)
         self.max_future, self.max_past, self.max_seq_jump = float(max_future), float(max_past), int(max_seq_jump)
+        self.max_feedback_jump, self.feedback_window = int(max_feedback_jump), int(feedback_window)
         self.configured_teachers = set(teachers)
         self.announced: collections.OrderedDict[str, None] = collections.OrderedDict()  # actor incarnations
         self.teachers: collections.OrderedDict[str, None] = collections.OrderedDict()  # announced teacher ids
         self.retired: collections.OrderedDict[str, None] = collections.OrderedDict()
         self.actor: str | None = None
         self.next_step: int | None = None  # next seq of self.actor (None: take whatever comes first)
-        # Configured teachers start with the run at seq 0 (a restarted one continues its seq), so a forged seq far
-        # ahead is `bad_seq` from the start; an announced teacher may be joined mid-stream.
-        self.next_feedback: dict[str, int] = {t: 0 for t in self.configured_teachers}
+        # Every teacher starts at seq 0 (a restarted one continues its seq; a new incarnation is a new teacher id),
+        # so a forged seq far ahead is `bad_seq` from the start. Per teacher: the seq after its newest admitted one
+        # and the seqs skipped below it that may still come (a jump never hides the real ones: see check_feedback).
+        self.next_feedback: dict[str, int] = {}
+        self.missing_feedback: dict[str, set[int]] = {}
         self.counters: collections.Counter[str] = collections.Counter()
 
     # -- announcements -------------------------------------------------------------------------------------------
@@ -124,24 +132,37 @@ class InputGate:
         return None
 
     def check_feedback(self, fb: Feedback, t_recv: float) -> str | None:
+        """A seq below the teacher's newest is admitted once if it was skipped (it arrives late); one above it
+        only within `max_feedback_jump`, and only while the seqs it skips fit in `feedback_window`. So a jump
+        (a forged seq +4000, even signed with a stolen credential) is refused and counted instead of moving the
+        window past the real teacher's next presses, and an admitted jump takes only its own seq from them."""
         if not self.teacher_known(fb.teacher_id):
             return "unknown_teacher"
         reason = self._time_reason(fb.t_reaction, t_recv)
         if reason:
             return reason
-        nxt = self.next_feedback.get(fb.teacher_id)
-        if nxt is not None:
-            if fb.seq < nxt:
-                return DEDUP_REASON
-            if fb.seq > nxt + self.max_seq_jump:
-                return "bad_seq"
+        nxt = self.next_feedback.get(fb.teacher_id, 0)
+        if fb.seq < nxt:
+            return None if fb.seq in self.missing_feedback.get(fb.teacher_id, ()) else DEDUP_REASON
+        skipped = fb.seq - nxt
+        if skipped > self.max_feedback_jump or (
+                skipped and len(self.missing_feedback.get(fb.teacher_id, ())) + skipped > self.feedback_window):
+            return "bad_seq"
         return None
 
     def admit_feedback(self, fb: Feedback, t_recv: float) -> str | None:
         reason = self.check_feedback(fb, t_recv)
         if reason:
             return self._reject(reason)
-        self.next_feedback[fb.teacher_id] = fb.seq + 1
+        tid, nxt = fb.teacher_id, self.next_feedback.get(fb.teacher_id, 0)
+        missing = self.missing_feedback.setdefault(tid, set())
+        if fb.seq < nxt:
+            missing.discard(fb.seq)
+        else:
+            missing.update(range(nxt, fb.seq))
+            self.next_feedback[tid] = fb.seq + 1
+        if not missing:
+            del self.missing_feedback[tid]
         self.counters["feedback_admitted"] += 1
         return None
 
@@ -153,6 +174,7 @@ class InputGate:
     def state(self) -> dict[str, Any]:
         return {"announced": list(self.announced), "teachers": list(self.teachers), "retired": list(self.retired),
                 "actor": self.actor, "next_step": self.next_step, "next_feedback": dict(self.next_feedback),
+                "missing_feedback": {t: sorted(m) for t, m in self.missing_feedback.items()},
                 "counters": dict(self.counters)}
 
     def load(self, state: dict[str, Any]) -> None:
@@ -162,6 +184,7 @@ class InputGate:
         self.actor = state["actor"]
         self.next_step = state["next_step"]
         self.next_feedback = {str(k): int(v) for k, v in state["next_feedback"].items()}
+        self.missing_feedback = {str(k): {int(x) for x in v} for k, v in state.get("missing_feedback", {}).items()}
         self.counters = collections.Counter({str(k): int(v) for k, v in state["counters"].items()})
 
 

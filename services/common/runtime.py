@@ -14,9 +14,10 @@ import sys
 import threading
 import time
 import uuid
-from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
+from services.common.statefiles import atomic_write
 from common.protocol import (ServiceStatus, alive_key, incarnation_alive_key, status_key, teacher_id_of,
                              validate_name)
 
@@ -249,15 +250,13 @@ class ServiceRuntime:
             return
         data = {"service": self.name, "incarnation": self.incarnation, "pid": os.getpid(),
                 "cpu_s": round(time.process_time(), 3),
-                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3), "counters": self.all_counters(), "samples": {k: list(v) for k, v in self.samples.items()},
+                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3),
+                "counters": self.all_counters(), "samples": {k: list(v) for k, v in self.samples.items()},
                 **extra}
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(f"{path}.tmp")
-        tmp.write_text(json.dumps(data))
-        tmp.replace(path)
+        atomic_write(path, json.dumps(data).encode())  # whole or not at all: a full disk leaves no 0-byte file
 
 
-_CURRENT: list["ServiceRuntime | None"] = [None]  # this process's runtime (its final state sets the exit code)
+_CURRENT: list[ServiceRuntime | None] = [None]  # this process's runtime (its final state sets the exit code)
 
 
 def load_auth(name: str, config: Any, incarnation: str, process_default: bool = True) -> Any:

@@ -9,14 +9,19 @@ from typing import Any
 
 def atomic_write(path: str | os.PathLike, data: bytes) -> None:
     """Write to a temporary file beside `path`, then `os.replace`: readers see the old or the new file whole,
-    also after a SIGKILL in the middle (the temporary file is left behind and overwritten next time)."""
+    also after a SIGKILL in the middle (the temporary file is left behind and overwritten next time); a failed
+    write (a full disk) removes its temporary file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
-        f.write(data)
-        f.flush()
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+        os.replace(tmp, path)
+    except BaseException:  # a full disk: no partial temporary file left behind
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def atomic_write_json(path: str | os.PathLike, obj: Any) -> None:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import collections
 import threading
 import time
-from typing import TYPE_CHECKING, Any, Callable, Iterable
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterable
 
 from common.protocol import ProtocolError, ServiceStatus
 
@@ -102,7 +103,7 @@ class AliveWatch:
         with self._lock:
             return name in self.alive
 
-    def before_exit(self, ring: "ResendRing", timeout: float, say: Callable[[str], None] | None = None) -> None:
+    def before_exit(self, ring: ResendRing, timeout: float, say: Callable[[str], None] | None = None) -> None:
         """Leaving with a recorder down would lose what it missed: wait (at most `timeout` s) for it to come
         back, then re-send the ring to it."""
         if "recorder" not in self.names or not len(ring) or not self.seen["recorder"]:

@@ -24,11 +24,13 @@ import numpy as np
 
 from common.envs import make_env, obs_shape
 from common.envs.scene import SceneTracker, static_scene
-from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary, ExpressionPrediction, Feedback,
+from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary,
+                             ExpressionPrediction, Feedback,
                              ProtocolError, ServiceStatus, Shown, Step, Time, Weights, camera_key, control_key,
-                             credit_key, decode, episode_key, feedback_key, perception_key, shown_key, status_key,
+                             decode, episode_key, feedback_key, perception_key, shown_key, status_key,
                              step_key, weights_key)
 from services.console.config import ConsoleConfig
+from services.console.ledger import Ledger
 from services.console.people import Person, RateLimit
 
 TEACHER = TEACHER_PREFIX
@@ -50,7 +52,7 @@ class Hub:
         self.scene_static = static_scene(config.env, config.layout)
         self.tracker = SceneTracker(config.env, config.layout)
         self.people: dict[str, Person] = {}
-        self.joined = 0
+        self.ledger = Ledger(config.state_file)
         self.last_step: dict | None = None
         self.recent: collections.OrderedDict[tuple[str, int], float] = collections.OrderedDict()  # -> t_action
         self.obs: np.ndarray | None = None
@@ -190,23 +192,37 @@ class Hub:
             self.learner_stopped = True
 
     # -- pages -> run ------------------------------------------------------------------------------------------
-    def join(self, name: str | None, send) -> Person:
-        self.joined += 1
-        base = f"{self.config.teacher_prefix}-{name or self.joined}"
-        tid = base if base not in self.people else f"{base}-{self.joined}"
-        c = self.config
+    def join(self, name: str | None, page_id: str | None, send) -> Person:
+        """A page opens: its teacher id is `<prefix>-<name>`, the id this page had before (a reload, or a
+        reconnect after a console restart), or `<prefix>-<n>`; a name already at the console gets a suffix."""
+        ledger, c = self.ledger, self.config
+        ledger.joined += 1
+        before = ledger.page_teacher(page_id)
+        base = f"{c.teacher_prefix}-{name}" if name else before or f"{c.teacher_prefix}-{ledger.joined}"
+        tid = base if base not in self.people else f"{base}-{ledger.joined}"
+        ledger.bind(page_id, tid)
+        ledger.save()
         person = Person(tid, RateLimit(c.max_press_rate, 2 * c.max_press_rate), RateLimit(c.max_frame_rate),
-                        incarnation=f"{TEACHER}{tid}-{os.getpid()}-{self.joined}", send=send)
+                        incarnation=f"{TEACHER}{tid}-{os.getpid()}-{ledger.joined}", send=send,
+                        controls=RateLimit(c.max_control_rate, 5.0), page_id=page_id)
         self.people[tid] = person
-        self.person_status(person, "ready")
         self.rt.counters["people_joined"] += 1
+        try:
+            self.person_status(person, "ready")
+        except Exception:
+            self.people.pop(tid, None)
+            raise
         return person
 
     def announce(self) -> None:
         """Each person's status again (a learner that started late, or restarted, learns who teaches)."""
         state = "stopped" if self.actor_stopped else "ready"
         for person in list(self.people.values()):
-            self.person_status(person, state)
+            try:
+                self.person_status(person, state)
+            except Exception as exc:  # one person's status must not stop the console (counted, said once)
+                self.rt.counters["status_failed"] += 1
+                self.rt.event(f"status of {person.teacher_id} not published: {exc!r}", 3)
 
     def leave(self, person: Person) -> None:
         self.people.pop(person.teacher_id, None)
@@ -221,7 +237,7 @@ class Hub:
         service = f"{TEACHER}{person.teacher_id}"
         self._publisher(status_key(self.config.run, service)).put(ServiceStatus(
             run=self.config.run, service=service, pid=os.getpid(), state=state, t=time.time(),
-            counters={"feedback_published": person.feedback_seq, "frames_published": person.frames_sent},
+            counters={**self.ledger.counters(person.teacher_id), "frames_published": person.frames_sent},
             incarnation=person.incarnation))
 
     def shown(self, person: Person, m: dict) -> None:
@@ -241,15 +257,21 @@ class Hub:
         self.rt.samples["action_to_shown_s"].append(t_shown - t_action)
 
     def feedback(self, person: Person, m: dict) -> dict:
+        """Publish a press (a re-sent one with the seq it had: the learner drops it if it was consumed, and its
+        duplicate Credit acknowledges it to the page)."""
+        seq, again = self.ledger.seq_for(person.teacher_id, person.page_id, m["press"])
         actor, shown = person.timeline.window(m["t_sys"], self.config.span)
-        fb = Feedback(run=self.config.run, teacher_id=person.teacher_id, seq=person.feedback_seq,
+        fb = Feedback(run=self.config.run, teacher_id=person.teacher_id, seq=seq,
                       t_reaction=m["t_sys"], value=m["value"], source=m["source"], t_page=max(0.0, m["t_page"]),
                       actor=actor, shown=shown if actor is not None else None)
         self._publisher(feedback_key(self.config.run, person.teacher_id)).put(fb)
-        person.feedback_seq += 1
-        self.rt.counters["feedback_published_all"] += 1
-        return {"type": "sent", "seq": fb.seq, "value": fb.value, "t_reaction": fb.t_reaction,
-                "steps_listed": len(shown)}
+        self.rt.counters["feedback_resent" if again else "feedback_published_all"] += 1
+        return {"type": "sent", "seq": fb.seq, "press": m["press"], "value": fb.value, "t_reaction": fb.t_reaction,
+                "steps_listed": len(shown), "resent": again}
+
+    def press_dropped(self, person: Person, reason: str) -> None:
+        """A press the page gate refused (flood, absurd time, ...): counted for the person's summary."""
+        self.ledger.dropped(person.teacher_id, reason)
 
     def control(self, person: Person, m: dict) -> None:
         self.awaiting_start = False  # a person took charge

@@ -161,11 +161,12 @@ def primary_test(rows: list[dict], design: Design) -> dict:
 
     by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
     first, second = design.primary
-    d = np.array([episodes_to_goal(by[first, l, s], design) - episodes_to_goal(by[second, l, s], design)
-                  for l, s in design.pairs])
+    d = np.array([episodes_to_goal(by[first, lay, s], design) - episodes_to_goal(by[second, lay, s], design)
+                  for lay, s in design.pairs])
     nonzero = d[d != 0]
     p = float(stats.wilcoxon(nonzero, alternative="greater").pvalue) if len(nonzero) else 1.0
-    sign = stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue if len(nonzero) else 1.0
+    sign = stats.binomtest(int((nonzero > 0).sum()), len(nonzero),
+                           alternative="greater").pvalue if len(nonzero) else 1.0
     return {"differences": d.tolist(), "mean": float(d.mean()), "wins": int((d > 0).sum()),
             "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p, "sign_p": float(sign),
             "alpha": design.alpha / design.looks,
@@ -183,9 +184,9 @@ def table(rows: list[dict], design: Design) -> str:
     lines = ["| layout | seed | " + " | ".join(a.name for a in design.arms) + " |",
              "|---|---|" + "---|" * len(design.arms)]
     by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
-    for l, s in design.pairs:
-        cells = [cell(by[a.name, l, s], design) for a in design.arms]
-        lines.append(f"| {l} | {s} | " + " | ".join(cells) + " |")
+    for lay, s in design.pairs:
+        cells = [cell(by[a.name, lay, s], design) for a in design.arms]
+        lines.append(f"| {lay} | {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -199,8 +200,9 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
         mine = [r for r in rows if r["arm"] == a.name]
         steps = np.array([r["steps_per_episode"][:design.episodes] for r in mine], float)
         right.plot(np.arange(1, steps.shape[1] + 1), np.median(steps, axis=0), marker="o", label=a.name)
-        left.plot([f"{l}/{s}" for l, s in design.pairs],
-                  [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p), design) for p in design.pairs],
+        left.plot([f"{lay}/{s}" for lay, s in design.pairs],
+                  [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p),
+                                    design) for p in design.pairs],
                   marker="o", linestyle="none", label=a.name)
     title = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
     left.set(xlabel="layout/seed", ylabel="episodes (fewer is better)", title=title)
@@ -215,7 +217,7 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
 def main(cfg: CompareConfig) -> int:
     design = DESIGNS[cfg.design]
     pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
-    jobs = [(a, l, s) for l, s in pairs for a in design.arms]
+    jobs = [(a, lay, s) for lay, s in pairs for a in design.arms]
     print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {design.episodes} episodes at {design.rate} steps/s",
           file=sys.stderr, flush=True)
     t0, rows = time.monotonic(), []

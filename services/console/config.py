@@ -34,7 +34,18 @@ class ConsoleConfig(TaskConfig):
                                                 "far back a feedback lists the steps shown)")
     camera: str | None = option(None, "camera id to publish webcam frames on (hitl/<run>/camera/<camera>) for the "
                                       "perception service; none = no webcam panel")
-    max_people: int = option(8, "pages that may be open at once")
+    state_file: str | None = option(None, "the press ledger (services/console/ledger.py), rewritten before each "
+                                          "feedback: a restarted console continues every person's seq and "
+                                          "recognises presses their pages re-send")
+    token_file: str | None = option(None, "file holding the console's secret token (made, mode 0600, if missing; "
+                                          "the launcher puts it in the run directory). None: a new token per start")
+    server_names: tuple[str, ...] = option((), "more names the page may reach the console by (its Host header), "
+                                                "comma-separated: e.g. the machine's DNS name with --host 0.0.0.0 "
+                                                "and --security; loopback names and --host always pass")
+    max_people: int = option(8, "pages that may be open at once (a page idle for idle-timeout s is closed)")
+    idle_timeout: float = option(30.0, "close a page that sent nothing for this many seconds (a page pings every 2 s)")
+    max_control_rate: float = option(2.0, "pace / pause / resume / end controls per second accepted per person "
+                                          "(bursts of 5; more are dropped and counted)")
     max_frame_bytes: int = option(400_000, "largest webcam frame accepted (JPEG bytes)")
     max_frame_rate: float = option(15.0, "webcam frames per second accepted per person (more are dropped)")
     max_press_rate: float = option(8.0, "feedback presses per second accepted per person (a flood is dropped)")
@@ -54,7 +65,8 @@ class ConsoleConfig(TaskConfig):
             raise ValueError(f"port must be in 0..65535, got {self.port}")
         if not (math.isfinite(self.rate) and 0 < self.rate <= MAX_RATE):
             raise ValueError(f"rate must be in (0, {MAX_RATE}], got {self.rate}")
-        for name in ("max_frame_rate", "max_press_rate", "max_clock_skew", "stop_after"):
+        for name in ("max_frame_rate", "max_press_rate", "max_clock_skew", "stop_after", "idle_timeout",
+                     "max_control_rate"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")

@@ -31,7 +31,8 @@ def _stats(values: list[float], scale: float = 1e3) -> dict | None:
     if not values:
         return None
     a = np.asarray(values, np.float64) * scale
-    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 2), "p99": round(float(np.percentile(a, 99)), 2),
+    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 2),
+            "p99": round(float(np.percentile(a, 99)), 2),
             "mean": round(float(a.mean()), 2), "max": round(float(a.max()), 2)}
 
 

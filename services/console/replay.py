@@ -109,8 +109,18 @@ def replay_main(config) -> int:
     async def tl(request):
         return web.Response(body=data, content_type="application/json")
 
+    doors: list = []  # the door (services/console/door.py) once the port is known: a replay shows a run too
+
+    @web.middleware
+    async def door(request, handler):
+        return await doors[0].middleware(request, handler)
+
     async def serve() -> None:
-        app = web.Application()
+        import collections
+
+        from services.console.door import Door, console_address, read_or_make_token
+
+        app = web.Application(middlewares=[door])
         app.router.add_get("/", index)
         app.router.add_get("/timeline.json", tl)
         app.router.add_static("/static/", static)
@@ -119,7 +129,9 @@ def replay_main(config) -> int:
         site = web.TCPSite(runner, config.host, config.port)
         await site.start()
         port = site._server.sockets[0].getsockname()[1]
-        print(f"replay: http://{config.host}:{port}/ ({path})", file=sys.stderr, flush=True)
+        doors.append(Door(read_or_make_token(config.token_file), config.host, port, "http", collections.Counter()))
+        print(f"replay: {console_address('http', config.host, port, doors[0].token)} ({path})", file=sys.stderr,
+              flush=True)
         try:
             await asyncio.Event().wait()
         finally:

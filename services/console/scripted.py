@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import re
-import socket
 import subprocess
 import sys
 import tempfile
@@ -59,12 +58,6 @@ class ScriptedConfig:
     timeout: float = option(3600.0, "seconds a run may take; then the person ends it from the page")
 
 
-def _listening(port: int) -> bool:
-    with socket.socket() as s:
-        s.settimeout(0.5)
-        return s.connect_ex(("127.0.0.1", port)) == 0
-
-
 def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     """One run taught by the scripted person; returns its summary and the person's numbers."""
     from playwright.sync_api import sync_playwright
@@ -74,7 +67,8 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
         name = f"{cfg.run}-{algo}"
     cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
            "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
-           "--screen-delay", cfg.screen_delay, "--screen-credit", cfg.screen_credit, "--out", cfg.out, "--run", name, "--progress", "false",
+           "--screen-delay", cfg.screen_delay, "--screen-credit", cfg.screen_credit, "--out", cfg.out, "--run", name,
+           "--progress", "false",
            "--webcam", str(cfg.webcam).lower()]
     if cfg.episode_steps is not None:
         cmd += ["--episode-steps", str(cfg.episode_steps)]
@@ -85,8 +79,8 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     try:
         url = None
         while url is None and up.poll() is None and time.monotonic() - t0 < 300:  # a loaded machine starts slowly
-            m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/)", "".join(lines))
-            url = m.group(1) if m and _listening(int(m.group(2))) else None
+            m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/\?token=[A-Za-z0-9_-]+)", "".join(lines))
+            url = m.group(1) if m else None  # printed once the console listens; the token lets the page in
             time.sleep(0.1)
         if url is None:
             raise RuntimeError("services up printed no console address:\n" + "".join(lines)[-2000:])

@@ -8,8 +8,10 @@ Clock: the page estimates its offset to this server as NTP does (`ping` t0 -> `p
 ((t1 - t0) + (t2 - t3)) / 2 from the exchange with the smallest round trip) and stamps presses, paints and
 webcam frames with its own clock and that offset; the server checks the result against its clock.
 
-Loopback only by default. With `--security` (the run's security.json) the console serves other machines
-only after a person gives a teacher name and password that the security file knows.
+Loopback only by default, and only to its own pages: every request passes the door (`door.py`: Host, Origin,
+the per-run token of the printed address exchanged for a cookie). With `--security` (the run's security.json) the
+console serves other machines over HTTPS, and only after a person gives a teacher name and password that the
+security file knows. What one page sends or breaks stays with that page (`Pages`).
 """
 from __future__ import annotations
 
@@ -25,7 +27,8 @@ from common.protocol import teacher_service_name
 from services.common.runtime import ServiceRuntime, service_main
 from services.console.bridge import Hub
 from services.console.config import ConsoleConfig
-from services.console.people import PageError, PageGate, Person
+from services.console.door import Door, console_address, read_or_make_token
+from services.console.people import PageError, PageGate, Person, check_name, check_page_id
 
 STATIC = Path(__file__).resolve().parent / "static"
 SEND_QUEUE = 256  # messages waiting for a slow page before the oldest are dropped
@@ -85,57 +88,91 @@ def tls_context(config: ConsoleConfig):
     return ctx
 
 
-def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Application:
-    gate = PageGate(config.max_clock_skew, config.max_frame_bytes)
+class Pages:
+    """The WebSocket side: one `socket` per page; whatever one page sends or breaks stays with that page."""
 
-    async def index(request: web.Request) -> web.FileResponse:
-        return web.FileResponse(STATIC / "index.html")
+    def __init__(self, config: ConsoleConfig, rt: ServiceRuntime, hub: Hub):
+        self.config, self.rt, self.hub = config, rt, hub
+        self.gate = PageGate(config.max_clock_skew, config.max_frame_bytes)
+        self.sockets: set[web.WebSocketResponse] = set()
 
-    async def settings(request: web.Request) -> web.Response:
-        return web.json_response({"login": bool(config.security)})
+    async def refuse(self, ws: web.WebSocketResponse, reason: str, why: str, code: int) -> web.WebSocketResponse:
+        """An open WebSocket refused with a sentence the page shows (a failed upgrade tells a page nothing)."""
+        self.rt.counters[f"page_refused_{reason}"] += 1
+        await ws.send_json({"type": "refused", "reason": reason, "why": why})
+        await ws.close(code=code, message=reason.encode())
+        return ws
 
-    async def socket(request: web.Request) -> web.WebSocketResponse:
-        name = request.query.get("name") or None
+    async def socket(self, request: web.Request) -> web.WebSocketResponse:
+        config, rt, hub = self.config, self.rt, self.hub
+        ws = web.WebSocketResponse(max_msg_size=config.max_frame_bytes + 64, heartbeat=10.0)
+        await ws.prepare(request)
+        try:
+            name, page_id = check_name(request.query.get("name")), check_page_id(request.query.get("page"))
+        except PageError as e:
+            return await self.refuse(ws, e.reason, f"not accepted: {e.detail}", 4400)
         if config.security:
             name = check_login(config, request)
             if name is None:
                 rt.counters["login_refused"] += 1
-                raise web.HTTPForbidden(text="teacher name or password not accepted")
+                return await self.refuse(ws, "login", "teacher name or password not accepted", 4403)
+        make_room(config, hub, rt)
         if len(hub.people) >= config.max_people:
-            raise web.HTTPServiceUnavailable(text="too many people at this console")
-        if name is not None and not all(ch.isalnum() or ch in "_.-" for ch in name[:32]):
-            name = None
-        ws = web.WebSocketResponse(max_msg_size=config.max_frame_bytes + 64, heartbeat=10.0)
-        await ws.prepare(request)
-        request.app["sockets"].add(ws)
+            return await self.refuse(ws, "full", f"the console is full ({config.max_people} people are teaching); "
+                                                 "try again when someone leaves", 1013)
         page = Page(ws, rt)
-        person = hub.join(name[:32] if name else None, page.send)
-        writer = asyncio.create_task(page.writer())
-        page.send(hub.hello(person))
-        if hub.last_step is not None:
-            page.send(hub.last_step)
-            page.send(hub.preferences())
         try:
-            async for msg in ws:
-                handle(msg, person, page)
+            person = hub.join(name, page_id, page.send)
+        except Exception as exc:  # (one page's join must not stop the console)
+            rt.counters["page_errors"] += 1
+            rt.event(f"a page could not join: {exc!r}", 3)
+            return await self.refuse(ws, "error", "the console could not add you; see its log", 1011)
+        person.close = lambda: asyncio.ensure_future(ws.close(code=1001, message=b"idle"))
+        self.sockets.add(ws)
+        writer = asyncio.create_task(page.writer())
+        try:
+            page.send(hub.hello(person))
+            if hub.last_step is not None:
+                page.send(hub.last_step)
+                page.send(hub.preferences())
+            await self.read_page(ws, person, page)
+        except Exception as exc:  # anything one page caused closes that page only, counted
+            rt.counters["page_errors"] += 1
+            rt.event(f"page of {person.teacher_id} closed after an error: {exc!r}", 3)
+            await ws.close(code=1011, message=b"error")
         finally:
             writer.cancel()
             hub.leave(person)
-            request.app["sockets"].discard(ws)
+            self.sockets.discard(ws)
         return ws
 
-    def handle(msg, person: Person, page: Page) -> None:
-        t1 = time.time()
+    async def read_page(self, ws: web.WebSocketResponse, person: Person, page: Page) -> None:
+        while True:
+            try:
+                msg = await ws.receive(timeout=self.config.idle_timeout)
+            except TimeoutError:  # a page pings every 2 s: this one is gone or idle
+                self.rt.counters["page_idle_closed"] += 1
+                await ws.close(code=1001, message=b"idle")
+                return
+            if msg.type in (WSMsgType.CLOSE, WSMsgType.CLOSING, WSMsgType.CLOSED, WSMsgType.ERROR):
+                return
+            person.last_heard = time.monotonic()
+            self.handle(msg, person, page)
+
+    def handle(self, msg, person: Person, page: Page) -> None:
+        hub, t1 = self.hub, time.time()
         try:
             if msg.type == WSMsgType.BINARY:
-                hub.frame(person, *gate.frame(msg.data, person))
+                hub.frame(person, *self.gate.frame(msg.data, person))
                 return
             if msg.type != WSMsgType.TEXT:
                 return
-            m = gate.text(msg.data, person)
+            m = self.gate.text(msg.data, person)
         except PageError as e:
-            rt.counters[f"page_rejected_{e.reason}"] += 1
-            page.send({"type": "rejected", "reason": e.reason})
+            self.rt.counters[f"page_rejected_{e.reason}"] += 1
+            if e.kind == "feedback":
+                hub.press_dropped(person, e.reason)
+            page.send({"type": "rejected", "reason": e.reason, "press": e.press})
             return
         if m["type"] == "ping":
             person.clock_ready = person.clock_ready or m["ready"]
@@ -147,28 +184,51 @@ def make_app(config: ConsoleConfig, rt: ServiceRuntime, hub: Hub) -> web.Applica
         else:
             hub.control(person, m)
 
-    app = web.Application(client_max_size=1 << 20)
-    app["sockets"] = set()
+
+def make_app(config: ConsoleConfig, pages: Pages, door: Door) -> web.Application:
+    async def index(request: web.Request) -> web.FileResponse:
+        return web.FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+
+    async def settings(request: web.Request) -> web.Response:
+        return web.json_response({"login": bool(config.security)})
+
+    app = web.Application(client_max_size=1 << 20, middlewares=[door.middleware])
     app.router.add_get("/", index)
-    app.router.add_get("/ws", socket)
+    app.router.add_get("/ws", pages.socket)
     app.router.add_get("/settings", settings)
     app.router.add_static("/static/", STATIC)
     return app
+
+
+def make_room(config: ConsoleConfig, hub: Hub, rt: ServiceRuntime) -> None:
+    """A full console first closes pages silent for 3 ping periods (6 s): held sockets never lock a person out."""
+    if len(hub.people) < config.max_people:
+        return
+    now = time.monotonic()
+    for person in list(hub.people.values()):
+        if now - person.last_heard > 6.0 and person.close is not None:
+            rt.counters["page_idle_closed"] += 1
+            hub.leave(person)  # its seat is free now; its socket closes in the background
+            person.close()
 
 
 async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     loop = asyncio.get_running_loop()
     hub = Hub(config, rt, session, loop)
     hub.subscribe()
-    app = make_app(config, rt, hub)
+    tls = tls_context(config)
+    scheme = "https" if tls else "http"
+    door = Door(read_or_make_token(config.token_file), config.host, config.port, scheme, rt.counters,
+                config.server_names)
+    pages = Pages(config, rt, hub)
+    app = make_app(config, pages, door)
     runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
     await runner.setup()
-    tls = tls_context(config)
     site = web.TCPSite(runner, config.host, config.port, ssl_context=tls)
     await site.start()
     rt.set_counters_source(lambda: {"people_now": len(hub.people)})
     rt.ready()
-    rt.log(f"console: {'https' if tls else 'http'}://{config.host}:{config.port}/")
+    rt.log(f"console: {console_address(scheme, config.host, config.port, door.token)}")  # listening now
     stop_at = None
     try:
         last_announce = 0.0
@@ -186,7 +246,7 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     finally:
         for person in list(hub.people.values()):
             hub.person_status(person, "stopped")
-        for ws in list(app["sockets"]):  # the pages see the run end (and cleanup does not wait for them)
+        for ws in list(pages.sockets):  # the pages see the run end (and cleanup does not wait for them)
             await ws.close(code=1001, message=b"run over")
         await runner.cleanup()
         hub.close()

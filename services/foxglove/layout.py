@@ -41,7 +41,8 @@ def layout() -> fl.Layout:
     camera = fl.ImagePanel(title="camera", config=fl.ImageConfig(image_mode=fl.ImageModeConfig(
         image_topic="/camera/face")))
     expression = _plot("expression read from the face",
-                       [("/perception/face.probabilities.happy", "happy"), ("/perception/face.confidence", "confidence")])
+                       [("/perception/face.probabilities.happy", "happy"),
+                        ("/perception/face.confidence", "confidence")])
     weights = _plot("weights (L2 norm of each tensor)", [("/snapshot.tensors[:].norm", "norm")])
     log = fl.LogPanel(title="log")
     split = lambda direction, *items: fl.SplitContainer(  # noqa: E731

@@ -17,7 +17,7 @@ from common.core.observer import ObserverConfig
 from common.core.task import Task
 from common.protocol import teacher_id_of
 from services.common.config import ActorConfig, FoxgloveConfig, LearnerConfig, RecorderConfig
-from services.teacher.registry import TEACHERS, ProcessSpec
+from services.teacher.registry import TEACHERS, ProcessSpec, missing_extra
 
 
 @dataclass(frozen=True)
@@ -98,6 +98,8 @@ class UpConfig:
         why = TEACHERS[self.teacher].available()
         if why:
             raise ValueError(f"teacher {self.teacher!r}: {why}")
+        if self.foxglove is not None and (why := missing_extra("foxglove", "foxglove")):
+            raise ValueError(f"foxglove: {why}")
         for name, value in TEACHERS[self.teacher].defaults(self).items():  # e.g. face-video's pace
             object.__setattr__(self, name, value)
         if self.episodes < 0:
@@ -172,7 +174,8 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             screen_credit=c.screen_credit, idle_updates=c.idle_updates)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
-                        episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate, max_ahead=c.max_ahead, wait_for=tuple(others),
+                        episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate,
+                        max_ahead=c.max_ahead, wait_for=tuple(others),
                         start_paused=c.start_paused,
                         start_timeout=c.start_timeout, max_lag=c.max_lag, render_frames=c.render_frames,
                         # a restarted learner needs a few seconds (start, restore, catch up) before new weights
@@ -194,11 +197,11 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     fields = lambda cfg: {f.name for f in dataclasses.fields(cfg)}  # noqa: E731
     for i, p in enumerate(procs):
         extra = {}
-        if "security" in fields(p.config) and getattr(p.config, "security") is None and c.security:
+        if "security" in fields(p.config) and p.config.security is None and c.security:
             extra["security"] = c.security
-        if "credentials" in fields(p.config) and getattr(p.config, "credentials") is None:
+        if "credentials" in fields(p.config) and p.config.credentials is None:
             extra["credentials"] = launch.credentials_path(p.name)
-        if "state_file" in fields(p.config) and getattr(p.config, "state_file") is None:
+        if "state_file" in fields(p.config) and p.config.state_file is None:
             extra["state_file"] = launch.state_path(p.name)
         if extra:
             procs[i] = dataclasses.replace(p, config=dataclasses.replace(p.config, **extra))

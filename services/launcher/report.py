@@ -56,9 +56,8 @@ def finish(cfg: UpConfig, run: str, rundir: RunDir, endpoint: str, children: lis
            wall: float, restarts: list[dict] | None = None, everyone: list[Child] | None = None,
            error: str | None = None) -> int:
     """Summarize the log into summary.json (and the learning curve); whatever the disk allows."""
-    from services.replay.summary import format_summary, plot_summary, summarize
+    from services.replay.summary import format_summary
 
-    log = rundir.path / "session.mcap"
     summary: dict[str, Any] = {"run": run, "outcome": outcome, "endpoint": endpoint, "wall_s": round(wall, 3),
                                "exit_codes": {c.name: c.popen.returncode for c in children},
                                "restarts": restarts or [],
@@ -66,27 +65,44 @@ def finish(cfg: UpConfig, run: str, rundir: RunDir, endpoint: str, children: lis
                                                 for c in (everyone or children)]}
     if error:
         summary["error"] = error
-    if log.exists():
+    drawn = write_summary_from_log(summary, rundir,
+                                   f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})")
+    figure = ", learning_curve.png" if drawn else ""
+    if "returns" in summary:
+        print(format_summary(summary), file=sys.stderr)
+    if error:
+        print(f"error: {error}", file=sys.stderr)
+    print(f"wrote {rundir.path}/session.mcap, summary.json{figure} ({outcome}, {wall:.1f} s)", file=sys.stderr)
+    return EXIT_CODES.get(outcome, 1)
+
+
+def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str) -> bool:
+    """Add the log's counts to `summary` (its outcome and restarts stay), plot the learning curve, add the
+    latencies, and write summary.json: whatever the disk allows (the counts fit the space reserved for it).
+    Whether learning_curve.png was drawn (not without matplotlib, the `experiments` extra)."""
+    from services.replay.curve import plot_summary
+    from services.replay.summary import summarize
+
+    log = rundir.path / "session.mcap"
+    keep: dict[str, Any] = {k: summary[k] for k in ("outcome", "restarts") if k in summary}
+    if log.exists() and log.stat().st_size:
         try:
             summary.update(summarize(log))
-            summary["outcome"] = outcome
-            summary["restarts"] = restarts or []
-            plot_summary(summary, rundir.path / "learning_curve.png",
-                         f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})")
-        except Exception as exc:  # a damaged log (or a full disk) still gets a summary.json saying so
+            summary.update(keep)
+        except Exception as exc:  # a damaged log still gets a summary.json saying so
             summary["summary_error"] = f"{type(exc).__name__}: {exc}"
+    drawn = False
+    if "returns" in summary:
+        try:
+            drawn = plot_summary(summary, rundir.path / "learning_curve.png", title)
+        except Exception as exc:  # a full disk: no plot (and no 0-byte file), the counts still go out
+            summary["plot_error"] = f"{type(exc).__name__}: {exc}"
     summary["latency_ms"] = latency_table(read_stats(rundir))
     try:
         rundir.write_summary(summary)
     except OSError as exc:
         print(f"error: could not write {rundir.path}/summary.json: {exc.strerror or exc}", file=sys.stderr)
-    if "returns" in summary:
-        print(format_summary(summary), file=sys.stderr)
-    if error:
-        print(f"error: {error}", file=sys.stderr)
-    print(f"wrote {rundir.path}/session.mcap, summary.json, learning_curve.png ({outcome}, {wall:.1f} s)",
-          file=sys.stderr)
-    return EXIT_CODES.get(outcome, 1)
+    return drawn
 
 
 def read_stats(rundir: RunDir) -> dict[str, dict]:
@@ -106,7 +122,8 @@ def percentiles(values: list[float]) -> dict[str, float] | None:
     if not values:
         return None
     a = np.asarray(values, dtype=float) * 1e3
-    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 3), "p99": round(float(np.percentile(a, 99)), 3),
+    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 3),
+            "p99": round(float(np.percentile(a, 99)), 3),
             "max": round(float(a.max()), 3)}
 
 

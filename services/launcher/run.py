@@ -15,6 +15,7 @@ from services.launcher.config import Launch, UpConfig, build_processes
 from services.launcher.report import Progress, finish
 from services.launcher.rundir import RunDir, RunDirError, default_run_name, describe, is_disk_full
 from services.launcher.supervise import Supervisor
+from services.launcher.unfinished import finish_unfinished_runs
 
 DISK_CHECK_PERIOD = 1.0  # s between free-space checks
 DISK_FULL_TEXT = "No space left on device"
@@ -216,6 +217,7 @@ def up(cfg: UpConfig) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    finish_unfinished_runs(cfg.out)  # runs in this --out whose launcher was killed get their summary.json
     try:
         run, rundir, launch, procs, router_cfg = prepare(cfg)
     except RunDirError as exc:
@@ -265,6 +267,21 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
         signal.signal(signal.SIGTERM, old_term)
 
 
+def print_when_listening(waiting: list[tuple[str, int, str]]) -> list[tuple[str, int, str]]:
+    """Print each (host, port, line) whose server accepts connections now; the rest wait for the next call."""
+    import socket
+
+    left = []
+    for host, port, line in waiting:
+        try:
+            socket.create_connection((host, port), timeout=0.2).close()
+        except OSError:
+            left.append((host, port, line))
+            continue
+        print(line, file=sys.stderr, flush=True)
+    return left
+
+
 def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, r: Run, session: Any,
                t_start: float) -> int:
     """Announce the run, start the children and pump until the run ends; always stops what it started."""
@@ -287,7 +304,9 @@ def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: l
             r.outcome, r.error = "disk_full", f"disk full: {describe(exc)}; stopping the run"
         r.everyone.extend(r.children)
         r.by_name = {c.name: c for c in r.children}
+        waiting = list(getattr(launch, "listening_banners", []))
         while len(r.children) == len(procs):
+            waiting = print_when_listening(waiting)
             progress.pump()
             if r.step():
                 break

@@ -15,6 +15,7 @@ from typing import Any
 SUBDIRS = ("config", "logs", "stats", "state")
 SUMMARY_RESERVE = 64 * 1024  # bytes summary.json holds from the start, so a full disk can still say why
 LOCK_FILE = ".lock"
+RUNNING = json.dumps({"outcome": "running"})  # summary.json until the launcher writes the real one
 
 
 class RunDirError(Exception):
@@ -42,7 +43,8 @@ class RunDir:
         self.path = Path(out) / run
         self._lock_fd: int | None = None
 
-    def open(self) -> None:
+    def lock(self) -> int:
+        """Take the run's lock (RunDirError if a launcher holds it); returns its fd."""
         try:
             self.path.mkdir(parents=True, exist_ok=True)
             fd = os.open(self.path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o600)
@@ -54,6 +56,10 @@ class RunDir:
             os.close(fd)
             raise RunDirError(f"{self.path} is in use by another launcher; choose another --run") from None
         self._lock_fd = fd
+        return fd
+
+    def open(self) -> None:
+        fd = self.lock()
         if (self.path / "session.mcap").exists():
             raise RunDirError(f"{self.path}/session.mcap exists; choose another --run")
         try:
@@ -88,8 +94,7 @@ class RunDir:
 
     def reserve_summary(self) -> None:
         """Write summary.json now, padded: its blocks are ours, so the final summary fits even on a full disk."""
-        text = json.dumps({"outcome": "running"})
-        (self.path / "summary.json").write_text(text + " " * (SUMMARY_RESERVE - len(text)))
+        (self.path / "summary.json").write_text(RUNNING + " " * (SUMMARY_RESERVE - len(RUNNING)))
 
     def write_summary(self, summary: dict[str, Any]) -> None:
         """The final summary.json: whole if the disk allows, else the essentials in the reserved space."""
@@ -102,10 +107,32 @@ class RunDir:
             return
         except OSError:
             tmp.unlink(missing_ok=True)
-        keep = {k: summary[k] for k in ("run", "outcome", "error", "wall_s", "exit_codes", "restarts") if k in summary}
-        text = json.dumps(keep)
-        if len(text) > SUMMARY_RESERVE:
-            text = json.dumps({k: keep[k] for k in ("run", "outcome", "error") if k in keep})[:SUMMARY_RESERVE]
+        text = fit_reserve(summary)
         with open(path, "r+") as f:  # overwrite in place: no new blocks needed
             f.write(text)
             f.truncate()
+
+
+# What a summary that must fit the reserve leaves out first: lists that grow with the run (every count stays).
+BULKY = ("episodes", "exit_history", "services", "learners", "unfinished_episodes", "returns", "restarts",
+         "learner_chain", "face")
+
+
+def fit_reserve(summary: dict[str, Any]) -> str:
+    """The summary as compact JSON within SUMMARY_RESERVE bytes: the bulky lists go first (named under
+    `left_out`), every count and the outcome stay; only a summary still too big is cut to its essentials."""
+    out = dict(summary)
+    left_out = []
+    for key in BULKY:
+        text = json.dumps(out, separators=(",", ":"))
+        if len(text.encode()) <= SUMMARY_RESERVE:
+            return text
+        if key in out:
+            del out[key]
+            left_out.append(key)
+            out["left_out"] = left_out + ["(disk full: only what fits the space reserved for summary.json)"]
+    text = json.dumps(out, separators=(",", ":"))
+    if len(text.encode()) <= SUMMARY_RESERVE:
+        return text
+    keep = {k: summary[k] for k in ("run", "outcome", "error", "wall_s") if k in summary}
+    return json.dumps(keep)[:SUMMARY_RESERVE]

@@ -163,7 +163,8 @@ class Supervisor:
         delay = min(8.0, self.cfg.restart_backoff * 2 ** k)
         self.restarts[name] += 1
         self.pending[name] = time.monotonic() + delay
-        how = f"signal {signal.Signals(-rc).name}" if rc < 0 and -rc in signal.Signals._value2member_map_ else f"code {rc}"
+        by_signal = rc < 0 and -rc in signal.Signals._value2member_map_
+        how = f"signal {signal.Signals(-rc).name}" if by_signal else f"code {rc}"
         self.records.append({"service": name, "restart": k + 1, "exit": rc, "how": how, "t_died": time.time(),
                              "t_respawned": None, "t_ready": None, "recovered_s": None,
                              "pid": child.popen.pid})

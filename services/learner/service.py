@@ -30,8 +30,10 @@ from __future__ import annotations
 import sys
 import time
 
-from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep, EpisodeSummary, Feedback,
-                             Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key, feedback_wildcard,
+from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep,
+                             EpisodeSummary, Feedback,
+                             Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key,
+                             feedback_wildcard,
                              ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
@@ -199,6 +201,10 @@ class Learner:
             reason = self.gate.admit_feedback(msg, t_recv)
         if reason:
             self.reject(reason, "feedback", count=live)
+            if reason == DEDUP_REASON and live and msg.teacher_id not in self.config.credits_in_ingest:
+                publish_credit(self.session, self.credit_pubs, Credit(  # acknowledges a page's re-sent press
+                    run=self.config.run, teacher_id=msg.teacher_id, seq=msg.seq, value=msg.value, status="duplicate",
+                    t_reaction=msg.t_reaction, t_credited=time.time(), actor=msg.actor, steps=[], lost_mass=0.0))
             return False
         self.teachers_known.add(msg.teacher_id)
         results = self.core.on_feedback(msg, now)
@@ -270,7 +276,8 @@ class Learner:
         """The actor stopped and all its steps are learned, and every known teacher's feedback has arrived
         (or `end_grace` s have passed waiting for it)."""
         core, config = self.core, self.config
-        if self.actor_final is None or len(self.inbox) or core.next_seq < self.actor_final or core.actor != self.gate.actor:
+        if (self.actor_final is None or len(self.inbox) or core.next_seq < self.actor_final
+                or core.actor != self.gate.actor):
             return False
         if self.caught_up_at is None:
             self.caught_up_at = time.monotonic()
@@ -309,7 +316,8 @@ class Learner:
         self.note_latency(core.end(time.time()))
         self.flush_ingest()
         self.publish_weights(core.steps_learned + 1, final=True)
-        self.ring.add(self.wpub, self.last_weights["data"])  # the final weights too, if the recorder must get them again
+        # the final weights too, if the recorder must get them again
+        self.ring.add(self.wpub, self.last_weights["data"])
         self.watch.before_exit(self.ring, 20.0, self.rt.log)
         for pub in self.credit_pubs.values():
             pub.close()

@@ -9,7 +9,8 @@ final weights (which `replay retrain` compares with its own). No learner state i
 from __future__ import annotations
 
 import time
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import numpy as np
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Callable
+from collections.abc import Callable
 
 from common.perception.assets import AssetsMissingError
 from common.perception.media import MediaError

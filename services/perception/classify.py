@@ -35,7 +35,7 @@ def format_json(pred: FramePrediction, event: FeedbackEvent | None, source: str 
         "box": None if pred.box is None else pred.box.as_list(),
         "label": pred.label,
         "confidence": round(pred.confidence, 4),
-        "probs": None if pred.probs is None else {l: round(p, 4) for l, p in zip(pred.labels, pred.probs)},
+        "probs": None if pred.probs is None else {label: round(p, 4) for label, p in zip(pred.labels, pred.probs)},
         "feedback": None if event is None else event.value,
     }
     if source:

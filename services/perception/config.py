@@ -32,7 +32,7 @@ class SourceSpec:
     target: str
 
     @classmethod
-    def parse(cls, text: str) -> "SourceSpec":
+    def parse(cls, text: str) -> SourceSpec:
         if text.startswith("camera:"):
             index = text.split(":", 1)[1] or "0"
             if not index.isdigit():

@@ -24,7 +24,8 @@ from __future__ import annotations
 import os
 import sys
 import time
-from typing import Any, Iterator
+from typing import Any
+from collections.abc import Iterator
 
 import cv2
 import numpy as np
@@ -32,7 +33,8 @@ import numpy as np
 from common.perception.media import MediaError
 from common.perception.pipeline import PerceptionPipeline
 from common.perception.reaction import FeedbackEvent, FramePrediction
-from common.protocol import (KEYS, Box, CompressedImage, ExpressionPrediction, Feedback, ProtocolError, Time, camera_key,
+from common.protocol import (KEYS, Box, CompressedImage, ExpressionPrediction, Feedback, ProtocolError,
+                             Time, camera_key,
                              feedback_key, perception_key)
 from services.common.runtime import ServiceRuntime, wait_alive
 
@@ -112,7 +114,8 @@ class PerceptionService:
         return pub
 
     def publish_frame(self, data: bytes, t_capture: float, camera: str, fmt: str = "jpeg") -> None:
-        self._publisher(self._frames, camera_key(self.config.run, camera)).put(image_message(data, t_capture, camera, fmt))
+        self._publisher(self._frames,
+                        camera_key(self.config.run, camera)).put(image_message(data, t_capture, camera, fmt))
         self.rt.counters["frames_published"] += 1
 
     def process(self, image: np.ndarray, index: int, t_capture: float, camera: str,
@@ -244,7 +247,8 @@ def main(config: PerceptionLiveConfig) -> int:
             svc.close()
     tp = svc.throughput()
     rt.write_stats(throughput=tp)
-    rate = f" in {tp['wall_s']:.1f} s ({tp['fps']:.1f} fps, {tp['cpu_ms_per_frame']:.1f} ms CPU per frame)" if tp else ""
+    rate = (f" in {tp['wall_s']:.1f} s ({tp['fps']:.1f} fps, {tp['cpu_ms_per_frame']:.1f} ms CPU per frame)"
+            if tp else "")
     rt.log(f"stopped: {processed} frames processed{rate}, {svc.feedback_seq} feedback published "
            f"({rt.counters['feedback_positive']} +1, {rt.counters['feedback_negative']} -1)")
     return code

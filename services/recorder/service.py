@@ -23,7 +23,7 @@ import time
 
 from common.config import config_record
 from common.protocol import KEYS, ProtocolError, RunConfig, ServiceStatus, decode, status_key
-from common.logs.scene import SceneBuilder, derived_records
+from common.logs.scene import SceneBuilder, derived_records, scene_available
 from services.common.config import RecorderConfig
 from services.common.gate import first_time_logger
 from services.common.watches import AliveWatch
@@ -52,6 +52,8 @@ def main(config: RecorderConfig) -> int:
     run_config = load_run_config(config)
     writer = LogWriter(config.out, run_config, flush_interval=config.flush_interval)
     scene = SceneBuilder.from_run_config(run_config.config)  # the environment drawn for Foxglove (docs/logs.md)
+    if not scene_available():
+        print("recorder: the log gets no Foxglove scene (pip install 'hitl-tamer[foxglove]' adds it)", file=sys.stderr)
     rt.set_counters_source(lambda: {"messages_written": writer.counters["messages"],
                                     "bytes_written": writer.counters["bytes"]})
     stopped: set[str] = set()

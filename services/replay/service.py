@@ -6,10 +6,16 @@
             equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)
   size      bytes per 1,000 steps, and per topic
 
-A file that is not MCAP (a video, random bytes) gets a one-line error and exit code 2.
+LOG may be a run directory (its session.mcap). A log cut short by a crash is read up to its last complete
+chunk, a damaged chunk is skipped and the reading goes on, each with a warning saying what was lost.
 
-A log cut short by a crash is read up to its last complete chunk, with a warning saying how much was
-recovered. LOG may be a run directory (its session.mcap).
+Exit codes of `summary`: 0 every message of the log was read; 1 the log was read but data was lost (cut off
+at the end, damaged chunks skipped, undecodable messages: each named on a `lost:` line); 2 there is no log to
+read (no such file, an empty file, a directory without session.mcap, a file that is not MCAP), in one line,
+or `--write` cannot finish the run now (its launcher or services still run).
+
+`summary --write` on a run directory whose launcher was killed (summary.json still `{"outcome": "running"}`)
+writes its summary.json and learning_curve.png from the log, outcome `interrupted`, as the launcher would have.
 """
 from __future__ import annotations
 
@@ -27,9 +33,23 @@ def _warn_to_stderr(message, category, filename, lineno, file=None, line=None):
 
 
 def cmd_summary(args) -> int:
-    from services.replay.summary import format_summary, plot_summary, summarize
+    from services.replay.curve import plot_summary
+    from services.replay.summary import format_summary, summarize
 
-    s = summarize(args.log)
+    s = None
+    if args.write:  # a run whose launcher was killed: its summary.json, from the log
+        from services.launcher.rundir import RunDirError
+        from services.launcher.unfinished import finish_from_log
+
+        log = Path(args.log)
+        try:
+            s, line = finish_from_log(log if log.is_dir() else log.parent,
+                                      by="`python -m services.replay RUN_DIR summary --write`")
+        except RunDirError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(line, file=sys.stderr)
+    s = s or summarize(args.log)
     if args.json:
         print(json.dumps(s, indent=2))
     else:
@@ -37,9 +57,9 @@ def cmd_summary(args) -> int:
     if not args.no_plot and s["returns"]:
         log = Path(args.log)
         plot = Path(args.plot) if args.plot else (log if log.is_dir() else log.parent) / "replay_curve.png"
-        plot_summary(s, plot)
-        print(f"plot: {plot}", file=sys.stderr)
-    return 0
+        if plot_summary(s, plot):
+            print(f"plot: {plot}", file=sys.stderr)
+    return 1 if s["log"]["lost"] else 0
 
 
 def cmd_play(args) -> int:
@@ -117,6 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="print the whole summary as JSON")
     p.add_argument("--plot", help="learning-curve PNG (default: replay_curve.png beside the log)")
     p.add_argument("--no-plot", action="store_true", help="no plot")
+    p.add_argument("--write", action="store_true",
+                   help="finish a run whose launcher was killed (summary.json still 'running'): write its "
+                        "summary.json and learning_curve.png from the log, outcome 'interrupted'")
     p = sub.add_parser("play", help="re-publish over Zenoh")
     p.add_argument("--connect", help="router endpoint(s) to publish through (default: run an embedded router)")
     p.add_argument("--port", type=int, default=0, help="embedded router port (0 = a free one)")
@@ -132,8 +155,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", action="store_true", help="as JSON")
     args = parser.parse_args(argv)
     warnings.showwarning = _warn_to_stderr
-    if not Path(args.log).exists():
-        parser.error(f"{args.log}: no such file or directory")
+    problem = no_log_here(Path(args.log))
+    if problem:
+        print(f"error: {args.log}: {problem}", file=sys.stderr)
+        return 2
     from common.logs.mcap_log import NotMcapError
 
     try:
@@ -142,6 +167,24 @@ def main(argv: list[str] | None = None) -> int:
     except NotMcapError as e:  # a video, a random file: say so in one line
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except (FileNotFoundError, PermissionError, IsADirectoryError) as e:
+        print(f"error: {e.filename or args.log}: {e.strerror or e}", file=sys.stderr)
+        return 2
+
+
+def no_log_here(path: Path) -> str | None:
+    """Why there is no log to read at `path` (one line), or None."""
+    if not path.exists():
+        return "no such file or directory"
+    if path.is_dir():
+        if not (path / "session.mcap").is_file():
+            return "a directory without a session.mcap (give a log file or a run directory)"
+        path = path / "session.mcap"
+    if not path.is_file():
+        return "not a regular file"
+    if path.stat().st_size == 0:
+        return "an empty file (0 bytes): nothing was recorded"
+    return None
 
 
 def cli(argv: list[str] | None = None) -> int:

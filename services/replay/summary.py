@@ -11,7 +11,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from common.logs.mcap_log import LogRecoveryWarning, read_log
-from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus, Step, Weights,
+from services.replay.people import people_report
+from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus,
+                             Step, Weights,
                              WeightsSnapshot)
 
 
@@ -23,13 +25,14 @@ def _contiguous(seqs: list[int]) -> bool:
 class LogContents:
     """The messages of a session log that the summary reads, sorted by kind."""
 
-    steps: dict[str, list[Step]] = field(default_factory=lambda: collections.defaultdict(list))  # by actor incarnation, in log order
+    steps: dict[str, list[Step]] = field(default_factory=lambda: collections.defaultdict(list))  # by actor, in order
     feedback_msgs: list[Feedback] = field(default_factory=list)
-    reactions: list[ObserverReaction] = field(default_factory=list)  # a video-backed observer's diagnostics (face-video teacher)
+    reactions: list[ObserverReaction] = field(default_factory=list)  # a face-video observer's diagnostics
     ingest: dict[str, list[Ingest]] = field(default_factory=lambda: collections.defaultdict(list))
     episodes: list[EpisodeSummary] = field(default_factory=list)
     statuses: dict[str, ServiceStatus] = field(default_factory=dict)  # the latest of each service
-    by_pid: dict[tuple[str, int], ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
+    by_pid: dict[tuple[str, int],
+                 ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
     weights: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(list))
     kinds: collections.Counter = field(default_factory=collections.Counter)
 
@@ -63,8 +66,11 @@ def drop_not_from_run(c: LogContents) -> collections.Counter:
 
     Forged or garbage messages: the recorder keeps whatever decodes. Left out are steps of actor
     incarnations no actor status announced, weights of learner incarnations no learner status announced, and
-    feedback of teachers without a status or with a seq far beyond the teacher's count.
+    feedback of teachers without a status or with a seq beyond the teacher's final count by more than the
+    learner's gate admits (`MAX_FEEDBACK_JUMP`: a forged jump, refused there as `bad_seq`).
     """
+    from services.common.gate import MAX_FEEDBACK_JUMP
+
     actor_incs = {st.incarnation for (svc, _), st in c.by_pid.items() if svc == "actor" and st.incarnation}
     not_from_run = collections.Counter()
     if actor_incs:
@@ -81,7 +87,8 @@ def drop_not_from_run(c: LogContents) -> collections.Counter:
             teacher_count[tid] = max(teacher_count.get(tid, 0), int(st.counters.get("feedback_published", 0)))
     kept = []
     for m in c.feedback_msgs:
-        if teacher_count and (m.teacher_id not in teacher_count or m.seq > teacher_count[m.teacher_id] + 4096):
+        if teacher_count and (m.teacher_id not in teacher_count
+                              or m.seq > teacher_count[m.teacher_id] + MAX_FEEDBACK_JUMP):
             not_from_run["feedback"] += 1
             continue
         kept.append(m)
@@ -175,6 +182,17 @@ def actor_steps_sent(by_pid: dict[tuple[str, int], ServiceStatus],
     return actor_sent, killed_actors
 
 
+def logged_feedback(msgs: list[Feedback]) -> tuple[dict[str, list[int]], int]:
+    """teacher -> its logged seqs, each once; and how many were logged again (a console page's re-sent press)."""
+    feedback: dict[str, list[int]] = collections.defaultdict(list)
+    seen: set[tuple[str, int]] = set()
+    for m in msgs:
+        if (m.teacher_id, m.seq) not in seen:
+            seen.add((m.teacher_id, m.seq))
+            feedback[m.teacher_id].append(m.seq)
+    return feedback, len(msgs) - len(seen)
+
+
 def summarize(path: str | os.PathLike) -> dict[str, Any]:
     """Read the log (also a truncated one: recovered up to its last complete chunk, with a warning)."""
     reader = read_log(path)
@@ -185,9 +203,7 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         warnings.warn(w.message, w.category, stacklevel=2)
     status = reader.status
     not_from_run = drop_not_from_run(c)
-    feedback: dict[str, list[int]] = collections.defaultdict(list)  # teacher -> seqs
-    for m in c.feedback_msgs:
-        feedback[m.teacher_id].append(m.seq)
+    feedback, republished = logged_feedback(c.feedback_msgs)
     feedback_values = collections.Counter(m.value for m in c.feedback_msgs)
 
     # Steps: contiguous per incarnation (all seqs once; after a recorder restart the re-sent ones come later in
@@ -206,23 +222,22 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     steps_not_ingested = sum(1 for inc, seqs in step_seqs.items() for q in seqs if (inc, q) not in learned_keys)
 
     def counter(service: str, name: str) -> int | None:
-        st = c.statuses.get(service)
-        return None if st is None or name not in st.counters else int(st.counters[name])
+        return status_counter(c, service, name)
 
     actor_sent, killed_actors = actor_steps_sent(c.by_pid, step_seqs)
-    teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
-    sent = [counter(s, "feedback_published") for s in teacher_services]  # kept across restarts (state file)
+    sent, steps_learned, stale = counts_sent_and_learned(c, lr, feedback)
     out = {
         "run": reader.run_config.run if reader.run_config else None,
         "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
-                "truncated_files": status.truncated, "recovery": status.summary(), "by_kind": dict(c.kinds),
+                "truncated_files": status.truncated, "recovery": status.summary(), "lost": status.losses(),
+                "by_kind": dict(c.kinds),
                 "warnings": [str(w.message) for w in caught], "not_from_run": dict(not_from_run)},
         "steps_sent": actor_sent if any(k[0] == "actor" for k in c.by_pid) else None,
         "actor_incarnations_killed": killed_actors,
         "steps_logged": sum(len(v) for v in step_seqs.values()),
         "steps_seq_contiguous_in_log": all(_contiguous(v) for v in step_seqs.values()),
         "actor_incarnations": len(step_seqs),
-        "steps_learned": counter("learner", "steps_learned"),
+        "steps_learned": steps_learned,
         "steps_lost_at_learner": counter("learner", "steps_lost"),
         "learner_step_entries": dict(lr.step_entries),
         "learner_chain": lr.chain,
@@ -241,6 +256,8 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "feedback_negative": feedback_values.get(-1, 0),
         "feedback_credited": by_status.get("credited", 0),
         "feedback_rejected": rejected,
+        "feedback_republished": republished,
+        "people": people_report(c.statuses, feedback, lr.outcome, teacher_id_of),
         "weights_logged": sum(len(v) for v in c.weights.values()),  # snapshots (Weights in older logs)
         "learners": lr.learners,
         "episodes": ep_rows,
@@ -249,12 +266,37 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
                                 for r in ep_rows if r["unfinished"]],
         "services": {name: {"state": st.state, "counters": dict(st.counters)}
                      for name, st in sorted(c.statuses.items())},
+        "services_not_stopped": stale,  # their counters are from an earlier status (see steps_learned)
     }
     if c.reactions:  # face-video: what the perception path did to the observer's reactions
         from services.teacher.face_metrics import face_metrics
 
         out["face"] = face_metrics(c.reactions, c.feedback_msgs)
     return out
+
+
+def status_counter(c: LogContents, service: str, name: str) -> int | None:
+    """A counter of the service's latest status (None without one)."""
+    st = c.statuses.get(service)
+    return None if st is None or name not in st.counters else int(st.counters[name])
+
+
+def counts_sent_and_learned(c: LogContents, lr: LearnerRecord,
+                            feedback: dict[str, list[int]]) -> tuple[list[int | None], int | None, list[str]]:
+    """Feedback sent per teacher service, steps learned, and the services whose latest status is not 'stopped'.
+
+    Counters come from each service's latest status (kept across restarts: state files, checkpoints). A service
+    that never reported 'stopped' (killed, or its launcher was, and with it the router its final status needed)
+    did more than its last status says: what the log shows it did is then the better lower bound."""
+    stale = sorted(name for name, st in c.statuses.items() if st.state != "stopped" and name != "launcher")
+    teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
+    sent = [status_counter(c, svc, "feedback_published") for svc in teacher_services]
+    sent = [x if svc not in stale else max(x or 0, len(feedback.get(teacher_id_of(svc), [])))
+            for svc, x in zip(teacher_services, sent)]
+    steps_learned = status_counter(c, "learner", "steps_learned")
+    if "learner" in stale:
+        steps_learned = max(steps_learned or 0, lr.step_entries.get("learned", 0))
+    return sent, steps_learned, stale
 
 
 def effective_ingest(ingest: dict[str, list[Ingest]]) -> tuple[list, list[str], int]:
@@ -312,9 +354,10 @@ def rejected_inputs(by_pid: dict[tuple[str, int], ServiceStatus],
 
 
 def format_summary(s: dict[str, Any]) -> str:
-    lines = [f"run {s['run']}: {s['log']['messages']} messages ({'complete' if s['log']['complete'] else 'INCOMPLETE'})"]
-    if s["log"]["truncated_files"]:
-        lines.append(f"  recovered: {s['log']['recovery']}")
+    lost = s["log"].get("lost", [])
+    state = "DATA LOST" if lost else "complete" if s["log"]["complete"] else "all data read, file summary missing"
+    lines = [f"run {s['run']}: {s['log']['messages']} messages read ({state})"]
+    lines += [f"  lost: {line}" for line in lost]
     lines.append(f"  steps: sent {s['steps_sent']}, logged {s['steps_logged']} "
                  f"(contiguous: {s['steps_seq_contiguous_in_log']}), learned {s['steps_learned']}")
     lines.append(f"  feedback: sent {s['feedback_sent']}, logged {s['feedback_logged']}, "
@@ -342,12 +385,3 @@ def format_summary(s: dict[str, Any]) -> str:
                      f"{'n/a' if rate is None else f'{100 * rate:.1f}%'}, lag p50 "
                      f"{'n/a' if lag is None else f'{lag:.2f} s'}")
     return "\n".join(lines)
-
-
-def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> None:
-    import numpy as np
-
-    from common.logs.plots import plot_curves
-
-    rets = np.asarray(s["returns"], dtype=float)
-    plot_curves({"live": rets}, str(path), title or f"live run {s['run']}: return per episode")

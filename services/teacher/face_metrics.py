@@ -18,7 +18,8 @@ in it or outside every window is *extra*. Reported:
 from __future__ import annotations
 
 import bisect
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 import numpy as np
 

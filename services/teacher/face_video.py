@@ -109,7 +109,7 @@ class ClipLibrary:
     size: tuple[int, int]
 
     @classmethod
-    def load(cls, width: int = 320, quality: int = 80) -> "ClipLibrary":
+    def load(cls, width: int = 320, quality: int = 80) -> ClipLibrary:
         import cv2
 
         from common.perception import assets
@@ -271,7 +271,8 @@ def main(config: FaceVideoConfig) -> int:
                                     "reactions_published": published["reactions"]})
     period = 1.0 / library.fps
     with rt.session() as session:
-        with subscription(session, step_key(config.run), maxsize=1 << 16, policy="block", block_timeout=3600) as steps, \
+        with subscription(session, step_key(config.run), maxsize=1 << 16, policy="block",
+                          block_timeout=3600) as steps, \
                 subscription(session, status_key(config.run, "actor"), maxsize=64, policy="drop_oldest") as status, \
                 MessagePublisher(session, camera_key(config.run, config.camera)) as cam, \
                 MessagePublisher(session, reaction_key(config.run, config.teacher_id)) as rpub:

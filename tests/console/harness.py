@@ -51,8 +51,9 @@ class WebRun:
     def url(self, timeout: float = 150.0) -> str:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            m = re.search(r"console: (https?://127\.0\.0\.1:(\d+)/)", self.out)
-            if m and _listening(int(m.group(2))):  # printed when started; serving a moment later
+            m = re.search(r"console: (https?://127\.0\.0\.1:(\d+)/\?token=[A-Za-z0-9_-]+)", self.out)
+            if m:  # printed once the console listens
+                assert _listening(int(m.group(2))), self.out
                 return m.group(1)
             if self.popen.poll() is not None:
                 break
@@ -64,7 +65,7 @@ class WebRun:
             rc = self.popen.wait(timeout)
         except subprocess.TimeoutExpired:
             kill_tree(self.popen.pid)
-            raise AssertionError(f"services up still running after {timeout} s:\n{self.out[-3000:]}")
+            raise AssertionError(f"services up still running after {timeout} s:\n{self.out[-3000:]}") from None
         self._reader.join(5)
         return rc
 

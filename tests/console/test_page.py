@@ -1,6 +1,7 @@
 """The console page in a real headless Chromium, against a real live run (`services up --teacher web`):
 the run waits for its first page, the page draws the maze, key presses become feedback credited to the steps
-shown 0.2-4 s before each press, pause stops the actor, and the run's log holds every press with its page time and its system time."""
+shown 0.2-4 s before each press, pause stops the actor, and the run's log holds every press with its page time and
+its system time."""
 from __future__ import annotations
 
 import json
@@ -90,9 +91,10 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
                 ws.send('x'.repeat(5000));
                 ws.send(new Uint8Array([1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12]));
                 for (let i = 0; i < 40; i++)
-                    ws.send(JSON.stringify({type: 'feedback', value: -1, t_page: now, offset: hitl.clock.offset, rtt: 0}));
+                    ws.send(JSON.stringify({type: 'feedback', value: -1, t_page: now,
+                                            offset: hitl.clock.offset, rtt: 0}));
             }""")
-            other.wait_for_function("hitl.rejected.flood > 0", timeout=10_000)
+            other.wait_for_function("hitl.rejected.flood >= 40 - 16", timeout=10_000)  # (all answered)
             rejected = other.evaluate("hitl.rejected")
             for reason in ("malformed", "unknown_kind", "absurd_timestamp", "bad_value", "oversized", "bad_frame"):
                 assert rejected.get(reason, 0) >= 1, (reason, rejected)
@@ -142,7 +144,8 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
         assert fb.t_reaction == pytest.approx(press["t_sys"], abs=1e-6)
         assert fb.shown and fb.actor
     assert {c.seq for c in credits if c.teacher_id == "web-1"} >= set(feedback)
-    assert len([s for s in shown_log if s.screen == "web-1"]) >= 18 and {s.screen for s in shown_log} == {"web-1", "web-2"}
+    assert len([s for s in shown_log if s.screen == "web-1"]) >= 18
+    assert {s.screen for s in shown_log} == {"web-1", "web-2"}
     paused = [s.seq for s in steps if t_paused < s.t_action < t_resumed]
     assert paused == [], f"steps taken while paused: {paused}"
     stats = json.loads((run.rundir / "stats" / "teacher.web.json").read_text())["counters"]

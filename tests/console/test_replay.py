@@ -6,7 +6,6 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -39,11 +38,14 @@ def replay_url(session_log):
                              str(port)], cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     try:
-        deadline = time.monotonic() + 120
-        while not _listening(port):
-            assert proc.poll() is None and time.monotonic() < deadline, proc.stdout.read()
-            time.sleep(0.2)
-        yield f"http://127.0.0.1:{port}/"
+        seen = ""
+        for line in proc.stdout:  # the address, with its token, is printed once the server listens
+            seen += line
+            if line.startswith("replay: "):
+                break
+        url = line.split()[1]
+        assert url.startswith(f"http://127.0.0.1:{port}/?token=") and _listening(port), seen
+        yield url
     finally:
         kill_tree(proc.pid)
         proc.wait(10)

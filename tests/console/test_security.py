@@ -38,14 +38,24 @@ def test_secured_console_needs_the_password_serves_https_and_credits_the_person(
         url = run.url()
         assert url.startswith("https://127.0.0.1:"), run.out
 
-        # The certificate is the router's, signed by the run's CA; plain HTTP gets nothing.
+        # The certificate is the router's, signed by the run's CA; plain HTTP gets nothing; the token buys a
+        # Secure cookie, and nothing is served without one.
+        base, token = url.split("?token=")
         ca = ssl.create_default_context(cafile=str(security.path(security.ca_cert)))
-        assert json.loads(urllib.request.urlopen(url + "settings", context=ca, timeout=20).read()) == {"login": True}
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(base + "settings", context=ca, timeout=20)
+        assert refused.value.code == 403
+        opener = urllib.request.build_opener(urllib.request.HTTPSHandler(context=ca),
+                                             urllib.request.HTTPCookieProcessor())
+        assert json.loads(opener.open(f"{base}settings?token={token}", timeout=20).read()) == {"login": True}
         with pytest.raises((urllib.error.URLError, ConnectionError, OSError)):
-            urllib.request.urlopen(url.replace("https://", "http://") + "settings", timeout=20).read()
+            urllib.request.urlopen(base.replace("https://", "http://") + "settings", timeout=20).read()
 
         with sync_playwright() as pw:
             ctx = browser(pw, tmp_path / "profile", ignore_https_errors=True)
+            bare = ctx.new_page()  # the address without its token: nothing of the run
+            assert bare.goto(base).status == 403 and "Not open to this page" in bare.content()
+            bare.close()
             intruder = ctx.new_page()
             answer_prompts(intruder, ["alice", "not-the-password"])
             intruder.goto(url)
@@ -71,4 +81,5 @@ def test_secured_console_needs_the_password_serves_https_and_credits_the_person(
     assert s["feedback_credited"] >= 3 and s["unauthenticated_inputs"] == {} and s["rejected_inputs"] == {}
     console = s["services"]["teacher.web"]["counters"]
     assert console["login_refused"] >= 1 and console["people_joined"] == 1, console
+    assert console["door_refused_no_token"] >= 2, console
     assert s["services"]["teacher.web-alice"]["counters"]["feedback_published"] >= 3

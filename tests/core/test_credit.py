@@ -164,7 +164,8 @@ def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
         starts = np.sort(starts, axis=1)
         episodes = np.cumsum(rng.random((6, 12)) < 0.1, axis=1)
         t_f = np.where(np.isfinite(starts[:, -1]), starts[:, -1], 0) - rng.uniform(-2, 6, size=6)
-        for d, general in ((delay, _CdfOnly(delay)), (RowDelays(row_probs, unit), _CdfOnly(RowDelays(row_probs, unit)))):
+        for d, general in ((delay, _CdfOnly(delay)),
+                           (RowDelays(row_probs, unit), _CdfOnly(RowDelays(row_probs, unit)))):
             fast_w, fast_lost = credit_weights(t_f, starts, d, episodes=episodes)
             w, lost = credit_weights(t_f, starts, general, episodes=episodes)
             assert np.array_equal(fast_w, w) and np.array_equal(fast_lost, lost)

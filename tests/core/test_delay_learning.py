@@ -6,8 +6,9 @@ from common.core.delay_learning import DelayLearningConfig, OnlineDelayEM, expec
 
 def simulate(true_probs, n_steps=6000, p_feedback=0.5, h_accuracy=0.85, seed=0, drift_to=None):
     """Steps with a +-1 label the teacher judges by; H predicts it correctly with probability h_accuracy,
-    calibrated (|H| = 2 h_accuracy - 1, what a squared-error fit to +-1 targets converges to). Feedback on a step arrives after a lag drawn from true_probs. Yields, per
-    arrival, (feedback, predictions of H at the step of each candidate lag, validity)."""
+    calibrated (|H| = 2 h_accuracy - 1, what a squared-error fit to +-1 targets converges to). Feedback on a step
+    arrives after a lag drawn from true_probs. Yields, per arrival, (feedback, predictions of H at the step of each
+    candidate lag, validity)."""
     rng = np.random.default_rng(seed)
     L = len(true_probs)
     labels = rng.choice([-1, 1], n_steps)
@@ -15,7 +16,8 @@ def simulate(true_probs, n_steps=6000, p_feedback=0.5, h_accuracy=0.85, seed=0, 
     arrivals = {}
     for t in range(n_steps):
         if rng.random() < p_feedback:
-            probs = true_probs if drift_to is None else (1 - t / n_steps) * np.asarray(true_probs) + t / n_steps * np.asarray(drift_to)
+            probs = true_probs if drift_to is None else ((1 - t / n_steps) * np.asarray(true_probs)
+                                                         + t / n_steps * np.asarray(drift_to))
             lag = rng.choice(L, p=probs)
             arrivals.setdefault(t + lag, []).append(labels[t])
     for T in sorted(arrivals):

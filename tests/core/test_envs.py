@@ -18,7 +18,7 @@ def test_layout_is_solvable_with_start_at_distance_five(index):
 
 def test_ten_distinct_layouts_and_deterministic():
     layouts = [make_layout(i) for i in range(LAYOUT_COUNT)]
-    assert len({(l.walls, l.start, l.goal) for l in layouts}) == LAYOUT_COUNT
+    assert len({(lay.walls, lay.start, lay.goal) for lay in layouts}) == LAYOUT_COUNT
     assert make_layout(3) == make_layout(3)
     with pytest.raises(ValueError, match="layout"):
         make_layout(LAYOUT_COUNT)

@@ -10,7 +10,9 @@ from common.envs.maze import (HONEST, LAYOUT_COUNT, LAYOUT_KIND_COUNT, MISLEADIN
 def maze(rows: list[str]) -> MazeLayout:
     """'#' wall, 'S' start, 'G' goal, '.' space; rows shorter than SIZE are padded with walls."""
     rows = [r.ljust(SIZE, "#") for r in rows] + ["#" * SIZE] * (SIZE - len(rows))
-    find = lambda ch: next((r, c) for r, row in enumerate(rows) for c, x in enumerate(row) if x == ch)
+    def find(ch: str) -> tuple[int, int]:
+        return next((r, c) for r, row in enumerate(rows) for c, x in enumerate(row) if x == ch)
+
     walls = tuple(tuple(x == "#" for x in row) for row in rows)
     return MazeLayout(0, walls, find("S"), find("G"))
 

@@ -40,7 +40,8 @@ def jobs_for(q, h, rng):
     a = rng.integers(0, 4, (2, 8))
     t = rng.standard_normal((2, 8)).astype(np.float32)
     w = rng.random((2, 8)).astype(np.float32)
-    return [FitJob(q, np.array([0, 2]), x, a, t, None, HUBER_MEAN), FitJob(h, np.array([1, 2]), x, a, t, w, SQUARED_MEAN)]
+    return [FitJob(q, np.array([0, 2]), x, a, t, None, HUBER_MEAN),
+            FitJob(h, np.array([1, 2]), x, a, t, w, SQUARED_MEAN)]
 
 
 def test_fitting_q_and_h_together_equals_fitting_them_apart():
@@ -70,7 +71,7 @@ def test_q_and_h_of_different_shapes_fit_side_by_side():
 def test_squared_sum_loss_is_the_weighted_sum():
     net = StackedMLP(2, 4, 3, [7], FlatRMSProp(1e-2))
     x = np.array([[[0.5, -1.0], [1.0, 0.0]]], np.float32)
-    a, f, w = np.array([[1, 2]]), np.array([[1.0, -1.0]], np.float32), np.array([[0.25, 0.75]], np.float32)
+    f, w = np.array([[1.0, -1.0]], np.float32), np.array([[0.25, 0.75]], np.float32)
     pred = net.values(None, x)[0, [0, 1], [1, 2]]
     d = SQUARED_SUM.grad(pred[None].astype(np.float32), f, w)
     np.testing.assert_allclose(d[0], 2 * w[0] * (pred - f[0]), rtol=1e-6)
@@ -110,7 +111,8 @@ def test_replay_holds_each_observation_with_its_bias_input_and_fits_use_it_uncha
     x, actions = rec[:, :, r.columns["obs"]], rec[:, :, r.at["action"]].astype(np.int64)
     for net, x1 in zip(nets, (None, rec[:, :, r.with_ones["obs"]])):  # the same step, given the bias input or not
         fit_together([FitJob(net, np.array([0]), x, actions, targets, None, HUBER_MEAN, x1)])
-    assert np.array_equal(nets[0].flat, nets[1].flat) and not np.array_equal(nets[0].flat, StackedMLP(3, 5, 4, [7]).flat)
+    assert np.array_equal(nets[0].flat, nets[1].flat) and not np.array_equal(nets[0].flat,
+                                                                             StackedMLP(3, 5, 4, [7]).flat)
 
 
 def test_explorer_and_mixture_are_functions_of_the_step():

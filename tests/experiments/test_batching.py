@@ -102,7 +102,8 @@ def test_state_dict_round_trip_continues_the_same_trial():
         for k in range(start, start + steps):
             obs = rng_obs[k]
             a = agent.act(obs)
-            agent.record_steps(np.arange(2), obs, a, np.full(2, -0.01), rng_obs[k + 1], np.zeros(2), np.full(2, float(k)),
+            agent.record_steps(np.arange(2), obs, a, np.full(2, -0.01), rng_obs[k + 1], np.zeros(2),
+                               np.full(2, float(k)),
                                np.zeros(2))
             agent.feedback_rounds(np.arange(2), np.full(2, k + 0.5), np.where(a % 2 == 0, 1, -1)[:, None],
                                   np.ones(2, np.int64))

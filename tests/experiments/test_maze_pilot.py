@@ -8,7 +8,8 @@ from experiments.conditions import BY_NAME, CONDITIONS, FULL, n_trials, trial_sp
 
 def test_pilot_trials_are_never_the_reproductions():
     repro = {(s.layout, s.seed) for c in CONDITIONS if not c.is_taxi
-             for k in range(n_trials(c, FULL)) for s in [trial_spec(c, "dqn" if "dqn" in c.arms else c.arms[0], k, FULL)]}
+             for k in range(n_trials(c, FULL)) for s in [trial_spec(c,
+                                                                    "dqn" if "dqn" in c.arms else c.arms[0], k, FULL)]}
     repro_seeds = {seed for _, seed in repro}
     for name in maze_pilot.DEFAULT_CONDITIONS:
         got = maze_pilot.specs(BY_NAME[name], 5)

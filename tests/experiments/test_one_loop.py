@@ -1,6 +1,5 @@
 """One step loop: the in-process runner and the live learner's core, given the same ordered inputs, end with
 the same weights bit for bit, for all four agents."""
-import numpy as np
 import pytest
 
 from common.agents import ALGOS

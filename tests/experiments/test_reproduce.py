@@ -141,7 +141,9 @@ def test_full_run_jobs_are_small_longest_first_and_never_mix_batch_groups(tmp_pa
     assert all(len({trialcache._batch_group(t.spec) for t in j}) == 1 for j in jobs)
     assert 6 <= len(jobs) <= 14 and max(costs) <= sum(costs) / 2 / 3  # no job is more than a third of a worker's share
     # a family whose trials differ in a structural setting (replay size) is never batched together
-    mixed = [dataclasses.replace(t, spec=dataclasses.replace(t.spec, agent=dataclasses.replace(t.spec.agent, replay_size=50_000)))
+    mixed = [dataclasses.replace(t,
+                                 spec=dataclasses.replace(t.spec,
+                                                          agent=dataclasses.replace(t.spec.agent, replay_size=50_000)))
              if k % 2 else t for k, t in enumerate(todo)]
     assert all(len({t.spec.agent.replay_size for t in j}) == 1 for j in trialcache.make_jobs(mixed, workers=2))
     assert len(trialcache.make_jobs(todo, workers=1)) == len({trialcache._batch_group(t.spec) for t in todo})

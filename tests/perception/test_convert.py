@@ -89,9 +89,9 @@ def _write_keras_h5(path, layers, weights, inputs, outputs):
     with h5py.File(path, "w") as f:
         f.attrs["model_config"] = json.dumps(cfg).encode()
         g = f.create_group("model_weights")
-        g.attrs["layer_names"] = [l["config"]["name"].encode() for l in layers]
-        for l in layers:
-            name = l["config"]["name"]
+        g.attrs["layer_names"] = [layer["config"]["name"].encode() for layer in layers]
+        for layer in layers:
+            name = layer["config"]["name"]
             lg = g.create_group(name)
             ws = weights.get(name, {})
             lg.attrs["weight_names"] = [f"{name}/{k}:0".encode() for k in ws]
@@ -166,6 +166,6 @@ def test_unsupported_layer_is_named(tmp_path):
               _layer("LSTM", "rnn", ["in"], units=4)]
     path = tmp_path / "bad.h5"
     _write_keras_h5(path, layers, {}, ["in"], ["rnn"])
-    assert [l.class_name for l in read_keras_config(path)[0]] == ["InputLayer", "LSTM"]
+    assert [layer.class_name for layer in read_keras_config(path)[0]] == ["InputLayer", "LSTM"]
     with pytest.raises(UnsupportedLayerError, match="LSTM"):
         keras_h5_to_onnx(path)

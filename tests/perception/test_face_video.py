@@ -161,7 +161,8 @@ def test_launcher_builds_perception_and_observer_processes(tmp_path):
     assert names.index("teacher.face") < names.index("observer.face") < names.index("actor")
     by = {p.name: p for p in procs}
     assert by["teacher.face"].module == "services.perception"
-    assert by["teacher.face"].config.source == "zenoh:face" and by["teacher.face"].config.stop_with == ("observer.face",)
+    assert by["teacher.face"].config.source == "zenoh:face"
+    assert by["teacher.face"].config.stop_with == ("observer.face",)
     assert by["observer.face"].config.step_unit == pytest.approx(1 / 3)
     assert set(by["actor"].config.wait_for) >= {"teacher.face", "observer.face", "learner", "recorder"}
     assert by["learner"].config.wait_teachers == ("face",)

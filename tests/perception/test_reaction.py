@@ -69,7 +69,9 @@ def test_behaviour_is_time_based_not_frame_based():
     # 2 s smile, 0.5 s neutral, 2 s smile at 24 and at 30 fps: same events, same times (to a frame)
     out = {}
     for fps in (24.0, 30.0):
-        n = lambda s: int(round(s * fps))  # noqa: E731
+        def n(s: float, fps: float = fps) -> int:
+            return int(round(s * fps))
+
         evs = events(["happy"] * n(2) + ["neutral"] * n(0.5) + ["happy"] * n(2), fps=fps)
         out[fps] = [(e.value, e.t_capture) for e in evs]
     assert [v for v, _ in out[24.0]] == [v for v, _ in out[30.0]] == [1, 1]

@@ -15,7 +15,8 @@ from common.protocol._containers import AnyJSON, Embedded, List, Map, Nullable, 
 from common.protocol._spec import Bool, Bytes64, Float, Int, Spec, Str
 
 TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)
-JSON_SCALARS = st.none() | st.booleans() | st.integers(-(2**60), 2**60) | st.floats(allow_nan=False, allow_infinity=False) | TEXT
+JSON_SCALARS = st.none() | st.booleans() | st.integers(-(2**60), 2**60) | st.floats(allow_nan=False,
+                                                                                    allow_infinity=False) | TEXT
 ANY_JSON = st.recursive(JSON_SCALARS, lambda children: st.lists(children, max_size=4)
                         | st.dictionaries(TEXT, children, max_size=4), max_leaves=20)
 

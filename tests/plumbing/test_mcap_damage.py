@@ -27,9 +27,9 @@ def write_log(path: Path, n: int = 600) -> None:
     config = RunConfig.create(RUN, {"env": "maze"}, t_created=1700000000.0)
     with LogWriter(path, config, chunk_size=4096, background_flush=False) as w:
         for i in range(n):
-            w.write(step_key(RUN), example(Step, seq=i).encode(), log_time=10_000 + i)
+            w.write(step_key(RUN), example(Step, run=RUN, seq=i).encode(), log_time=10_000 + i)
             if i % 7 == 0:
-                w.write(feedback_key(RUN, "oracle"), example(Feedback, seq=i // 7), log_time=10_000 + i)
+                w.write(feedback_key(RUN, "oracle"), example(Feedback, run=RUN, seq=i // 7), log_time=10_000 + i)
 
 
 def chunks_of(path: Path) -> list[tuple[int, int, list[bytes]]]:
@@ -143,3 +143,56 @@ def test_a_file_that_is_not_mcap_is_refused_in_one_line_with_a_nonzero_exit(tmp_
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "not an MCAP file" in lines[0], proc.stderr
     assert proc.stdout == ""
+
+
+def replay_summary(*args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "services.replay", *args, "summary", "--no-plot"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120, env=env)
+
+
+def test_summary_of_a_log_with_one_flipped_byte_exits_nonzero_and_names_what_was_lost(tmp_path):
+    """Issue 25, finding 5: one flipped byte used to print "(complete)" and exit 0 while a chunk's messages
+    were skipped."""
+    path = tmp_path / "session.mcap"
+    write_log(path)
+    chunks = chunks_of(path)
+    offset, length, lost = chunks[len(chunks) // 2]
+    data = bytearray(path.read_bytes())
+    data[offset + length // 2] ^= 0x01  # one bit of one byte inside the chunk's compressed records
+    path.write_bytes(bytes(data))
+    whole = sum(len(msgs) for _, _, msgs in chunks)
+    proc = replay_summary(str(path))
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "(complete)" not in proc.stdout and "DATA LOST" in proc.stdout, proc.stdout
+    lost_lines = [line for line in proc.stdout.splitlines() if line.strip().startswith("lost:")]
+    assert len(lost_lines) == 1, proc.stdout
+    assert f"skipped 1 damaged chunk(s), {length} bytes, {len(lost)} messages" in lost_lines[0]
+    assert f"offset {offset}" in lost_lines[0]
+    assert f"{whole - len(lost)} messages read" in proc.stdout
+    assert replay_summary(str(tmp_path)).returncode == 1  # the run directory: the same log
+    path.write_bytes(bytes(data[:offset + length // 2]))  # cut inside that chunk: truncated, also named
+    proc = replay_summary(str(path))
+    assert proc.returncode == 1 and "truncated" in proc.stdout, proc.stdout
+
+
+def test_summary_of_an_intact_log_exits_zero(tmp_path):
+    write_log(tmp_path / "session.mcap")
+    proc = replay_summary(str(tmp_path / "session.mcap"))
+    assert proc.returncode == 0 and "(complete)" in proc.stdout and "lost:" not in proc.stdout, proc.stdout
+
+
+@pytest.mark.parametrize("kind", ["empty", "directory", "missing"])
+def test_summary_of_no_log_is_one_line_and_exit_2(tmp_path, kind):
+    target = {"empty": tmp_path / "session.mcap", "directory": tmp_path / "somedir",
+              "missing": tmp_path / "nope.mcap"}[kind]
+    if kind == "empty":
+        target.write_bytes(b"")
+    elif kind == "directory":
+        target.mkdir()
+        (target / "notes.txt").write_text("not a log")
+    proc = replay_summary(str(target))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert proc.stdout == "" and "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: {target}: "), proc.stderr

@@ -13,7 +13,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from common.protocol import (KEYS, MESSAGE_TYPES, REASONS, EpisodeSummary, Feedback, ProtocolError, RunConfig, ServiceStatus, Step,
+from common.protocol import (KEYS, MESSAGE_TYPES, REASONS, EpisodeSummary, Feedback, ProtocolError, RunConfig,
+                             ServiceStatus, Step,
                              Weights, camera_key, config_key, decode, episode_key, feedback_key, feedback_wildcard,
                              ingest_key, message_type, parse_key, perception_key, run_prefix, status_key, step_key,
                              validate_name, weights_key, shown_key, control_key, credit_key)

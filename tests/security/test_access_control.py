@@ -35,13 +35,13 @@ CLIENT = Path(__file__).with_name("secure_client.py")
 TEACHERS = ("alice", "bob")
 
 
-def _reader(stream, lines: "queue.Queue[str]") -> None:
+def _reader(stream, lines: queue.Queue[str]) -> None:
     for line in stream:
         lines.put(line.rstrip("\n"))
     lines.put(None)
 
 
-def _first_line(lines: "queue.Queue[str | None]", timeout: float) -> str | None:
+def _first_line(lines: queue.Queue[str | None], timeout: float) -> str | None:
     try:
         return lines.get(timeout=timeout)
     except queue.Empty:

@@ -117,6 +117,13 @@ class Attacker:
         self.put("teacher_cred_status", status_key(run, "learner"), stopped,
                  mallory.sign(status_key(run, "learner"), stopped))
         self.put("teacher_cred_weights", weights_key(run), top, mallory.sign(weights_key(run), top))
+        # the real teacher's own credential, stolen (issue 25): its next feedback at seq +4000, authentic to every
+        # receiver. It used to be admitted and move the learner's window: the teacher's real presses that followed
+        # were dropped as duplicates. Now it is `bad_seq`, and the real presses are credited as in the calm run.
+        oracle = Auth(load_credential(self.rundir / "credentials" / "teacher.oracle.json"))
+        key = feedback_key(run, fb.teacher_id)
+        stolen_jump = dataclasses.replace(fb, seq=fb.seq + 4000, t_reaction=time.time()).encode()
+        self.put("stolen_teacher_seq_jump", key, stolen_jump, oracle.sign(key, stolen_jump))
         assert isinstance(fb, Feedback) and isinstance(step, Step) and isinstance(fake, ServiceStatus)
 
     def close(self) -> None:
@@ -216,6 +223,11 @@ def test_forge_sequence_jumps_silence_no_real_sender(runs):
     assert learner["auth_unauthenticated_feedback"] >= sent["feedback_seq_jump"]
     assert learner["auth_unauthenticated_step"] >= sent["step_seq_jump"] + sent["fake_incarnation_step"]
     assert learner.get("duplicates_feedback", 0) == counters(calm.rundir, "learner").get("duplicates_feedback", 0)
+    # the jump signed with the teacher's stolen credential: authentic once (the copies are replays), refused
+    assert learner["rejected_bad_seq"] == 1 and learner["auth_replayed_feedback"] >= sent["stolen_teacher_seq_jump"] - 1
+    s = attacked.summary()  # recorded (it is authentic), but not counted as the teacher's: not from the run
+    assert s["feedback_logged"] == s["feedback_sent"] and s["log"]["not_from_run"].get("feedback") == 1, s["log"]
+    assert "unresolved" not in s["feedback_rejected"], s["feedback_rejected"]
 
 
 def test_forge_fake_incarnation_retires_no_real_actor(runs):

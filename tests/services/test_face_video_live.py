@@ -151,7 +151,8 @@ def test_malformed_frames_are_counted_and_dropped(tmp_path):
     with open_session(router_config(endpoint)) as session:
         proc = subprocess.Popen([sys.executable, "-m", "services.perception", "--source", "zenoh:cam", "--connect",
                                  endpoint, "--run", "bad", "--stats-out", str(stats), "--parent-pid",
-                                 str(os.getpid()), "--credentials", str(creds["teacher.face"])], cwd=ROOT, env=env(), stdout=subprocess.PIPE,
+                                 str(os.getpid()), "--credentials", str(creds["teacher.face"])], cwd=ROOT, env=env(),
+                                 stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True, start_new_session=True)
         try:
             assert not wait_alive(session, "bad", ["teacher.face"], 60), "perception did not come up"

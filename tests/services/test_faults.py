@@ -3,6 +3,7 @@ must not reach a model (property-based), the resend ring is bounded, state files
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import os
 
@@ -15,7 +16,7 @@ from common.protocol import Feedback, ServiceStatus, Step
 from services.common.config import LearnerConfig
 from services.common.gate import GATE_REASONS, InputGate
 from services.common.resend import ResendRing
-from services.common.statefiles import atomic_write_json, read_json
+from services.common.statefiles import atomic_write, atomic_write_json, read_json
 from services.common.progress import ProgressFile
 from services.learner import checkpoint
 from services.learner.core import LearnerCore
@@ -90,7 +91,7 @@ def test_checkpoint_is_not_a_pickle_and_rejects_other_files(tmp_path):
     raw = (tmp_path / "c.ckpt").read_bytes()
     assert b"\x80\x04" not in raw[:16] and raw[8:9] == b"{"  # a safetensors JSON header, not a pickle
     (tmp_path / "bad.ckpt").write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{\"__metadata__\":{}}  ")
-    with pytest.raises(Exception):
+    with pytest.raises(Exception):  # noqa: B017  (whatever safetensors raises: it never unpickles)
         checkpoint.load(tmp_path / "bad.ckpt")
 
 
@@ -124,7 +125,7 @@ def test_gate_admits_announced_steps_in_order_and_drops_duplicates():
 
 
 def test_gate_rejects_wrong_shapes_actions_times_teachers_and_seq_jumps():
-    g = gate(max_future=10, max_past=600, max_seq_jump=100)
+    g = gate(max_future=10, max_past=600, max_seq_jump=100, max_feedback_jump=100)
     assert g.admit_step(step(obs_len=3), NOW) == "obs_shape"
     assert g.admit_step(step(action=4), NOW) == "action_range"
     assert g.admit_step(step(t=NOW + 11), NOW) == "future_timestamp"
@@ -141,7 +142,6 @@ def test_gate_rejects_wrong_shapes_actions_times_teachers_and_seq_jumps():
 
 
 def test_gate_state_round_trips_through_json():
-    import json
 
     g = gate()
     g.admit_step(step(0), NOW)
@@ -180,14 +180,49 @@ def test_gate_never_admits_what_a_model_cannot_take(items):
 @settings(max_examples=300, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from(["oracle", "mallory"]), st.integers(0, 10**6), finite), max_size=40))
 def test_gate_feedback_is_admitted_once_per_teacher_seq(items):
-    g = gate(max_seq_jump=1000)
+    g = gate(max_feedback_jump=1000)
     admitted = set()
     for teacher, seq, dt in items:
         f = fb(seq, NOW + max(-1e6, min(dt, 1e6)), teacher=teacher)
         if g.admit_feedback(f, NOW) is None:
             assert teacher == "oracle" and (teacher, seq) not in admitted
-            assert all(seq > s for _, s in admitted)
+            assert seq <= max((s for _, s in admitted), default=-1) + 1 + 1000
             admitted.add((teacher, seq))
+
+
+def test_gate_a_forged_seq_jump_silences_no_real_press():
+    """Issue 25: one feedback at seq +4000 (signed with a stolen teacher credential, so it passes the
+    authentication check) used to be admitted and move the window: the teacher's next 4000 real presses were
+    then dropped as duplicates. Now it is `bad_seq`; a forged jump within the bound takes only its own seq."""
+    g = gate()
+    for seq in range(10):
+        assert g.admit_feedback(fb(seq, NOW), NOW) is None
+    assert g.admit_feedback(fb(10 + 4000, NOW), NOW) == "bad_seq"
+    assert g.admit_feedback(fb(10 + 1000, NOW), NOW) is None  # within max_feedback_jump: admitted ...
+    real = [g.admit_feedback(fb(seq, NOW), NOW) for seq in range(10, 1200)]
+    assert real.count(None) == len(real) - 1 and real[1000] == "duplicate"  # ... it takes its own seq only
+    assert g.rejected() == {"bad_seq": 1}
+    for seq in range(1200, 1300):  # nothing left outstanding: the teacher goes on as before
+        assert g.admit_feedback(fb(seq, NOW), NOW) is None
+    assert g.admit_feedback(fb(5, NOW), NOW) == "duplicate" and not g.missing_feedback
+
+
+def test_gate_seq_window_is_bounded_and_survives_a_restart():
+    """Jumps may leave at most `feedback_window` seqs outstanding (a forger cannot walk the window away from the
+    real teacher); the outstanding ones round-trip through the learner's checkpoint; a teacher restarted with
+    its state file continues its seq, a new incarnation (a new teacher id) starts at 0."""
+    g = gate(max_feedback_jump=100, feedback_window=250)
+    assert g.admit_feedback(fb(0, NOW), NOW) is None
+    assert [g.admit_feedback(fb(s, NOW), NOW) for s in (100, 200, 300)] == [None, None, "bad_seq"]
+    assert g.admit_feedback(fb(250, NOW), NOW) is None  # 49 more outstanding: 247 in all
+    assert g.admit_feedback(fb(255, NOW), NOW) == "bad_seq" and g.admit_feedback(fb(251, NOW), NOW) is None
+    h = gate()
+    h.load(json.loads(json.dumps(g.state())))
+    assert h.admit_feedback(fb(1, NOW), NOW) is None and h.admit_feedback(fb(1, NOW), NOW) == "duplicate"
+    assert h.admit_feedback(fb(252, NOW), NOW) is None  # the restarted teacher continues
+    h.on_status(ServiceStatus(run=RUN, service="teacher.web-1-b", pid=4, state="ready", t=NOW, counters={}))
+    assert h.admit_feedback(fb(0, NOW, teacher="web-1-b"), NOW) is None
+    assert h.admit_feedback(fb(4000, NOW, teacher="web-1-b"), NOW) == "bad_seq"  # a new teacher starts at 0
 
 
 # -- resend ring, state files ----------------------------------------------------------------------------------------
@@ -221,6 +256,32 @@ def test_atomic_json_state_file(tmp_path):
     atomic_write_json(p, {"episodes_done": 4})
     assert read_json(p) == {"episodes_done": 4}
     assert sorted(os.listdir(p.parent)) == ["actor.json"]
+
+
+def test_a_failed_state_file_write_leaves_no_temporary_file(tmp_path):
+    """A write that fails after its temporary file was made (a full disk; here a directory in the way of the
+    rename) leaves no temporary file behind (issue 25: 0-byte stats/*.json.tmp were left)."""
+    (tmp_path / "stats").mkdir()
+    with pytest.raises(OSError):
+        atomic_write(tmp_path / "stats", b'{"counters": {}}')
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["stats"]
+
+
+def test_summary_that_must_fit_its_reserve_keeps_every_count():
+    """summary.json on a full disk: the bulky lists are left out first, every count and the outcome stay."""
+    from services.launcher.rundir import SUMMARY_RESERVE, fit_reserve
+
+    counts = {"run": "r", "outcome": "disk_full", "error": "disk full", "steps_sent": 123456, "steps_logged": 123450,
+              "steps_learned": 123400, "feedback_sent": 999, "feedback_credited": 990,
+              "feedback_rejected": {"stale": 9}, "rejected_inputs": {"learner": {"bad_seq": 1}}}
+    big = {**counts, "episodes": [{"actor": "actor-1", "episode": i, "return": 0.5, "steps": 20} for i in range(5000)],
+           "returns": [0.5] * 5000}
+    text = fit_reserve(big)
+    s = json.loads(text)
+    assert len(text.encode()) <= SUMMARY_RESERVE
+    assert {k: s[k] for k in counts} == counts and "episodes" in s["left_out"] and "episodes" not in s
+    small = fit_reserve(counts)
+    assert json.loads(small) == counts  # nothing left out when it fits
 
 
 def test_progress_file_rewritten_in_place(tmp_path):

@@ -54,7 +54,7 @@ async def watch(port: int, deadline: float) -> tuple[dict, dict]:
             while time.monotonic() < deadline and not all(len(v) >= 3 for v in got.values()):
                 try:
                     msg = await ws.receive(timeout=0.5)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     msg = None
                 if msg is not None and msg.type == aiohttp.WSMsgType.TEXT:
                     body = json.loads(msg.data)

@@ -44,6 +44,7 @@ def steps_in_log(path):
 def test_no_step_lost_and_every_feedback_accounted_for(live_run):
     s = live_run.summary()
     assert s["outcome"] == "ok" and set(s["exit_codes"].values()) == {0}
+    assert s["services_not_stopped"] == []  # every service said its last word: its counts are final
     n = s["steps_sent"]
     assert n > 0 and s["steps_logged"] == n and s["steps_learned"] == n
     assert s["steps_seq_contiguous_in_log"] and s["actor_incarnations"] == 1
@@ -96,6 +97,22 @@ def test_replay_summary_agrees_with_the_launcher(live_run, tmp_path):
     assert (tmp_path / "c.png").stat().st_size > 0
 
 
+def test_replay_summary_of_the_recorded_log_with_one_flipped_byte_names_what_was_lost(live_run, tmp_path):
+    """Issue 25, finding 5: a flipped byte in a real recorded log used to read "(complete)" with exit 0."""
+    from tests.plumbing.test_mcap_damage import chunks_of
+
+    data = bytearray((live_run.rundir / "session.mcap").read_bytes())
+    chunks = chunks_of(live_run.rundir / "session.mcap")
+    offset, length, lost = chunks[len(chunks) // 2]
+    data[offset + length // 2] ^= 0x01
+    (tmp_path / "session.mcap").write_bytes(bytes(data))
+    out = subprocess.run([sys.executable, "-m", "services.replay", str(tmp_path), "summary", "--no-plot"],
+                         cwd=ROOT, env=env(), capture_output=True, text=True, timeout=120)
+    assert out.returncode == 1, out.stdout + out.stderr
+    assert "DATA LOST" in out.stdout and f"skipped 1 damaged chunk(s), {length} bytes, {len(lost)} messages" \
+        in out.stdout, out.stdout
+
+
 def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
     from common.wire.transport import free_port, open_session, router_config, tcp_endpoint
     from services.common.runtime import wait_alive
@@ -114,7 +131,8 @@ def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
             assert not wait_alive(session, "it", ["recorder"], 60)
             play = subprocess.run([sys.executable, "-m", "services.replay", str(live_run.rundir / "session.mcap"),
                                    "play", "--connect", endpoint, "--speed", "0", "--kinds", "step,feedback,episode",
-                                   "--start-delay", "0", "--credentials", str(creds / "launcher.json")], cwd=ROOT, env=env(), capture_output=True, text=True,
+                                   "--start-delay", "0", "--credentials", str(creds / "launcher.json")], cwd=ROOT,
+                                   env=env(), capture_output=True, text=True,
                                   timeout=120)
             assert play.returncode == 0, play.stderr
             time.sleep(3.0)  # the recorder checks and writes what is still in flight
@@ -227,7 +245,9 @@ def test_killed_recorder_log_is_recovered_up_to_its_last_chunk(tmp_path):
     assert steps[-1].t_action > t_kill - 1.5, f"last recovered step {t_kill - steps[-1].t_action:.2f} s before the kill"
     out = subprocess.run([sys.executable, "-m", "services.replay", str(log), "summary", "--no-plot"], cwd=ROOT,
                          env=env(), capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0 and "recovered" in out.stdout + out.stderr
+    # read up to the cut, and the cut is named: exit 1 (data lost), not 0
+    assert out.returncode == 1 and "recovered" in out.stderr and "lost:" in out.stdout, out.stdout + out.stderr
+    assert "truncated" in out.stdout and "(complete)" not in out.stdout
 
 
 def test_services_exit_when_the_launcher_is_killed(tmp_path):

@@ -15,6 +15,7 @@ import pytest
 from common.logs.mcap_log import load_log
 from common.protocol import Ingest, Step
 
+from .chaos_rule import MIN_LAST10_MEAN, STEPS
 from .live import ROOT, assert_nothing_left, env, kill_tree, start_up, wait_for
 
 pytestmark = pytest.mark.live
@@ -23,11 +24,11 @@ pytestmark = pytest.mark.live
 def test_chaos_sigkill_each_service_in_turn_loses_nothing(tmp_path):
     """One live run at 40 steps/s; recorder, learner, teacher and actor each get SIGKILL in turn and come back.
     No step or feedback is lost, the learner's record has no gap, the log reads whole across its segments,
-    retrain reproduces the final weights through the restored learner, and the run learns like an
-    undisturbed one of the same seed."""
+    retrain reproduces the final weights through the restored learner, and the run learns (its bound, from the
+    spread of honest runs and what a random policy reaches: chaos_rule.py)."""
     from services.chaos import ChaosConfig, chaos
 
-    cfg = ChaosConfig(out=str(tmp_path), seed=0, rate=40.0, max_steps=1000, first_kill=3.0, gap=2.0, alongside=True)
+    cfg = ChaosConfig(out=str(tmp_path), seed=0, rate=40.0, max_steps=STEPS, first_kill=3.0, gap=2.0, baseline=False)
     assert chaos(cfg) == 0
     report = json.loads(next(tmp_path.glob("chaos-*.json")).read_text())
     print(json.dumps({k: report[k] for k in ("kills", "steps", "feedback", "rejected_inputs", "log", "retrain",
@@ -48,7 +49,7 @@ def test_chaos_sigkill_each_service_in_turn_loses_nothing(tmp_path):
     assert len(report["retrain"]["learners"]) == 2
     assert any("restored from checkpoint" in e for e in report["learner_restore"])
     ret = report["returns"]
-    assert ret["chaos_last10_mean"] > 0.8 and ret["chaos_last10_mean"] >= ret["baseline_range_last10"][0] - 0.05, ret
+    assert ret["chaos_episodes"] > 0 and ret["chaos_last10_mean"] > MIN_LAST10_MEAN, ret
     for d in tmp_path.iterdir():
         if d.is_dir():
             assert_nothing_left(d)

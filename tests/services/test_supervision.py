@@ -108,6 +108,15 @@ def test_disk_full_ends_the_run_with_one_line_and_a_summary(tmp_path):
     assert len(errors) == 1 and "disk full" in errors[0], err[-3000:]
     s = json.loads((tmp_path / "keep" / "full" / "summary.json").read_text())
     assert s["outcome"] == "disk_full" and "disk full" in s["error"], s
+    # Issue 25, finding 6: every count is in the space reserved for summary.json, and no 0-byte file is left
+    # (learning_curve.png, stats/*.json.tmp used to be).
+    for key in ("steps_sent", "steps_logged", "steps_learned", "feedback_sent", "feedback_logged",
+                "feedback_credited", "feedback_rejected", "rejected_inputs", "duplicates_dropped", "log"):
+        assert key in s, (key, sorted(s))
+    assert s["steps_sent"] > 0 and s["steps_logged"] > 0, s
+    empty = [str(p.relative_to(tmp_path / "keep")) for p in (tmp_path / "keep").rglob("*")
+             if p.is_file() and p.stat().st_size == 0 and p.name != ".lock"]
+    assert not empty, empty
 
 
 def test_disk_read_only_out_is_one_line(tmp_path):

@@ -24,6 +24,7 @@ const CLOCK_GOOD_RTT = 0.05, CLOCK_SAMPLES = 16;
 function ping() { send({ type: "ping", t0: pageNow(), ready: hitl.clock.ready }); }
 function onPong(m) {
   const t3 = pageNow();
+  hitl.pongs = (hitl.pongs || 0) + 1;
   const rtt = (t3 - m.t0) - (m.t2 - m.t1);
   const offset = ((m.t1 - m.t0) + (m.t2 - t3)) / 2;
   const c = hitl.clock;
@@ -119,6 +120,9 @@ function showTrail() {
       ? "steps " + f.credit.steps.map((s) => `${s.seq} (${s.weight.toFixed(2)})`).join(", ") : f.credit.status) : "...";
     return `<li class="${f.value > 0 ? "pos" : "neg"}">${f.value > 0 ? "+1" : "-1"} #${f.seq} -> ${where}</li>`;
   }).join("");
+  const waiting = hitl.held.length, dropped = hitl.dropped.length;  // kept until the learner acknowledges them
+  if (waiting || dropped) ol.insertAdjacentHTML("afterbegin", `<li>${waiting} press(es) waiting for the learner` +
+    (dropped ? `, ${dropped} dropped (${[...new Set(hitl.dropped.map((d) => d.reason))].join(", ")})` : "") + "</li>");
 }
 
 // ---------------------------------------------------------------- painting a step, and saying when
@@ -154,10 +158,40 @@ function reportShown(m, tPage) {
 }
 
 // ---------------------------------------------------------------- teaching
+// Every press is kept (in this tab's sessionStorage, so a reload keeps it too) until the learner's Credit for it
+// arrives, and re-sent after a reconnect with its page id and press number: the console gives it the seq it had,
+// and the learner, which drops a seq it has consumed, answers with a `duplicate` Credit. Nothing is credited twice.
+const store = window.sessionStorage;
+function newId() { const b = new Uint8Array(12); crypto.getRandomValues(b); return [...b].map((x) => x.toString(16).padStart(2, "0")).join(""); }
+hitl.pageId = store.getItem("hitl-page-id") || newId();
+store.setItem("hitl-page-id", hitl.pageId);
+hitl.held = JSON.parse(store.getItem("hitl-held") || "[]");  // presses not yet acknowledged, oldest first
+hitl.dropped = [];  // presses the console refused, with the reason
+function keepHeld() { store.setItem("hitl-held", JSON.stringify(hitl.held)); }
+function nextPress() { const n = Number(store.getItem("hitl-press-no") || "0"); store.setItem("hitl-press-no", String(n + 1)); return n; }
+function acknowledge(m) {
+  const i = hitl.held.findIndex((h) => h.seq === m.seq && h.teacher === m.teacher_id);
+  if (i >= 0) { hitl.held.splice(i, 1); keepHeld(); showTrail(); }
+}
+function resendHeld() {  // after (re)connecting: the presses not yet acknowledged, paced below the press limit
+  const queue = hitl.held.slice();
+  const next = () => {
+    const h = queue.shift();
+    if (!h || !hitl.ws || hitl.ws.readyState !== 1) return;
+    send({ type: "feedback", value: h.value, source: h.source, t_page: h.t_page, offset: h.offset, rtt: h.rtt,
+      press: h.press, resend: true });
+    hitl.resent = (hitl.resent || 0) + 1;
+    setTimeout(next, 200);
+  };
+  next();
+}
+
 function give(value, tPage, source) {
   if (!hitl.clock.ready || hitl.ended) return;
-  send({ type: "feedback", value, source, ...stamp(tPage) });
-  hitl.pressLog.push({ value, t_page: tPage, t_sys: tPage + hitl.clock.offset, source });
+  const press = nextPress(), st = stamp(tPage);
+  hitl.held.push({ press, value, source, ...st, teacher: hitl.me, seq: null }); keepHeld();
+  send({ type: "feedback", value, source, ...st, press });
+  hitl.pressLog.push({ value, t_page: tPage, t_sys: tPage + hitl.clock.offset, source, press });
   const b = document.getElementById(value > 0 ? "good" : "bad");
   b.classList.add("flash"); setTimeout(() => b.classList.remove("flash"), 120);
 }
@@ -236,8 +270,18 @@ function onMessage(m) {
     case "step": onStep(m); break;
     case "prefs": hitl.prefs = m; showPrefs(); break;
     case "episode": hitl.curve.push(m); drawCurve(); break;
-    case "sent": hitl.mine.set(m.seq, { seq: m.seq, value: m.value, t_reaction: m.t_reaction, credit: null }); showTrail(); break;
+    case "sent": {
+      const h = hitl.held.find((x) => x.press === m.press);
+      if (h) { h.seq = m.seq; h.teacher = hitl.me; keepHeld(); }
+      if (!hitl.mine.has(m.seq)) hitl.mine.set(m.seq, { seq: m.seq, value: m.value, t_reaction: m.t_reaction, credit: null });
+      showTrail(); break;
+    }
     case "credit":
+      if (m.teacher_id === hitl.me) acknowledge(m);
+      if (m.status === "duplicate") {  // an acknowledgement of a re-sent press, not a second credit
+        if (m.teacher_id === hitl.me && hitl.mine.has(m.seq) && !hitl.mine.get(m.seq).credit) hitl.mine.get(m.seq).credit = m;
+        break;
+      }
       hitl.trail.push(m); if (hitl.trail.length > 200) hitl.trail.shift();
       if (m.teacher_id === hitl.me && hitl.mine.has(m.seq)) { hitl.mine.get(m.seq).credit = m; showTrail(); }
       drawScene(); break;
@@ -247,11 +291,18 @@ function onMessage(m) {
       m.label ? `expression: ${m.label} (${m.confidence.toFixed(2)})` : "expression: no face"; break;
     case "face_feedback": hitl.faceFeedback.push(m);
       document.getElementById("facefb").textContent = `face feedback ${m.value > 0 ? "+1" : "-1"} (${m.teacher_id} #${m.seq})`; break;
-    case "rejected": hitl.rejected[m.reason] = (hitl.rejected[m.reason] || 0) + 1; break;
+    case "rejected": {
+      hitl.rejected[m.reason] = (hitl.rejected[m.reason] || 0) + 1;
+      const i = m.press === null || m.press === undefined ? -1 : hitl.held.findIndex((h) => h.press === m.press);
+      if (i >= 0) { hitl.dropped.push({ ...hitl.held[i], reason: m.reason }); hitl.held.splice(i, 1); keepHeld(); showTrail(); }
+      break;
+    }
+    case "refused": hitl.refused = m; document.getElementById("who").textContent = `not connected: ${m.why}`; break;
   }
 }
 
-async function connect() {
+async function loginParams() {
+  if (hitl.login) return hitl.login;
   const q = new URLSearchParams(location.search);
   const params = new URLSearchParams();
   for (const k of ["name", "teacher", "password"]) if (q.get(k)) params.set(k, q.get(k));
@@ -260,14 +311,28 @@ async function connect() {
     params.set("teacher", prompt("teacher name") || "");
     params.set("password", prompt("password") || "");
   }
+  params.set("page", hitl.pageId);
+  return (hitl.login = params);
+}
+
+async function connect() {
+  let params;
+  try { params = await loginParams(); } catch (e) { return reconnectLater(); }  // the console is restarting
   const ws = hitl.ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws?${params}`);
   ws.binaryType = "arraybuffer";
   ws.onopen = () => {  // a burst until the clock is ready, then a ping every 2 s
+    hitl.closed = false;
     hitl.burst = setInterval(() => (hitl.clock.ready ? clearInterval(hitl.burst) : ping()), 60);
     hitl.pinger = setInterval(ping, 2000);
   };
-  ws.onmessage = (ev) => onMessage(JSON.parse(ev.data));
+  ws.onmessage = (ev) => {
+    const m = JSON.parse(ev.data);
+    onMessage(m);
+    if (m.type === "hello") { hitl.connections = (hitl.connections || 0) + 1; resendHeld(); }
+  };
   ws.onclose = () => { clearInterval(hitl.pinger); clearInterval(hitl.burst); hitl.closed = true;
-    document.getElementById("who").textContent += " (disconnected)"; };
+    document.getElementById("who").textContent += " (disconnected)";
+    if (!hitl.ended && !hitl.refused) reconnectLater(); };
 }
+function reconnectLater() { setTimeout(connect, 1000); }  // a restarted console: the page comes back by itself
 connect();
