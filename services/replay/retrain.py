@@ -180,4 +180,5 @@ def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResul
             diff = max(float(np.max(np.abs(np.asarray(w.tensors[k], np.float64) - final[k]))) if final[k].size else 0.0
                        for k in final)
     return RetrainResult(learner, n_steps + n_fb, n_steps, n_fb, ended, mismatch is None, mismatch, compared,
-                         identical, diff, version, final, missing, log.warnings, live[-1].revision if compared else None)
+                         identical, diff, version, final, missing, log.warnings,
+                         live[-1].revision if compared else None)

@@ -9,6 +9,7 @@ the new weights need to reach the actor (publish, carry, check, decode); a press
 than that may wait one more step. The log's weights revisions are checked to say something: the action before
 the credit did not have it, and the learner's revisions move between steps (the idle updates and presses).
 """
+
 from __future__ import annotations
 
 import json
@@ -42,8 +43,26 @@ def log_of(rundir):
 
 
 def test_a_press_credited_before_the_next_action_is_acted_on_by_it(tmp_path):
-    run = WebRun(tmp_path, "next", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "50",
-                 "--episode-steps", "30", "--max-steps", "120", "--rate", str(RATE), "--seed", "3")
+    run = WebRun(
+        tmp_path,
+        "next",
+        "--env",
+        "maze",
+        "--layout",
+        "0",
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "50",
+        "--episode-steps",
+        "30",
+        "--max-steps",
+        "120",
+        "--rate",
+        str(RATE),
+        "--seed",
+        "3",
+    )
     scripted_person(run, tmp_path / "profile", "{p: 0.7, lagMin: 0.3, lagMax: 1.0, seed: 5}")
 
     steps, credits = log_of(run.rundir)
@@ -60,13 +79,20 @@ def test_a_press_credited_before_the_next_action_is_acted_on_by_it(tmp_path):
         assert before and before[-1].weights_revision < c.revision  # the action before could not have it
         assert nxt.weights_revision >= c.revision, (
             f"press {c.seq} credited {nxt.t_action - c.t_credited:.3f} s before step {nxt.seq}, which acted with "
-            f"revision {nxt.weights_revision} < {c.revision}")
+            f"revision {nxt.weights_revision} < {c.revision}"
+        )
         checked += 1
     assert checked >= 20, checked
 
     # The measure prints press -> first action that used it (and says the next action did, as a rule).
-    out = subprocess.run([sys.executable, "-m", "services.console.measure", str(run.rundir)], cwd=ROOT, env=env(),
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "services.console.measure", str(run.rundir)],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     figures = json.loads(out.stdout)
     used = figures["press_to_first_action_using_it_ms"]
@@ -76,6 +102,12 @@ def test_a_press_credited_before_the_next_action_is_acted_on_by_it(tmp_path):
 
     # What the actor did with the weights is not an input of learning: retraining from the log gives the live
     # learner's weights bit for bit.
-    retrain = subprocess.run([sys.executable, "-m", "services.replay", str(run.rundir / "session.mcap"), "retrain"],
-                             cwd=ROOT, env=env(), capture_output=True, text=True, timeout=300)
+    retrain = subprocess.run(
+        [sys.executable, "-m", "services.replay", str(run.rundir / "session.mcap"), "retrain"],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert retrain.returncode == 0 and "IDENTICAL" in retrain.stdout, retrain.stdout[-2000:] + retrain.stderr[-2000:]
