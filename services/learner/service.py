@@ -3,9 +3,8 @@
 One inbox receives both the actor's steps and every teacher's feedback, in arrival order; the learner
 consumes it in that order through `LearnerCore` (credit by timestamp, Q and H updates) and records the order
 in Ingest messages (`hitl/<run>/ingest`, first one carrying its config). It publishes Weights (version =
-steps learned; revision = Q and H updates made) at least every `weights_every` steps and whenever it has caught
-up and they changed (a feedback's H update or an idle update between two steps too: the next action uses it),
-and an EpisodeSummary per episode.
+steps learned; revision = Q and H updates made) at least every `weights_every` steps and when it has caught up
+and they changed (a press's H update between two steps too), and an EpisodeSummary per episode.
 
 Every input passes the `InputGate` first (docs/faults.md): undecodable bytes, wrong shapes, timestamps far
 off, unannounced actor incarnations, unknown teachers, seq jumps are dropped and counted
@@ -45,6 +44,7 @@ from services.learner.catchup import catch_up
 from services.learner.core import LearnerCore
 from services.learner.snapshots import Snapshots
 
+REVISION_QUIET = 0.02  # s since the last step before weights changed without a new step go out on their own
 
 
 def restore(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: InputGate) -> dict | None:
@@ -88,6 +88,7 @@ class Learner:
         self.teachers_final: dict[str, int] = {}
         self.teachers_known: set[str] = set(config.wait_teachers)
         self.caught_up_at: float | None = None
+        self.last_step_at = 0.0  # (monotonic) when the last step arrived
 
     # -- outputs ---------------------------------------------------------------------------------------------
     def flush_ingest(self) -> None:
@@ -236,11 +237,12 @@ class Learner:
         if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
             if self.idle_left > 0 and self.core.idle(time.time()):
                 self.idle_left -= 1
-                self.publish_weights_if_due(idle=True)
+            self.publish_weights_if_due(idle=True)  # (an idle update, or a press held back as steps streamed)
             self.flush_ingest()  # (what waited for the period goes now: nothing else is coming)
             return
         if got.key.endswith("/step"):  # a new step: a new budget of idle-time updates before the next one
             self.idle_left = self.config.idle_updates
+            self.last_step_at = time.monotonic()
         now = time.time()
         t_sent = got.t_zenoh if got.t_zenoh is not None else got.t_recv
         try:
@@ -255,10 +257,13 @@ class Learner:
             self.flush_ingest()
 
     def publish_weights_if_due(self, idle: bool) -> None:
-        """New weights go out when they changed (a step, or any Q or H update between steps) and nothing else is
-        waiting, or after `weights_every` steps while catching up."""
+        """New weights go out when they changed and nothing else is waiting, or after `weights_every` steps while
+        catching up; a change without a new step (a press, an idle update) waits while steps stream in."""
         v, last = self.core.steps_learned, self.last_weights
-        if (v, self.core.revision) != (last["v"], last["r"]) and (idle or v - last["v"] >= self.config.weights_every):
+        if v != last["v"]:
+            if idle or v - last["v"] >= self.config.weights_every:
+                self.publish_weights(v)
+        elif self.core.revision != last["r"] and idle and time.monotonic() - self.last_step_at >= REVISION_QUIET:
             self.publish_weights(v)
 
     def on_restarts(self) -> None:
