@@ -21,7 +21,7 @@ LOCK_ARGS := pyproject.toml --all-extras --python-version 3.11 --python-platform
 step = @echo "setup: $(2)"; mkdir -p $(LOGS); ( $(3) ) >$(LOGS)/$(1).log 2>&1 || \
 	{ cat $(LOGS)/$(1).log; echo "setup failed: $(2) (log: $(LOGS)/$(1).log)"; exit 1; }
 
-.PHONY: setup run test lint lock lock-check bench reproduce clean
+.PHONY: setup run test lint lock lock-check bench reproduce report clean
 
 setup: $(STAMP)
 
@@ -55,7 +55,12 @@ lint: setup lock-check
 	$(VENV)/bin/mypy
 
 # Files kept by `ruff format`; new files join this list. The rest keeps its compact hand wrapping (why: pyproject.toml).
-FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py services/replay/curve.py tests/console/test_press_next_action.py tests/console/test_measure_first_use.py
+FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py services/replay/curve.py \
+	common/core/delay_model.py common/agents/feedback.py experiments/delay_check.py tests/core/test_credit_boundary.py \
+	tests/experiments/test_delay_check.py services/console/lags.py services/console/design.py services/replay/heldout.py \
+	services/learner/teacher_delays.py tests/console/test_delay_page.py tests/replay/test_heldout.py \
+	tests/services/test_profiles.py \
+	tests/console/test_press_next_action.py tests/console/test_measure_first_use.py services/learner/credits.py
 
 lock:
 	$(UV) pip compile $(LOCK_ARGS) -o $(LOCK)
@@ -68,6 +73,10 @@ lock-check: setup
 
 reproduce: setup
 	$(PY) -m experiments reproduce --out docs/results
+
+# Every verdict, interval and figure again from the committed per-trial table, without running a trial.
+report: setup
+	$(PY) -m experiments report --from docs/results/trials.csv.gz --out runs/report
 
 bench: setup
 	$(PY) -m experiments bench

@@ -1,5 +1,5 @@
-"""python -m experiments {run, sweep, reproduce, bench, bench-compare}: experiments on the in-process runner
-(virtual clock)."""
+"""python -m experiments {run, sweep, reproduce, report, bench, bench-compare}: experiments on the in-process
+runner (virtual clock)."""
 from __future__ import annotations
 
 import csv
@@ -30,7 +30,7 @@ def cmd_run(config: RunConfig) -> int:
     os.makedirs(config.out, exist_ok=True)
     task = config.task
     spec = TrialSpec(task.env, config.agent, config.observer, task.seed, task.layout, config.episodes,
-                     task.teacher_rule)
+                     task.teacher_rule, config.step_seconds)
     with open(os.path.join(config.out, "config.json"), "w") as fh:
         json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
     bar = tqdm(total=config.episodes, desc=f"{config.algo} on {task.env}", unit="ep", file=sys.stderr)
@@ -50,8 +50,13 @@ def cmd_run(config: RunConfig) -> int:
     plot_curves({config.algo: result.returns}, os.path.join(config.out, "curve.png"),
                 f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
                 stop_episode=config.observer.stop_episode)
+    summary = {"episodes": len(result.episodes), "steps": result.total_steps, "wall_s": round(wall, 3),
+               "returns": result.returns.tolist(), "delay": {"observer": result.delay}}
+    with open(os.path.join(config.out, "summary.json"), "w") as fh:
+        json.dump(summary, fh, indent=1)
     print(f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
-          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, curve.png")
+          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, summary.json, "
+          f"curve.png")
     return 0
 
 
@@ -68,7 +73,8 @@ def cmd_reproduce(args, argv: list[str]) -> int:
     changes = {k: v for k, v in (("layouts", args.layouts), ("reps", args.reps),
                                  ("maze_episodes", args.maze_episodes), ("taxi_episodes", args.taxi_episodes),
                                  ("taxi_random_episodes", args.taxi_random_episodes or args.taxi_episodes),
-                                 ("taxi_trials", args.taxi_trials)) if v is not None}
+                                 ("taxi_trials", args.taxi_trials), ("taxi_fixed_trials", args.taxi_fixed_trials))
+               if v is not None}
     scale = replace(scale, **changes)
     out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
     args.out = out
@@ -84,6 +90,29 @@ def cmd_reproduce(args, argv: list[str]) -> int:
           f"shared) in {stats.total_s:.1f} s; wrote {args.out}/REPORT.md, claims.json, timing.json, *.png")
     for claim, verdict in verdicts.items():
         print(f"  {claim}: {verdict}")
+    return 0
+
+
+def cmd_report(args, argv: list[str]) -> int:
+    """Recompute claims.json, REPORT.md and the figures from a per-trial table alone."""
+    from experiments.reproduce import report_from_table
+    from experiments.trialcache import read_json_or_none
+
+    src = os.path.dirname(os.path.abspath(args.source))
+    timing = read_json_or_none(os.path.join(src, "timing.json")) or {}
+    if "scale" not in timing:
+        print(f"error: {src}/timing.json (the run's scale and cost, beside the table) is missing or unreadable",
+              file=sys.stderr)
+        return 1
+    previous = (read_json_or_none(os.path.join(src, "claims.json")) or {}).get("previous", {})
+    try:
+        result = report_from_table(args.source, args.out, timing, argv, args.n_boot, previous)
+    except (OSError, ValueError, EOFError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"wrote {args.out}/claims.json, REPORT.md and the figures from {args.source} (no trial run)")
+    for claim, c in result["claims"].items():
+        print(f"  {claim}: {c['verdict']}")
     return 0
 
 
@@ -120,6 +149,49 @@ def cmd_bench_compare(args, parser) -> int:
     return 0
 
 
+def add_bench_parser(sub, by_name):
+    p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
+                             "loop, measured side by side on the same trials")
+    p_bench.add_argument("--conditions", nargs="+", default=list(by_name), choices=list(by_name),
+                         help="conditions to draw trials from (default: all)")
+    p_bench.add_argument("--trials", type=int, default=2, help="trials per agent and condition (default: 2)")
+    p_bench.add_argument("--episodes", type=int, default=30, help="episodes per trial (default: 30)")
+    p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
+    p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
+    p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
+                         "torch MLP, on the first condition's trials)")
+    return p_bench
+
+
+def add_report_parser(sub) -> None:
+    p_report = sub.add_parser("report", help="every verdict, interval and figure recomputed from a per-trial "
+                              "table (docs/results/trials.csv.gz) without running a trial")
+    p_report.add_argument("--from", dest="source", required=True, metavar="TABLE",
+                          help="the table (its directory's timing.json and claims.json give the run's scale and "
+                          "the previous verdicts)")
+    p_report.add_argument("--out", required=True, help="directory for claims.json, REPORT.md and the figures")
+    p_report.add_argument("--n-boot", type=int, default=None, help="bootstrap resamples (default: the declared "
+                          "number, as the reproduction)")
+
+
+def add_delay_check(sub):
+    from experiments.delay_check import DelayCheckConfig
+
+    p_delay = sub.add_parser("delay-check", help=DelayCheckConfig.__doc__, description=DelayCheckConfig.__doc__)
+    add_config_arguments(p_delay, DelayCheckConfig)
+    return p_delay
+
+
+def cmd_delay_check(args, parser) -> int:
+    from experiments.delay_check import DelayCheckConfig, main as delay_check_main
+
+    try:
+        check = config_from_namespace(DelayCheckConfig, args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    return delay_check_main(check)
+
+
 def main(argv: list[str] | None = None) -> int:
     from experiments.conditions import BY_NAME
 
@@ -143,7 +215,8 @@ def main(argv: list[str] | None = None) -> int:
     p_rep.add_argument("--taxi-episodes", type=int, help="episodes per Taxi trial (both Taxi variants)")
     p_rep.add_argument("--taxi-random-episodes", type=int,
                        help="episodes per trial of Gymnasium's Taxi (random passenger and destination) only")
-    p_rep.add_argument("--taxi-trials", type=int, help="Taxi trials per arm")
+    p_rep.add_argument("--taxi-trials", type=int, help="trials per arm of Gymnasium's Taxi (default 6)")
+    p_rep.add_argument("--taxi-fixed-trials", type=int, help="trials per arm of the fixed-task Taxi (default 4)")
     p_rep.add_argument("--only", nargs="+", metavar="NAME", choices=list(BY_NAME),
                        help=f"run only these conditions ({', '.join(BY_NAME)})")
     p_rep.add_argument("--out", default=None, help="output directory (default: docs/results)")
@@ -151,16 +224,8 @@ def main(argv: list[str] | None = None) -> int:
     p_rep.add_argument("--ray", default=None, metavar="auto|local|ADDRESS",
                        help="run the trials as Ray tasks on that cluster, as `sweep --ray` does (docs/sweeps.md)")
     p_rep.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p_bench = sub.add_parser("bench", help="speed-up of batched, parallel trials over the plain per-trial "
-                             "loop, measured side by side on the same trials")
-    p_bench.add_argument("--conditions", nargs="+", default=list(BY_NAME), choices=list(BY_NAME),
-                         help="conditions to draw trials from (default: all)")
-    p_bench.add_argument("--trials", type=int, default=2, help="trials per agent and condition (default: 2)")
-    p_bench.add_argument("--episodes", type=int, default=30, help="episodes per trial (default: 30)")
-    p_bench.add_argument("--workers", type=int, default=2, help="processes for the parallel mode (default: 2)")
-    p_bench.add_argument("--out", default=None, help="also write the numbers to this JSON file")
-    p_bench.add_argument("--paths-only", action="store_true", help="only the network paths (numpy MLP vs "
-                         "torch MLP, on the first condition's trials)")
+    add_report_parser(sub)
+    p_bench = add_bench_parser(sub, BY_NAME)
     p_cmp = sub.add_parser("bench-compare", help="the in-process runner of this checkout against another (a "
                            "worktree of an earlier commit), plain and batched, alternating, round after round: "
                            "steps/s ratios per round, the median ratio")
@@ -171,7 +236,10 @@ def main(argv: list[str] | None = None) -> int:
     p_cmp.add_argument("--trials", type=int, default=1, help="trials per agent and environment (default: 1)")
     p_cmp.add_argument("--episodes", type=int, default=10, help="episodes per trial (default: 10)")
     p_cmp.add_argument("--out", default=None, help="also write every run's figures and the ratios to this JSON file")
+    p_delay = add_delay_check(sub)
     args = parser.parse_args(argv)
+    if args.command == "delay-check":
+        return cmd_delay_check(args, p_delay)
     if args.command == "bench-compare":
         return cmd_bench_compare(args, p_cmp)
     if args.command == "sweep":
@@ -180,6 +248,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.layouts is not None and args.layouts < 4:
             p_rep.error("--layouts must be at least 4 (intervals resample layouts)")
         return cmd_reproduce(args, argv)
+    if args.command == "report":
+        if args.n_boot is None:
+            from experiments.evaluate import N_BOOT
+            args.n_boot = N_BOOT
+        return cmd_report(args, argv)
     if args.command == "bench":
         if args.trials < 1 or args.episodes < 1:
             p_bench.error("--trials and --episodes must be positive")

@@ -1,26 +1,60 @@
 """The claims and their tests, declared before the runs that decide them (commit order is the evidence).
 
-Primary metric (robust, bounded): per trial, the mean over an episode window of ln(steps in the
-episode) - the log of the geometric-mean episode length. A stuck 1000-step episode counts ln 1000 = 6.9
-against ln 5 = 1.6 for the maze's optimum, so one stuck episode cannot dominate as its -10 return does.
-Lower is better; every effect below is signed so that positive means "as the paper claims".
+This is the declaration of 25 November 2026 (issue 27), committed before any of its deciding runs. It
+replaces the declaration of 23 November, which had been made after the 22 November run's results were seen
+(docs/results/HISTORY.md tells every step). What changed, and why:
 
-An effect is a linear combination of (condition, arm) metrics, paired by trial (same layout and seed);
-per layout the trials' effects are averaged (the cluster), and:
-  estimate  mean over trials; interval: 95% percentile bootstrap resampling whole layouts (stats.py)
-  p-value   one-sided t-test over the layouts' means (scipy.stats.ttest_1samp, H1: effect > 0; for a
-            `noninferior` test H1: effect > -MARGIN); a test of several effects that must all hold
-            (intersection-union) reports the smallest effect and the largest p-value
-  Holm      across the primary tests of one family (the paper's claims; ours beyond the paper)
-Verdict of a claim, from its ONE primary test (secondary tests are shown, never deciding):
+Two co-primary metrics. Per trial, over an episode window:
+  ln steps  the mean of ln(steps in the episode): lower is better; MARGIN = ln 1.1 (10% fewer steps per
+            episode, geometric mean) is the smallest effect we call real.
+  return    the mean return per episode: higher is better; RETURN_MARGIN per environment (Maze 0.05: five
+            -0.01 steps per episode; Taxi 1.0: one -1 step per episode).
+Every effect is signed so that positive means "as claimed". A claim is tested on both metrics, each with
+its own Holm correction across its family's primary tests, and each metric gives a verdict:
   reproduced      Holm-adjusted p < ALPHA
-  not reproduced  the interval's upper end is below MARGIN (greater) or below -MARGIN (noninferior):
-                  the effect is confidently smaller than the smallest effect that matters
+  not reproduced  some component's 95% interval lies wholly below its margin (greater) or below minus its
+                  margin (noninferior): the effect is confidently smaller than the smallest that matters
   inconclusive    otherwise
-  fragile         added when the reproduced / not-reproduced decision flips under another reasonable
-                  rule: Wilcoxon instead of t, per-trial median instead of mean of ln steps, or mean
-                  return instead of ln steps (same Holm factor)
-MARGIN = ln 1.1: 10% fewer steps per episode (geometric mean) is the smallest effect we call real.
+The claim's verdict is the two metrics' verdict where they agree, and **mixed** where they do not (the
+report names each metric's verdict). No other rule is primary; Wilcoxon instead of t and the per-trial
+median instead of the mean of ln steps are shown as robustness checks ("fragile" where either flips the
+ln-steps decision), never deciding.
+
+Populations. The paper describes no systematically wrong teacher, so a maze claim's primary population is
+the HONEST layouts (Taxi has no layout classes: all its trials). The misleading layouts are a declared
+extension: each primary test is also run on them, with a layout-class x method interaction test (the
+effect on honest minus on misleading layouts: two-sided Welch t-test over the two classes' layout means,
+scipy.stats.ttest_ind(equal_var=False), and a bootstrap interval resampling layouts within each class).
+The extension never decides a verdict. A1 and M1 are claims about misleading teachers: their primary
+population is the misleading layouts, and the honest layouts their extension.
+
+Tests. An effect is a linear combination of (condition, arm) metrics, paired by trial (same layout and
+seed); per layout the trials' effects are averaged (the cluster). Estimate: mean over trials; interval:
+95% percentile bootstrap resampling whole layouts (stats.py); p: one-sided t-test over the layouts' means
+(scipy.stats.ttest_1samp, H1: effect > 0; `noninferior`: H1: effect > -margin). A test of several
+effects that must all hold (intersection-union) has p = the largest component p, and the claim's shown
+estimate and interval are those of that weakest component. Holm across the primary tests of a family
+(the paper's claims C1-C6; ours D1-D3, A1, M1), separately per metric.
+
+C5 is tested as the paper states it: DQN-TAMER beats every other agent after the feedback stops on the
+Maze MDP, the Maze POMDP and Gymnasium's Taxi, all nine comparisons in one intersection-union test.
+
+A1 has a control: the fixed schedule `dqn-tamer/matched` (the paper's alpha_h x 0.9999^t times MATCH_K),
+MATCH_K = the adaptive arm's mean alpha_h over the paper arm's, measured on a pilot (pilot layouts 44-59,
+seeds 9000+: `python -m experiments.alpha_pilot`, experiments/conditions.py says the command and values),
+so "adaptive" is tested against "less H" of the same mean.
+
+M1 (beyond the paper): on misleading layouts DQN-TAMER with the teacher's reliability
+(`dqn-tamer/trusted`, common/agents/explorer.py: alpha_h falls for a teacher whose advice Q, once it has
+learned from the return, keeps contradicting) is no worse than DQN by more than the margins; its
+settings were chosen on the same pilot, never on a deciding trial.
+
+D1-D3 (learned delay) are decided with the corrected estimator of the credit fix (the per-teacher delay
+model in seconds on the virtual clock, common/core/delay_model.py, merged before the deciding run).
+
+Fresh trials: the deciding runs use maze layouts 60-119 (`Scale.first_layout`, the same generator stream
+continued: common/envs/maze.py) and seed block 2 (`Scale.seed_block`: every seed differs from those of
+every earlier run, whose block was 1, and from the pilots' 9000+); no pilot or earlier run used them.
 """
 from __future__ import annotations
 
@@ -29,12 +63,18 @@ from dataclasses import dataclass, field
 
 ALPHA = 0.05
 MARGIN = math.log(1.1)
+RETURN_MARGIN = {"maze": 0.05, "taxi": 1.0}
+"""The return's margin per episode: Maze five -0.01 steps, Taxi one -1 step."""
+METRICS = ("ln steps", "return")
+"""The co-primary metrics."""
 AGENT_NAMES = {"dqn": "DQN", "dqn-rs": "DQN+RS", "deep-tamer": "Deep TAMER", "dqn-tamer": "DQN-TAMER",
                "dqn-tamer/adaptive": "DQN-TAMER (adaptive alpha_h)",
+               "dqn-tamer/matched": "DQN-TAMER (fixed alpha_h matched on the adaptive mean)",
+               "dqn-tamer/trusted": "DQN-TAMER (teacher's reliability)",
                "deep-tamer/uniform": "Deep TAMER (uniform lags)", "deep-tamer/true": "Deep TAMER (true lags)",
                "deep-tamer/learned": "Deep TAMER (learned lags)", "dqn-tamer/uniform": "DQN-TAMER (uniform lags)",
                "dqn-tamer/true": "DQN-TAMER (true lags)", "dqn-tamer/learned": "DQN-TAMER (learned lags)"}
-Term = tuple[float, str, str]  # (coefficient, condition, arm) of the metric (ln steps: lower is better)
+Term = tuple[float, str, str]  # (coefficient, condition, arm) of the metric
 
 
 @dataclass(frozen=True)
@@ -44,7 +84,8 @@ class Effect:
 
 
 def better(cond: str, good: str, other: str, cond_other: str | None = None) -> Effect:
-    """`good` needs fewer steps than `other`: metric(other) - metric(good)."""
+    """`good` does better than `other` (fewer steps, more return): metric(other) - metric(good), the metric
+    oriented so that lower is better."""
     co = cond_other or cond
     return Effect(f"{AGENT_NAMES.get(other, other)} ({co}) - {AGENT_NAMES.get(good, good)} ({cond})",
                   ((1.0, co, other), (-1.0, cond, good)))
@@ -67,12 +108,12 @@ class Test:
     text: str
     effects: tuple[Effect, ...]
     """All must hold (intersection-union when more than one)."""
-    layouts: str = "pooled"
-    """pooled | honest | misleading: which layouts' trials enter."""
+    layouts: str = "honest"
+    """honest | misleading | pooled: the primary population (Taxi: all its trials under honest or pooled)."""
     window: str = "all"
     """all | after-stop | before-stop | last: which episodes the metric averages."""
     kind: str = "greater"
-    """greater (H1: effect > 0) | noninferior (H1: effect > -MARGIN)."""
+    """greater (H1: effect > 0) | noninferior (H1: effect > -margin)."""
 
 
 @dataclass(frozen=True)
@@ -87,53 +128,50 @@ class Claim:
 def _paper_claims() -> list[Claim]:
     hnd, hd, lnd, ld = "maze-high-nodelay", "maze-high-delay", "maze-low-nodelay", "maze-low-delay"
     fb = ("dqn-rs", "deep-tamer", "dqn-tamer")
+    others = ("dqn", "dqn-rs", "deep-tamer")
     out = [
         Claim("C1", "paper", "Without delay, DQN+RS learns faster than DQN (Maze).",
-              Test("C1", "high frequency, no delay: DQN+RS needs fewer steps than DQN",
-                   (better(hnd, "dqn-rs", "dqn"),)),
-              (Test("C1", "low frequency, no delay: DQN+RS fewer steps than DQN", (better(lnd, "dqn-rs", "dqn"),)),)),
+              Test("C1", "high frequency, no delay: DQN+RS does better than DQN", (better(hnd, "dqn-rs", "dqn"),)),
+              (Test("C1", "low frequency, no delay: DQN+RS better than DQN", (better(lnd, "dqn-rs", "dqn"),)),)),
         Claim("C2", "paper", "With delay, DQN+RS degrades and falls back to about DQN.",
-              Test("C2", "high frequency: DQN+RS needs more steps with delay than without",
+              Test("C2", "high frequency: DQN+RS does worse with delay than without",
                    (better(hnd, "dqn-rs", "dqn-rs", hd),)),
-              (Test("C2", "low frequency: DQN+RS needs more steps with delay than without",
+              (Test("C2", "low frequency: DQN+RS worse with delay than without",
                     (better(lnd, "dqn-rs", "dqn-rs", ld),)),
                Test("C2", "high frequency, with delay: DQN+RS not worse than DQN by more than the margin",
                     (better(hd, "dqn-rs", "dqn"),), kind="noninferior"))),
         Claim("C3", "paper", "More frequent feedback speeds every feedback-using method up.",
-              Test("C3", "with delay: each of DQN+RS, Deep TAMER, DQN-TAMER needs fewer steps at p=0.5 than at p=0.1",
+              Test("C3", "with delay: each of DQN+RS, Deep TAMER, DQN-TAMER does better at p=0.5 than at p=0.1",
                    tuple(better(hd, a, a, ld) for a in fb)),
-              (Test("C3", "no delay: each feedback method fewer steps at p=0.5 than at p=0.1",
+              (Test("C3", "no delay: each feedback method better at p=0.5 than at p=0.1",
                     tuple(better(hnd, a, a, lnd) for a in fb)),)),
         Claim("C4", "paper", "At low feedback frequency Deep TAMER is particularly poor; DQN-TAMER is the most robust.",
-              Test("C4", "with delay: DQN-TAMER loses fewer steps than DQN+RS and than Deep TAMER from p=0.5 to p=0.1",
+              Test("C4", "with delay: DQN-TAMER loses less than DQN+RS and than Deep TAMER from p=0.5 to p=0.1",
                    (degradation_gap(ld, hd, "dqn-tamer", "dqn-rs"),
                     degradation_gap(ld, hd, "dqn-tamer", "deep-tamer"))),
-              (Test("C4", "p=0.1 with delay: Deep TAMER needs more steps than each other agent",
+              (Test("C4", "p=0.1 with delay: Deep TAMER does worse than each other agent",
                     tuple(better(ld, a, "deep-tamer") for a in ("dqn", "dqn-rs", "dqn-tamer"))),
-               Test("C4", "p=0.1 with delay: DQN-TAMER needs fewer steps than each other agent",
-                    tuple(better(ld, "dqn-tamer", a) for a in ("dqn", "dqn-rs", "deep-tamer"))),
-               Test("C4", "p=0.1 no delay: DQN-TAMER fewer steps than each other agent",
-                    tuple(better(lnd, "dqn-tamer", a) for a in ("dqn", "dqn-rs", "deep-tamer"))))),
+               Test("C4", "p=0.1 with delay: DQN-TAMER does better than each other agent",
+                    tuple(better(ld, "dqn-tamer", a) for a in others)),
+               Test("C4", "p=0.1 no delay: DQN-TAMER better than each other agent",
+                    tuple(better(lnd, "dqn-tamer", a) for a in others)))),
     ]
-    stop_tests = []
-    for cond, label in (("pomdp-stop", "Maze POMDP"), ("taxi-fixed-stop", "Taxi, fixed task"), ("taxi-stop", "Taxi")):
-        stop_tests.append(Test("C5", f"{label}, after the stop: DQN-TAMER fewer steps than each other agent",
-                               tuple(better(cond, "dqn-tamer", a) for a in ("dqn", "dqn-rs", "deep-tamer")),
-                               window="after-stop"))
-    stop_tests.append(Test("C5", "Maze MDP: Deep TAMER stagnates: its steps after the stop not below those before "
-                           "by more than the margin", (Effect("Deep TAMER after - before the stop",
-                                                              ((1.0, "maze-stop", "deep-tamer@after"),
-                                                               (-1.0, "maze-stop", "deep-tamer@before"))),),
-                           kind="noninferior"))
+    stop = tuple(better(cond, "dqn-tamer", a) for cond in ("maze-stop", "pomdp-stop", "taxi-stop") for a in others)
     out.append(Claim("C5", "paper", "When feedback stops after 30 episodes, DQN-TAMER beats all others (Maze MDP, "
                      "Maze POMDP, Taxi); Deep TAMER stagnates.",
-                     Test("C5", "Maze MDP, after the stop: DQN-TAMER needs fewer steps than each other agent",
-                          tuple(better("maze-stop", "dqn-tamer", a) for a in ("dqn", "dqn-rs", "deep-tamer")),
-                          window="after-stop"), tuple(stop_tests)))
+                     Test("C5", "after the stop, on the Maze MDP, the Maze POMDP and Gymnasium's Taxi: DQN-TAMER does "
+                          "better than each other agent (9 comparisons)", stop, window="after-stop"),
+                     (Test("C5", "Taxi with a fixed task, after the stop: DQN-TAMER better than each other agent",
+                           tuple(better("taxi-fixed-stop", "dqn-tamer", a) for a in others), window="after-stop"),
+                      Test("C5", "Maze MDP: Deep TAMER stagnates: after the stop not better than before by more "
+                           "than the margin", (Effect("Deep TAMER after - before the stop",
+                                                      ((1.0, "maze-stop", "deep-tamer@after"),
+                                                       (-1.0, "maze-stop", "deep-tamer@before"))),),
+                           kind="noninferior"))))
     out.append(Claim("C6", "paper", "With about 15% misread (flipped) feedback, DQN-TAMER still learns.",
-                     Test("C6", "15% flips: DQN-TAMER needs fewer steps than DQN (misread feedback still helps)",
+                     Test("C6", "15% flips: DQN-TAMER does better than DQN (misread feedback still helps)",
                           (better("maze-flip", "dqn-tamer", "dqn"),)),
-                     (Test("C6", "15% flips: DQN-TAMER's last 10 episodes shorter than its first 10",
+                     (Test("C6", "15% flips: DQN-TAMER's last 10 episodes better than its first 10",
                            (Effect("first 10 - last 10", ((1.0, "maze-flip", "dqn-tamer@first"),
                                                           (-1.0, "maze-flip", "dqn-tamer@last"))),)),)))
     return out
@@ -148,31 +186,46 @@ def _beyond_claims() -> list[Claim]:
 
     def per_observer(algo: str, good: str, other: str, kind: str = "greater") -> tuple[Test, ...]:
         return tuple(Test("", f"{c}: {AGENT_NAMES[f'{algo}/{good}']} vs {AGENT_NAMES[f'{algo}/{other}']}",
-                          (better(c, f"{algo}/{good}", f"{algo}/{other}"),), "honest", kind=kind) for c in D)
+                          (better(c, f"{algo}/{good}", f"{algo}/{other}"),), kind=kind) for c in D)
 
+    hd = "maze-high-delay"
     return [
-        Claim("D1", "beyond", "Deep TAMER with the delay distribution learned online needs fewer steps than with "
-              "lags assumed uniform (honest layouts, 4 observers).",
+        Claim("D1", "beyond", "Deep TAMER with the delay model learned online (per teacher, in seconds on the virtual "
+              "clock) does better than with lags assumed uniform (honest layouts, 4 observers).",
               Test("D1", "Deep TAMER: learned minus uniform lags, averaged over the 4 observers",
-                   (pooled("deep-tamer", "learned", "uniform"),), "honest"),
+                   (pooled("deep-tamer", "learned", "uniform"),)),
               per_observer("deep-tamer", "learned", "uniform")),
-        Claim("D2", "beyond", "DQN-TAMER with the delay learned online needs fewer steps than with uniform lags.",
+        Claim("D2", "beyond", "DQN-TAMER with the delay model learned online does better than with uniform lags.",
               Test("D2", "DQN-TAMER: learned minus uniform lags, averaged over the 4 observers",
-                   (pooled("dqn-tamer", "learned", "uniform"),), "honest"),
+                   (pooled("dqn-tamer", "learned", "uniform"),)),
               per_observer("dqn-tamer", "learned", "uniform")),
         Claim("D3", "beyond", "Learning the delay online is not worse than knowing the true distribution "
               "(Deep TAMER; by more than the margin).",
               Test("D3", "Deep TAMER: learned vs true lags, averaged over the 4 observers (non-inferiority)",
-                   (pooled("deep-tamer", "learned", "true"),), "honest", kind="noninferior"),
+                   (pooled("deep-tamer", "learned", "true"),), kind="noninferior"),
               per_observer("deep-tamer", "learned", "true", "noninferior")
               + per_observer("dqn-tamer", "learned", "true", "noninferior")
               + per_observer("deep-tamer", "true", "uniform")),
-        Claim("A1", "beyond", "An alpha_h that follows H/Q agreement rescues DQN-TAMER from the misleading observer.",
-              Test("A1", "misleading layouts, high frequency with delay: adaptive alpha_h needs fewer steps than "
-                   "the paper's schedule", (better("maze-high-delay", "dqn-tamer/adaptive", "dqn-tamer"),),
+        Claim("A1", "beyond", "An alpha_h that follows H/Q agreement rescues DQN-TAMER from the misleading observer "
+              "better than a fixed schedule with the same mean alpha_h.",
+              Test("A1", "misleading layouts, high frequency with delay: adaptive alpha_h does better than the fixed "
+                   "schedule matched on its mean", (better(hd, "dqn-tamer/adaptive", "dqn-tamer/matched"),),
                    "misleading"),
-              (Test("A1", "honest layouts: adaptive alpha_h not worse than the paper's schedule",
-                    (better("maze-high-delay", "dqn-tamer/adaptive", "dqn-tamer"),), "honest", kind="noninferior"),)),
+              (Test("A1", "adaptive alpha_h does better than the paper's schedule",
+                    (better(hd, "dqn-tamer/adaptive", "dqn-tamer"),), "misleading"),
+               Test("A1", "adaptive alpha_h not worse than the paper's schedule",
+                    (better(hd, "dqn-tamer/adaptive", "dqn-tamer"),), kind="noninferior"))),
+        Claim("M1", "beyond", "A teacher who is systematically wrong (misleading layouts) does not sink DQN-TAMER "
+              "with the teacher's reliability below DQN.",
+              Test("M1", "misleading layouts, high frequency with delay: DQN-TAMER with the teacher's reliability "
+                   "not worse than DQN by more than the margin", (better(hd, "dqn-tamer/trusted", "dqn"),),
+                   "misleading", kind="noninferior"),
+              (Test("M1", "the paper's DQN-TAMER not worse than DQN by more than the margin",
+                    (better(hd, "dqn-tamer", "dqn"),), "misleading", kind="noninferior"),
+               Test("M1", "the teacher's reliability does not cost the honest teacher's help: not worse than the "
+                    "paper's DQN-TAMER", (better(hd, "dqn-tamer/trusted", "dqn-tamer"),), kind="noninferior"),
+               Test("M1", "DQN-TAMER with the teacher's reliability does better than the paper's",
+                    (better(hd, "dqn-tamer/trusted", "dqn-tamer"),), "misleading"))),
     ]
 
 

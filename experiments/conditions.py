@@ -16,12 +16,18 @@ destination pairs).
 
 An arm is an agent variant: the paper's four (`dqn`, `dqn-rs`, `deep-tamer`, `dqn-tamer`) or ours:
 `<algo>/uniform` (lags assumed uniform over the learner's window 0..6), `<algo>/true` (the observer's
-true distribution), `<algo>/learned` (learned online, common.core.delay_learning), `dqn-tamer/adaptive`
-(alpha_h also follows H/Q agreement).
+true distribution), `<algo>/learned` (the delay learned online in seconds, common.core.delay_model, on the
+runner's clock of 0.5 s per step), `dqn-tamer/adaptive` (alpha_h also follows H/Q agreement),
+`dqn-tamer/matched` (A1's control: a fixed schedule with the adaptive arm's mean alpha_h),
+`dqn-tamer/trusted` (M1: the teacher's reliability lowers alpha_h for a teacher Q keeps contradicting).
+
+Layouts and seeds of the deciding runs (`FULL`) are fresh: layouts 60-119 and seed block 2 (`Scale`);
+`QUICK` runs the old layouts 0-59 and seed block 1, so developing never touches a deciding trial.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -42,6 +48,14 @@ WINDOW = 7
 LATE_DELAY = (0.0, 0.05, 0.15, 0.5, 0.3)
 LONG_DELAY = (0.05, 0.1, 0.15, 0.2, 0.2, 0.15, 0.15)
 ADAPT_RATE = 0.01
+MATCH_K = 0.3386
+"""A1's control `dqn-tamer/matched`: the paper's alpha_h schedule times MATCH_K, the adaptive arm's mean
+alpha_h over the paper arm's (alpha_h at each episode's end, averaged over episodes and trials) on a pilot
+of maze-high-delay, 100 episodes, pilot layouts 44-59 (8 honest, 8 misleading), seeds 9000+:
+`python -m experiments.alpha_pilot --episodes 100 --reps 2` (PILOT)."""
+TRUST: dict[str, Any] = {"alpha_h_trust": 0.01, "alpha_h_trust_after": 1000, "alpha_h_trust_ref": 0.35}
+"""M1's arm `dqn-tamer/trusted`: the teacher's reliability (common/agents/explorer.py), chosen on the same
+pilot among the candidates it ran (PILOT)."""
 
 # Default episode counts of a single run or sweep (the earlier reproduction's; sweeps read them).
 MAZE_EPISODES = 60
@@ -75,7 +89,13 @@ class Scale:
     """How big a reproduction is: layouts, repetitions, episodes (full or --quick)."""
 
     layouts: int = 60
-    """Maze layouts used (the first n: n/2 honest, n/2 misleading; the generator has LAYOUT_COUNT)."""
+    """Maze layouts used (n from first_layout on: n/2 honest, n/2 misleading; the generator has LAYOUT_COUNT)."""
+    first_layout: int = 60
+    """The first maze layout. 60: layouts 60-119, fresh for the runs declared on 25 November 2026 (every
+    earlier run and every pilot used layouts 0-59)."""
+    seed_block: int = 2
+    """The third word of every trial's seed (`trial_seed`): 1 in every run before 25 November 2026, 2 in the
+    runs declared that day, so Taxi's trials (whose tasks are the old ones) are fresh too."""
     reps: int = 1
     maze_episodes: int = REPRO_MAZE_EPISODES
     taxi_episodes: int = REPRO_TAXI_EPISODES
@@ -83,13 +103,18 @@ class Scale:
     taxi_random_episodes: int = REPRO_TAXI_RANDOM_EPISODES
     """Episodes of Gymnasium's Taxi (random passenger and destination)."""
     taxi_trials: int = 6
+    """Trials of Gymnasium's Taxi (C5's primary test)."""
+    taxi_fixed_trials: int = 4
+    """Trials of the fixed-task Taxi (6 until 25 November 2026; a secondary test of C5 since: its 2 trials fewer
+    save about 220 CPU s, a third of its 673 in the run of ded26fc, for the two arms that A1 and M1 add)."""
     delay_layouts: int = 16
     """Honest layouts of the learned-delay conditions."""
 
 
 FULL = Scale()
 QUICK = Scale(layouts=8, reps=1, maze_episodes=40, taxi_episodes=40, taxi_random_episodes=40, taxi_trials=4,
-              delay_layouts=4)
+              delay_layouts=4, first_layout=0, seed_block=1)
+"""The quick form runs the old layouts and seeds: developing with it never touches a deciding trial."""
 
 
 @dataclass(frozen=True)
@@ -140,7 +165,8 @@ CONDITIONS: tuple[Condition, ...] = (
     Condition("maze-high-nodelay", "Maze MDP, high frequency (p=0.5), no delay", "maze",
               _obs(HIGH, NO_DELAY), "Fig. maze results, upper left"),
     Condition("maze-high-delay", "Maze MDP, high frequency (p=0.5), with delay", "maze",
-              _obs(HIGH, PAPER_DELAY), "Fig. maze results, upper right", arms=ALGOS + ("dqn-tamer/adaptive",)),
+              _obs(HIGH, PAPER_DELAY), "Fig. maze results, upper right",
+              arms=ALGOS + ("dqn-tamer/adaptive", "dqn-tamer/matched", "dqn-tamer/trusted")),
     Condition("maze-low-nodelay", "Maze MDP, low frequency (p=0.1), no delay", "maze",
               _obs(LOW, NO_DELAY), "Fig. maze results, lower left"),
     Condition("maze-low-delay", "Maze MDP, low frequency (p=0.1), with delay", "maze",
@@ -195,6 +221,10 @@ def agent_for(arm: str, env: str = "maze", true_delay: tuple[float, ...] = PAPER
         return replace(cfg, assumed_delay_probs=(1.0 / WINDOW,) * WINDOW, learn_delay=True)
     if how == "adaptive":
         return replace(cfg, alpha_h_adapt=ADAPT_RATE)
+    if how == "matched":
+        return replace(cfg, alpha_h=cfg.alpha_h * MATCH_K)
+    if how == "trusted":
+        return replace(cfg, **TRUST)
     if how:
         raise ValueError(f"unknown arm {arm!r}")
     return cfg
@@ -206,19 +236,22 @@ def layout_set(cond: Condition, scale: Scale) -> list[int]:
         return [0]
     if cond.is_taxi:
         return list(range(len(FIXED_TASKS)))
-    layouts = list(range(min(scale.layouts, LAYOUT_COUNT)))
+    first = scale.first_layout
     if cond.layouts == "honest":
-        return [L for L in range(LAYOUT_COUNT) if layout_kind(L) == "honest"][:scale.delay_layouts]
-    return layouts
+        return [L for L in range(first, LAYOUT_COUNT) if layout_kind(L) == "honest"][:scale.delay_layouts]
+    return list(range(first, min(first + scale.layouts, LAYOUT_COUNT)))
 
 
 def n_trials(cond: Condition, scale: Scale) -> int:
-    return scale.taxi_trials if cond.is_taxi else len(layout_set(cond, scale)) * scale.reps
+    if cond.is_taxi:
+        return scale.taxi_trials if cond.env in RANDOM_TAXI else scale.taxi_fixed_trials
+    return len(layout_set(cond, scale)) * scale.reps
 
 
-def trial_seed(layout: int, rep: int) -> int:
-    """The seed of repetition `rep` on `layout`: derived from both, so trials never share streams."""
-    return int(np.random.SeedSequence([int(layout), int(rep), 1]).generate_state(1, np.uint32)[0] % (2**31))
+def trial_seed(layout: int, rep: int, block: int = 1) -> int:
+    """The seed of repetition `rep` on `layout`: derived from both, so trials never share streams; `block`
+    (Scale.seed_block) sets the runs declared on 25 November 2026 (block 2) apart from all earlier ones."""
+    return int(np.random.SeedSequence([int(layout), int(rep), int(block)]).generate_state(1, np.uint32)[0] % (2**31))
 
 
 def trial_layout(cond: Condition, scale: Scale, k: int) -> tuple[int, int]:
@@ -229,7 +262,8 @@ def trial_layout(cond: Condition, scale: Scale, k: int) -> tuple[int, int]:
 
 def trial_spec(cond: Condition, arm: str, k: int, scale: Scale = FULL) -> TrialSpec:
     layout, rep = trial_layout(cond, scale, k)
-    return TrialSpec(cond.env, agent_for(arm, cond.env, cond.true_delay), cond.observer, seed=trial_seed(layout, rep),
+    return TrialSpec(cond.env, agent_for(arm, cond.env, cond.true_delay), cond.observer,
+                     seed=trial_seed(layout, rep, scale.seed_block),
                      layout=layout, episodes=cond.episodes(scale), teacher_rule=cond.teacher_rule)
 
 

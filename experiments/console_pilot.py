@@ -15,6 +15,12 @@ the episode of the 10th goal (short of 10: 15 + goals missing), the first episod
 path (never: 16), and steps over the 15 episodes; every arm is compared with DQN on the same (layout, seed).
 
     python -m experiments.console_pilot --trials 48
+
+With `--person SHAPE` the person reacts in seconds with a lag shape of `services/console/lags.py` (the runner's
+observer, `delay_s`; a `drift:` shape's quantiles move over the episodes), on the layouts given (odd ones are
+misleading): the unknown-teacher design's pilot (docs/notes/2026-11-25-unknown-teacher.md).
+
+    python -m experiments.console_pilot --trials 48 --arms dqn-tamer/learned --person drift:0.5,2,0.2
 """
 from __future__ import annotations
 
@@ -78,11 +84,30 @@ def measures(steps: list[int], reached: list[bool], shortest: int) -> dict:
     return {"goals": tenth, "first_good": good[0] if good else EPISODES + 1, "steps": int(sum(steps))}
 
 
-def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS) -> dict[str, list[dict]]:
+def observer_for(person: str | None) -> ObserverConfig:
+    """The scripted person: the browser designs' uniform 0.3-1.5 s on the step clock (`PERSON_LAGS`), or a lag
+    shape in seconds (services/console/lags.py) from each step's onset, a `drift:START,END,SIGMA` one as a
+    lognormal whose quantiles move from the first episode's to the last's."""
+    if person is None:
+        return ObserverConfig(p_feedback=0.5, delay_probs=PERSON_LAGS)
+    from services.console.lags import check_lag_spec
+
+    check_lag_spec(person)
+    name, _, args = person.partition(":")
+    if name == "drift":
+        start, end, sigma = args.split(",")
+        return ObserverConfig(p_feedback=0.5, delay_s=f"lognorm:{sigma},0,{start}",
+                              late_delay_s=f"lognorm:{sigma},0,{end}",
+                              drift_episodes=EPISODES - 1)
+    return ObserverConfig(p_feedback=0.5, delay_s=person)
+
+
+def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS, person: str | None = None
+        ) -> dict[str, list[dict]]:
     from experiments.runner import TrialSpec, run_trials
 
     env = _register_cut_maze()
-    observer = ObserverConfig(p_feedback=0.5, delay_probs=PERSON_LAGS)
+    observer = observer_for(person)
     pairs = [(layouts[k % len(layouts)], PILOT_SEED0 + k) for k in range(trials)]
     specs = [(arm, L, TrialSpec(env, ARMS[arm](), observer, seed=s, layout=L, episodes=EPISODES))
              for arm in arms for L, s in pairs]
@@ -118,7 +143,11 @@ class ConsolePilotConfig:
 
     trials: int = option(48, "(layout, seed) pairs per arm")
     idle_updates: int = option(IDLE_UPDATES, "idle-time minibatch steps after each step (the console's learner: 8)")
-    layouts: tuple[int, ...] = option(PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one)")
+    layouts: tuple[int, ...] = option(PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one; odd "
+                                                     "ones are misleading)")
+    person: str | None = option(None, "the person's lag shape in seconds (services/console/lags.py, e.g. "
+                                      "drift:0.5,2,0.2; the runner's virtual clock is 2 steps/s); none: uniform "
+                                      "0.3-1.5 s on the step clock")
     arms: tuple[str, ...] = option(tuple(ARMS), "arms besides dqn (always run): dqn-tamer/matched (credit on the "
                                                 "true candidates: onset credit), /interval (the interval reading's "
                                                 "kernel), /0.2-4s (lags uniform 0-6), /adaptive (adaptive alpha_h, "
@@ -128,6 +157,10 @@ class ConsolePilotConfig:
         unknown = [a for a in self.arms if a not in ARMS]
         if unknown:
             raise ValueError(f"unknown arm(s) {unknown}; choose from {list(ARMS)}")
+        if self.person is not None:
+            from services.console.lags import check_lag_spec
+
+            check_lag_spec(self.person)
         if self.trials < 1 or self.idle_updates < 0 or not self.layouts:
             raise ValueError("trials must be >= 1, idle-updates >= 0, and some layout given")
         bad = [L for L in self.layouts if not 0 <= L < LAYOUT_COUNT]
@@ -140,7 +173,7 @@ def main(cfg: ConsolePilotConfig) -> int:
     if cfg.idle_updates:
         _with_idle_updates(cfg.idle_updates)
     t0 = time.time()
-    summary(run(arms, cfg.trials, cfg.layouts))
+    summary(run(arms, cfg.trials, cfg.layouts, cfg.person))
     print(f"({cfg.trials} pairs per arm, idle updates {cfg.idle_updates}, {time.time() - t0:.0f} s)")
     return 0
 

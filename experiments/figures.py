@@ -12,7 +12,7 @@ from experiments.claims import AGENT_NAMES  # noqa: E402
 from experiments.evaluate import SUBSETS, ArmData, subset_mask  # noqa: E402
 
 COLORS = {"dqn": "#1f77b4", "dqn-rs": "#ff7f0e", "deep-tamer": "#2ca02c", "dqn-tamer": "#d62728",
-          "dqn-tamer/adaptive": "#9467bd"}
+          "dqn-tamer/adaptive": "#9467bd", "dqn-tamer/matched": "#8c564b", "dqn-tamer/trusted": "#e377c2"}
 STYLES = {"uniform": ":", "true": "--", "learned": "-"}
 
 

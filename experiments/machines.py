@@ -31,7 +31,8 @@ def _scale_of(out: str) -> Scale:
     with open(os.path.join(out, "timing.json")) as fh:
         scale = json.load(fh)["scale"]
     scale.setdefault("taxi_random_episodes", scale["taxi_episodes"])  # runs before the two Taxi counts split
-    return Scale(**scale)
+    # A run before the fresh layouts (25 November 2026) recorded no first_layout / seed_block: 0 and 1 then.
+    return Scale(**{"first_layout": 0, "seed_block": 1, **scale})
 
 
 def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:

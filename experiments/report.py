@@ -1,90 +1,8 @@
 """REPORT.md from the computed evaluation: verdicts, method, claims, layouts, horizons, who decides, lags."""
 from __future__ import annotations
 
-from experiments.claims import AGENT_NAMES, ALPHA, MARGIN
-from experiments.stats import fmt_p
-
-
-def _iv(r: dict | None, d: int = 3) -> str:
-    if not r:
-        return "n/a"
-    return f"{r['estimate']:+.{d}f} [{r['ci'][0]:+.{d}f}, {r['ci'][1]:+.{d}f}]"
-
-
-def _verdict(c: dict) -> str:
-    return f"**{c['verdict']}**" + (" (fragile)" if c.get("fragile") else "")
-
-
-def verdict_table(claims: dict, family: str, previous: dict) -> list[str]:
-    lines = ["| claim | verdict | previous | primary test | estimate [95% CI] | p | Holm p | MDE | statement |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for cid, c in claims.items():
-        if c["family"] != family:
-            continue
-        if c["verdict"] == "not evaluated":
-            lines.append(f"| {cid} | not evaluated | {previous.get(cid, '-')} | {c['primary_test']} | | | | | "
-                         f"{c['text']} |")
-            continue
-        mde = f"{c['mde']:.3f}" + ("" if c["mde"] <= MARGIN else " (> margin)")
-        window = f", {c['window']} episodes" if c["window"] != "all" else ""
-        lines.append(f"| {cid} | {_verdict(c)} | {previous.get(cid, '-')} | {c['primary_test']} ({c['layouts']} layouts"
-                     f"{window}) | {_iv(c)} | {fmt_p(c['p'])} "
-                     f"| {fmt_p(c['p_holm'])} | {mde} | {c['text']} |")
-    return lines
-
-
-def method_lines(ev: dict) -> list[str]:
-    return [
-        "## Method (declared in `experiments/claims.py` before the runs)", "",
-        "- Primary metric: per trial, the mean over the episode window of ln(steps per episode) (the log of the "
-        "geometric-mean episode length; lower is better). Effects are signed so that positive means \"as the paper "
-        "claims\": e.g. ln steps(DQN) - ln steps(DQN+RS). An effect of 0.095 = ln 1.1 is 10% fewer steps.",
-        "- Trials are clustered by layout; per layout the trials' effects are averaged. Estimate: mean over trials; "
-        f"interval: 95% percentile bootstrap resampling whole layouts ({ev['n_boot']} resamples); p: one-sided "
-        "t-test over the layouts' means (`scipy.stats.ttest_1samp`). A test of several effects that must all hold "
-        "(intersection-union) reports the smallest effect, its joint interval and the largest p.",
-        f"- ONE primary test per claim; Holm's correction across the primary tests of a family (the paper's claims "
-        f"C1-C6; ours D1-D3, A1). Verdict: **reproduced** when the Holm-adjusted p < {ALPHA}; **not reproduced** "
-        f"when the interval's upper end is below the margin {MARGIN:.3f} (ln 1.1; for a non-inferiority test, "
-        f"below -{MARGIN:.3f}); **inconclusive** otherwise. **fragile**: the reproduced / not decision flips under "
-        "another reasonable rule (Wilcoxon signed-rank instead of t; per-trial median instead of mean of ln steps; "
-        "mean return instead of ln steps), each with the same Holm factor.",
-        f"- MDE: the smallest true effect the design detects with 80% power at level {ALPHA}/m (m primary tests in "
-        f"the family), from the bootstrap standard error: (z(1-{ALPHA}/m) + z(0.8)) x se. \"> margin\" marks a "
-        "claim whose margin the design cannot reach.",
-        "- Secondary tests are shown with unadjusted p-values for honest, misleading and pooled layouts; they never "
-        "decide a verdict.", ""]
-
-
-def claim_section(cid: str, c: dict) -> list[str]:
-    lines = [f"### {cid}: {c['verdict']}{' (fragile)' if c.get('fragile') else ''}", "", c["text"], ""]
-    if c["verdict"] == "not evaluated":
-        return lines + ["(its conditions were not run)", ""]
-    lines += [f"Primary: {c['primary_test']} ({c['kind']}; {c['layouts']} layouts: {c['trials']} trials in "
-              f"{c['clusters']} clusters; MDE {c['mde']:.3f} against the margin {MARGIN:.3f}).", ""]
-    lines += ["| layouts | estimate [95% CI] | p (one-sided) |", "|---|---|---|",
-              f"| {c['layouts']} (primary) | {_iv(c)} | {fmt_p(c['p'])} (Holm {fmt_p(c['p_holm'])}) |"]
-    for s, r in c.get("by_layouts", {}).items():
-        if r:
-            lines.append(f"| {s} | {_iv(r)} | {fmt_p(r['p'])} |")
-    lines.append("")
-    if len(c.get("components", [])) > 1:
-        lines += ["Components (all must hold): " + "; ".join(f"{x['label']}: {x['estimate']:+.3f} (p {fmt_p(x['p'])})"
-                                                          for x in c["components"]), ""]
-    alts = c.get("alternatives", {})
-    if alts:
-        lines += ["Other reasonable rules: " + "; ".join(
-            f"{k}: {v['estimate']:+.3f}, Holm-factor p {fmt_p(v['p_adj'])} "
-            f"({'reproduced' if v['reproduced'] else 'not'})"
-            for k, v in alts.items()), ""]
-    if c.get("secondary"):
-        lines += ["| secondary test (never deciding) | pooled | honest | misleading |", "|---|---|---|---|"]
-        for s in c["secondary"]:
-            cells = [f"{_iv(s['by_layouts'].get(k))} p {fmt_p(s['by_layouts'][k]['p'])}" if s["by_layouts"].get(k)
-                     else "n/a" for k in ("pooled", "honest", "misleading")]
-            lines.append(f"| {s['test']} ({s['kind']}) | " + " | ".join(cells) + " |")
-        lines.append("")
-    return lines
+from experiments.claims import AGENT_NAMES, MARGIN
+from experiments.report_claims import claim_section, iv as _iv, method_lines, verdict_table
 
 
 def panel_lines(name: str, title: str, figure: str, panels: dict, hz: dict) -> list[str]:
@@ -202,8 +120,10 @@ def _run_figures(t: dict) -> str:
     peak = f", up to {t['load_average_max']:.1f} during the run" if t.get("load_average_max") is not None else ""
     spread = (f"; the workers finished their last jobs {t['worker_end_spread_s']:.0f} s apart"
               if t.get("worker_end_spread_s") is not None else "")
+    m = t.get("machine") or {}
+    where = f" ({m['cpu_model']}, {m['cores_usable']} usable)" if m else ""
     return (f"wall {t['total_s']:.0f} s ({t['total_s'] / 60:.1f} min) on {t['workers']} worker process(es) and "
-            f"{t.get('cpus', '?')} CPUs, {cpu:.0f} CPU s in the workers{split}, {t.get('trial_steps', 0):,} "
+            f"{t.get('cpus', '?')} CPUs{where}, {cpu:.0f} CPU s in the workers{split}, {t.get('trial_steps', 0):,} "
             f"environment steps, load average {t.get('load_average_at_start', [0])[0]:.1f} at the start{peak} and "
             f"{t.get('load_average_at_end', [0])[0]:.1f} at the end (1-minute averages; a machine shared with other "
             f"jobs){spread}")
@@ -232,8 +152,10 @@ def body(result: dict, conds, timing: dict, argv: list[str], drawn: dict, out: s
     lines = ["# Reproduction of the paper's claims (generated)", "",
              f"Generated by `python -m experiments {' '.join(argv)}` at commit `{timing.get('commit', '?')}`: "
              f"{sc.get('layouts', '?')} maze layouts x {sc.get('reps', '?')} seed(s), {sc.get('maze_episodes', '?')} "
-             "maze episodes, " + (f"{sc.get('taxi_trials', '?')} Taxi trials x {sc.get('taxi_episodes', '?')} "
-                                  "episodes "
+             f"maze episodes, " + (f"{sc.get('taxi_trials', '?')} trials of Gymnasium's Taxi and "
+                                   f"{sc.get('taxi_fixed_trials', sc.get('taxi_trials', '?'))} "
+                                   "of the fixed-task Taxi x "
+                                   f"{sc.get('taxi_episodes', '?')} episodes "
                                    f"(Gymnasium's Taxi: {sc.get('taxi_random_episodes', sc.get('taxi_episodes', '?'))})"
                                    if any(c.is_taxi for c in conds) else "no Taxi") + ". "
              + timing_sentence(timing) + " Every verdict is computed by `experiments/evaluate.py` from the tests "

@@ -21,7 +21,10 @@ class RunConfig:
     agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset)",
                                        exclude=("algo",))
     observer: ObserverConfig = option(ObserverConfig(), "the simulated observer")
-    out: str = option("runs/experiment", "output directory for config.json, episodes.csv and curve.png")
+    step_seconds: float = option(0.5, "seconds per step of the virtual clock (2 steps/s): the clock of a delay "
+                                      "learned in seconds (--agent.learn-delay) and of --observer.delay-s")
+    out: str = option("runs/experiment", "output directory for config.json, episodes.csv, summary.json (with the "
+                                         "teacher's delay) and curve.png")
 
     def __post_init__(self):
         if self.algo not in ALGOS:
@@ -29,5 +32,7 @@ class RunConfig:
         object.__setattr__(self, "task", nested(self.task, Task))
         object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         object.__setattr__(self, "observer", nested(self.observer, ObserverConfig, name="observer"))
+        if not (self.step_seconds > 0 and self.step_seconds < 3600):
+            raise ValueError(f"step-seconds must be positive, got {self.step_seconds}")
         if self.episodes < 0:
             raise ValueError(f"episodes must be >= 0, got {self.episodes}")

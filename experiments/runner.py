@@ -1,10 +1,11 @@
 """The in-process runner: the core's step loop on a virtual clock, many trials stepped in lockstep.
 
-Virtual time: trial i's k-th action is taken at t = k (one unit per step). The observer's reactions land
-between steps (see `common.core.observer.REACTION_OFFSET`). Per tick, in `common.core.steploop`'s order (Algorithm 2 of
-the paper): credit the feedback that arrived since the previous action, act, step the env, record the step
-and run the every-b-steps updates; the observer watches the step and its reaction is delivered on the tick
-after it lands.
+Virtual time: trial i's k-th action is taken at t = k (one unit per step), which is k * `step_seconds` seconds
+(0.5 s: 2 steps/s), the clock of a delay learned in seconds. The observer's reactions land between steps (see
+`common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in
+`common.core.steploop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
+action, act, step the env, record the step and run the every-b-steps updates; the observer watches the step and
+its reaction is delivered on the tick after it lands.
 
 Trials batched together only share arithmetic: each has its own env, observer, agent state and random
 streams, so a trial's actions and returns do not depend on which other trials run beside it. Every
@@ -25,14 +26,15 @@ from threadpoolctl import threadpool_limits
 from common.agents import AgentConfig, TrialBatchAgent, make_agent
 from common.agents.agent import CREDITED, STALE
 from common.envs import make_env, obs_shape
-from common.core.observer import REACTION_OFFSET, ObserverBatch, ObserverConfig
+from common.core.delay_model import FixedDelay
+from common.core.observer import MAX_REACTION_S, REACTION_OFFSET, ObserverBatch, ObserverConfig
 from common.core.seeding import derive_seed
 from common.core.steploop import StepLoop
 from common.core.util import nz
 from experiments.envbatch import LoopEnvs, TableEnvs
 
 EPISODE_FIELDS = ("episode", "return", "steps", "feedback_given", "feedback_credited", "feedback_stale",
-                  "epsilon", "alpha_h", "h_decided", "greedy", "mean_lag")
+                  "epsilon", "alpha_h", "h_decided", "greedy", "mean_lag", "delay_median_s")
 
 
 @dataclass(frozen=True)
@@ -46,6 +48,7 @@ class TrialSpec:
     layout: int = 0
     episodes: int = 100
     teacher_rule: str | None = None  # None: the env's own rule (common/envs/rules.py)
+    step_seconds: float = 0.5  # seconds per step of the virtual clock (a learned delay's clock)
 
 
 @dataclass
@@ -55,6 +58,7 @@ class TrialResult:
     actions: list[int] = field(default_factory=list)
     total_steps: int = 0
     weights: dict[str, np.ndarray] = field(default_factory=dict)  # final policy weights (Q and H)
+    delay: dict | None = None  # the teacher's delay the agent credits with at the end (`delay_summary`)
 
     @property
     def returns(self) -> np.ndarray:
@@ -73,6 +77,14 @@ def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 1
         if trunc:
             return None
     return None
+
+
+def fixed_delay_summary(spec: TrialSpec, feedbacks: int) -> dict:
+    """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock, and
+    the feedbacks credited with them."""
+    probs = ",".join(repr(float(p)) for p in spec.agent.assumed_delay_probs)
+    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "feedbacks": int(feedbacks),
+            "learned": False}
 
 
 def _bucket(n: int) -> str:
@@ -111,7 +123,13 @@ class _Batch:
         self.n_episodes = np.array([s.episodes for s in specs], np.int64)
         self.record_actions, self.greedy_eval = record_actions, greedy_eval
         self.on_episode, self.on_trial_done, self.on_input = on_episode, on_trial_done, on_input
+        step_s = np.array([s.step_seconds for s in rows_specs], np.float64)
+        if not np.all(step_s > 0):
+            raise ValueError("step_seconds must be positive")
+        self.learns_delay = any(s.agent.learn_delay for s in rows_specs)
         self.R = self.observers.max_lag + 1  # a reaction lands within R ticks of its step
+        if self.observers.in_seconds:
+            self.R = max(self.R, int(np.ceil(MAX_REACTION_S / step_s.min())) + 1)
         self.st = {
             "orig": np.array(perm, np.int64),
             "active": np.array([s.episodes > 0 for s in rows_specs]),
@@ -125,6 +143,8 @@ class _Batch:
             # inbox[row, landing tick % R, R - 1 - lag]: value of the reaction to step (landing - lag), 0 = none;
             # along the last axis reactions are in the order they were emitted (oldest step first).
             "inbox": np.zeros((B, self.R, self.R), np.int64),
+            "inbox_t": np.zeros((B, self.R, self.R), np.float64),  # its stamp in steps (delays in seconds)
+            "step_s": step_s,
         }
         for k in range(B):
             self.st["obs"][k] = self.world.reset(k)
@@ -142,6 +162,9 @@ class _Batch:
         has = due != 0
         counts = has.sum(axis=1)
         k = nz(counts > 0)
+        if self.observers.in_seconds:
+            self.deliver_stamped(rows[k], due[k], st["inbox_t"][rows[k], slot[k]], counts[k])
+            return
         order = np.argsort(~has[k], axis=1, kind="stable")
         values = np.take_along_axis(due[k], order, axis=1)  # each trial's reactions, oldest step first
         t_f = (step[k] - 1).astype(np.float64) + REACTION_OFFSET
@@ -149,11 +172,32 @@ class _Batch:
             for row, t, n, v in zip(rows[k], t_f, counts[k], values):
                 for value in v[:n]:
                     self.on_input(int(st["orig"][row]), "feedback", {"t": float(t), "value": int(value)})
-        out = self.loop.credit(rows[k], t_f, values, counts[k])
-        rk = rows[k]
-        st["ep_given"][rk] += counts[k]
-        st["ep_credited"][rk] += np.where(out.status == CREDITED, counts[k], 0)
-        st["ep_stale"][rk] += np.where(out.status == STALE, counts[k], 0)
+        out = self.loop.credit(rows[k], t_f, values, counts[k], t_f * st["step_s"][rows[k]] if self.learns_delay
+                               else None)
+        self.count_outcomes(rows[k], counts[k], out)
+
+    def deliver_stamped(self, rk, due, stamps, counts) -> None:
+        """Reactions each with its own stamp (delays in seconds) for trials rk: credited one round at a time,
+        each trial's in the order of their stamps."""
+        st = self.st
+        stamps = np.where(due != 0, stamps, np.inf)
+        order = np.argsort(stamps, axis=1, kind="stable")
+        stamps = np.take_along_axis(stamps, order, axis=1)
+        values = np.take_along_axis(due, order, axis=1)
+        for rnd in range(int(counts.max())):
+            g = nz(counts > rnd)
+            if self.on_input is not None:
+                for row, t, v in zip(rk[g], stamps[g, rnd], values[g, rnd]):
+                    self.on_input(int(st["orig"][row]), "feedback", {"t": float(t), "value": int(v)})
+            out = self.loop.credit(rk[g], stamps[g, rnd], values[g, rnd], None, stamps[g, rnd] * st["step_s"][rk[g]])
+            self.count_outcomes(rk[g], np.ones(len(g), np.int64), out)
+
+    def count_outcomes(self, rk, counts, out) -> None:
+        """Per trial rk: `counts` feedbacks given, credited or stale as `out` says."""
+        st = self.st
+        st["ep_given"][rk] += counts
+        st["ep_credited"][rk] += np.where(out.status == CREDITED, counts, 0)
+        st["ep_stale"][rk] += np.where(out.status == STALE, counts, 0)
 
     def tick(self) -> np.ndarray:
         """One step of every running trial; returns the rows whose episode ended."""
@@ -165,12 +209,19 @@ class _Batch:
         a = agent.act(st["obs"], st["active"])[sel]
         nxt, rew, term, trunc, intended = self.world.step(rows, a)
         if self.on_input is not None:
-            self.trace_steps(rows, step, a, rew, nxt, term, trunc)
+            self.trace_steps(rows, step, a, rew, nxt, term, trunc, intended)
         episode = st["episode"][sel]
-        self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, step.astype(np.float64), episode)
+        t = step.astype(np.float64)
+        # (seconds and the rule's polarity are kept only where a delay is learned in seconds: the paper's
+        # step-clock credit needs neither, and the per-tick path stays as fast as it was)
+        seconds = (t * st["step_s"][sel], intended) if self.learns_delay else (None, None)
+        self.loop.step(rows, st["obs"][sel], a, rew, nxt, term, t, episode, *seconds)
         give, value, lag = self.observers.react(rows, intended, episode, step)
-        g = nz(give)
-        st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
+        if self.observers.in_seconds:
+            self.post_timed(rows, sel, t, give, value, lag)
+        else:
+            g = nz(give)
+            st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
         if self.record_actions:
             for i, act in zip(st["orig"][rows], a):
                 self.results[i].actions.append(int(act))
@@ -179,18 +230,34 @@ class _Batch:
         st["obs"][sel] = nxt
         return rows[term | trunc]
 
-    def trace_steps(self, rows, step, a, rew, nxt, term, trunc) -> None:
+    def post_timed(self, rows, sel, t, give, value, lag) -> None:
+        """Reactions with a delay in seconds: each its own stamp (steps), landing after whole steps."""
+        st = self.st
+        stamp = t + lag + REACTION_OFFSET
+        delay = self.observers.last_delay_s / st["step_s"][sel]
+        timed = np.isfinite(delay)
+        stamp = np.where(timed, t + np.where(timed, delay, 0.0), stamp)
+        lag = np.where(timed, np.floor(stamp - t).astype(np.int64), lag)
+        g, step = nz(give), t.astype(np.int64)
+        at = (rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g])
+        st["inbox"][at], st["inbox_t"][at] = value[g], stamp[g]
+
+    def trace_steps(self, rows, step, a, rew, nxt, term, trunc, intended) -> None:
         st = self.st
         for k, row in enumerate(rows):
             self.on_input(int(st["orig"][row]), "step", {
                 "t": float(step[k]), "episode": int(st["episode"][row]), "obs": st["obs"][row].copy(),
                 "action": int(a[k]), "reward": float(rew[k]), "next_obs": np.array(nxt[k]),
-                "terminated": bool(term[k]), "truncated": bool(trunc[k])})
+                "terminated": bool(term[k]), "truncated": bool(trunc[k]), "polarity": int(intended[k])})
 
     def end_episodes(self, ended: np.ndarray) -> None:
         st, agent = self.st, self.agent
         eps_now, alpha_now = agent.epsilons(ended), agent.alpha_h(ended)
-        lag_now = agent.mean_lag(ended)
+        delay_now = agent.median_delay_s(ended)
+        # mean_lag in steps; for a learned delay its mean in seconds as a lag (a lag-d reaction comes d + 0.5
+        # steps after its step), comparable with the observer's true mean lag
+        learned_lag = agent.median_delay_s(ended, mean=True) / st["step_s"][ended] - REACTION_OFFSET
+        lag_now = np.where(np.isnan(learned_lag), agent.mean_lag(ended), learned_lag)
         for j, row in enumerate(ended):
             i = int(st["orig"][row])
             record = {"episode": int(st["episode"][row]), "return": float(st["ep_return"][row]),
@@ -199,7 +266,9 @@ class _Batch:
                       "epsilon": float(eps_now[j]), "alpha_h": float(alpha_now[j]),
                       # who decides: greedy actions this episode, and those where H overruled argmax Q
                       "h_decided": int(agent.h_decided_count[row]), "greedy": int(agent.greedy_count[row]),
-                      "mean_lag": float(lag_now[j])}  # mean of the lag distribution credit uses now
+                      "mean_lag": float(lag_now[j]),  # mean of the lag distribution credit uses now (steps)
+                      # the learned delay's median in seconds (None: not learned)
+                      "delay_median_s": None if np.isnan(delay_now[j]) else float(delay_now[j])}
             agent.h_decided_count[row] = agent.greedy_count[row] = 0
             if self.greedy_eval:
                 record["greedy_steps"] = greedy_steps(agent, int(row), self.specs[i])
@@ -227,6 +296,8 @@ class _Batch:
         self.st["inbox"][row] = 0
         self.results[i].total_steps = int(self.agent.steps[row])
         self.results[i].weights = self.agent.policy_weights(row)
+        credited = sum(e["feedback_credited"] for e in self.results[i].episodes)
+        self.results[i].delay = self.agent.delay_summary(row) or fixed_delay_summary(self.specs[i], credited)
         self.finished_rows += 1
         if self.on_trial_done is not None:
             self.on_trial_done(i, self.results[i])
@@ -247,7 +318,8 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     `profile`, if given, receives per batch-size bucket ("1", "2-4", "5-16", "17-64", "65+" running
     trials) the ticks run and the CPU seconds they took. `on_input(i, kind, record)`, if given, sees every
     input of trial i's step loop in the order it is consumed ("feedback": t, value; "step": t, episode, obs,
-    action, reward, next_obs, terminated, truncated): what a live learner would be sent.
+    action, reward, next_obs, terminated, truncated, and the teacher rule's polarity): what a live learner would
+    be sent.
     """
     if not specs:
         return []

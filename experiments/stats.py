@@ -13,6 +13,7 @@ interval resamples whole clusters and every test treats the cluster, not the tri
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 from scipy import stats as sps
@@ -29,12 +30,14 @@ def cluster_means(values: np.ndarray, clusters: np.ndarray) -> tuple[np.ndarray,
     return ids, sums / counts.reshape((-1,) + (1,) * (values.ndim - 1)), counts
 
 
+@lru_cache(maxsize=64)
 def cluster_boot_weights(n_clusters: int, n_boot: int, seed: int = BOOT_SEED) -> np.ndarray:
-    """[n_boot, n_clusters]: how many times each cluster is drawn in each resample."""
+    """[n_boot, n_clusters]: how many times each cluster is drawn in each resample (read-only: cached)."""
     rng = np.random.default_rng(seed)
     draws = rng.integers(0, n_clusters, size=(n_boot, n_clusters))
     w = np.zeros((n_boot, n_clusters))
     np.add.at(w, (np.repeat(np.arange(n_boot), n_clusters), draws.ravel()), 1.0)
+    w.flags.writeable = False
     return w
 
 

@@ -6,6 +6,7 @@ The parts (`AgentParts`, built by `build_parts` from the configs, or passed in),
   replay           `TransitionReplay`: the transitions Q samples (and shaping rewrites);
   feedback_memory  `FeedbackMemory`: D_global, every credited (step, feedback, weight);
   history          `BatchStepHistory`: the recent steps that credit (`common.core.credit`) weighs;
+  feedback         `FeedbackDoor` (`feedback.py`, inherited): the one way feedback comes in;
   explorer, mixture  epsilon-greedy on alpha_q Q + alpha_h H (`explorer`).
 The four algorithms are ways of assembling them (`AgentConfig` presets: which parts learn, the mixture
 weights, shaping), so a batch may mix them. The order in which a driver calls the agent is
@@ -24,38 +25,23 @@ A trial run alone (B = 1) and the same trial run among others give the same acti
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from common.agents.build import SHARED_FIELDS, AgentParts, build_parts
 from common.agents.config import AgentConfig
+from common.agents.feedback import (CREDITED, IGNORED, STALE, STATUS_NAMES, FeedbackDoor,  # noqa: F401
+                                     FeedbackOutcome)
 from common.agents.history import BatchCredit
-from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, fit_together, row_max,
-                                     with_ones)
+from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, FitJob, fit_together, row_max, with_ones
 from common.agents.streams import to_integers
-from common.core.delay_learning import TrialLags
 from common.core.util import RowConstants, nz
 
 # At most this many due rows run the Q and H minibatch steps as one stacked computation (above it,
 # copying the weights together costs more than the saved calls).
 MERGE_ROWS = 16
 
-# Status codes of `feedback_rounds` (the strings of FeedbackOutcome.status, in this order).
-IGNORED, CREDITED, STALE = 0, 1, 2
-STATUS_NAMES = ("ignored", "credited", "stale")
 
-
-@dataclass
-class FeedbackOutcome:
-    """What became of one feedback: credited to `steps` held steps, stale (all mass lost), or ignored."""
-
-    status: str  # "credited" | "stale" | "ignored"
-    steps: int = 0
-    lost_mass: float = 0.0
-
-
-class TrialBatchAgent:
+class TrialBatchAgent(FeedbackDoor):
     # Per-trial arrays that `select` slices (the parts slice their own).
     _ROW_ARRAYS = ("train_q", "train_h", "shaping", "steps", "q_updates", "h_updates", "greedy_count",
                    "h_decided_count")
@@ -157,7 +143,7 @@ class TrialBatchAgent:
             self.greedy_count[sel] += both
             self.h_decided_count[sel] += both & (greedy != q_best)
             if self.mixture.adapting:  # (H's own argmax is needed only then)
-                self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1))
+                self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1), steps)
         chosen = self.explorer.choose(rows, steps, greedy)
         if n == self.B:
             return chosen
@@ -165,21 +151,14 @@ class TrialBatchAgent:
         actions[rows] = chosen
         return actions
 
-    def mean_lag(self, rows: np.ndarray) -> np.ndarray:
-        """Mean of the lag distribution (in steps) credit uses now for trials `rows` (nan if not point masses)."""
-        d = self.assumed_delay
-        if hasattr(d, "mean_lag"):
-            return d.mean_lag(rows)
-        probs = getattr(d, "probs", None)
-        value = float(np.dot(probs, np.arange(len(probs)))) if probs is not None else float("nan")
-        return np.full(len(rows), value)
-
     # ---------------------------------------------------------------------------------- observing
     def record_steps(self, rows: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
                      next_obs: np.ndarray, terminated: np.ndarray, t_actions: np.ndarray,
-                     episodes: np.ndarray) -> None:
-        """Trials `rows` (distinct) took `actions` at times `t_actions` in episodes `episodes`: store
-        transitions, remember steps (credit never crosses an episode boundary)."""
+                     episodes: np.ndarray, seconds: np.ndarray | None = None,
+                     polarity: np.ndarray | None = None) -> None:
+        """Trials `rows` (distinct) took `actions` at times `t_actions` in episodes `episodes`: store transitions,
+        remember steps. Where a delay is learned in seconds the driver also gives `seconds` (the teacher's clock)
+        and the task rule's `polarity` of each (+-1, 0 unknown: the model of the rated event it is fitted on)."""
         rows = np.asarray(rows, np.int64)
         obs = np.asarray(obs, np.float32).reshape(len(rows), self.obs_dim)
         actions = np.asarray(actions, np.int64)
@@ -187,7 +166,8 @@ class TrialBatchAgent:
                                      reward=np.asarray(rewards, np.float32),
                                      next_obs=np.asarray(next_obs, np.float32).reshape(len(rows), self.obs_dim),
                                      terminated=np.asarray(terminated, np.float32))
-        self.history.push(rows, np.asarray(t_actions, np.float64), obs, actions, slots, np.asarray(episodes, np.int64))
+        self.history.push(rows, np.asarray(t_actions, np.float64), obs, actions, slots, np.asarray(episodes, np.int64),
+                          seconds, polarity)
         self.steps[rows] += 1
 
     def record_step(self, i: int, obs, action: int, reward: float, next_obs, terminated: bool,
@@ -199,99 +179,6 @@ class TrialBatchAgent:
     def forget_history(self, i: int) -> None:
         """Drop trial i's held steps (e.g. the actor restarted: nothing before may be credited)."""
         self.history.clear(i)
-
-    def give_feedback(self, events: list[tuple[int, float, int]]) -> list[FeedbackOutcome]:
-        """One round of feedback, at most one event per trial: (trial, t_feedback, value +-1)."""
-        seen = set()
-        for i, _, value in events:
-            if i in seen:
-                raise ValueError(f"trial {i} has two feedbacks in one round")
-            seen.add(i)
-            if value not in (-1, 1):
-                raise ValueError(f"feedback must be -1 or +1, got {value!r}")
-        if not events:
-            return []
-        status, steps, lost = self.feedback_rounds(np.array([e[0] for e in events], np.int64),
-                                                   np.array([e[1] for e in events], np.float64),
-                                                   np.array([[e[2]] for e in events], np.int64),
-                                                   np.ones(len(events), np.int64))
-        return [FeedbackOutcome(STATUS_NAMES[s], int(n), float(m)) for s, n, m in zip(status, steps, lost)]
-
-    def feedback_rounds(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray,
-                        counts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Rounds of feedback stamped at the same times: round r gives values[k, r] (+-1, not checked) to
-        trial rows[k] if counts[k] > r. Shaping trials add it to the newest step's reward; H trials credit it
-        by timestamp (computed once: nothing is recorded between rounds), grow D_global and update H on
-        D_local, one update per round, in order. Returns (status, steps, lost mass) per trial."""
-        n = len(rows)
-        self.last_credit = None
-        status = np.full(n, IGNORED, np.int64)
-        steps = np.zeros(n, np.int64)
-        lost = np.zeros(n, np.float64)
-        shaping = self.shaping[rows]
-        if np.count_nonzero(shaping):
-            self._shape(rows, t_feedback, values, counts, nz(shaping), status, steps, lost)
-        learn = self.train_h[rows] & ~shaping
-        if np.count_nonzero(learn):
-            self._credit_h(rows, t_feedback, values, counts, nz(learn), status, steps, lost)
-        return status, steps, lost
-
-    def _shape(self, rows, t_feedback, values, counts, k, status, steps, lost) -> None:
-        """Naive reward shaping: each round's value added to the reward of the newest step at t_feedback."""
-        r = rows[k]
-        pos = self.history.latest_at(r, t_feedback[k])
-        hit = pos >= 0
-        status[k] = np.where(hit, CREDITED, STALE)
-        steps[k] = hit.astype(np.int64)
-        lost[k] = np.where(hit, 0.0, 1.0)
-        for rnd in range(values.shape[1]):
-            g = hit & (counts[k] > rnd)
-            self.replay.add_reward(r[g], self.history.slot[r[g], pos[g]], values[k[g], rnd].astype(np.float32))
-
-    def _credit_h(self, rows, t_feedback, values, counts, k, status, steps, lost) -> None:
-        """Credit by timestamp: D_local, added to D_global, and an H step on D_local (summed) per round."""
-        r = rows[k]
-        delay = self.assumed_delay
-        if isinstance(delay, TrialLags):  # one distribution per trial, learned where configured
-            if delay.learn[r].any():
-                self._learn_delay(r, t_feedback[k], values[k, 0])
-            delay = delay.rows(r)
-        credit = self.history.credit(r, t_feedback[k], delay, self.local_width)
-        self.last_credit = (k, credit)
-        ok = credit.counts > 0
-        status[k] = np.where(ok, CREDITED, STALE)
-        steps[k] = credit.counts
-        lost[k] = credit.lost
-        if not np.count_nonzero(ok):
-            return
-        k, r, pos, cnt = k[ok], r[ok], credit.positions[ok], credit.counts[ok]
-        w32 = credit.weights[ok].astype(np.float32)
-        obs = self.history.obs[r[:, None], pos]
-        act = self.history.action[r[:, None], pos]
-        for rnd in range(values.shape[1]):
-            g = nz(counts[k] > rnd)
-            if not len(g):
-                break
-            fb = np.repeat(values[k[g], rnd].astype(np.float32)[:, None], pos.shape[1], axis=1)
-            self._learn_local(r[g], cnt[g], obs[g], act[g], fb, w32[g])
-
-    def _learn_delay(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray) -> None:
-        """One step of the learned lag distribution (common.core.delay_learning) per learning trial, from H's
-        current predictions at the step each lag points to (before H learns from this feedback)."""
-        lags = self.assumed_delay
-        m = lags.learn[rows]
-        r, t, f = rows[m], t_feedback[m], values[m]
-        pos, valid = self.history.steps_at_lags(r, t, lags.lags)
-        obs, act = self.history.obs[r[:, None], pos], self.history.action[r[:, None], pos]
-        h = self.h.values(r, obs)
-        pred = np.take_along_axis(h, act[:, :, None], axis=2)[:, :, 0]
-        lags.em.update(r, f, pred, valid)
-
-    def _learn_local(self, rows, counts, obs, act, fb, w32) -> None:
-        """D_local of one feedback per trial: into D_global, and one H step on it (its loss summed)."""
-        self.feedback_memory.add_many(rows, counts, obs=obs, action=act, feedback=fb, weight=w32)
-        self.h.fit(FitJob(self.h, rows, obs, act, fb, w32, SQUARED_SUM))
-        self.h_updates[rows] += 1
 
     # ---------------------------------------------------------------------------------- learning
     def update(self, active: np.ndarray | None = None) -> None:

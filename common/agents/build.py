@@ -18,7 +18,7 @@ from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.streams import UniformBlocks
 from common.core.delay import DelayModel
-from common.core.delay_learning import TrialLags
+from common.core.delay_learning import TrialDelays
 from common.core.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
@@ -48,7 +48,7 @@ class AgentParts:
 
     def _per_trial(self) -> tuple[str, ...]:
         """Parts with per-trial state beyond the fixed ones: the delay when it is one per trial (learned)."""
-        return ("assumed_delay",) if isinstance(self.assumed_delay, TrialLags) else ()
+        return ("assumed_delay",) if isinstance(self.assumed_delay, TrialDelays) else ()
 
     def select(self, rows: np.ndarray) -> None:
         for name in self._ROWS + self._per_trial():
@@ -77,11 +77,11 @@ def mlp(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[in
 
 def _assumed_delay(configs: list[AgentConfig], step_unit: float):
     """The paper's one point-mass model when every trial assumes the same lags and none learns them; else one
-    distribution per trial (`common.core.delay_learning.TrialLags`)."""
+    distribution per trial, learned in seconds where configured (`common.core.delay_learning.TrialDelays`)."""
     c = configs[0]
     if all(x.assumed_delay_probs == c.assumed_delay_probs and not x.learn_delay for x in configs):
         return DelayModel(c.assumed_delay_probs, step_unit)
-    return TrialLags(configs, step_unit)
+    return TrialDelays(configs, step_unit)
 
 
 def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],

@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, fields, replace
 
 from common.config import option
-from common.core.delay import parse_probs
+from common.core.delay import check_delay_spec, parse_probs
 
 NETWORKS = ("auto", "mlp", "torch-mlp", "cnn")  # the built-in networks (common/agents/torch_net.py builds them)
 
@@ -60,22 +60,32 @@ class AgentConfig:
                                                     "2, ... steps (for credit)")
     history_steps: int = option(32, "recent steps a feedback may still be credited to; older targets are stale")
     # Beyond the paper (ours; docs/results/REPORT.md: learned delay, adaptive alpha_h).
-    learn_delay: bool = option(False, "learn the lag distribution online (common.core.delay_learning: EM over lags "
-                                      "0..len(assumed)-1, starting from assumed_delay_probs)")
+    learn_delay: bool = option(False, "learn the teacher's delay in seconds online (common.core.delay_model: a "
+                                      "density over 0-6 s, from delay_prior), instead of assumed_delay_probs")
+    delay_prior: str = option("uniform:0.2,4", "the learned delay's prior in seconds (Deep TAMER's uniform 0.2-4 s)")
     alpha_h_adapt: float = option(0.0, "if > 0, alpha_h is also multiplied by a running rate (this step size, "
                                        "from 1) of argmax H agreeing with argmax Q; 0 = the paper's schedule")
+    alpha_h_trust: float = option(0.0, "if > 0, the teacher's reliability: a running rate (this step size, from 1) "
+                                       "of argmax H agreeing with argmax Q from step alpha-h-trust-after on; "
+                                       "alpha_h is multiplied by min(1, reliability / alpha-h-trust-ref)")
+    alpha_h_trust_after: int = option(0, "steps before the reliability counts (Q learns from the return first)")
+    alpha_h_trust_ref: float = option(1.0, "reliability at or above which the teacher keeps the whole alpha_h")
 
     def __post_init__(self):
         object.__setattr__(self, "assumed_delay_probs",
                            parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        check_delay_spec(self.delay_prior)
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):
                 raise ValueError(f"{f.name} must be finite, got {v}")
         positive = ("hidden", "batch_size", "replay_size", "target_update_interval", "update_interval",
                     "h_batch_size", "feedback_memory_size", "history_steps")
-        if not 0 <= self.alpha_h_adapt <= 1:
-            raise ValueError(f"alpha_h_adapt must be in [0, 1], got {self.alpha_h_adapt}")
+        for name in ("alpha_h_adapt", "alpha_h_trust"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if self.alpha_h_trust_after < 0 or not 0 < self.alpha_h_trust_ref <= 1:
+            raise ValueError("alpha_h_trust_after must be >= 0 and alpha_h_trust_ref in (0, 1]")
         for name in positive:
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")

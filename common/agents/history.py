@@ -1,9 +1,10 @@
-"""The recent steps of every trial in a batch (ring buffers of time, episode, obs, action, replay slot of the
-last `capacity` steps), and credit by timestamp over them for one feedback per trial at once.
+"""The recent steps of every trial in a batch (ring buffers of time, seconds, episode, obs, action, the teacher
+rule's polarity and replay slot of the last `capacity` steps), and credit by timestamp over them.
 
-The weights come from `common.core.credit.credit_weights`, the one credit function: step k is shown from its
-action time to the next one, and a feedback is credited only within the episode of the newest step shown
-at or before its stamp.
+Step k is shown from its time to the next step's. The weights of a fixed delay come from
+`common.core.credit.credit_weights`, batched over trials; a learned delay (`common.core.delay_model`) reads
+the held steps by time (`held`, `find`) and weighs them itself. Either way a feedback's candidates are the
+held steps shown before it, whatever their episode (a reaction to the goal-reaching move lands after the reset).
 """
 from __future__ import annotations
 
@@ -25,9 +26,13 @@ class BatchCredit:
 
 
 class BatchStepHistory:
+    FIELDS = ("times", "seconds", "polarity", "episode", "obs", "action", "slot", "count", "head")
+
     def __init__(self, trials: int, capacity: int, obs_dim: int):
         self.capacity = capacity
         self.times = np.zeros((trials, capacity), np.float64)
+        self.seconds = np.zeros((trials, capacity), np.float64)  # when it was shown, in seconds (teacher's clock)
+        self.polarity = np.zeros((trials, capacity), np.int8)  # the task's teacher rule on it (0: unknown)
         self.episode = np.zeros((trials, capacity), np.int64)
         self.obs = np.zeros((trials, capacity, obs_dim), np.float32)
         self.action = np.zeros((trials, capacity), np.int64)
@@ -36,8 +41,11 @@ class BatchStepHistory:
         self.head = np.zeros(trials, np.int64)  # next write position
 
     def push(self, trials: np.ndarray, t: np.ndarray, obs: np.ndarray, action: np.ndarray,
-             slot: np.ndarray, episode: np.ndarray) -> None:
-        """Trial trials[k] took action[k] at time t[k] in its episode episode[k] (trials distinct)."""
+             slot: np.ndarray, episode: np.ndarray, seconds: np.ndarray | None = None,
+             polarity: np.ndarray | None = None) -> None:
+        """Trial trials[k] took action[k] at time t[k] in its episode episode[k] (trials distinct); where a delay
+        is learned in seconds, the driver also gives `seconds[k]` (when it was shown) and the task rule's
+        polarity[k] of it (+-1, 0 unknown)."""
         pos, count = self.head[trials], self.count[trials]
         newest = self.times[trials, (pos - 1) % self.capacity]
         older = (count > 0) & (t < newest)
@@ -45,6 +53,9 @@ class BatchStepHistory:
             k = int(nz(older)[0])
             raise ValueError(f"step time {t[k]} is older than the previous step {newest[k]}")
         self.times[trials, pos] = t
+        if seconds is not None:  # (kept only by drivers that credit in seconds: a learned delay)
+            self.seconds[trials, pos] = seconds
+            self.polarity[trials, pos] = 0 if polarity is None else polarity
         self.episode[trials, pos] = episode
         self.obs[trials, pos] = obs
         self.action[trials, pos] = action
@@ -55,40 +66,39 @@ class BatchStepHistory:
     def clear(self, trials) -> None:
         self.count[trials] = 0
 
-    def _chronological(self, trials: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Ring positions oldest first [n, capacity] and the held times there (+inf where nothing is held)."""
+    def held(self, trials: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Ring positions of the held steps oldest first [n, capacity], and their times there (+inf where
+        nothing is held)."""
         j = np.arange(self.capacity)[None, :]
         count = self.count[trials][:, None]
         pos = (self.head[trials][:, None] - count + j) % self.capacity
         times = np.where(j < count, self.times[trials[:, None], pos], np.inf)
         return pos, times
 
+    def find(self, trial: int, times) -> np.ndarray:
+        """Ring position of trial's held step recorded at each of `times` (-1 where none is held)."""
+        pos, held = self.held(np.array([trial]))
+        times = np.asarray(times, np.float64)
+        k = np.searchsorted(held[0], times)
+        k = np.minimum(k, self.capacity - 1)
+        return np.where(held[0, k] == times, pos[0, k], -1)
+
+    def times_at(self, trial: int, positions) -> np.ndarray:
+        """The times at which trial's held steps at ring `positions` were taken (the inverse of `find`)."""
+        return self.times[trial, np.asarray(positions, np.int64)]
+
     def latest_at(self, trials: np.ndarray, t: np.ndarray) -> np.ndarray:
         """Ring position of the newest step taken at or before t[k] for each trial, -1 if none."""
-        pos, times = self._chronological(trials)
+        pos, times = self.held(trials)
         k = (times <= t[:, None]).sum(axis=1) - 1
         return np.where(k >= 0, pos[np.arange(len(trials)), np.maximum(k, 0)], -1)
-
-    def steps_at_lags(self, trials: np.ndarray, t_feedback: np.ndarray,
-                      lags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """For each trial and lag: the ring position of the newest held step taken at or before
-        t_feedback - lag ([n, L]), and whether there is one in the episode of the newest step shown at or
-        before t_feedback ([n, L] bool; as credit, never across an episode)."""
-        pos, times = self._chronological(trials)
-        rows = np.arange(len(trials))[:, None]
-        k = (times[:, None, :] <= (t_feedback[:, None] - lags[None, :])[:, :, None]).sum(axis=2) - 1
-        at = pos[rows, np.maximum(k, 0)]
-        current = self.episode[trials[:, None], at[:, :1]]
-        valid = (k >= 0) & (k[:, :1] >= 0) & (self.episode[trials[:, None], at] == current)
-        return np.where(valid, at, 0), valid
 
     def credit(self, trials: np.ndarray, t_feedback: np.ndarray, delay, width: int) -> BatchCredit:
         """Credit one feedback per trial; at most `width` steps can get weight (the assumed delay's point
         masses, or the capacity for a continuous delay)."""
         n = len(trials)
-        pos, times = self._chronological(trials)
-        episodes = self.episode[trials[:, None], pos]
-        w, lost = credit_weights(t_feedback, times, delay, episodes=episodes)
+        pos, times = self.held(trials)
+        w, lost = credit_weights(t_feedback, times, delay)
         credited = w > 0
         counts = credited.sum(axis=1)
         order = np.argsort(~credited, axis=1, kind="stable")[:, :width]
@@ -99,12 +109,11 @@ class BatchStepHistory:
         return BatchCredit(counts, lost, positions, weights)
 
     def select(self, trials: np.ndarray) -> None:
-        for name in ("times", "episode", "obs", "action", "slot", "count", "head"):
+        for name in self.FIELDS:
             setattr(self, name, getattr(self, name)[trials])
 
     def state_dict(self) -> dict:
-        return {name: getattr(self, name).copy() for name in ("times", "episode", "obs", "action", "slot",
-                                                              "count", "head")}
+        return {name: getattr(self, name).copy() for name in self.FIELDS}
 
     def load_state_dict(self, state: dict) -> None:
         for name, value in state.items():

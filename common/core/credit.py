@@ -18,9 +18,10 @@ onset of some step, t_f - D = start_k; `onset_weights` credits that: each step s
 of D at t_f - start_k, normalised over those steps (the posterior of "which step was rated" under a uniform
 prior). On the step clock with point-mass lags the two readings coincide.
 
-A feedback is never credited across an episode boundary: its episode is that of the newest step shown at or
-before t_f, and the mass that falls on other episodes' steps, before the oldest step still held, or
-between intervals is lost (returned, so the caller can count it). Weights and lost mass sum to 1.
+A feedback's candidates are the steps shown before it, whatever their episode: a reaction to the move that
+reached the goal often lands after the reset, and it refers to that move (the terminal transition is
+creditable). Nothing shown after the stamp gets credit. The mass that falls before the oldest step still held
+or between intervals is lost (returned, so the caller can count it). Weights and lost mass sum to 1.
 """
 from __future__ import annotations
 
@@ -48,13 +49,13 @@ def interval_mass(delay, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     return np.clip(np.asarray(delay.cdf(high), np.float64) - np.asarray(delay.cdf(low), np.float64), 0.0, 1.0)
 
 
-def credit_weights(t_feedback, starts, delay, ends=None, episodes=None) -> tuple[np.ndarray, np.ndarray]:
+def credit_weights(t_feedback, starts, delay, ends=None) -> tuple[np.ndarray, np.ndarray]:
     """Weights of each held step for a feedback at `t_feedback`, and the mass lost.
 
     Batched over leading axes: t_feedback [...], starts [..., K] ascending along K (held steps, oldest first;
     +inf pads rows with fewer steps). `ends` defaults to the next step's start (the newest step is still
-    shown: +inf). `episodes` [..., K] are the steps' episode ids; None means one episode. Returns
-    (weights [..., K], lost [...]); a scalar t_feedback with 1-d starts gives a 1-d weights and a float lost.
+    shown: +inf). Returns (weights [..., K], lost [...]); a scalar t_feedback with 1-d starts gives a 1-d
+    weights and a float lost.
     """
     t_f = np.asarray(t_feedback, np.float64)
     starts = np.asarray(starts, np.float64)
@@ -68,12 +69,6 @@ def credit_weights(t_feedback, starts, delay, ends=None, episodes=None) -> tuple
             raise ValueError("a step cannot end before it starts")
     t = t_f[..., None]
     shown_before = starts <= t  # steps already on screen at t_f (a reaction cannot precede its cause)
-    if episodes is not None:
-        episodes = np.asarray(episodes)
-        newest = shown_before.sum(axis=-1) - 1
-        at = np.maximum(newest, 0).reshape(-1)  # (a plain gather: np.take_along_axis costs more at these sizes)
-        current = episodes.reshape(-1, episodes.shape[-1])[np.arange(len(at)), at].reshape(newest.shape + (1,))
-        shown_before &= (episodes == current) & (newest >= 0)[..., None]
     mass = _point_mass_on_steps(delay, t - starts) if ends is None else None
     if mass is None:
         if ends is None:
@@ -104,10 +99,10 @@ def _point_mass_on_steps(delay, since_start: np.ndarray) -> np.ndarray | None:
     return np.where(inside, probs[..., None, :], 0.0).sum(axis=-1)
 
 
-def onset_weights(t_feedback: float, starts, delay, episodes=None) -> tuple[np.ndarray, float]:
+def onset_weights(t_feedback: float, starts, delay) -> tuple[np.ndarray, float]:
     """Weights of each held step (1-d `starts`, ascending) for a feedback at `t_feedback` from a person reacting
-    to each step's onset, and the mass lost (on other episodes' steps, or all of it when no onset lies where
-    the delay has density). `delay` needs a density (`pdf`: a scipy.stats distribution)."""
+    to each step's onset, and the mass lost (all of it when no onset lies where the delay has density). `delay`
+    needs a density (`pdf`: a scipy.stats distribution)."""
     pdf = getattr(delay, "pdf", None)
     if pdf is None:
         raise ValueError("onset credit needs a delay with a density (a distribution in seconds, not steps:...)")
@@ -121,7 +116,4 @@ def onset_weights(t_feedback: float, starts, delay, episodes=None) -> tuple[np.n
     if not total > 0:
         return np.zeros(len(starts)), 1.0
     weights = density / total
-    if episodes is not None and shown_before.any():
-        episodes = np.asarray(episodes)
-        weights = np.where(episodes == episodes[np.flatnonzero(shown_before)[-1]], weights, 0.0)
     return weights, max(0.0, 1.0 - float(weights.sum()))

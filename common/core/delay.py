@@ -65,10 +65,53 @@ class DelayModel:
         return self.mass_between(np.full(np.shape(x), -np.inf), x)
 
 
+class MixtureDelay:
+    """A mixture of delay distributions in seconds (a person with two ways of reacting: a bimodal delay), with
+    the CDF credit needs, a density and a quantile function (by bisection on the CDF)."""
+
+    def __init__(self, weights: list[float], parts: list):
+        self.weights, self.parts = np.asarray(weights, np.float64), parts
+
+    def cdf(self, x):
+        return sum(w * np.asarray(p.cdf(x), np.float64) for w, p in zip(self.weights, self.parts))
+
+    def pdf(self, x):
+        return sum(w * np.asarray(p.pdf(x), np.float64) for w, p in zip(self.weights, self.parts))
+
+    def ppf(self, q):
+        q = np.asarray(q, np.float64)
+        lo, hi = np.zeros(q.shape), np.full(q.shape, 60.0)
+        for _ in range(60):
+            mid = (lo + hi) / 2
+            below = self.cdf(mid) < q
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        out = (lo + hi) / 2
+        return float(out) if out.ndim == 0 else out
+
+
+def _mixture_from_spec(spec: str) -> MixtureDelay:
+    """``mix:W1*SPEC1+W2*SPEC2+...``: weights (normalised) of distributions in seconds."""
+    weights, parts = [], []
+    for term in spec.partition(":")[2].split("+"):
+        w, star, part = term.partition("*")
+        try:
+            weight = float(w) if star else float("nan")
+        except ValueError:
+            weight = float("nan")
+        if not (math.isfinite(weight) and weight > 0) or part.strip().startswith(("steps", "mix")):
+            raise ValueError(f"delay {spec!r}: mix needs terms WEIGHT*NAME:ARGS (weights > 0, seconds)")
+        weights.append(weight)
+        parts.append(delay_from_spec(part.strip()))
+    total = sum(weights)
+    return MixtureDelay([w / total for w in weights], parts)
+
+
 def _parse_spec(spec: str) -> tuple[str, str, list[float]]:
-    """(name, the raw arguments, them as numbers: empty for ``steps``); checks what needs no scipy."""
+    """(name, the raw arguments, them as numbers: empty for ``steps`` and ``mix``); checks what needs no scipy."""
     name, _, args = spec.partition(":")
     name = name.strip()
+    if name == "mix":
+        return name, args, []
     if name == "steps":
         parse_probs(args, "delay steps")
         return name, args, []
@@ -91,10 +134,13 @@ def check_delay_spec(spec: str) -> None:
 def delay_from_spec(spec: str, unit: float = 1.0):
     """A delay distribution from text: ``steps:0.3,0.6,0.1`` (point masses at 0, 1, 2 units), ``uniform:LOW,HIGH``
     (seconds; Deep TAMER's default is ``uniform:0.2,4``) or ``NAME:ARG,...`` for any scipy.stats distribution
-    (``gamma:2.0,0,0.4`` = shape 2, loc 0, scale 0.4). Errors are one-line ValueErrors."""
+    (``gamma:2.0,0,0.4`` = shape 2, loc 0, scale 0.4) or ``mix:W1*SPEC1+W2*SPEC2`` (a mixture of those).
+    Errors are one-line ValueErrors."""
     name, args, values = _parse_spec(spec)
     if name == "steps":
         return DelayModel(parse_probs(args, "delay steps"), unit)
+    if name == "mix":
+        return _mixture_from_spec(spec)
     import scipy.stats
 
     if name == "uniform":

@@ -1,6 +1,7 @@
 """The simulated human observer with the paper's five characteristics.
 
-binary (a rule per environment: +1/-1), delay (true lag drawn from `delay_probs`), stochasticity (a step
+binary (a rule per environment: +1/-1), delay (true lag drawn from `delay_probs` in steps, or from
+`delay_s`, a distribution in seconds on the runner's clock of `step_seconds` per step), stochasticity (a step
 gets feedback with probability `p_feedback`), unsustainability (silent from episode `stop_episode` or
 global step `stop_step` on), natural reaction (polarity flipped with probability `p_flip`).
 
@@ -16,11 +17,23 @@ from collections.abc import Callable, Mapping
 import numpy as np
 
 from common.config import option
-from common.core.delay import DelayModel, parse_probs
+from common.core.delay import DelayModel, delay_from_spec, parse_probs
 from common.core.util import RowConstants
 
 # A reaction lands half a step after its lag: between two actions, never on one.
 REACTION_OFFSET = 0.5
+# A delay in seconds is cut here (the learned density's range: a later press has nothing left to refer to).
+MAX_REACTION_S = 6.0
+
+
+# A delay in seconds is drawn by its quantile function, tabulated here (scipy's ppf per draw costs milliseconds).
+QUANTILE_GRID = np.linspace(0.0, 1.0, 4097)
+
+
+def _quantiles(spec: str) -> np.ndarray:
+    """The quantiles of a delay in seconds at QUANTILE_GRID (the ends cut to 0..MAX_REACTION_S)."""
+    q = np.asarray(delay_from_spec(spec).ppf(QUANTILE_GRID), np.float64)
+    return np.clip(np.nan_to_num(q, nan=0.0, posinf=MAX_REACTION_S, neginf=0.0), 0.0, MAX_REACTION_S)
 
 
 @dataclass(frozen=True)
@@ -37,6 +50,12 @@ class ObserverConfig:
                                                  "(1 - w) delay_probs + w late_delay_probs, "
                                                  "w = min(1, e / drift_episodes)")
     drift_episodes: int = option(1, "episodes over which a drifting lag distribution moves to late_delay_probs")
+    delay_s: str = option("", "if given, the delay in seconds instead of delay_probs: a distribution NAME:ARGS "
+                              "(common.core.delay, e.g. gamma:4,0,0.25), from the step's onset to the feedback")
+    late_delay_s: str = option("", "if given with delay_s, the delay drifts: at episode e each reaction's quantile of "
+                                   "delay_s and of this one are mixed (1 - w, w), w = min(1, e / drift_episodes)")
+    drift_steps: int = option(0, "if > 0, a delay in seconds drifts over this many steps instead (w = min(1, "
+                                 "global step / drift_steps))")
 
     def lag_cdf(self, episode: int) -> np.ndarray:
         """Cumulative lag distribution at `episode` over 0..max lag (drift included)."""
@@ -54,6 +73,15 @@ class ObserverConfig:
         object.__setattr__(self, "delay_probs", parse_probs(self.delay_probs, "delay-probs"))
         late = parse_probs(self.late_delay_probs, "late-delay-probs") if len(self.late_delay_probs) else ()
         object.__setattr__(self, "late_delay_probs", late)
+        for spec in (self.delay_s, self.late_delay_s):
+            if spec:
+                delay_from_spec(spec)  # a one-line ValueError if malformed
+                if spec.strip().startswith("steps"):
+                    raise ValueError(f"delay-s must be a distribution in seconds, got {spec!r}")
+        if self.late_delay_s and not self.delay_s:
+            raise ValueError("late-delay-s needs delay-s")
+        if self.drift_steps < 0:
+            raise ValueError(f"drift-steps must be >= 0, got {self.drift_steps}")
         if self.drift_episodes < 1:
             raise ValueError(f"drift-episodes must be >= 1, got {self.drift_episodes}")
         for name in ("p_feedback", "p_flip"):
@@ -105,6 +133,11 @@ class ObserverBatch:
                 target[k, :len(cdf)] = cdf
                 target[k, len(cdf):] = cdf[-1]
         self.drift_episodes = np.array([c.drift_episodes for c in configs], np.float64)
+        # Delays in seconds (rows whose config has delay_s): distributions at the start and end of a drift.
+        self.seconds = [(_quantiles(c.delay_s), _quantiles(c.late_delay_s or c.delay_s)) if c.delay_s else None
+                        for c in configs]
+        self.in_seconds = any(d is not None for d in self.seconds)
+        self.drift_steps = np.array([c.drift_steps for c in configs], np.float64)
         self.drifts = bool(np.any(self.cum != self.cum_late))
         self.u = np.zeros((len(configs), block, 3), np.float64)
         self.watched = np.zeros(len(configs), np.int64)  # steps watched so far (draws used)
@@ -128,7 +161,21 @@ class ObserverBatch:
             cum = (1 - w) * cum + w * cum_late
         lag = np.minimum((u[:, 1:2] >= cum).sum(axis=1), last_lag)
         value = np.where(u[:, 2] < p_flip, -intended, intended)
+        self.last_delay_s = self._delays_s(rows, u[:, 1], episode, global_step) if self.in_seconds else None
         return give, value, lag
+
+    def _delays_s(self, rows: np.ndarray, u: np.ndarray, episode: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """Each row's delay in seconds for the lag draw u (nan for rows counted in steps): the quantile u of its
+        distribution, mixed between the start and end of a drift."""
+        out = np.full(len(rows), np.nan)
+        for j, r in enumerate(rows):
+            if self.seconds[r] is None:
+                continue
+            early, late = self.seconds[r]
+            w = min(1.0, step[j] / self.drift_steps[r] if self.drift_steps[r] else episode[j] / self.drift_episodes[r])
+            d = (1 - w) * float(np.interp(u[j], QUANTILE_GRID, early)) + w * float(np.interp(u[j], QUANTILE_GRID, late))
+            out[j] = min(max(d, 0.0), MAX_REACTION_S)
+        return out
 
     def _pick_constants(self, rows: np.ndarray) -> tuple:
         return (self.stop_episode[rows], self.stop_step[rows], self.p_feedback[rows], self.cum[rows],
@@ -140,6 +187,8 @@ class ObserverBatch:
                      "drift_episodes", "u", "watched", "drawn"):
             setattr(self, name, getattr(self, name)[rows])
         self.rngs = [self.rngs[k] for k in rows]
+        self.seconds = [self.seconds[k] for k in rows]
+        self.drift_steps = self.drift_steps[rows]
         self._constants.clear()
 
 
@@ -169,4 +218,8 @@ class SimulatedObserver:
         self.emitted += 1
         self.flipped += value != intended
         t_reaction = t_action + (lag + REACTION_OFFSET) * self.step_unit
+        delays = self._batch.last_delay_s
+        if delays is not None:  # a delay in seconds (t_action is on a clock of seconds)
+            delay = float(delays[0])
+            t_reaction, lag = t_action + delay, int(delay // self.step_unit)
         return FeedbackEvent(t_reaction, value, intended, global_step if step_ref is None else step_ref, lag)

@@ -3,8 +3,10 @@ the virtual clock), the live learner (one trial, from Zenoh inputs) and `replay 
 
 For each step of each trial, in this order:
 
-1. `credit`: the feedback that arrived before this step's action is credited by timestamp (D_local, an H
-   update per feedback, D_global grows) or, for shaping agents, added to the newest step's reward;
+1. `credit` (the step clock) or `credit_shown` (a person's screen): the feedback that arrived before this
+   step's action is credited by timestamp over the intervals the held steps were shown, whatever their
+   episode (D_local, an H update per feedback, D_global grows) or, for shaping agents, added to the newest
+   shown step's reward;
 2. `step`: the step's transition is recorded (replay, the step history that credit reads);
 3. the every-b-steps updates run (a Q minibatch from replay, an H minibatch from D_global), then the
    target network syncs when due.
@@ -21,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.agents.agent import TrialBatchAgent
-from common.agents.screen_feedback import give_screen_feedback
 
 
 @dataclass
@@ -38,29 +39,32 @@ class StepLoop:
         self.agent = agent
 
     def credit(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray,
-               counts: np.ndarray | None = None) -> FeedbackRound:
+               counts: np.ndarray | None = None, seconds: np.ndarray | None = None) -> FeedbackRound:
         """Feedback that arrived before the next action: values[k, r] (+-1) for trial rows[k], stamped
-        t_feedback[k], for r < counts[k] (rounds in arrival order; values may be 1-d for one round each)."""
+        t_feedback[k] (`seconds[k]` on the teacher's clock, for a learned delay), for r < counts[k] (rounds in
+        arrival order; values may be 1-d for one round each)."""
         values = np.asarray(values, np.int64)
         if values.ndim == 1:
             values = values[:, None]
         if counts is None:
             counts = np.ones(len(rows), np.int64)
         return FeedbackRound(*self.agent.feedback_rounds(np.asarray(rows, np.int64),
-                                                         np.asarray(t_feedback, np.float64), values, counts))
+                                                         np.asarray(t_feedback, np.float64), values, counts,
+                                                         None if seconds is None else np.asarray(seconds, np.float64)))
 
-    def credit_screen(self, row: int, t_feedback: float, value: int, step_times, starts, ends, delay,
-                      reference: str = "interval"):
-        """A person's feedback (the console): held steps recorded at `step_times` were on their screen during
-        [starts, ends) seconds; credit in seconds with `delay`, over each interval or at each onset
-        (`reference`). Returns (agent.FeedbackOutcome, weights)."""
-        return give_screen_feedback(self.agent, row, t_feedback, value, step_times, starts, ends, delay, reference)
+    def credit_shown(self, row: int, t_feedback: float, value: int, step_times, starts, ends, delay):
+        """A feedback on steps shown during [starts, ends) (a person's screen: seconds), the held steps recorded at
+        `step_times` (NaN: no longer held), credited with `delay` (`common.core.delay_model`) through the agent's
+        one door. Returns (agent.FeedbackOutcome, weights)."""
+        positions = self.agent.history.find(row, step_times)
+        return self.agent.credit_shown(row, t_feedback, value, positions, starts, ends, delay)
 
     def step(self, rows: np.ndarray, obs, actions, rewards, next_obs, terminated, t_action,
-             episodes) -> None:
-        """Trials `rows` (distinct) took a step at t_action: record it, then the every-b-steps updates."""
+             episodes, seconds=None, polarity=None) -> None:
+        """Trials `rows` (distinct) took a step at t_action (`seconds` on the teacher's clock; the task rule says
+        `polarity` of it): record it, then the every-b-steps updates."""
         agent = self.agent
-        agent.record_steps(rows, obs, actions, rewards, next_obs, terminated, t_action, episodes)
+        agent.record_steps(rows, obs, actions, rewards, next_obs, terminated, t_action, episodes, seconds, polarity)
         if len(rows) == agent.B:
             agent.update()
         else:

@@ -15,7 +15,7 @@ No zenoh or mcap import here: the pure core may use these types too.
 """
 
 from ._base import PROTOCOL_VERSION, Message
-from ._console import CONTROL_COMMANDS, MAX_RATE, Control, Credit, CreditedStep, Shown
+from ._console import CONTROL_COMMANDS, MAX_RATE, Control, Credit, CreditedStep, DelayEstimate, Shown
 from ._keys import (kind_of, KEYS, MESSAGE_TYPES, ROOT, KeySpec, ParsedKey, camera_key, carried, config_key,
                     decode, episode_key,
                     control_key, credit_key, feedback_key, feedback_wildcard, shown_key, ingest_key, log_key,
@@ -47,7 +47,7 @@ __all__ = [
     "status_key",
     "camera_key", "perception_key", "config_key", "ObserverReaction", "reaction_key",
     "Shown", "ShownStep", "MAX_SHOWN", "MAX_INGEST_CREDITS", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit",
-    "CreditedStep",
+    "CreditedStep", "DelayEstimate",
     "shown_key", "control_key", "credit_key", "log_topic", "key_from_topic",
     "FoxgloveProto", "SceneUpdate", "Request", "TensorSummary", "WeightsSnapshot",
     "ALIVE", "NAMED_ROLES", "OBSERVER_PREFIX", "OWN_KINDS", "PUBLISHES", "ROLES", "SERVICE_ROLES", "TEACHER_PREFIX",

@@ -9,7 +9,7 @@ from typing import ClassVar
 from ._base import Message, fld
 from ._messages import RUN, Count, Name, Seconds, Token
 from ._containers import List, Nullable, Obj
-from ._spec import Float, Int, ProtocolError, Str
+from ._spec import Bool, Float, Int, ProtocolError, Str
 
 CONTROL_COMMANDS = ("pause", "resume", "pace", "end")
 MAX_RATE = 50.0  # steps per second a console may ask for
@@ -81,12 +81,35 @@ CREDITED_STEP_SPEC = Obj({"seq": Int(0, description="Step.seq (of `actor`)."),
 
 
 @dataclasses.dataclass(frozen=True)
+class DelayEstimate:
+    median_s: float
+    p10_s: float
+    p90_s: float
+    feedbacks: int
+    bin_s: float
+    probs: list
+    returning: bool = False
+
+
+MAX_DELAY_BINS = 120
+DELAY_ESTIMATE_SPEC = Obj({
+    "median_s": Float(0.0, 60.0, description="Median delay (s)."),
+    "p10_s": Float(0.0, 60.0, description="10th percentile (s)."),
+    "p90_s": Float(0.0, 60.0, description="90th percentile (s)."),
+    "feedbacks": Int(0, description="Feedbacks the estimate has seen (0: the prior, or a returning person's last)."),
+    "bin_s": Float(0.001, 10.0, description="Width (s) of each density bin; bin i covers [i * bin_s, (i+1) * bin_s)."),
+    "probs": List(Float(0.0, 1.0), max_items=MAX_DELAY_BINS, description="Probability of each bin, from 0 s."),
+    "returning": Bool(description="The estimate started from this person's profile (their last session's).")},
+    cls=DelayEstimate, description="The learner's current estimate of this teacher's reaction delay, in seconds.")
+
+
+@dataclasses.dataclass(frozen=True)
 class Credit(Message):
     """What the learner did with one feedback (published on `hitl/<run>/credit/<teacher_id>`): the steps it
     credited and their weights, or why none. The console draws it as the feedback's trail."""
 
     TYPE_NAME: ClassVar[str] = "hitl.Credit"
-    MAX_BYTES: ClassVar[int] = 8192
+    MAX_BYTES: ClassVar[int] = 10240
 
     run: str = fld(Name(RUN))
     teacher_id: str = fld(Name("The feedback's teacher; also the last chunk of the key."))
@@ -98,6 +121,9 @@ class Credit(Message):
     actor: str | None = fld(Nullable(Token("The actor incarnation of the steps.")))
     steps: list = fld(List(CREDITED_STEP_SPEC, max_items=256, description="Steps credited, oldest first."))
     lost_mass: float = fld(Float(0.0, 1.0, description="Assumed-delay mass that fell on no step held."))
+    delay: DelayEstimate | None = fld(Nullable(DELAY_ESTIMATE_SPEC, description=(
+        "The delay the learner now assumes for this teacher (learned, or the fixed one), after this feedback: "
+        "the console draws it (absent: not sent).")), optional=True)
     revision: int | None = fld(Nullable(Count(
         "The weights revision that first includes this feedback's H update: a Step whose `weights_revision` is at "
         "least this acted on it. Null when crediting it updated nothing at once (reward shaping, or not credited).")),

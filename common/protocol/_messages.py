@@ -230,7 +230,7 @@ class Ingest(Message):
     """
 
     TYPE_NAME: ClassVar[str] = "hitl.Ingest"
-    MAX_BYTES: ClassVar[int] = 512 * 1024 + MAX_INGEST_CREDITS * 8192  # (8192: Credit.MAX_BYTES)
+    MAX_BYTES: ClassVar[int] = 512 * 1024 + MAX_INGEST_CREDITS * 10240  # (10240: Credit.MAX_BYTES)
     CROSS_RULES: ClassVar[tuple[str, ...]] = ("every credit's `run` is the Ingest's `run`, else `bad_value`",)
 
     run: str = fld(Name(RUN))

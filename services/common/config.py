@@ -15,7 +15,7 @@ from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import nested, option
 from common.core.credit import SCREEN_CREDIT
-from common.core.delay import check_delay_spec
+from common.core.delay_model import check_delay_estimate_spec
 from common.core.observer import ObserverConfig
 from common.protocol import teacher_service_name, validate_name
 from common.core.task import Task
@@ -180,15 +180,23 @@ class LearnerConfig(TaskConfig):
     idle_updates: int = option(0, "extra Q and D_global minibatch steps between two steps when no input came for "
                                   "50 ms (a paced run's idle time; recorded in the Ingest order, so retrain repeats "
                                   "them; 0 = the paper's schedule only)")
-    screen_delay: str = option("uniform:0.2,4", "delay in seconds the learner assumes for feedback from a person's "
-                                                "screen (the console): uniform:LOW,HIGH (Deep TAMER's 0.2-4 s) or any "
-                                                "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, "
-                                                "loc, scale)")
-    screen_credit: str = option("interval", "how a step's time on a person's screen enters credit: interval (Deep "
+    screen_delay: str = option("learned", "delay in seconds from a step on a person's screen (the console) to their "
+                                          "feedback: learned (per person, online, from Deep TAMER's uniform 0.2-4 s; "
+                                          "learned:PRIOR for another prior), or fixed: uniform:LOW,HIGH or any "
+                                          "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, loc, "
+                                          "scale); common.core.delay_model")
+    oracle_delay: str = option("steps", "delay of a teacher without a screen (the oracle: stamps on the wall clock): "
+                                        "steps (the agent's assumed-delay-probs on the step clock, the paper's), "
+                                        "learned (in seconds, per teacher, as screen-delay) or a fixed NAME:ARGS in "
+                                        "seconds")
+    screen_credit: str = option("onset", "how a step's time on a person's screen enters credit: interval (Deep "
                                             "TAMER: the delay's probability over the time it was shown) or onset "
                                             "(the person reacts to its appearance: the delay's density at the time "
                                             "since it appeared, normalised over the steps shown)",
                                 choices=SCREEN_CREDIT)
+    profiles: str | None = option(None, "directory of returning people's delay estimates: a named person "
+                                        "(web-alice) starts from DIR/web-alice.json and it is rewritten as they "
+                                        "teach (services/learner/teacher_delays.py)")
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
                                     "learned steps while it is behind")
     snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
@@ -218,7 +226,9 @@ class LearnerConfig(TaskConfig):
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
-        check_delay_spec(self.screen_delay)  # a one-line ValueError if malformed
+        check_delay_estimate_spec(self.screen_delay)  # a one-line ValueError if malformed
+        if self.oracle_delay != "steps":
+            check_delay_estimate_spec(self.oracle_delay)
         if self.screen_credit not in SCREEN_CREDIT:
             raise ValueError(f"screen-credit must be one of {', '.join(SCREEN_CREDIT)}, got {self.screen_credit!r}")
         if self.screen_credit == "onset" and self.screen_delay.strip().startswith("steps"):

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import base64
 import collections
+import dataclasses
 import os
 import time
 from typing import Any
@@ -153,7 +154,8 @@ class Hub:
     def _credit(self, c: Credit, t_recv: float) -> None:
         item = {"type": "credit", "teacher_id": c.teacher_id, "seq": c.seq, "value": c.value, "status": c.status,
                 "t_reaction": c.t_reaction, "t_credited": c.t_credited, "t_recv": t_recv, "actor": c.actor,
-                "steps": [{"seq": s.seq, "weight": s.weight} for s in c.steps], "lost_mass": c.lost_mass}
+                "steps": [{"seq": s.seq, "weight": s.weight} for s in c.steps], "lost_mass": c.lost_mass,
+                "delay": dataclasses.asdict(c.delay) if c.delay is not None else None}
         self.trail.append(item)
         self.rt.samples["press_to_credited_s"].append(c.t_credited - c.t_reaction)
         self.broadcast(item)

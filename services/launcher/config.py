@@ -13,6 +13,7 @@ from common.agents.config import agent_for
 from common.config import nested, option
 from common.core.credit import SCREEN_CREDIT
 from common.core.delay import parse_probs
+from common.core.delay_model import check_delay_estimate_spec
 from common.core.observer import ObserverConfig
 from common.core.task import Task
 from common.protocol import teacher_id_of
@@ -70,11 +71,18 @@ class UpConfig:
                                 "(whatever max-ahead says): a bound on everything in flight")
     debug_update_sleep: float = option(0.0, "TEST ONLY: the learner sleeps this long after each step (slow learner)")
     debug_drop_steps: int = option(0, "TEST ONLY: the learner drops the first N steps as from an unannounced actor")
-    screen_delay: str = option("uniform:0.2,4", "--teacher web: delay in seconds the learner assumes between a step "
-                                                "appearing on a person's screen and their feedback: uniform:LOW,HIGH "
-                                                "or a scipy.stats NAME:ARGS (e.g. gamma:2,0.2,0.4)")
-    screen_credit: str = option("interval", "--teacher web: credit over each step's time on screen (interval, "
-                                            "Deep TAMER's) or at its appearance (onset)", choices=SCREEN_CREDIT)
+    screen_delay: str = option("learned", "--teacher web: delay in seconds between a step appearing on a person's "
+                                          "screen and their feedback: learned per person online (from Deep TAMER's "
+                                          "uniform 0.2-4 s), or fixed: uniform:LOW,HIGH or a scipy.stats NAME:ARGS "
+                                          "(e.g. gamma:2,0.2,0.4)")
+    screen_credit: str = option("onset", "--teacher web: credit at each step's appearance on screen (onset) or over "
+                                         "its time on screen (interval, Deep TAMER's)", choices=SCREEN_CREDIT)
+    oracle_delay: str = option("auto", "--teacher oracle/face-video: the learner's delay of that teacher: learned "
+                                       "(in seconds, online), steps (assumed-delay-probs on the step clock, the "
+                                       "paper's), a fixed NAME:ARGS in seconds, or auto: learned when the actor is "
+                                       "paced (--rate > 0: a delay in seconds means something), else steps")
+    profiles: str | None = option(None, "--teacher web: directory of returning people's delay estimates (a named "
+                                        "person, ?name=alice, starts from DIR/web-alice.json; written as they teach)")
     idle_updates: int = option(0, "learner: extra minibatch steps between two steps while idle (--teacher web: 8)")
     console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
@@ -117,6 +125,9 @@ class UpConfig:
         if not (math.isfinite(self.restart_backoff) and self.restart_backoff >= 0):
             raise ValueError(f"restart-backoff must be >= 0, got {self.restart_backoff}")
         object.__setattr__(self, "assumed_delay_probs", parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        check_delay_estimate_spec(self.screen_delay)
+        if self.oracle_delay not in ("auto", "steps"):
+            check_delay_estimate_spec(self.oracle_delay)
         if self.update_interval < 1:
             raise ValueError(f"update-interval must be >= 1, got {self.update_interval}")
         # One agent for learner and actor: the two launcher-level flags are its fields.
@@ -156,6 +167,13 @@ class Launch:
                     credentials=self.credentials_path(service))
 
 
+def oracle_delay(c: UpConfig) -> str:
+    """The learner's delay of a teacher without a screen: `oracle_delay`, auto resolved by the actor's pace."""
+    if c.oracle_delay == "auto":
+        return "learned" if c.rate > 0 else "steps"
+    return c.oracle_delay
+
+
 def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
     """The processes of a run, in start order, and the teacher service names."""
     c = launch.cfg
@@ -170,8 +188,8 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                             checkpoint=launch.state_path("learner", ".ckpt"), checkpoint_period=c.checkpoint_period,
                             catchup_log=str(launch.rundir / "session.mcap"), inbox_size=c.learner_inbox,
                             debug_update_sleep=c.debug_update_sleep, debug_drop_steps=c.debug_drop_steps,
-                            screen_delay=c.screen_delay,
-                            screen_credit=c.screen_credit, idle_updates=c.idle_updates)
+                            screen_delay=c.screen_delay, oracle_delay=oracle_delay(c),
+                            screen_credit=c.screen_credit, idle_updates=c.idle_updates, profiles=c.profiles)
     others = ["recorder", "learner"] + [t.name for t in teachers]
     actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent,
                         episodes=c.episodes, max_steps=c.max_steps, episode_steps=c.episode_steps, rate=c.rate,

@@ -97,7 +97,10 @@ def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str) 
             drawn = plot_summary(summary, rundir.path / "learning_curve.png", title)
         except Exception as exc:  # a full disk: no plot (and no 0-byte file), the counts still go out
             summary["plot_error"] = f"{type(exc).__name__}: {exc}"
-    summary["latency_ms"] = latency_table(read_stats(rundir))
+    stats = read_stats(rundir)
+    summary["latency_ms"] = latency_table(stats)
+    # Each teacher's delay as the learner credited it at the end (learned in seconds, or what it assumed).
+    summary["delay"] = stats.get("learner", {}).get("delay", {})
     try:
         rundir.write_summary(summary)
     except OSError as exc:

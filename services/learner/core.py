@@ -2,8 +2,13 @@
 and exactly what `replay retrain` does with the recorded ones.
 
 It wraps the core's `TrialBatchAgent` (B = 1) the way the in-process runner does: steps are recorded with
-their step number as time (the runner's virtual clock), feedback is credited by the core's credit function
-at its step-clock time (`StepClock`: its wall-clock stamp placed between the two actions around it).
+their step number as time (the runner's virtual clock) and their wall-clock time in seconds, with the task
+rule's polarity of each (from its `info`: the model of the rated event a learned delay is fitted on). A
+teacher's feedback is credited by the core's credit function at its step-clock time (`StepClock`: its
+wall-clock stamp placed between the two actions around it; `oracle_delay` steps, the paper's) or, with a delay
+in seconds (`common.core.delay_model`, one per teacher: `delays`), over the held steps' wall-clock times; a
+person's (`shown`) over the times their screen showed the steps. Either way it goes through the agent's one
+door, and its candidates are the steps shown before it, whatever their episode.
 
 Per input, in consumption order:
 
@@ -30,10 +35,12 @@ from common.agents.agent import STATUS_NAMES
 from common.config import config_record
 from common.envs import make_env, obs_shape
 from common.protocol import Feedback, IngestEntry, Step
+from common.core.delay_model import delay_estimate, estimate_from_state
 from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
 from services.learner.screen import ScreenCredit
+from services.learner.teacher_delays import Profiles
 
 REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
 ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
@@ -67,7 +74,7 @@ class EpisodeRecord:
 class LearnerCore:
     def __init__(self, config: LearnerConfig):
         self.config = config
-        env, _ = make_env(config.env, config.layout)
+        env, self.rule = make_env(config.env, config.layout)
         self.obs_dim = int(env.observation_space.shape[0])
         self.n_actions = int(env.action_space.n)
         env.close()
@@ -75,7 +82,9 @@ class LearnerCore:
         self.agent = make_agent([self.agent_config], obs_shape(env), self.n_actions, [config.seed])
         self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
-        self.screen = ScreenCredit(config.screen_delay, self.agent_config.history_steps, config.screen_credit)
+        self.screen = ScreenCredit(self.agent_config.history_steps)
+        self.delays: dict[str, Any] = {}  # teacher id -> its delay (common.core.delay_model), made when first heard
+        self.profiles = Profiles(config.profiles)  # returning people start from their last estimate
         self.actor: str | None = None
         self.next_seq = 0
         self.teacher_next: dict[str, int] = {}
@@ -159,7 +168,8 @@ class LearnerCore:
             results.append(self._credit(fb, pos, t))
         self.loop.step(ROW, np.asarray(step.obs, np.float32)[None], np.array([step.action]), np.array([step.reward]),
                        np.asarray(step.next_obs, np.float32)[None], np.array([float(step.terminated)]),
-                       np.array([float(index)]), np.array([step.episode]))
+                       np.array([float(index)]), np.array([step.episode]), np.array([step.t_action]),
+                       np.array([self.polarity(step)]))
         self.screen.learned(step.seq, index)
         for fb, pos in self.screen.release(self.actor, self.next_seq):  # a person's feedback that waited for it
             results.append(self._credit(fb, pos, t))
@@ -225,6 +235,38 @@ class LearnerCore:
         self.ended = True
         return results
 
+    def polarity(self, step: Step) -> int:
+        """The task's teacher rule on this step (+-1), 0 where its info does not say (a rule that needs what the
+        actor did not send)."""
+        try:
+            value = int(self.rule(step.info))
+        except (KeyError, TypeError, ValueError, ArithmeticError):
+            return 0
+        return value if value in (-1, 1) else 0
+
+    def delay_of(self, fb: Feedback):
+        """The delay `fb`'s teacher is credited with (made on first use), None for the step clock's (paper)."""
+        est = self.delays.get(fb.teacher_id)
+        if est is None:
+            c = self.config
+            spec = c.screen_delay if fb.shown is not None else c.oracle_delay
+            if spec == "steps" and self.agent_config.learn_delay:  # the agent's own setting, as in the runner
+                spec = f"learned:{self.agent_config.delay_prior}"
+            if spec == "steps":
+                return None
+            est = delay_estimate(spec, c.screen_credit if fb.shown is not None else "onset")
+            est = self.delays[fb.teacher_id] = self.profiles.load(fb.teacher_id, est) if fb.shown is not None else est
+        return est
+
+    def delay_summary(self) -> dict:
+        """{teacher id: {"median_s", "p10_s", "p90_s", "feedbacks"}} of every teacher credited in seconds;
+        those on the step clock say what they assume (`assumed`)."""
+        out = {t: d.summary() for t, d in sorted(self.delays.items())}
+        for t in sorted(self.teacher_next):
+            out.setdefault(t, {"median_s": None, "p10_s": None, "p90_s": None, "assumed": "steps:" + ",".join(
+                f"{p:g}" for p in self.agent_config.assumed_delay_probs), "feedbacks": None})
+        return out
+
     @property
     def held(self) -> int:
         return len(self._held) + len(self.screen.held)
@@ -244,6 +286,7 @@ class LearnerCore:
             "teacher_next": dict(self.teacher_next), "held": held, "arrivals": self._arrivals,
             "position": self.position, "counters": dict(self.counters), "ended": self.ended, "episode": dict(self._ep),
             "clock": [list(self.clock._index), list(self.clock._time)], "screen": self.screen.state(),
+            "delays": {t: d.state() for t, d in self.delays.items()}, "returning": sorted(self.profiles.returning),
         }
         return self.agent.state_dict(), meta
 
@@ -264,6 +307,8 @@ class LearnerCore:
         for i, t in zip(*meta["clock"]):
             self.clock.push(int(i), float(t))
         self.screen.load(meta["screen"])
+        self.delays = {str(t): estimate_from_state(d) for t, d in meta.get("delays", {}).items()}
+        self.profiles.returning = {str(t) for t in meta.get("returning", [])}  # (their models come from the checkpoint)
         self.entries = []
 
     # -- internals ---------------------------------------------------------------------------------------------
@@ -275,8 +320,14 @@ class LearnerCore:
         return result
 
     def _credit_once(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
+        delay = self.delay_of(fb)
         if fb.shown is not None:  # a person's screen: seconds over the on-screen intervals
-            out, credited = self.screen.credit(self.loop, fb, self.actor)
+            out, credited = self.screen.credit(self.loop, fb, self.actor, delay)
+            result = self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
+            result.feedback, result.credited = fb, credited
+            return result
+        if delay is not None:  # seconds: over the held steps' wall-clock times
+            out, credited = self._credit_in_seconds(fb, delay)
             result = self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
             result.feedback, result.credited = fb, credited
             return result
@@ -287,6 +338,12 @@ class LearnerCore:
         result.feedback, result.credited = fb, self._steps_credited() if result.status == "credited" else []
         return result
 
+    def _credit_in_seconds(self, fb: Feedback, delay):
+        """A teacher without a screen credited with a delay in seconds over the held steps' wall-clock times."""
+        out, times, weights = self.agent.credit_in_seconds(0, float(fb.t_reaction), int(fb.value), delay)
+        seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
+        return out, [(seq_of[int(i)], float(w)) for i, w in zip(times, weights) if w > 0 and int(i) in seq_of]
+
     def _steps_credited(self) -> list[tuple[int, float]]:
         """[(Step.seq, weight)] of the held steps the feedback just credited went to: the agent's own credit of
         it (`agent.last_credit`), not computed again."""
@@ -296,7 +353,7 @@ class LearnerCore:
         c = agent.last_credit[1]
         n = int(c.counts[0])
         seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
-        times = agent.history.times[0, c.positions[0, :n]]
+        times = agent.history.times_at(0, c.positions[0, :n])
         return [(seq_of[int(i)], float(w)) for i, w in zip(times, c.weights[0, :n]) if int(i) in seq_of]
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:

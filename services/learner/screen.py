@@ -1,10 +1,10 @@
 """Feedback from a person's screen (the console): credit in seconds over the intervals each step was shown.
 
 A console Feedback lists the steps its person saw (`shown`: Step.seq and the system time each appeared) and is
-stamped with the time of the key press or camera frame. The learner credits it with the assumed delay in
-seconds (`LearnerConfig.screen_delay`, Deep TAMER's uniform 0.2-4 s by default) integrated over each step's
-on-screen interval [appeared, next appeared) or, with `screen_credit` onset, at the moment each appeared,
-through the one credit function (`common.core.credit`).
+stamped with the time of the key press or camera frame. The learner credits it through the agent's one door
+(`credit_shown`) with that person's delay in seconds (`LearnerConfig.screen_delay`: learned per person by
+default, `common.core.delay_model`), at the moment each step appeared (`screen_credit` onset) or over its
+on-screen interval [appeared, next appeared) (interval, Deep TAMER's).
 
 Such a feedback is held until the learner has learned the newest step it lists (the person cannot have
 seen a step the actor had not taken, so it comes). Like the step clock, everything here depends only on the
@@ -17,16 +17,13 @@ from typing import Any
 
 import numpy as np
 
-from common.core.delay import delay_from_spec
 from common.protocol import Feedback
 
 
 class ScreenCredit:
     """The learner's map from the actor's Step.seq to its step index, and the screen feedback waiting for a step."""
 
-    def __init__(self, delay_spec: str, capacity: int, reference: str = "interval"):
-        self.delay = delay_from_spec(delay_spec)
-        self.reference = reference  # interval (Deep TAMER) or onset: common.core.credit
+    def __init__(self, capacity: int):
         self.capacity = capacity
         self.index: collections.OrderedDict[int, int] = collections.OrderedDict()  # seq -> step-clock index
         self.seq_of: dict[int, int] = {}  # the inverse: step-clock index -> seq
@@ -58,8 +55,9 @@ class ScreenCredit:
             self.held = [h for h in self.held if self.must_wait(h[0], actor, next_seq)]
         return ready
 
-    def credit(self, loop: Any, fb: Feedback, actor: str | None):
-        """Credit `fb` on trial 0 through the step loop. Returns (outcome, [(seq, weight), ...] credited)."""
+    def credit(self, loop: Any, fb: Feedback, actor: str | None, delay):
+        """Credit `fb` on trial 0 through the step loop with its person's `delay` (`common.core.delay_model`).
+        Returns (outcome, [(seq, weight), ...] credited)."""
         from common.agents.agent import FeedbackOutcome
 
         if fb.actor != actor:
@@ -68,8 +66,7 @@ class ScreenCredit:
         starts = np.array([s.t for s in fb.shown], np.float64)
         ends = np.append(starts[1:], np.inf)
         times = np.array([self.index.get(q, np.nan) for q in seqs], np.float64)  # NaN: no longer held
-        out, weights = loop.credit_screen(0, float(fb.t_reaction), int(fb.value), times, starts, ends, self.delay,
-                                           self.reference)
+        out, weights = loop.credit_shown(0, float(fb.t_reaction), int(fb.value), times, starts, ends, delay)
         return out, [(q, float(w)) for q, w in zip(seqs, weights) if w > 0]
 
     def state(self) -> dict:

@@ -29,9 +29,9 @@ from __future__ import annotations
 import sys
 import time
 
-from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep,
+from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit,
                              EpisodeSummary, Feedback,
-                             Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key,
+                             Ingest, ProtocolError, ServiceStatus, Step, Weights, episode_key,
                              feedback_wildcard,
                              ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
@@ -41,8 +41,10 @@ from services.common.watches import AliveWatch, IncarnationWatch, decoded_status
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
 from services.learner import checkpoint
 from services.learner.catchup import catch_up
+from services.learner.credits import credit_message, publish_credit
 from services.learner.core import LearnerCore
 from services.learner.snapshots import Snapshots
+from services.learner.teacher_delays import delay_message
 
 REVISION_QUIET = 0.02  # s since the last step before weights changed without a new step go out on their own
 
@@ -141,7 +143,11 @@ class Learner:
         done = time.time()
         for r in results:
             if r.feedback is not None:  # what became of it: consoles and the log's scene show it
-                credit = credit_message(self.config.run, r, self.core.actor, done)
+                screen = r.feedback.shown is not None  # a person's screen: their delay estimate goes along
+                model = self.core.delays.get(r.feedback.teacher_id) if screen else None
+                delay = None if model is None else delay_message(
+                    model, r.feedback.teacher_id in self.core.profiles.returning)
+                credit = credit_message(self.config.run, r, self.core.actor, done, delay)
                 if credit.teacher_id in self.config.credits_in_ingest:
                     self.ingest_credits.append(credit)
                 else:
@@ -315,10 +321,13 @@ class Learner:
             if (config.checkpoint and core.steps_learned != self.last_ckpt["steps"]
                     and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period):
                 self.save_checkpoint()
+            self.core.profiles.save(self.core.delays)  # returning people's profiles, every 10 s while they move
             if self.finished():
                 break
             self.rt.tick()
         self.note_latency(core.end(time.time()))
+        self.rt.counters["profiles_written"] += core.profiles.save(core.delays, force=True)
+        self.rt.counters["profiles_damaged"] += core.profiles.damaged
         self.flush_ingest()
         self.publish_weights(core.steps_learned + 1, final=True)
         # the final weights too, if the recorder must get them again
@@ -367,28 +376,10 @@ def main(config: LearnerConfig) -> int:
             actors.close()
             for s in subs:
                 s.undeclare()
-    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed)
+    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed,
+                   delay=core.delay_summary())
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0
-
-
-def credit_message(run: str, result, actor: str | None, t_done: float) -> Credit:
-    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights."""
-    fb = result.feedback
-    return Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
-                  t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
-                  steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
-                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))), revision=result.revision)
-
-
-def publish_credit(session, pubs: dict, credit: Credit) -> None:
-    """A Credit on its own key, `hitl/<run>/credit/<teacher_id>` (a publisher per teacher, made once)."""
-    from common.wire.transport import MessagePublisher
-
-    pub = pubs.get(credit.teacher_id)
-    if pub is None:
-        pub = pubs[credit.teacher_id] = MessagePublisher(session, credit_key(credit.run, credit.teacher_id))
-    pub.put(credit)
 
 
 def cli(argv: list[str] | None = None) -> int:

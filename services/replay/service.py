@@ -3,7 +3,9 @@
   summary   counts, losses, what became of every feedback, per-episode returns, learning-curve plot
   play      re-publish the session over Zenoh at the recorded pace (or faster)
   retrain   feed a fresh learner the recorded inputs in the recorded order; says whether its final weights
-            equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell)
+            equal the live learner's bit for bit (exit 0 if they do, 1 if not, 2 if the log cannot tell);
+            with --screen-delay / --screen-credit: how well each credit setting predicts the person's presses it
+            was not fitted on (held-out log-likelihood, services/replay/heldout.py)
   size      bytes per 1,000 steps, and per topic
 
 LOG may be a run directory (its session.mcap). A log cut short by a crash is read up to its last complete
@@ -20,12 +22,15 @@ writes its summary.json and learning_curve.png from the log, outcome `interrupte
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import threading
 import time
 import warnings
 from pathlib import Path
+
+from common.core.delay_model import REFERENCES
 
 
 def _warn_to_stderr(message, category, filename, lineno, file=None, line=None):
@@ -102,6 +107,8 @@ def cmd_play(args) -> int:
 
 
 def cmd_retrain(args) -> int:
+    if args.screen_delay or args.screen_credit:
+        return cmd_heldout(args)
     from services.replay.retrain import retrain
 
     try:
@@ -118,6 +125,20 @@ def cmd_retrain(args) -> int:
     if not result.compared:
         return 2
     return 0 if result.identical and result.outcomes_match and not result.missing_inputs else 1
+
+
+def cmd_heldout(args) -> int:
+    """retrain with credit settings: each setting's held-out log-likelihood of the person's presses."""
+    from services.replay.heldout import compare_settings, format_scores
+
+    try:
+        scores = compare_settings(args.log, args.screen_delay or ["learned"], args.screen_credit or ["onset"],
+                                  args.fit_share, args.teacher, args.folds)
+    except ValueError as exc:
+        print(f"cannot score: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps([dataclasses.asdict(s) for s in scores], indent=1) if args.json else format_scores(scores))
+    return 0
 
 
 def cmd_size(args) -> int:
@@ -151,6 +172,18 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("retrain", help="fresh learner on the recorded inputs; compare final weights")
     p.add_argument("--learner", help="learner incarnation (default: the last one in the log)")
     p.add_argument("--save", help="write the retrained final weights to this safetensors file")
+    p.add_argument("--screen-delay", action="append", metavar="SPEC",
+                   help="instead: score this credit setting's delay (learned, learned:PRIOR, uniform:LOW,HIGH, "
+                        "NAME:ARGS; repeat to compare) by how well it predicts the presses it was not fitted on")
+    p.add_argument("--screen-credit", action="append", choices=REFERENCES,
+                   help="with --screen-delay: a step's time is its onset or its interval (repeat to compare both)")
+    p.add_argument("--fit-share", type=float, default=0.7,
+                   help="the earliest share of each person's presses that fits a setting; the rest are scored")
+    p.add_argument("--folds", type=int, default=0,
+                   help="instead of one split: forward chaining over K blocks of presses in time (block k scored by "
+                        "a fit on the blocks before it)")
+    p.add_argument("--teacher", help="only this teacher's presses (default: every console teacher's)")
+    p.add_argument("--json", action="store_true", help="the scores as JSON")
     p = sub.add_parser("size", help="bytes per 1,000 steps and per topic")
     p.add_argument("--json", action="store_true", help="as JSON")
     args = parser.parse_args(argv)

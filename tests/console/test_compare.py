@@ -1,12 +1,15 @@
 """The console comparison's declared test (`services.console.compare`): paired episodes-to-goal differences, an
 agent that never reached the goal scored episodes + 1, the Wilcoxon verdict."""
+import dataclasses
+
+import numpy as np
 import pytest
 
 from services.console import compare
 
 
 def rows(dqn: list, tamer: list) -> list[dict]:
-    pairs = compare.FIRST.pairs
+    pairs = compare.DESIGNS['first'].pairs
     out = []
     for (layout, seed), d, t in zip(pairs, dqn, tamer):
         out += [{"arm": "DQN", "layout": layout, "seed": seed, "first_good_episode": d},
@@ -15,15 +18,16 @@ def rows(dqn: list, tamer: list) -> list[dict]:
 
 
 def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_wilcoxon():
-    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.FIRST)
+    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.DESIGNS['first'])
     assert clear["differences"][0] == 11 - 2 and clear["wins"] == 8 and clear["verdict"] == "fewer episodes"
     assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
-    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.FIRST)
+    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]),
+                                 compare.DESIGNS["first"])
     assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
 
 
 def test_goals_measure_counts_episodes_to_the_tenth_goal_and_decides_at_alpha_over_the_looks():
-    design = compare.GOALS
+    design = compare.DESIGNS['goals']
     early = {"reached_goal": [True] * 15, "first_good_episode": 1}
     late = {"reached_goal": [False, False, False] + [True] * 12, "first_good_episode": 5}
     short = {"reached_goal": [True, False] * 7 + [True], "first_good_episode": 1}  # 8 goals: 15 + 2 missing
@@ -55,3 +59,78 @@ def test_every_design_runs_pairs_no_earlier_design_or_pilot_used_and_counts_its_
     onset = compare.DESIGNS["onset"]
     assert onset.looks == 5 and onset.arms[0].screen_credit == "onset" and onset.primary[0] == "DQN"
     assert compare.DESIGNS["replicate"].looks == 6 and len(compare.DESIGNS["replicate"].pairs) == 18
+
+
+def test_holm_steps_down_and_stops_at_the_first_test_that_fails():
+    # p sorted: 0.001 (< 0.05/4), 0.01 (< 0.05/3), 0.03 (> 0.05/2: stops), 0.04 (never reached)
+    assert compare.holm([0.03, 0.001, 0.04, 0.01], 0.05) == pytest.approx([0.025, 0.0125, 0.0, 0.05 / 3])
+    assert compare.holm([0.5], 0.05) == [0.05]
+
+
+def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
+    from services.console.design import design_from_dict
+
+    design = design_from_dict({
+        "name": "t", "pairs": [[0, 200], [2, 201], [4, 202], [6, 203], [1, 204], [3, 205]],
+        "arms": [{"name": "T", "algo": "dqn-tamer", "screen_delay": "learned"}, {"name": "D", "algo": "dqn"}],
+        "primary": ["D", "T"], "episodes": 15, "measure": "goals", "multiplicity": "holm",
+        "people": {"slow": "uniform:1,2", "drifting": "drift:0.5,2,0.2"}})
+    assert design.tests() == [("slow", "honest"), ("slow", "misleading"), ("drifting", "honest"),
+                              ("drifting", "misleading")]
+    early = {"reached_goal": [True] * 15, "first_good_episode": 1, "total_steps": 300}
+    late = {"reached_goal": [False] * 5 + [True] * 10, "first_good_episode": 6, "total_steps": 900}
+    rows = []
+    for person in design.people:
+        for layout, seed in design.pairs:
+            dqn = late if person == "slow" and layout % 2 == 0 else early
+            rows += [{"arm": "D", "person": person, "layout": layout, "seed": seed, **dqn},
+                     {"arm": "T", "person": person, "layout": layout, "seed": seed, **early}]
+    tests = compare.declared_tests(rows, design)
+    slow_honest = tests[0]
+    assert slow_honest["wins"] == 4 and slow_honest["wilcoxon_p"] == pytest.approx(1 / 16)
+    assert slow_honest["alpha"] == pytest.approx(0.05 / 4) and slow_honest["verdict"] == "not shown"
+    assert all(t["wilcoxon_p"] == 1.0 for t in tests[1:])
+    assert "| slow | 0 | 200 |" in compare.table(rows, design)
+    pooled = compare.declared_tests(rows, dataclasses.replace(design, tests_by="person"))
+    assert [(t["person"], t["kind"]) for t in pooled] == [("slow", None), ("drifting", None)]
+    assert pooled[0]["wins"] == 4 and pooled[0]["ties"] == 2 and pooled[0]["alpha"] == pytest.approx(0.025)
+    assert len(compare.secondary_tests(rows, dataclasses.replace(design, tests_by="person"))) == 4
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"colour": "red"}, "unknown fields"),
+    ({"primary": ["D", "X"]}, "primary"),
+    ({"people": {"p": "drift:1"}}, "drift"),
+    ({"pairs": [[0, 1], [0, 1]]}, "distinct"),
+    ({"pairs": [[60, 1]]}, "layouts"),
+    ({"multiplicity": "holm"}, "holm tests one hypothesis per declared person"),
+])
+def test_a_design_file_that_says_something_wrong_is_refused(change, message):
+    from services.console.design import design_from_dict
+
+    raw = {"name": "t", "pairs": [[0, 1]], "arms": [{"name": "T", "algo": "dqn-tamer"}, {"name": "D", "algo": "dqn"}],
+           "primary": ["D", "T"], **change}
+    with pytest.raises(ValueError, match=message):
+        design_from_dict(raw)
+
+
+def test_the_unknown_teacher_design_is_declared_as_issue_24_asks():
+    """Three people the learner is not told about (one drifting 0.5 -> 2 s, one long-tailed lognormal, one bimodal),
+    the learned delay against DQN by the episode of the tenth goal, honest and misleading layouts, Holm."""
+    from common.envs.maze import layout_kind
+    from services.console.lags import lag_plan
+
+    d = compare.DESIGNS["unknown-teacher"]
+    assert list(compare.DESIGNS)[-1] == "unknown-teacher"
+    assert d.multiplicity == "holm" and d.tests_by == "person" and d.alpha == 0.05
+    assert d.measure == "goals" and d.goals == 10 and d.primary == ("DQN", "DQN-TAMER, learned delay")
+    tamer = next(a for a in d.arms if a.name == d.primary[1])
+    assert tamer.algo == "dqn-tamer" and tamer.screen_delay == "learned"
+    assert {layout_kind(lay) for lay, _ in d.pairs} == {"honest", "misleading"}
+    plans = {name: lag_plan(spec, d.episodes, d.episode_steps, 0) for name, spec in d.people.items()}
+    drifting = np.median(plans["drifting"], axis=1)
+    assert drifting[0] == pytest.approx(0.5, rel=0.1) and drifting[-1] == pytest.approx(2.0, rel=0.1)
+    tail = plans["long-tailed"]
+    assert np.percentile(tail, 99) > 3 * np.median(tail)  # long-tailed
+    bimodal = np.histogram(plans["bimodal"], bins=np.arange(0, 3.01, 0.2))[0]
+    assert bimodal[2:4].sum() > bimodal[5] and bimodal[8:10].sum() > bimodal[5]  # two modes, about 0.6 and 1.8 s

@@ -26,7 +26,9 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     from playwright.sync_api import sync_playwright
 
     run = WebRun(tmp_path, "page", "--env", "maze", "--layout", str(LAYOUT), "--algo", "dqn-tamer",
-                 "--episodes", "200", "--rate", "4", "--seed", "1", "--start-paused", "true")
+                 "--episodes", "200", "--rate", "4", "--seed", "1", "--start-paused", "true",
+                 # the exact weights below are Deep TAMER's fixed rule (the default learns each person's delay)
+                 "--screen-delay", "uniform:0.2,4", "--screen-credit", "interval")
     try:
         url = run.url()
         with sync_playwright() as pw:
@@ -151,3 +153,5 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     stats = json.loads((run.rundir / "stats" / "teacher.web.json").read_text())["counters"]
     assert stats["page_rejected_malformed"] >= 1 and stats["page_rejected_flood"] >= 40 - 16
     assert stats["people_joined"] == 2
+    delay = json.loads((run.rundir / "summary.json").read_text())["delay"]
+    assert delay["web-1"]["feedbacks"] == len(presses) and delay["web-1"]["median_s"] == pytest.approx(2.1)

@@ -79,6 +79,9 @@ def test_secured_console_needs_the_password_serves_https_and_credits_the_person(
         run.close()
     s = json.loads((run.rundir / "summary.json").read_text())
     assert s["feedback_credited"] >= 3 and s["unauthenticated_inputs"] == {} and s["rejected_inputs"] == {}
+    # no delay option: the person's delay was learned, and summary.json says where it stands
+    (person,) = s["delay"].values()
+    assert person["feedbacks"] >= 3 and 0 < person["p10_s"] <= person["median_s"] <= person["p90_s"] < 6
     console = s["services"]["teacher.web"]["counters"]
     assert console["login_refused"] >= 1 and console["people_joined"] == 1, console
     assert console["door_refused_no_token"] >= 2, console

@@ -100,11 +100,30 @@ def _credit_of_one_press(config: LearnerConfig):
                                      weights_version=k, info={}))[0]
         obs = nxt
     (res,) = results
-    return res
+    return res, core
+
+
+def test_learner_credits_a_persons_feedback_with_their_learned_delay_by_default():
+    """No delay option: the person's delay is learned (from Deep TAMER's uniform 0.2-4 s), each press credited by
+    its posterior over the steps that appeared before it, and reported per person."""
+    config = LearnerConfig(run="r", task=Task(env="maze"))
+    assert (config.screen_delay, config.screen_credit) == ("learned", "onset")
+    res, core = _credit_of_one_press(config)
+    credited = dict(res.credited)
+    assert res.status == "credited" and sum(credited.values()) == pytest.approx(1.0)
+    # onsets 0.2-4 s before t0 + 5.8 (steps 4..11 appeared at t0 + 2.05 ... t0 + 5.55): nearly all the mass
+    assert sum(credited.get(k, 0) for k in range(4, 12)) > 0.95 and all(k < 12 for k in credited)
+    assert core.delay_summary()["web-1"]["feedbacks"] == 1
+    again = LearnerCore(config)  # a checkpoint keeps each person's delay
+    core.take_entries()
+    tensors, meta = core.snapshot()
+    again.restore(tensors, json.loads(json.dumps(meta)))
+    assert again.delay_summary() == core.delay_summary()
 
 
 def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals():
-    res = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze")))
+    res, core = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.2,4",
+                                             screen_credit="interval"))
     # uniform 0.2-4 s: each step gets the share of [t - 4, t - 0.2] = [1001.8, 1005.6] it was on screen
     want = {3: 0.25 / 3.8, **{k: 0.5 / 3.8 for k in range(4, 11)}, 11: 0.05 / 3.8}
     assert res.status == "credited" and dict(res.credited) == pytest.approx(want)
@@ -112,7 +131,7 @@ def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals
 
 
 def test_learner_credits_at_each_steps_onset_when_told_and_refuses_onset_with_a_step_counted_delay():
-    res = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.3,1.5",
+    res, core = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.3,1.5",
                                              screen_credit="onset"))
     # of the steps that appeared before t0 + 5.8, those 0.3-1.5 s before it: step 9 (t0 + 4.55) and step 10
     # (t0 + 5.05), equally; step 8 appeared 1.75 s before, step 11 only 0.25 s before

@@ -21,8 +21,10 @@ from experiments.__main__ import main
     (["--agent.lr", "-1"], "agent: lr must be positive"),
     (["--episodes", "-3"], "episodes must be >= 0"),
     (["--observer.p-feedback", "2"], "p-feedback must be in [0, 1]"),
-    (["--layout", "72"], "layout must be in 0..59"),
+    (["--layout", "172"], "layout must be in 0..119"),
     (["--seed", "x"], "--seed expects int"),
+    (["--step-seconds", "0"], "step-seconds must be positive"),
+    (["--observer.delay-s", "nosuch:1"], "unknown distribution 'nosuch'"),
 ])
 def test_bad_arguments_give_one_line_error_naming_them(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -49,6 +51,20 @@ def test_run_writes_config_and_episodes(tmp_path):
     assert {"episode", "return", "steps", "feedback_given", "feedback_credited"} <= set(rows[0])
     assert int(rows[2]["feedback_given"]) <= 2  # the observer stopped after episode 1 (stragglers only)
     assert (out / "curve.png").stat().st_size > 1000
+    delay = json.loads((out / "summary.json").read_text())["delay"]["observer"]
+    credited = sum(int(r["feedback_credited"]) for r in rows)
+    assert delay == {"median_s": 0.5, "p10_s": 0.0, "p90_s": 1.0, "feedbacks": credited, "learned": False}
+
+
+def test_run_learns_a_delay_in_seconds_and_reports_it(tmp_path):
+    out = tmp_path / "learned"
+    assert main(["run", "--episodes", "3", "--seed", "1", "--agent.learn-delay", "true", "--observer.delay-s",
+                 "gamma:4,0,0.25", "--step-seconds", "0.5", "--out", str(out)]) == 0
+    delay = json.loads((out / "summary.json").read_text())["delay"]["observer"]
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert delay["feedbacks"] == sum(int(r["feedback_given"]) for r in rows) > 50
+    assert 0 < delay["p10_s"] < delay["median_s"] < delay["p90_s"] <= 6 and delay["median_s"] != 2.1
+    assert float(rows[-1]["delay_median_s"]) == pytest.approx(delay["median_s"], abs=1e-4)
 
 
 def test_run_takes_a_gymnasium_id(tmp_path):

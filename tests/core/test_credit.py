@@ -63,17 +63,12 @@ def test_time_going_backwards_is_refused():
         credit_weights(3.0, [2.0, 1.0], UNIFORM3)
 
 
-def test_never_credited_across_an_episode_boundary():
-    # Steps 0..5, episode 0 is steps 0..3, episode 1 starts at step 4 (action at t=4).
-    times, episodes = np.arange(6.0), [0, 0, 0, 0, 1, 1]
-    # At 4.5 the newest step shown is step 4 (episode 1): lags 0 -> step 4; lags 1, 2 -> steps 3, 2 of
-    # episode 0: lost, not credited to the old episode.
-    w, lost = credit_weights(4.5, times, UNIFORM3, episodes=episodes)
-    np.testing.assert_allclose(w, [0, 0, 0, 0, 1 / 3, 0])
-    assert lost == pytest.approx(2 / 3)
-    # At 3.5 the newest shown step is the old episode's last: credited there in full.
-    w, lost = credit_weights(3.5, times, UNIFORM3, episodes=episodes)
-    np.testing.assert_allclose(w, [0, 1 / 3, 1 / 3, 1 / 3, 0, 0])
+def test_credited_across_an_episode_boundary():
+    """Steps 0..5; episode 0 is steps 0..3 (step 3 reached the goal), episode 1 starts at step 4 (t=4). A reaction
+    at 4.5 refers to steps 4, 3, 2 (lags 0, 1, 2) whatever their episode: the goal-reaching move keeps its share."""
+    times = np.arange(6.0)
+    w, lost = credit_weights(4.5, times, UNIFORM3)
+    np.testing.assert_allclose(w, [0, 0, 1 / 3, 1 / 3, 1 / 3, 0])
     assert lost == pytest.approx(0.0)
 
 
@@ -117,12 +112,11 @@ def test_batched_rows_equal_one_at_a_time():
     delay = DelayModel((0.2, 0.5, 0.3), unit=0.7)
     starts = np.sort(rng.uniform(0, 10, (5, 8)), axis=1)
     starts[1, 5:] = np.inf  # a row holding fewer steps
-    episodes = rng.integers(0, 2, (5, 8)).cumsum(axis=1) // 3
     t_f = rng.uniform(2, 12, 5)
-    w, lost = credit_weights(t_f, starts, delay, episodes=episodes)
+    w, lost = credit_weights(t_f, starts, delay)
     for i in range(5):
         k = np.isfinite(starts[i])
-        wi, li = credit_weights(t_f[i], starts[i, k], delay, episodes=episodes[i, k])
+        wi, li = credit_weights(t_f[i], starts[i, k], delay)
         np.testing.assert_array_equal(w[i, k], wi)
         assert lost[i] == li
 
@@ -156,22 +150,21 @@ def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
     delay = DelayModel(probs, unit)
     row_probs = rng.dirichlet(np.ones(len(probs)), size=6)
     for trial in range(40):
-        # 6 trials x 12 held steps: the step clock (k, k + 1, ...) or unequal durations, with episode changes
-        # and +inf padding (fewer steps held); feedback stamps between and beyond them.
+        # 6 trials x 12 held steps: the step clock (k, k + 1, ...) or unequal durations, with +inf padding (fewer
+        # steps held); feedback stamps between and beyond them.
         gaps = np.ones((6, 12)) if trial % 2 else rng.choice([0.2, 0.5, 1.0, 2.0, 3.0], size=(6, 12))
         starts = np.cumsum(gaps, axis=1) + rng.integers(0, 50, size=(6, 1))
         starts[rng.random(6) < 0.3, :rng.integers(1, 12)] = np.inf
         starts = np.sort(starts, axis=1)
-        episodes = np.cumsum(rng.random((6, 12)) < 0.1, axis=1)
         t_f = np.where(np.isfinite(starts[:, -1]), starts[:, -1], 0) - rng.uniform(-2, 6, size=6)
         for d, general in ((delay, _CdfOnly(delay)),
                            (RowDelays(row_probs, unit), _CdfOnly(RowDelays(row_probs, unit)))):
-            fast_w, fast_lost = credit_weights(t_f, starts, d, episodes=episodes)
-            w, lost = credit_weights(t_f, starts, general, episodes=episodes)
+            fast_w, fast_lost = credit_weights(t_f, starts, d)
+            w, lost = credit_weights(t_f, starts, general)
             assert np.array_equal(fast_w, w) and np.array_equal(fast_lost, lost)
             for k in range(6):  # one feedback alone (1-d) as the console and the learner ask
-                w1, lost1 = credit_weights(t_f[k], starts[k], d if d is delay else RowDelays(row_probs[k:k + 1], unit),
-                                           episodes=episodes[k])
+                one = d if d is delay else RowDelays(row_probs[k:k + 1], unit)
+                w1, lost1 = credit_weights(t_f[k], starts[k], one)
                 assert np.array_equal(w1, fast_w[k]) and lost1 == fast_lost[k]
 
 
@@ -184,13 +177,13 @@ def test_onset_credit_shares_a_uniform_delay_equally_among_the_steps_that_appear
     assert lost == pytest.approx(0.0)
 
 
-def test_onset_credit_follows_the_density_and_drops_other_episodes():
+def test_onset_credit_follows_the_density():
     starts = np.array([0.0, 1.0, 2.0, 3.0])
     delay = scipy.stats.gamma(2.0, scale=0.5)
-    w, lost = onset_weights(3.5, starts, delay, episodes=np.array([0, 0, 1, 1]))
+    w, lost = onset_weights(3.5, starts, delay)
     density = delay.pdf(3.5 - starts)
-    np.testing.assert_allclose(w, np.r_[0, 0, density[2:]] / density.sum())
-    assert lost == pytest.approx(density[:2].sum() / density.sum())
+    np.testing.assert_allclose(w, density / density.sum())
+    assert lost == pytest.approx(0.0)
 
 
 def test_onset_credit_of_a_press_with_no_step_in_reach_is_all_lost():

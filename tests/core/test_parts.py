@@ -152,3 +152,27 @@ def test_an_agent_takes_the_parts_it_is_given():
 def test_batched_trials_must_share_structure():
     with pytest.raises(ValueError, match="share hidden"):
         TrialBatchAgent([agent_config("dqn"), agent_config("dqn", hidden=50)], 2, 4, [0, 1])
+
+
+def test_the_teachers_reliability_lowers_alpha_h_only_for_the_teacher_q_contradicts():
+    """Two trials (two teachers) with the reliability on, one paper row: before `alpha_h_trust_after`
+    nothing counts; after it, the contradicted teacher's alpha_h falls to its reliability / ref, the confirmed
+    one keeps the paper's schedule, and the paper row never changes."""
+    trusting = agent_config("dqn-tamer", alpha_h_trust=0.1, alpha_h_trust_after=50, alpha_h_trust_ref=0.5)
+    m = Mixture([trusting, trusting, agent_config("dqn-tamer")])
+    rows, paper = np.arange(3), 0.9999 ** np.array([60, 60, 60])
+    early = np.array([10, 10, 10])
+    for _ in range(100):
+        m.observe(rows, np.array([False, True, False]), early)
+    np.testing.assert_allclose(m.alpha_h(rows, np.array([60, 60, 60])), paper)  # Q has not learned yet
+    late = np.array([60, 60, 60])
+    for _ in range(100):
+        m.observe(rows, np.array([False, True, False]), late)
+    ah = m.alpha_h(rows, late)
+    assert ah[0] < 0.01 * paper[0] and ah[1] == pytest.approx(paper[1]) and ah[2] == pytest.approx(paper[2])
+    state = m.state_dict()
+    other = Mixture([trusting, trusting, agent_config("dqn-tamer")])
+    other.load_state_dict(state)
+    np.testing.assert_allclose(other.alpha_h(rows, late), ah)
+    with pytest.raises(ValueError, match="alpha_h_trust"):
+        agent_config("dqn-tamer", alpha_h_trust_ref=0.0)

@@ -74,7 +74,6 @@ def test_agent_history_credits_with_the_credit_function():
     agent = TrialBatchAgent([agent_config("dqn-tamer", assumed_delay_probs=model.probs, history_steps=6)] * 4,
                             2, 4, [0, 1, 2, 3], step_unit=0.7)
     times = [[] for _ in range(4)]
-    episodes = [[] for _ in range(4)]
     for k in range(40):
         rows = np.flatnonzero(rng.random(4) < 0.8)
         t = np.array([(times[i][-1] if times[i] else 0.0) + rng.exponential(0.6) for i in rows])
@@ -82,11 +81,10 @@ def test_agent_history_credits_with_the_credit_function():
                            rng.random((len(rows), 2)), np.zeros(len(rows)), t, np.full(len(rows), k // 10))
         for i, ti in zip(rows, t):
             times[i].append(ti)
-            episodes[i].append(k // 10)
         t_f = np.array([(times[i][-1] if times[i] else 0.0) + rng.uniform(-1, 3) for i in range(4)])
         got = agent.history.credit(np.arange(4), t_f, agent.assumed_delay, agent.local_width)
         for i in range(4):
-            w, lost = credit_weights(t_f[i], times[i][-6:], model, episodes=episodes[i][-6:])
+            w, lost = credit_weights(t_f[i], times[i][-6:], model)
             nz = w[w > 0]
             assert got.counts[i] == len(nz)
             np.testing.assert_array_equal(got.weights[i, :len(nz)], nz)

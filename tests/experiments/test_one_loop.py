@@ -20,20 +20,25 @@ def runner_inputs(spec: TrialSpec):
     return result, inputs
 
 
-def to_messages(inputs) -> list:
+def rule_info(polarity: int) -> dict:
+    """A step's info from which the maze's rule says `polarity` (what the actor sends)."""
+    return {"target_distance_before": 2.0, "target_distance_after": 1.0 if polarity > 0 else 3.0}
+
+
+def to_messages(inputs, t0: float = T0, period: float = PERIOD) -> list:
     """The runner's inputs as the actor's Steps and a teacher's Feedback, stamped on a wall clock (a reaction
     at virtual time k + 0.5 is stamped half-way between the wall times of actions k and k + 1)."""
     out, seq_fb, t_in = [], 0, 0
     for kind, rec in inputs:
         if kind == "step":
             k = int(rec["t"])
-            out.append(Step(run=RUN, incarnation="actor-1", seq=k, t_action=T0 + k * PERIOD, episode=rec["episode"],
+            out.append(Step(run=RUN, incarnation="actor-1", seq=k, t_action=t0 + k * period, episode=rec["episode"],
                             t_in_episode=t_in, obs=rec["obs"].tolist(), action=rec["action"], reward=rec["reward"],
                             next_obs=rec["next_obs"].tolist(), terminated=rec["terminated"],
-                            truncated=rec["truncated"], weights_version=0, info={}))
+                            truncated=rec["truncated"], weights_version=0, info=rule_info(rec["polarity"])))
             t_in = 0 if rec["terminated"] or rec["truncated"] else t_in + 1
         else:
-            out.append(Feedback(run=RUN, teacher_id="oracle", seq=seq_fb, t_reaction=T0 + rec["t"] * PERIOD,
+            out.append(Feedback(run=RUN, teacher_id="oracle", seq=seq_fb, t_reaction=t0 + rec["t"] * period,
                                 value=rec["value"], source="oracle"))
             seq_fb += 1
     return out
@@ -64,3 +69,23 @@ def test_runner_and_live_learner_end_with_identical_weights(algo):
         assert live[name].tobytes() == w.tobytes(), name
     assert (credited > 0) == (algo != "dqn")
     assert sum(e["feedback_credited"] for e in result.episodes) == credited
+
+
+def test_with_a_delay_learned_in_seconds_too():
+    """DQN-TAMER learning its teacher's delay: the runner's clock of 0.5 s per step and the live learner's wall
+    clock (the same seconds) credit every feedback with the same learned posterior, across episodes."""
+    from dataclasses import replace
+
+    config = LearnerConfig(run=RUN, task=Task(env="maze", layout=2, seed=11), algo="dqn-tamer",
+                           agent=replace(LearnerConfig(run=RUN).agent, learn_delay=True))
+    spec = TrialSpec("maze", config.agent, ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11,
+                     layout=2, episodes=8, step_seconds=0.5)
+    result, inputs = runner_inputs(spec)
+    core = LearnerCore(config)
+    for msg in to_messages(inputs, t0=0.0, period=0.5):
+        core.on_step(msg) if isinstance(msg, Step) else core.on_feedback(msg)
+    core.end()
+    live = core.policy_weights()
+    for name, w in result.weights.items():
+        assert live[name].tobytes() == w.tobytes(), name
+    assert core.delay_summary()["oracle"] == result.delay and result.delay["feedbacks"] > 40

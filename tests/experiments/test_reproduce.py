@@ -10,7 +10,8 @@ from experiments import trialcache
 from experiments.sweeps import execute
 from experiments.conditions import BY_NAME, CONDITIONS, FULL, Scale, n_trials, trial_spec
 
-TINY = Scale(layouts=4, reps=1, maze_episodes=3, taxi_episodes=2, taxi_random_episodes=2, taxi_trials=2)
+TINY = Scale(layouts=4, reps=1, maze_episodes=3, taxi_episodes=2, taxi_random_episodes=2, taxi_trials=2,
+             first_layout=0, seed_block=1)  # development layouts and seeds, never a deciding trial
 
 
 class Stop(Exception):
@@ -96,10 +97,13 @@ def test_report_outputs(tmp_path):
     assert claims["claims"]["C6"]["verdict"] in ("reproduced", "not reproduced", "inconclusive")
     assert set(claims["panels"]["maze-flip"]) == {"pooled", "honest", "misleading"}
     timing = json.loads((tmp_path / "timing.json").read_text())
-    assert timing["trials"] == 4 * 4 + 5 * 4 and timing["total_s"] > 0
+    assert timing["trials"] == 4 * 4 + 7 * 4 and timing["total_s"] > 0
     report = (tmp_path / "REPORT.md").read_text()
     assert "| C6 | **" in report and "maze-flip.png" in report and "python -m experiments reproduce --test" in report
     assert "## Who decides" in report and "Holm" in report
+    c6 = claims["claims"]["C6"]
+    assert c6["layouts"] == "honest" and set(c6["metrics"]) == {"ln steps", "return"}
+    assert "Layout class x method" in report and "| honest (primary) | return |" in report
     assert (tmp_path / ".gitignore").read_text().strip() == "cache/"
 
 
@@ -110,13 +114,26 @@ def test_trial_seeds_come_from_layout_and_repetition():
         assert len({s.seed for s in specs}) == n  # no two trials share streams
         if c.env.startswith("maze"):
             layouts = {s.layout for s in specs}
-            assert layouts == (set(range(0, 32, 2)) if c.layouts == "honest" else set(range(60)))
+            assert layouts == (set(range(60, 92, 2)) if c.layouts == "honest" else set(range(60, 120)))
     # the same (layout, repetition) is the same trial in every condition of a layout set
     a, b = trial_spec(BY_NAME["maze-high-delay"], "dqn", 7), trial_spec(BY_NAME["maze-flip"], "dqn", 7)
     assert (a.layout, a.seed) == (b.layout, b.seed)
     bigger = dataclasses.replace(FULL, reps=2)
-    assert trial_spec(BY_NAME["maze-flip"], "dqn", 67, bigger).layout == 7
+    assert trial_spec(BY_NAME["maze-flip"], "dqn", 67, bigger).layout == 67
     assert trial_spec(BY_NAME["maze-flip"], "dqn", 67, bigger).seed != a.seed
+
+
+def test_the_deciding_trials_are_fresh():
+    """Layouts 60-119 and seed block 2: no layout and no seed of an earlier run (layouts 0-59, block 1, up to
+    3 repetitions) or of a pilot (seeds 9000-9999) is a deciding trial's."""
+    from experiments.conditions import QUICK, trial_layout, trial_seed
+    old = {trial_seed(L, r, 1) for L in range(60) for r in range(3)} | set(range(9000, 10000))
+    for c in CONDITIONS:
+        specs = [trial_spec(c, c.arms[-1], k) for k in range(n_trials(c, FULL))]
+        assert not {s.seed for s in specs} & old, c.name
+        if not c.is_taxi:
+            assert min(s.layout for s in specs) >= 60, c.name
+            assert max(trial_layout(c, QUICK, k)[0] for k in range(n_trials(c, QUICK))) < 60  # --quick: old ones
 
 
 def test_machines_comparison_of_identical_runs_finds_no_difference(tmp_path):
@@ -126,7 +143,7 @@ def test_machines_comparison_of_identical_runs_finds_no_difference(tmp_path):
     rep.reproduce(conds, TINY, str(tmp_path / "a"), workers=1, progress=False, n_boot=50)
     rep.reproduce(conds, TINY, str(tmp_path / "b"), workers=1, progress=False, n_boot=50)
     out = machines.compare(str(tmp_path / "a"), str(tmp_path / "b"), n_boot=50)
-    assert sum(r["trials"] for r in out["rows"]) == 5 * 4 and sum(r["differ"] for r in out["rows"]) == 0
+    assert sum(r["trials"] for r in out["rows"]) == 7 * 4 and sum(r["differ"] for r in out["rows"]) == 0
     assert out["changed"] == {} and "no verdict changes" in out["summary"]
 
 

@@ -152,7 +152,7 @@ def load_yaml_text(tmp_path, text):
     (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=dqn-tamer-agent.algo=dqn"], "a minus"),
     (["--grid", "agent.lr=fast"], "agent.lr expects float"),
     (["--set", "observer.delay_probs=[0.5,0.6]"], "must sum to 1"),
-    (["--grid", "env.layout=3,72"], "layout must be in 0..59"),
+    (["--grid", "env.layout=3,172"], "layout must be in 0..119"),
     (["--set", "env=NoSuchEnv-v0"], "unknown env"),
 ])
 def test_bad_sweeps_fail_with_one_line_before_running(tmp_path, capsys, args, message):
@@ -191,8 +191,11 @@ def test_an_unreachable_ray_address_is_a_one_line_error(tmp_path, capsys):
 
 
 def test_a_sweep_trial_is_the_reproductions_trial():
+    from dataclasses import replace
+
     from experiments.conditions import BY_NAME, FULL, trial_spec
     cond = BY_NAME["maze-high-delay"]
+    FULL = replace(FULL, first_layout=0, seed_block=1)  # a sweep runs the development layouts and seeds
     sweep = Sweep(grid={"agent.algo": ["dqn", "dqn-tamer"]}, trials=45,
                   fixed={"observer.p_feedback": 0.5, "observer.delay_probs": (0.3, 0.6, 0.1),
                          "episodes": cond.episodes(FULL)})

@@ -101,7 +101,7 @@ def test_a_feedback_between_two_steps_moves_the_weights_revision():
     """The H update of a feedback credited between two steps moves the revision (the version stays: no new step),
     and the result says which revision first holds it; an uncredited one moves nothing."""
     from common.protocol import ShownStep
-    from services.learner.service import credit_message
+    from services.learner.credits import credit_message
 
     core = LearnerCore(config())
     steps = make_steps(4, [100.0 + k for k in range(4)])

@@ -59,6 +59,9 @@ def test_no_step_lost_and_every_feedback_accounted_for(live_run):
     assert s["feedback_credited"] >= 0.9 * s["feedback_logged"]
     for name in ("session.mcap", "summary.json", "learning_curve.png"):
         assert (live_run.rundir / name).stat().st_size > 0
+    # the oracle of an unpaced run is credited on the step clock (--oracle-delay auto): the block says so
+    (oracle,) = s["delay"].values()
+    assert oracle["assumed"].startswith("steps:") and set(oracle) >= {"median_s", "p10_s", "p90_s", "feedbacks"}
 
 
 def test_returns_improve(live_run):
@@ -257,3 +260,14 @@ def test_services_exit_when_the_launcher_is_killed(tmp_path):
     launch.popen.kill()  # SIGKILL: no chance to clean up; the services notice their parent is gone
     launch.popen.wait(10)
     assert_nothing_left(launch.rundir, timeout=15.0)
+
+
+def test_a_paced_oracle_has_its_delay_learned_and_reported(tmp_path):
+    """`services up --teacher oracle --rate 8`, no delay option: the learner learns the oracle's delay in seconds
+    (its true reactions come 0.06-0.31 s after a step) and summary.json reports it, moved off the prior's 2.1 s."""
+    launch = start_up(tmp_path, "paced", "--episodes", "6", "--rate", "8", "--seed", "0")
+    assert launch.wait(timeout=240) == 0, launch.out
+    assert_nothing_left(launch.rundir)
+    (oracle,) = launch.summary()["delay"].values()
+    assert "assumed" not in oracle and oracle["feedbacks"] >= 10, oracle
+    assert 0 <= oracle["p10_s"] <= oracle["median_s"] < 1.0 and oracle["p90_s"] <= 6, oracle

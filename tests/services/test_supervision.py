@@ -115,7 +115,8 @@ def test_disk_full_ends_the_run_with_one_line_and_a_summary(tmp_path):
         assert key in s, (key, sorted(s))
     assert s["steps_sent"] > 0 and s["steps_logged"] > 0, s
     empty = [str(p.relative_to(tmp_path / "keep")) for p in (tmp_path / "keep").rglob("*")
-             if p.is_file() and p.stat().st_size == 0 and p.name != ".lock"]
+             if p.is_file() and p.stat().st_size == 0 and p.name != ".lock"
+             and p.parent.name != "logs"]  # a process's own output log may honestly be empty
     assert not empty, empty
 
 

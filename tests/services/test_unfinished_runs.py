@@ -43,7 +43,7 @@ def assert_finished_from_log(rundir) -> dict:
     assert {"actor", "learner", "teacher.oracle"} <= set(s["services_not_stopped"]), s["services_not_stopped"]
     assert "launcher" not in s["services_not_stopped"]  # (it never says 'stopped': not a service of the run)
     n = s["steps_sent"]
-    assert n > 100 and s["steps_logged"] == n and s["steps_seq_contiguous_in_log"], s
+    assert n > 0 and s["steps_logged"] == n and s["steps_seq_contiguous_in_log"], s
     assert s["steps_learned"] == s["learner_step_entries"]["learned"] > 0, s
     assert s["steps_not_ingested"] == n - s["steps_learned"], s  # the learner's last steps, said as such
     assert s["feedback_sent"] == s["feedback_logged"] > 0 and s["feedback_seq_contiguous_in_log"], s

@@ -284,6 +284,7 @@ function onMessage(m) {
       }
       hitl.trail.push(m); if (hitl.trail.length > 200) hitl.trail.shift();
       if (m.teacher_id === hitl.me && hitl.mine.has(m.seq)) { hitl.mine.get(m.seq).credit = m; showTrail(); }
+      if (m.teacher_id === hitl.me && m.delay) showDelay(m.delay);
       drawScene(); break;
     case "control": hitl.paused = m.paused; hitl.rate = m.rate; hitl.ended = m.ended; showStatus();
       if (m.ended) stopCamera(); break;

@@ -1,0 +1,243 @@
+"""Feedback into the agent: the one door every feedback passes (`TrialBatchAgent` inherits it).
+
+Two ways in, one rule (credit over the intervals the steps were shown, `common.core.credit`):
+  feedback_rounds  the step clock's feedback of many trials at once (the in-process runner, the live learner's
+                   oracle): a fixed delay is credited batched over the held steps' intervals; a trial that learns
+                   its teacher's delay goes through `credit_shown` with its held steps' times in seconds;
+  credit_shown     one feedback on steps shown during given intervals (a person's screen, or the held steps):
+                   weights from a delay estimate (`common.core.delay_model`), which also learns from it.
+Shaping trials add the value to the reward of the newest step shown at or before the feedback; H trials
+grow D_global and take one H step on D_local. A feedback's candidates are the held steps shown before it,
+whatever their episode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from common.agents.history import BatchCredit, BatchStepHistory
+from common.agents.networks import SQUARED_SUM, FitJob, ValueNetworks
+from common.agents.replay import FeedbackMemory, TransitionReplay
+from common.core.delay_learning import TrialDelays
+from common.core.delay_model import polarity_likelihood
+from common.core.util import nz
+
+# Status codes of `feedback_rounds` (the strings of FeedbackOutcome.status, in this order).
+IGNORED, CREDITED, STALE = 0, 1, 2
+STATUS_NAMES = ("ignored", "credited", "stale")
+
+
+@dataclass
+class FeedbackOutcome:
+    """What became of one feedback: credited to `steps` held steps, stale (all mass lost), or ignored."""
+
+    status: str  # "credited" | "stale" | "ignored"
+    steps: int = 0
+    lost_mass: float = 0.0
+
+
+class FeedbackDoor:
+    """The feedback methods of `TrialBatchAgent` (they use its parts: history, replay, h, feedback_memory)."""
+
+    # What the agent gives them (`TrialBatchAgent.__init__`).
+    history: BatchStepHistory
+    replay: TransitionReplay
+    feedback_memory: FeedbackMemory
+    h: ValueNetworks
+    assumed_delay: Any
+    shaping: np.ndarray
+    train_h: np.ndarray
+    h_updates: np.ndarray
+    local_width: int
+    last_credit: tuple[np.ndarray, BatchCredit] | None
+
+    def mean_lag(self, rows: np.ndarray) -> np.ndarray:
+        """Mean of the lag distribution (in steps) credit uses now for trials `rows` (nan if not point masses,
+        or learned in seconds: `median_delay_s`)."""
+        d = self.assumed_delay
+        if hasattr(d, "mean_lag"):
+            return d.mean_lag(rows)
+        probs = getattr(d, "probs", None)
+        value = float(np.dot(probs, np.arange(len(probs)))) if probs is not None else float("nan")
+        return np.full(len(rows), value)
+
+    def median_delay_s(self, rows: np.ndarray, mean: bool = False) -> np.ndarray:
+        """The learned median (or `mean`) delay (s) of each trial's teacher (nan where it is not learned)."""
+        d = self.assumed_delay
+        if not isinstance(d, TrialDelays):
+            return np.full(len(rows), np.nan)
+        return d.mean_s(rows) if mean else d.median_s(rows)
+
+    def delay_summary(self, i: int) -> dict | None:
+        """Trial i's learned delay (`LearnedDelay.summary`), None where it is not learned."""
+        d = self.assumed_delay
+        learned = d.learned[i] if isinstance(d, TrialDelays) else None
+        return None if learned is None else learned.summary()
+
+    def give_feedback(self, events: list[tuple[int, float, int]]) -> list[FeedbackOutcome]:
+        """One round of feedback, at most one event per trial: (trial, t_feedback, value +-1)."""
+        seen = set()
+        for i, _, value in events:
+            if i in seen:
+                raise ValueError(f"trial {i} has two feedbacks in one round")
+            seen.add(i)
+            if value not in (-1, 1):
+                raise ValueError(f"feedback must be -1 or +1, got {value!r}")
+        if not events:
+            return []
+        status, steps, lost = self.feedback_rounds(
+            np.array([e[0] for e in events], np.int64),
+            np.array([e[1] for e in events], np.float64),
+            np.array([[e[2]] for e in events], np.int64),
+            np.ones(len(events), np.int64),
+        )
+        return [FeedbackOutcome(STATUS_NAMES[s], int(n), float(m)) for s, n, m in zip(status, steps, lost)]
+
+    def feedback_rounds(
+        self,
+        rows: np.ndarray,
+        t_feedback: np.ndarray,
+        values: np.ndarray,
+        counts: np.ndarray,
+        seconds: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rounds of feedback stamped at the same times: round r gives values[k, r] (+-1, not checked) to
+        trial rows[k] if counts[k] > r. Shaping trials add it to the newest step's reward; H trials credit it
+        by timestamp (computed once: nothing is recorded between rounds), grow D_global and update H on
+        D_local, one update per round, in order; trials that learn their teacher's delay credit each round by
+        its posterior in seconds (`seconds`: the stamps on the teacher's clock, default t_feedback) through
+        `credit_shown`. Returns (status, steps, lost mass) per trial."""
+        n = len(rows)
+        self.last_credit = None
+        status = np.full(n, IGNORED, np.int64)
+        steps = np.zeros(n, np.int64)
+        lost = np.zeros(n, np.float64)
+        shaping = self.shaping[rows]
+        if np.count_nonzero(shaping):
+            self._shape(rows, t_feedback, values, counts, nz(shaping), status, steps, lost)
+        learn = self.train_h[rows] & ~shaping
+        delays = self.assumed_delay
+        if isinstance(delays, TrialDelays) and np.count_nonzero(learn & delays.learn[rows]):
+            learned = learn & delays.learn[rows]
+            learn &= ~learned
+            self._credit_learned(
+                rows, t_feedback if seconds is None else seconds, values, counts, nz(learned), status, steps, lost
+            )
+        if np.count_nonzero(learn):
+            self._credit_h(rows, t_feedback, values, counts, nz(learn), status, steps, lost)
+        return status, steps, lost
+
+    def _credit_learned(self, rows, seconds, values, counts, k, status, steps, lost) -> None:
+        """Each round of each trial in k credited by its own posterior under the trial's learned delay."""
+        for j in k:
+            row = int(rows[j])
+            for rnd in range(int(counts[j])):
+                out, _, _ = self.credit_in_seconds(
+                    row, float(seconds[j]), int(values[j, rnd]), self.assumed_delay.learned[row]
+                )
+                status[j] = STATUS_NAMES.index(out.status)
+                steps[j], lost[j] = out.steps, out.lost_mass
+
+    def credit_in_seconds(self, row: int, t_seconds: float, value: int, delay):
+        """A feedback of a teacher without a screen, credited with `delay` over the held steps' times in seconds
+        (`record_steps`' seconds: the virtual clock's, or the actor's wall clock). Returns the outcome, the held
+        steps' times (the step clock's) and their weights."""
+        pos, times = self.history.held(np.array([row]))
+        held = np.isfinite(times[0])
+        pos = pos[0][held]
+        starts = self.history.seconds[row, pos]
+        out, weights = self.credit_shown(row, t_seconds, value, pos, starts, np.append(starts[1:], np.inf), delay)
+        return out, times[0][held], weights
+
+    def credit_shown(
+        self, row: int, t_feedback: float, value: int, positions, starts, ends, delay
+    ) -> tuple[FeedbackOutcome, np.ndarray]:
+        """The one door of a feedback on steps shown during [starts, ends) (oldest first; seconds on the clock of
+        t_feedback): `positions` are the history's ring positions of those steps (`history.find`; -1: no longer
+        held). `delay` (`common.core.delay_model`: learned or fixed) gives each its credit and learns from the
+        feedback on the task rule's polarity of the candidates. Shaping trials add the value to the reward of
+        the newest held step shown at or before t_feedback. Returns the outcome and each listed step's weight."""
+        if value not in (-1, 1):
+            raise ValueError(f"feedback must be -1 or +1, got {value!r}")
+        positions, starts = np.asarray(positions, np.int64), np.asarray(starts, np.float64)
+        ends = np.asarray(ends, np.float64)
+        weights = np.zeros(len(positions))
+        held = (positions >= 0) & (starts <= t_feedback)  # nothing shown after the press is a candidate
+        r = np.array([row], np.int64)
+        if self.shaping[row]:  # the newest held step shown before it, by the step clock's one shaping rule
+            newest = np.flatnonzero(held)[-1:]
+            t_step = self.history.times[row, positions[newest]] if len(newest) else np.array([-np.inf])
+            shaped, steps, lost_now = np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1)
+            self._shape(
+                r, t_step, np.array([[value]]), np.ones(1, np.int64), np.zeros(1, np.int64), shaped, steps, lost_now
+            )
+            weights[newest] = steps[0]
+            return FeedbackOutcome(STATUS_NAMES[shaped[0]], int(steps[0]), float(lost_now[0])), weights
+        if not self.train_h[row]:
+            return FeedbackOutcome("ignored"), weights
+        if not held.any():
+            return FeedbackOutcome("stale", 0, 1.0), weights
+        weights = np.where(held, delay.weights(t_feedback, starts, ends), 0.0)
+        polarity = np.where(held, self.history.polarity[row, np.maximum(positions, 0)], 0)
+        delay.observe(t_feedback, starts, ends, polarity_likelihood(value, polarity))
+        k = np.flatnonzero(weights > 0)
+        lost = max(0.0, 1.0 - float(weights.sum()))
+        if not len(k):
+            return FeedbackOutcome("stale", 0, lost), weights
+        p = positions[k][None, :]
+        obs, act = self.history.obs[r[:, None], p], self.history.action[r[:, None], p]
+        self._learn_local(
+            r,
+            np.array([len(k)]),
+            obs,
+            act,
+            np.full((1, len(k)), value, np.float32),
+            weights[k][None, :].astype(np.float32),
+        )
+        return FeedbackOutcome("credited", int(len(k)), lost), weights
+
+    def _shape(self, rows, t_feedback, values, counts, k, status, steps, lost) -> None:
+        """Naive reward shaping: each round's value added to the reward of the newest step at t_feedback."""
+        r = rows[k]
+        pos = self.history.latest_at(r, t_feedback[k])
+        hit = pos >= 0
+        status[k] = np.where(hit, CREDITED, STALE)
+        steps[k] = hit.astype(np.int64)
+        lost[k] = np.where(hit, 0.0, 1.0)
+        for rnd in range(values.shape[1]):
+            g = hit & (counts[k] > rnd)
+            self.replay.add_reward(r[g], self.history.slot[r[g], pos[g]], values[k[g], rnd].astype(np.float32))
+
+    def _credit_h(self, rows, t_feedback, values, counts, k, status, steps, lost) -> None:
+        """Credit by timestamp: D_local, added to D_global, and an H step on D_local (summed) per round."""
+        r = rows[k]
+        delay = self.assumed_delay
+        if isinstance(delay, TrialDelays):  # one distribution per trial
+            delay = delay.rows(r)
+        credit = self.history.credit(r, t_feedback[k], delay, self.local_width)
+        self.last_credit = (k, credit)
+        ok = credit.counts > 0
+        status[k] = np.where(ok, CREDITED, STALE)
+        steps[k] = credit.counts
+        lost[k] = credit.lost
+        if not np.count_nonzero(ok):
+            return
+        k, r, pos, cnt = k[ok], r[ok], credit.positions[ok], credit.counts[ok]
+        w32 = credit.weights[ok].astype(np.float32)
+        obs = self.history.obs[r[:, None], pos]
+        act = self.history.action[r[:, None], pos]
+        for rnd in range(values.shape[1]):
+            g = nz(counts[k] > rnd)
+            if not len(g):
+                break
+            fb = np.repeat(values[k[g], rnd].astype(np.float32)[:, None], pos.shape[1], axis=1)
+            self._learn_local(r[g], cnt[g], obs[g], act[g], fb, w32[g])
+
+    def _learn_local(self, rows, counts, obs, act, fb, w32) -> None:
+        """D_local of one feedback per trial: into D_global, and one H step on it (its loss summed)."""
+        self.feedback_memory.add_many(rows, counts, obs=obs, action=act, feedback=fb, weight=w32)
+        self.h.fit(FitJob(self.h, rows, obs, act, fb, w32, SQUARED_SUM))
+        self.h_updates[rows] += 1
