@@ -99,7 +99,7 @@ def test_feedback_is_held_until_a_newer_step_arrives():
 
 def test_a_feedback_between_two_steps_moves_the_weights_revision():
     """The H update of a feedback credited between two steps moves the revision (the version stays: no new step),
-    and the result says which revision first holds it; an uncredited one moves nothing."""
+    and the result says which revision first holds it; a feedback the agent ignores (DQN) moves nothing."""
     from common.protocol import ShownStep
     from services.learner.credits import credit_message
 
@@ -113,12 +113,14 @@ def test_a_feedback_between_two_steps_moves_the_weights_revision():
     [out] = core.on_feedback(press)
     assert out.status == "credited" and core.steps_learned == version
     assert core.revision == revision + 1 == out.revision
-    weights = core.policy_weights()
     assert credit_message(RUN, out, "actor-1", 105.0).revision == out.revision
-    early = dataclasses.replace(press, seq=1, t_reaction=100.1, shown=press.shown[:1])  # 0.05 s after the 1st paint
-    [out] = core.on_feedback(early)  # nothing on screen 0.2-4 s before it: stale
-    assert out.status == "stale" and out.revision is None and core.revision == revision + 1
-    assert all(np.array_equal(weights[k], v) for k, v in core.policy_weights().items())
+    dqn = LearnerCore(config(algo="dqn"))  # an agent that does not learn from feedback: nothing moves
+    for s in steps:
+        dqn.on_step(s)
+    before = dqn.revision
+    [ignored] = dqn.on_feedback(press)
+    assert ignored.status == "ignored" and ignored.revision is None and dqn.revision == before
+    assert core.on_feedback(dataclasses.replace(press, seq=1)) and core.revision == revision + 2  # each press moves it
 
 
 def test_stale_feedback_and_gaps_are_counted():
