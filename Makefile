@@ -60,7 +60,8 @@ FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py servic
 	tests/experiments/test_delay_check.py services/console/lags.py services/console/design.py services/replay/heldout.py \
 	services/learner/teacher_delays.py tests/console/test_delay_page.py tests/replay/test_heldout.py \
 	tests/services/test_profiles.py common/protocol/_cli.py experiments/commands.py tests/test_entry_points_and_docs.py \
-	tests/core/test_config_cli.py
+	tests/core/test_config_cli.py \
+	tests/console/test_press_next_action.py tests/console/test_measure_first_use.py services/learner/credits.py
 
 lock:
 	$(UV) pip compile $(LOCK_ARGS) -o $(LOCK)

@@ -124,3 +124,7 @@ class Credit(Message):
     delay: DelayEstimate | None = fld(Nullable(DELAY_ESTIMATE_SPEC, description=(
         "The delay the learner now assumes for this teacher (learned, or the fixed one), after this feedback: "
         "the console draws it (absent: not sent).")), optional=True)
+    revision: int | None = fld(Nullable(Count(
+        "The weights revision that first includes this feedback's H update: a Step whose `weights_revision` is at "
+        "least this acted on it. Null when crediting it updated nothing at once (reward shaping, or not credited).")),
+        optional=True)

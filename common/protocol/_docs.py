@@ -11,7 +11,7 @@ from ._keys import KEYS, ROOT
 from ._messages import NAME_PATTERN, TOKEN_PATTERN
 from ._roles import NAMED_ROLES, PUBLISHES
 from ._spec import REASONS, SAFE_INT
-from ._weights import MAX_NDIM, MAX_TENSORS, METADATA_FIELDS, TENSOR_NAME_PATTERN, Weights
+from ._weights import MAX_NDIM, MAX_TENSORS, METADATA_FIELDS, OPTIONAL_METADATA_FIELDS, TENSOR_NAME_PATTERN, Weights
 
 
 def _size(n: int) -> str:
@@ -200,6 +200,8 @@ def _weights_section(w) -> None:
     w("|---|---|")
     for k, d in METADATA_FIELDS.items():
         w(f"| `{k}` | {_cell(d)} |")
+    for k, d in OPTIONAL_METADATA_FIELDS.items():
+        w(f"| `{k}` (optional) | {_cell(d)} |")
     w("")
     w(f"Tensors: at most {MAX_TENSORS}, names matching `{TENSOR_NAME_PATTERN}`, dtype `F32` only, at most "
       f"{MAX_NDIM} dimensions, all values finite (`non_finite`). `Weights.decode(data, expected={{name: shape}})` "

@@ -67,6 +67,9 @@ class Step(Message):
     info: dict = fld(Map(Float(), max_items=16, description=(
         "Small numeric extras, e.g. `target_distance_before` / `target_distance_after` for the simulated "
         "teacher's rule.")))
+    weights_revision: int | None = fld(Nullable(Count(
+        "Revision of the weights the actor acted with (Weights' `revision`: moved by every Q or H update); null "
+        "before any revised Weights arrived.")), optional=True)
 
     def _cross_check(self) -> None:
         if len(self.next_obs) != len(self.obs):

@@ -40,6 +40,12 @@ METADATA_FIELDS = {
     "version": "weights version, decimal integer >= 0, increasing per learner incarnation",
     "t_published": "wall-clock time (s) of publication, a finite non-negative decimal number",
 }
+#: Metadata keys a Weights message may omit (older logs have none); same string rules as the others.
+OPTIONAL_METADATA_FIELDS = {
+    "revision": ("weights revision, decimal integer >= 0: the learner's count of Q and H updates, moved by every one "
+                 "(a credited press's H update too, between two steps); an actor takes weights newer in (version, "
+                 "revision)"),
+}
 
 Spec = Mapping[str, tuple[int, ...]]
 
@@ -59,6 +65,7 @@ class Weights:
     version: int
     t_published: float
     tensors: dict[str, np.ndarray]
+    revision: int | None = None
 
     # -- encode -------------------------------------------------------------------------------------------
     def encode(self) -> bytes:
@@ -88,10 +95,9 @@ class Weights:
     def _metadata(self) -> dict[str, str]:
         _check_meta_str("run", self.run, _NAME_RE)
         _check_meta_str("incarnation", self.incarnation, _TOKEN_RE)
-        if isinstance(self.version, bool) or not isinstance(self.version, (int, np.integer)):
-            raise ProtocolError("wrong_type", "version: expected integer")
-        if not 0 <= int(self.version) <= SAFE_INT:
-            raise ProtocolError("bad_value", f"version: {self.version}")
+        _check_count("version", self.version)
+        if self.revision is not None:
+            _check_count("revision", self.revision)
         if isinstance(self.t_published, bool) or not isinstance(self.t_published, (int, float, np.floating)):
             raise ProtocolError("wrong_type", "t_published: expected number")
         t = float(self.t_published)
@@ -99,8 +105,11 @@ class Weights:
             raise ProtocolError("non_finite", "t_published")
         if t < 0:
             raise ProtocolError("bad_value", f"t_published: {t}")
-        return {"format": FORMAT_TAG, "protocol": str(PROTOCOL_VERSION), "run": self.run,
+        meta = {"format": FORMAT_TAG, "protocol": str(PROTOCOL_VERSION), "run": self.run,
                 "incarnation": self.incarnation, "version": str(int(self.version)), "t_published": repr(t)}
+        if self.revision is not None:
+            meta["revision"] = str(int(self.revision))
+        return meta
 
     def validate(self) -> None:
         self.encode()
@@ -131,7 +140,7 @@ class Weights:
         for key in METADATA_FIELDS:
             if key not in meta:
                 raise ProtocolError("missing_field", f"__metadata__.{key}")
-        extra = [k for k in meta if k not in METADATA_FIELDS]
+        extra = [k for k in meta if k not in METADATA_FIELDS and k not in OPTIONAL_METADATA_FIELDS]
         if extra:
             raise ProtocolError("extra_field", f"__metadata__.{str(extra[0])[:40]}")
         for k, v in meta.items():
@@ -145,6 +154,7 @@ class Weights:
         _check_meta_str("incarnation", meta["incarnation"], _TOKEN_RE)
         version = _parse_int(meta["version"], "version")
         t_published = _parse_float(meta["t_published"], "t_published")
+        revision = _parse_int(meta["revision"], "revision") if "revision" in meta else None
         if len(header) > MAX_TENSORS:
             raise ProtocolError("bad_value", f"more than {MAX_TENSORS} tensors")
         for name, info in header.items():
@@ -172,26 +182,34 @@ class Weights:
         if expected is not None:
             check_spec(tensors, expected)
         return cls(run=meta["run"], incarnation=meta["incarnation"], version=version,
-                   t_published=t_published, tensors=tensors)
+                   t_published=t_published, tensors=tensors, revision=revision)
 
     # -- helpers ------------------------------------------------------------------------------------------
+    @property
+    def progress(self) -> tuple[int, int]:
+        """(version, revision), increasing with each publication of one learner incarnation: a receiver takes
+        weights only when this is greater than what it holds (no revision, as in older logs: -1). The version
+        first: it is bounded by the steps the actor sent, the revision is not."""
+        return (int(self.version), -1 if self.revision is None else int(self.revision))
+
     def spec(self) -> dict[str, tuple[int, ...]]:
         """Names and shapes, in the form ``decode(expected=...)`` takes."""
         return {k: tuple(np.shape(v)) for k, v in self.tensors.items()}
 
     def same_as(self, other: Weights) -> bool:
-        return (self.run, self.incarnation, self.version, self.t_published) == (
-            other.run, other.incarnation, other.version,
+        return (self.run, self.incarnation, self.version, self.revision, self.t_published) == (
+            other.run, other.incarnation, other.version, other.revision,
             other.t_published) and self.tensors.keys() == other.tensors.keys() and all(
             np.array_equal(np.asarray(self.tensors[k]), np.asarray(other.tensors[k])) for k in self.tensors)
 
     @classmethod
     def json_schema(cls) -> dict:
         """A JSON Schema (draft 2020-12) of the safetensors *header* (the JSON after the 8-byte length)."""
-        meta_props = {k: {"type": "string", "description": d} for k, d in METADATA_FIELDS.items()}
+        meta_props = {k: {"type": "string", "description": d}
+                      for k, d in {**METADATA_FIELDS, **OPTIONAL_METADATA_FIELDS}.items()}
         meta_props["format"]["const"] = FORMAT_TAG
         meta_props["protocol"]["const"] = str(PROTOCOL_VERSION)
-        meta_props["version"]["pattern"] = f"^{VERSION_PATTERN}$"
+        meta_props["version"]["pattern"] = meta_props["revision"]["pattern"] = f"^{VERSION_PATTERN}$"
         return {
             "$schema": "https://json-schema.org/draft/2020-12/schema",
             "$id": f"urn:hitl-tamer:protocol:{PROTOCOL_VERSION}:{cls.TYPE_NAME}",
@@ -236,6 +254,13 @@ def _check_tensor_name(name: Any) -> None:
         raise ProtocolError("wrong_type", "tensor name is not a string")
     if not _TENSOR_NAME_RE.match(name):
         raise ProtocolError("bad_value", f"tensor name {name[:40]!r} does not match {TENSOR_NAME_PATTERN}")
+
+
+def _check_count(key: str, value: Any) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ProtocolError("wrong_type", f"{key}: expected integer")
+    if not 0 <= int(value) <= SAFE_INT:
+        raise ProtocolError("bad_value", f"{key}: {value}")
 
 
 def _check_meta_str(key: str, value: Any, pattern: re.Pattern) -> None:

@@ -2,8 +2,10 @@
 
 The actor holds its own `TrialBatchAgent` (B = 1, the run's seed) only to act: epsilon-greedy on
 alpha_q Q + alpha_h H with the schedules at its step count, exactly as the in-process runner's agent acts.
-Its networks are the newest Weights it has received (never an older version after a newer one); before the
-first Weights arrive they are the seed's initial networks, which are the learner's too (version 0).
+Its networks are the newest Weights it has received (never older ones after newer: newer in (version,
+revision), so weights changed between two steps by a feedback's H update or an idle update are taken too, and
+the next action uses them); before the first Weights arrive they are the seed's initial networks, which are the
+learner's too (version 0).
 
 A Weights version is the number of steps the learner has learned from. With `max_ahead` = m the actor
 acts at step k only once it holds a version >= k - m (m = 0 is the runner's lockstep: every action sees the
@@ -51,6 +53,7 @@ class WeightsSlot:
     def __init__(self, agent: TrialBatchAgent, spec: dict, rt: ServiceRuntime):
         self.agent, self.spec, self.rt = agent, spec, rt
         self.version = 0
+        self.revision: int | None = None  # of the weights held (None: the seed's, or a learner without revisions)
         self.limit: int | None = None  # no version above this (steps published + 1); None: any (a restart's wait)
         self.learner: str | None = None
         self.announced: list[str] = []  # learner incarnations announced by their ServiceStatus (newest last)
@@ -66,6 +69,10 @@ class WeightsSlot:
                 continue
             if isinstance(st, ServiceStatus) and st.incarnation and st.incarnation not in self.announced:
                 self.announced = (self.announced + [st.incarnation])[-16:]
+
+    @property
+    def progress(self) -> tuple[int, int]:
+        return (self.version, -1 if self.revision is None else self.revision)
 
     def known(self, incarnation: str) -> bool:
         return (incarnation == self.learner or incarnation in self.announced
@@ -104,14 +111,14 @@ class WeightsSlot:
             if self.limit is not None and w.version > self.limit:
                 self._reject("version_ahead")  # a learner cannot have learned steps this actor never sent
                 continue
-            if w.incarnation == self.learner and w.version <= self.version:
+            if w.incarnation == self.learner and w.progress <= self.progress:
                 self.rt.counters["weights_not_newer"] += 1
                 continue
             if w.incarnation != self.learner and self.learner is not None:
                 self.rt.counters["learner_restarts"] += 1
             self.agent.load_policy_weights(w.tensors, 0)
             now = time.time()
-            self.learner, self.version = w.incarnation, int(w.version)
+            self.learner, self.version, self.revision = w.incarnation, int(w.version), w.revision
             self.rt.counters["weights_adopted"] += 1
             self.rt.samples["adopt_latency_s"].append(now - w.t_published)
             adopted = True
@@ -240,6 +247,7 @@ class Actor:
         """Act on `obs`, step the environment, publish the Step. Returns (next obs, t_action, episode ended)."""
         config, agent = self.config, self.agent
         agent.steps[0] = self.base + self.seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
+        self.adopt_weights()  # what arrived since the wait (a press's H update just before this action)
         action = int(agent.act(obs.reshape(1, -1))[0])
         t_action = max(time.time(), t_prev + 1e-6)  # strictly increasing, even if the clock steps back
         nxt, reward, terminated, truncated, info = self.env.step(action)
@@ -250,6 +258,7 @@ class Actor:
                                     obs=obs.tolist(), action=action, reward=float(reward),
                                     next_obs=np.asarray(nxt).tolist(), terminated=bool(terminated),
                                     truncated=bool(truncated), weights_version=self.slot.version,
+                                    weights_revision=self.slot.revision,
                                     info={k: float(info[k]) for k in INFO_KEYS if k in info}), self.ring)
         if self.frames is not None:
             self.frames.publish(self.seq)

@@ -64,6 +64,7 @@ class Hub:
         self.start_sent_at = 0.0
         self.actor_stopped = self.learner_stopped = False
         self.weights_version = 0
+        self.weights_progress = (0, -1)  # (version, revision) held: a press's H update shows before the next step
         self.control_seq = 0
         self.pub = lambda key: MessagePublisher(session, key)  # noqa: E731
         self.control_pub = MessagePublisher(session, control_key(config.run))
@@ -138,10 +139,10 @@ class Hub:
     def _weights(self, w: Weights, t_recv: float) -> None:
         import torch
 
-        if w.version <= self.weights_version and w.version != 0:
+        if w.progress <= self.weights_progress and w.version != 0:
             return
         self.agent.load_policy_weights({k: torch.from_numpy(np.array(v)) for k, v in w.tensors.items()}, 0)
-        self.weights_version = int(w.version)
+        self.weights_version, self.weights_progress = int(w.version), w.progress
         self.broadcast(self.preferences())
 
     def _episode(self, ep: EpisodeSummary, t_recv: float) -> None:

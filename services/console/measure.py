@@ -2,6 +2,10 @@
 
 - press -> credited: a person's feedback from its press (system time, `Feedback.t_reaction`) to the learner's H
   update with it (`Credit.t_credited`);
+- press -> first action that used it: from the press (`Credit.t_reaction`) to the action (`Step.t_action`) of the
+  first step whose weights revision covers the press's H update (`Step.weights_revision >= Credit.revision`),
+  for every teacher's credited feedback (a simulated teacher's Credits ride in Ingest); with it, credited ->
+  that action, and how many actions came between the credit and it (0: the very next action used it);
 - webcam frame -> face feedback: the capture of the frame that triggered a face feedback (its `t_reaction`)
   to the recorder receiving that Feedback; frame -> expression: capture to the recorder receiving its
   ExpressionPrediction;
@@ -20,7 +24,7 @@ import numpy as np
 
 from common.config import option, parse_config
 from common.logs.mcap_read import NotMcapError, read_log
-from common.protocol import Credit, ExpressionPrediction, Feedback, Shown, Step
+from common.protocol import Credit, ExpressionPrediction, Feedback, Ingest, Shown, Step
 
 
 def _stats(values: list[float], scale: float = 1e3) -> dict | None:
@@ -34,11 +38,14 @@ def _stats(values: list[float], scale: float = 1e3) -> dict | None:
 
 def measure(paths: list[str]) -> dict:
     press, face, expression, shown_lag, listed, credited, agreeing = [], [], [], [], [], [], []
+    used = FirstUse()
     for path in paths:
+        used.new_log()
         fbs: dict[tuple[str, int], Feedback] = {}
         infos: dict[tuple[str, int], dict] = {}
         for rec in read_log(Path(path)):
             m = rec.message
+            used.add(m)
             if isinstance(m, Feedback) and m.shown is not None:
                 fbs[(m.teacher_id, m.seq)] = m
                 listed.append(len(m.shown))
@@ -57,10 +64,54 @@ def measure(paths: list[str]) -> dict:
                 shown_lag.append(m.t_shown - m.t_action)
             elif isinstance(m, ExpressionPrediction):
                 expression.append(rec.log_time / 1e9 - m.t_capture)
-    return {"runs": paths, "press_to_credited_ms": _stats(press), "frame_to_face_feedback_ms": _stats(face),
+    return {"runs": paths, "press_to_credited_ms": _stats(press), **used.figures(),
+            "frame_to_face_feedback_ms": _stats(face),
             "frame_to_expression_ms": _stats(expression), "action_to_screen_ms": _stats(shown_lag),
             "steps_listed_per_feedback": _stats(listed, 1.0), "steps_credited_per_feedback": _stats(credited, 1.0),
             "credit_share_on_steps_the_rule_rates_alike": _stats(agreeing, 1.0)}
+
+
+class FirstUse:
+    """Per credited feedback with a revision, the first step whose weights covered it: the steps of its actor
+    (in order) are searched for the first action after the credit with `weights_revision >= Credit.revision`."""
+
+    def __init__(self):
+        self.credits: list[Credit] = []
+        self.steps: dict[str, list[Step]] = {}
+        self.pairs: list[tuple[Credit, Step, int]] = []  # (credit, first step using it, actions before it)
+        self.unused = 0  # credited with a revision, but no later step used it (the run ended first)
+
+    def add(self, m) -> None:
+        if isinstance(m, Step):
+            self.steps.setdefault(m.incarnation, []).append(m)
+        elif isinstance(m, Credit):
+            self.credits.append(m)
+        elif isinstance(m, Ingest):
+            self.credits.extend(m.credits or ())
+
+    def new_log(self) -> None:
+        """Match what the previous log held (each log its own actors and learner)."""
+        in_order = {a: sorted(steps, key=lambda s: s.seq) for a, steps in self.steps.items()}
+        times = {a: np.array([s.t_action for s in steps], np.float64) for a, steps in in_order.items()}
+        for c in self.credits:
+            if c.status == "credited" and c.revision is not None and c.actor in in_order:
+                self._match(c, in_order[c.actor], times[c.actor])
+        self.credits, self.steps = [], {}
+
+    def _match(self, c: Credit, steps: list[Step], t: np.ndarray) -> None:
+        after = int(np.searchsorted(t, c.t_credited, side="right"))  # the first action after the H update
+        for i in range(after, len(steps)):
+            if steps[i].weights_revision is not None and steps[i].weights_revision >= c.revision:
+                self.pairs.append((c, steps[i], i - after))
+                return
+        self.unused += 1
+
+    def figures(self) -> dict:
+        self.new_log()
+        return {"press_to_first_action_using_it_ms": _stats([s.t_action - c.t_reaction for c, s, _ in self.pairs]),
+                "credited_to_first_action_using_it_ms": _stats([s.t_action - c.t_credited for c, s, _ in self.pairs]),
+                "actions_between_credit_and_first_use": _stats([float(n) for _, _, n in self.pairs], 1.0),
+                "credited_never_used": self.unused}
 
 
 def rule_agreement(credit: Credit, infos: dict) -> float | None:

@@ -54,6 +54,7 @@ class FeedbackResult:
     steps: int = 0
     lost_mass: float = 0.0
     received_at: int = 0  # position of the feedback in the ingest record (for latency bookkeeping)
+    revision: int | None = None  # the weights revision right after its H update (None: it updated nothing)
     feedback: Feedback | None = None  # the feedback itself, once resolved by credit (Credit messages)
     credited: list = dataclasses.field(default_factory=list)  # [(Step.seq, weight)] when credited
 
@@ -105,6 +106,12 @@ class LearnerCore:
     @property
     def steps_learned(self) -> int:
         return int(self.agent.steps[0])
+
+    @property
+    def revision(self) -> int:
+        """The weights' revision: every Q or H update moves it (a credited feedback's H update too, between
+        two steps), so an actor can tell weights that changed without a new step. Checkpointed with the agent."""
+        return int(self.agent.q_updates[0] + self.agent.h_updates[0])
 
     def policy_weights(self) -> dict[str, np.ndarray]:
         return self.agent.policy_weights(0)
@@ -306,6 +313,13 @@ class LearnerCore:
 
     # -- internals ---------------------------------------------------------------------------------------------
     def _credit(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
+        before = self.revision
+        result = self._credit_once(fb, pos, t)
+        if self.revision != before:
+            result.revision = self.revision
+        return result
+
+    def _credit_once(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
         delay = self.delay_of(fb)
         if fb.shown is not None:  # a person's screen: seconds over the on-screen intervals
             out, credited = self.screen.credit(self.loop, fb, self.actor, delay)

@@ -3,8 +3,8 @@
 One inbox receives both the actor's steps and every teacher's feedback, in arrival order; the learner
 consumes it in that order through `LearnerCore` (credit by timestamp, Q and H updates) and records the order
 in Ingest messages (`hitl/<run>/ingest`, first one carrying its config). It publishes Weights (version =
-steps learned) at least every `weights_every` steps and whenever it has caught up, and an EpisodeSummary per
-episode.
+steps learned; revision = Q and H updates made) at least every `weights_every` steps and when it has caught up
+and they changed (a press's H update between two steps too), and an EpisodeSummary per episode.
 
 Every input passes the `InputGate` first (docs/faults.md): undecodable bytes, wrong shapes, timestamps far
 off, unannounced actor incarnations, unknown teachers, seq jumps are dropped and counted
@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import time
 
-from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, CreditedStep,
+from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit,
                              EpisodeSummary, Feedback,
-                             Ingest, ProtocolError, ServiceStatus, Step, Weights, credit_key, episode_key,
+                             Ingest, ProtocolError, ServiceStatus, Step, Weights, episode_key,
                              feedback_wildcard,
                              ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
@@ -40,10 +40,12 @@ from services.common.watches import AliveWatch, IncarnationWatch, decoded_status
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
 from services.learner import checkpoint
 from services.learner.catchup import catch_up
+from services.learner.credits import credit_message, publish_credit
 from services.learner.core import LearnerCore
 from services.learner.snapshots import Snapshots
 from services.learner.teacher_delays import delay_message
 
+REVISION_QUIET = 0.02  # s since the last step before weights changed without a new step go out on their own
 
 
 def restore(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: InputGate) -> dict | None:
@@ -81,12 +83,13 @@ class Learner:
         self.snaps = Snapshots(config.run, rt.incarnation, config.snapshot_every,
                                lambda m: publish_kept(spub, m, self.ring))
         self.note_rejected = first_time_logger(rt.event, "input")
-        self.last_weights = {"v": 0 if resumed is None else -1, "data": None}
+        self.last_weights = {"v": 0 if resumed is None else -1, "r": core.revision, "data": None}
         self.last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
         self.actor_final: int | None = None
         self.teachers_final: dict[str, int] = {}
         self.teachers_known: set[str] = set(config.wait_teachers)
         self.caught_up_at: float | None = None
+        self.last_step_at = 0.0  # (monotonic) when the last step arrived
 
     # -- outputs ---------------------------------------------------------------------------------------------
     def flush_ingest(self) -> None:
@@ -110,13 +113,13 @@ class Learner:
     def current_weights(self, version: int) -> tuple[dict, bytes]:
         tensors = self.core.policy_weights()
         return tensors, Weights(run=self.config.run, incarnation=self.rt.incarnation, version=version,
-                                t_published=time.time(), tensors=tensors).encode()
+                                revision=self.core.revision, t_published=time.time(), tensors=tensors).encode()
 
     def publish_weights(self, version: int, final: bool = False) -> None:
         t0 = time.perf_counter()
         tensors, data = self.current_weights(version)
         self.wpub.put(data)
-        self.last_weights.update(v=version, data=data)
+        self.last_weights.update(v=version, r=self.core.revision, data=data)
         # The log gets snapshots at a bounded rate, not every version (docs/logs.md).
         (self.snaps.final if final else self.snaps.on_weights)(version, tensors, data)
         self.rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
@@ -239,10 +242,12 @@ class Learner:
         if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
             if self.idle_left > 0 and self.core.idle(time.time()):
                 self.idle_left -= 1
+            self.publish_weights_if_due(idle=True)  # (an idle update, or a press held back as steps streamed)
             self.flush_ingest()  # (what waited for the period goes now: nothing else is coming)
             return
         if got.key.endswith("/step"):  # a new step: a new budget of idle-time updates before the next one
             self.idle_left = self.config.idle_updates
+            self.last_step_at = time.monotonic()
         now = time.time()
         t_sent = got.t_zenoh if got.t_zenoh is not None else got.t_recv
         try:
@@ -251,13 +256,20 @@ class Learner:
             self.reject(e.reason, kind_of(got.key))
         else:
             self.consume(msg, now, got.t_recv, t_sent)
-        idle = len(self.inbox) == 0
-        v = self.core.steps_learned
-        if v != self.last_weights["v"] and (idle or v - self.last_weights["v"] >= self.config.weights_every):
-            self.publish_weights(v)
+        self.publish_weights_if_due(idle=len(self.inbox) == 0)
         if (len(self.core.entries) >= self.config.ingest_batch or len(self.ingest_credits) >= MAX_INGEST_CREDITS
                 or time.monotonic() - self.last_ingest >= self.config.ingest_period):
             self.flush_ingest()
+
+    def publish_weights_if_due(self, idle: bool) -> None:
+        """New weights go out when they changed and nothing else is waiting, or after `weights_every` steps while
+        catching up; a change without a new step (a press, an idle update) waits while steps stream in."""
+        v, last = self.core.steps_learned, self.last_weights
+        if v != last["v"]:
+            if idle or v - last["v"] >= self.config.weights_every:
+                self.publish_weights(v)
+        elif self.core.revision != last["r"] and idle and time.monotonic() - self.last_step_at >= REVISION_QUIET:
+            self.publish_weights(v)
 
     def on_restarts(self) -> None:
         """A (re)started recorder gets the recent outputs again; a restarted actor gets the current policy."""
@@ -367,26 +379,6 @@ def main(config: LearnerConfig) -> int:
                    delay=core.delay_summary())
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0
-
-
-def credit_message(run: str, result, actor: str | None, t_done: float, delay=None) -> Credit:
-    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights (and the teacher's
-    delay estimate, `delay`, for a person's console)."""
-    fb = result.feedback
-    return Credit(run=run, teacher_id=fb.teacher_id, seq=fb.seq, value=fb.value, status=result.status,
-                  t_reaction=fb.t_reaction, t_credited=t_done, actor=fb.actor or actor,
-                  steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
-                  lost_mass=min(1.0, max(0.0, float(result.lost_mass))), delay=delay)
-
-
-def publish_credit(session, pubs: dict, credit: Credit) -> None:
-    """A Credit on its own key, `hitl/<run>/credit/<teacher_id>` (a publisher per teacher, made once)."""
-    from common.wire.transport import MessagePublisher
-
-    pub = pubs.get(credit.teacher_id)
-    if pub is None:
-        pub = pubs[credit.teacher_id] = MessagePublisher(session, credit_key(credit.run, credit.teacher_id))
-    pub.put(credit)
 
 
 def cli(argv: list[str] | None = None) -> int:

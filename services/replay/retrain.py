@@ -34,6 +34,7 @@ class RetrainResult:
     weights: dict[str, np.ndarray]
     missing_inputs: int
     warnings: list[str]
+    live_revision: int | None = None  # the live final weights' revision (equal to the retrained one when identical)
 
     def report(self) -> str:
         lines = [f"learner {self.learner}: replayed {self.inputs} inputs ({self.steps} steps, {self.feedback} "
@@ -45,7 +46,8 @@ class RetrainResult:
         if not self.compared:
             lines.append("  final weights: NOT COMPARED (the log has no Weights published after the learner's end)")
         elif self.identical:
-            lines.append(f"  final weights: IDENTICAL bit for bit to the live learner's (version {self.live_version})")
+            lines.append(f"  final weights: IDENTICAL bit for bit to the live learner's (version {self.live_version}"
+                         + ("" if self.live_revision is None else f", revision {self.live_revision}") + ")")
         else:
             lines.append(f"  final weights: DIFFERENT from the live learner's (version {self.live_version}, "
                          f"max |diff| {self.max_abs_diff:.3g})")
@@ -172,9 +174,11 @@ def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResul
     if compared:
         w = live[-1]
         version = w.version
-        identical = set(w.tensors) == set(final) and all(_bit_equal(w.tensors[k], final[k]) for k in final)
+        identical = set(w.tensors) == set(final) and all(_bit_equal(w.tensors[k], final[k]) for k in final) \
+            and w.revision in (None, core.revision)  # (older logs' weights have no revision)
         if set(w.tensors) == set(final):
             diff = max(float(np.max(np.abs(np.asarray(w.tensors[k], np.float64) - final[k]))) if final[k].size else 0.0
                        for k in final)
     return RetrainResult(learner, n_steps + n_fb, n_steps, n_fb, ended, mismatch is None, mismatch, compared,
-                         identical, diff, version, final, missing, log.warnings)
+                         identical, diff, version, final, missing, log.warnings,
+                         live[-1].revision if compared else None)

@@ -95,6 +95,27 @@ def open_console(ctx, url: str, timeout_ms: int = 120_000):
     return page
 
 
+def scripted_person(run: WebRun, profile: Path, options: str, timeout: float = 180) -> tuple[list, list]:
+    """A scripted person (`static/scripted_person.js`, with these JS options) on `run`'s console page until the run
+    ends (asserted: exit 0, no page error); returns the person's plan and the page's press log."""
+    from playwright.sync_api import sync_playwright
+
+    try:
+        url = run.url()
+        with sync_playwright() as pw:
+            ctx = browser(pw, profile)
+            page = open_console(ctx, url)
+            page.add_script_tag(path=str(SCRIPTED))
+            page.evaluate(f"hitlScriptedPerson({options})")
+            assert run.wait(timeout) == 0, run.out[-3000:]
+            plan, presses = page.evaluate("hitlScriptedPlan"), page.evaluate("hitl.pressLog")
+            assert page.errors == []
+            ctx.close()
+    finally:
+        run.close()
+    return plan, presses
+
+
 def canvas_pixels(page) -> np.ndarray:
     """The scene canvas as it is on screen: BGR pixels of a screenshot of the element."""
     import cv2

@@ -102,7 +102,7 @@ def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
     ({"primary": ["D", "X"]}, "primary"),
     ({"people": {"p": "drift:1"}}, "drift"),
     ({"pairs": [[0, 1], [0, 1]]}, "distinct"),
-    ({"pairs": [[60, 1]]}, "layouts"),
+    ({"pairs": [[1000, 1]]}, "layouts"),
     ({"multiplicity": "holm"}, "holm tests one hypothesis per declared person"),
 ])
 def test_a_design_file_that_says_something_wrong_is_refused(change, message):

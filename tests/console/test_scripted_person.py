@@ -14,30 +14,15 @@ from common.protocol import Credit, Feedback, Step
 
 from tests.services.live import ROOT, env
 
-from .harness import SCRIPTED, WebRun, browser, open_console
+from .harness import WebRun, scripted_person
 
 pytestmark = [pytest.mark.live, pytest.mark.browser]
 
 
 def test_scripted_person_teaches_dqn_tamer(tmp_path):
-    from playwright.sync_api import sync_playwright
-
     run = WebRun(tmp_path, "scripted", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "50",
                  "--max-steps", "160", "--rate", "8", "--seed", "2")
-    try:
-        url = run.url()
-        with sync_playwright() as pw:
-            ctx = browser(pw, tmp_path / "profile")
-            page = open_console(ctx, url)
-            page.add_script_tag(path=str(SCRIPTED))
-            page.evaluate("hitlScriptedPerson({p: 0.6, lagMin: 0.3, lagMax: 1.5, seed: 7})")
-            assert run.wait(180) == 0, run.out[-3000:]
-            plan = page.evaluate("hitlScriptedPlan")
-            presses = page.evaluate("hitl.pressLog")
-            assert page.errors == []
-            ctx.close()
-    finally:
-        run.close()
+    plan, presses = scripted_person(run, tmp_path / "profile", "{p: 0.6, lagMin: 0.3, lagMax: 1.5, seed: 7}")
 
     summary = run.rundir / "summary.json"
     assert summary.exists()

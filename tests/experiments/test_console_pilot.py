@@ -27,4 +27,4 @@ def test_bad_settings_are_one_line_errors():
     with pytest.raises(ValueError, match="unknown arm"):
         cp.ConsolePilotConfig(arms=("dqn-tamer/nope",))
     with pytest.raises(ValueError, match="layouts"):
-        cp.ConsolePilotConfig(layouts=(99,))
+        cp.ConsolePilotConfig(layouts=(1000,))

@@ -106,6 +106,7 @@ def weights() -> st.SearchStrategy:
         version=st.integers(0, 2**53 - 1),
         t_published=st.floats(0, 1e12, allow_nan=False),
         tensors=st.dictionaries(name, arr, max_size=4),
+        revision=st.one_of(st.none(), st.integers(0, 2**53 - 1)),
     )
 
 
@@ -145,7 +146,7 @@ def example(cls: type, **changes):
         WeightsSnapshot: dict(run="r1", incarnation="learner-1", version=5, reason="every", t_published=1700000002.0,
                               tensors=[TensorSummary("q.0.bias", [4], 0.0, 0.0, 0.0, 0.0, 0.0)], weights=b"\x08raw"),
         Request: dict(run="r1", what="snapshot", by="alice", t=1700000002.0),
-        Weights: dict(run="r1", incarnation="learner-1", version=5, t_published=1700000002.0,
+        Weights: dict(run="r1", incarnation="learner-1", version=5, revision=9, t_published=1700000002.0,
                       tensors={"q.0.weight": np.ones((4, 2), np.float32), "q.0.bias": np.zeros(4, np.float32)}),
     }[cls]
     base.update(changes)

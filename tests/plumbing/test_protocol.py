@@ -312,6 +312,23 @@ def test_weights_shape_and_name_mismatch():
     assert reason_of(Weights.decode, data, expected={"q.0.weight": (4, 2), "q.0.bias": (4,), "h": (1,)}) == "bad_shape"
 
 
+def test_weights_revision_is_optional_and_orders_publications():
+    """Older logs' Weights have no revision (decoded as None); among weights of one version the revision orders
+    them: the same steps learned plus a press's H update is newer."""
+    import safetensors.numpy
+
+    w = example(Weights)
+    meta = {k: v for k, v in w._metadata().items() if k != "revision"}
+    old = Weights.decode(safetensors.numpy.save({"a": np.ones(2, np.float32)}, metadata=meta))
+    assert old.revision is None and old.progress == (5, -1)
+    assert Weights.decode(w.encode()).revision == 9
+    pressed = example(Weights, revision=10)
+    assert pressed.progress > w.progress > old.progress
+    assert example(Weights, revision=0, version=6).progress > w.progress  # a new step: newer, whatever the revision
+    assert reason_of(example(Weights, revision=-1).encode) == "bad_value"
+    assert reason_of(example(Weights, revision=True).encode) == "wrong_type"
+
+
 def test_weights_rejections():
     import safetensors.numpy
 
@@ -329,7 +346,8 @@ def test_weights_rejections():
     assert reason_of(Weights.decode, safetensors.numpy.save({"a": np.ones(2, np.float32)})) == "missing_field"
     for key, value, reason in [("version", "x", "bad_value"), ("version", "-1", "bad_value"),
                                ("t_published", "nan", "bad_value"), ("t_published", "1e999", "non_finite"),
-                               ("format", "other", "bad_value"), ("run", "a/b", "bad_value")]:
+                               ("format", "other", "bad_value"), ("run", "a/b", "bad_value"),
+                               ("revision", "-1", "bad_value"), ("revision", "2.5", "bad_value")]:
         bad = safetensors.numpy.save({"a": np.ones(2, np.float32)}, metadata={**meta, key: value})
         assert reason_of(Weights.decode, bad) == reason, key
     extra = safetensors.numpy.save({"a": np.ones(2, np.float32)}, metadata={**meta, "more": "x"})

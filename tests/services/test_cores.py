@@ -97,6 +97,32 @@ def test_feedback_is_held_until_a_newer_step_arrives():
                      ("outcome", 0, "credited"), ("feedback", 2, ""), ("end", 0, ""), ("outcome", 2, "after_end")]
 
 
+def test_a_feedback_between_two_steps_moves_the_weights_revision():
+    """The H update of a feedback credited between two steps moves the revision (the version stays: no new step),
+    and the result says which revision first holds it; a feedback the agent ignores (DQN) moves nothing."""
+    from common.protocol import ShownStep
+    from services.learner.credits import credit_message
+
+    core = LearnerCore(config())
+    steps = make_steps(4, [100.0 + k for k in range(4)])
+    for s in steps:
+        core.on_step(s)
+    version, revision = core.steps_learned, core.revision
+    press = Feedback(run=RUN, teacher_id="web-1", seq=0, t_reaction=104.5, value=1, source="key", actor="actor-1",
+                     shown=[ShownStep(k, 100.05 + k) for k in range(4)])
+    [out] = core.on_feedback(press)
+    assert out.status == "credited" and core.steps_learned == version
+    assert core.revision == revision + 1 == out.revision
+    assert credit_message(RUN, out, "actor-1", 105.0).revision == out.revision
+    dqn = LearnerCore(config(algo="dqn"))  # an agent that does not learn from feedback: nothing moves
+    for s in steps:
+        dqn.on_step(s)
+    before = dqn.revision
+    [ignored] = dqn.on_feedback(press)
+    assert ignored.status == "ignored" and ignored.revision is None and dqn.revision == before
+    assert core.on_feedback(dataclasses.replace(press, seq=1)) and core.revision == revision + 2  # each press moves it
+
+
 def test_stale_feedback_and_gaps_are_counted():
     core = LearnerCore(config())
     steps = make_steps(60, [100.0 + k for k in range(60)])
@@ -249,9 +275,10 @@ def test_actor_never_goes_back_to_an_older_version():
     slot.announced = ["learner-1", "learner-2"]  # their ServiceStatus / liveliness announced them
     inbox = Inbox(8, "block")
 
-    def send(version: int, fill: float, learner: str = "learner-1") -> None:
+    def send(version: int, fill: float, learner: str = "learner-1", revision: int | None = None) -> None:
         tensors = {k: np.full(s, fill, np.float32) for k, s in spec.items()}
-        w = Weights(run=RUN, incarnation=learner, version=version, t_published=_time.time(), tensors=tensors)
+        w = Weights(run=RUN, incarnation=learner, version=version, t_published=_time.time(), tensors=tensors,
+                    revision=revision)
         inbox.put(Received(weights_key(RUN), w.encode(), _time.time(), None))
 
     send(5, 0.5)
@@ -265,6 +292,14 @@ def test_actor_never_goes_back_to_an_older_version():
     assert slot.adopt(inbox) and slot.version == 1 and rt.counters["learner_restarts"] == 1
     send(99, 0.9, learner="mallory")  # nobody announced it: dropped
     assert not slot.adopt(inbox) and slot.version == 1 and rt.counters["weights_dropped_unknown_incarnation"] == 1
+    # The same steps learned, then a press's H update between two steps: a new revision of version 1 is taken
+    send(1, 0.2, learner="learner-2", revision=4)
+    assert slot.adopt(inbox) and (slot.version, slot.revision) == (1, 4)
+    send(1, 0.25, learner="learner-2", revision=5)
+    send(1, 0.21, learner="learner-2", revision=3)  # an older revision arriving late: ignored
+    assert slot.adopt(inbox) and (slot.version, slot.revision) == (1, 5)
+    assert all(np.all(v == 0.25) for v in agent.policy_weights(0).values())
+    assert rt.counters["weights_not_newer"] == 2
 
 
 _CREDENTIALS: dict[str, str] = {}

@@ -1,0 +1,36 @@
+"""The learner's Credit messages: what became of each feedback (the steps it went to, their weights, the weights
+revision that first held it), for the person's console and the log."""
+
+from __future__ import annotations
+
+from common.protocol import Credit, CreditedStep, credit_key
+
+
+def credit_message(run: str, result, actor: str | None, t_done: float, delay=None) -> Credit:
+    """The `Credit` of one resolved feedback: the steps it was credited to, with their weights (and the teacher's
+    delay estimate, `delay`, for a person's console)."""
+    fb = result.feedback
+    return Credit(
+        run=run,
+        teacher_id=fb.teacher_id,
+        seq=fb.seq,
+        value=fb.value,
+        status=result.status,
+        t_reaction=fb.t_reaction,
+        t_credited=t_done,
+        actor=fb.actor or actor,
+        steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
+        lost_mass=min(1.0, max(0.0, float(result.lost_mass))),
+        delay=delay,
+        revision=result.revision,
+    )
+
+
+def publish_credit(session, pubs: dict, credit: Credit) -> None:
+    """A Credit on its own key, `hitl/<run>/credit/<teacher_id>` (a publisher per teacher, made once)."""
+    from common.wire.transport import MessagePublisher
+
+    pub = pubs.get(credit.teacher_id)
+    if pub is None:
+        pub = pubs[credit.teacher_id] = MessagePublisher(session, credit_key(credit.run, credit.teacher_id))
+    pub.put(credit)
