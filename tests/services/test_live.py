@@ -217,7 +217,8 @@ def test_ctrl_c_stops_everything_cleanly(tmp_path):
     s = launch.summary()
     assert s["outcome"] == "interrupted" and log.exists()
     # The actor stopped first, so the others finished what it sent: nothing lost on the way out.
-    assert s["steps_sent"] > 100 and s["steps_logged"] == s["steps_sent"] == s["steps_learned"]
+    # (how many steps flowed before the signal depends on the machine's load: 35 seen under three test workers)
+    assert s["steps_sent"] > 0 and s["steps_logged"] == s["steps_sent"] == s["steps_learned"]
     assert s["feedback_logged"] == s["feedback_sent"]
     assert set(s["feedback_rejected"]) <= REJECT_REASONS
 
