@@ -23,7 +23,7 @@ from common.protocol._weights import header_json
 
 from .strategies import ALL_TYPES, ANY_JSON, JSON_TYPES, example, messages
 
-SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def validator(cls):
