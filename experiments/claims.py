@@ -52,9 +52,13 @@ settings were chosen on the same pilot, never on a deciding trial.
 D1-D3 (learned delay) are decided with the corrected estimator of the credit fix (the per-teacher delay
 model in seconds on the virtual clock, common/core/delay_model.py, merged before the deciding run).
 
-Fresh trials: the deciding runs use maze layouts 60-119 (`Scale.first_layout`, the same generator stream
-continued: common/envs/maze.py) and seed block 2 (`Scale.seed_block`: every seed differs from those of
-every earlier run, whose block was 1, and from the pilots' 9000+); no pilot or earlier run used them.
+Fresh trials: the deciding run uses maze layouts 120-179 (`Scale.first_layout`, the same generator stream
+continued: common/envs/maze.py) and seed block 3 (`Scale.seed_block`: every seed differs from those of
+every earlier run, whose blocks were 1 and 2, and from the pilots' 9000+); no pilot or earlier run used them.
+Re-declared late on 25 November 2026 (HISTORY.md): the run of 25 November (layouts 60-119, block 2) was made
+before the last commits of the credit fix and took 2,489 s; this declaration changes the trials (fresh
+again), drops the fixed-task Taxi from the full run for time (conditions.FULL_RUN_NOTE) and nothing else:
+the tests, metrics, margins, populations and multiplicity rule are those of ae50572.
 """
 from __future__ import annotations
 

@@ -8,9 +8,10 @@ search and classified for the paper's Manhattan teacher rule (`misleading_dead_e
               approved path): a teacher who follows the rule leads the agent into it.
 Draws come from one stream (seed base + j, j = 0, 1, ...), distinct layouts only; layout L is the
 (L // 2)-th honest draw for even L and the (L // 2)-th misleading draw for odd L, so any prefix of the
-layouts is balanced. LAYOUT_COUNT = 120: 60 of each kind. Layout 0 is the stream's first draw. Layouts 0-59
+layouts is balanced. LAYOUT_COUNT = 180: 90 of each kind. Layout 0 is the stream's first draw. Layouts 0-59
 (the first 30 draws of each kind) are those of every run and pilot before 25 November 2026; layouts 60-119
-(the next 30 of each kind, the same stream continued) are fresh for the runs declared that day.
+(the next 30 of each kind, the same stream continued) were fresh for the run declared that day (ae50572);
+layouts 120-179 (the stream continued again) are fresh for the run re-declared late on 25 November 2026.
 """
 from __future__ import annotations
 
@@ -27,7 +28,7 @@ MAX_STEPS = 1000
 STEP_REWARD = -0.01
 GOAL_REWARD = 1.0
 WALL_DENSITY = 0.2
-LAYOUT_KIND_COUNT = 60
+LAYOUT_KIND_COUNT = 90
 LAYOUT_COUNT = 2 * LAYOUT_KIND_COUNT
 HONEST, MISLEADING = "honest", "misleading"
 _LAYOUT_SEED_BASE = 20190128  # fixed so that layout L is the same on every machine

@@ -243,7 +243,7 @@ class Sweep:
         """(layout, seed) of trial k, the reproduction's trial plan: repetition k // L of layout
         layouts[k % L], seeded from both (`conditions.trial_seed`); a fixed layout repeats it, and an
         environment without layouts has layout 0. By default the development layouts 0-59 and seed block 1:
-        a sweep never runs the reproduction's deciding trials (layouts 60-119, block 2)."""
+        a sweep never runs the reproduction's deciding trials (layouts 60-179, blocks 2 and 3)."""
         if settings.get("layout") is not None:
             layout, rep = settings["layout"], k
         elif not resolve_env(settings["env"]).uses_layout:

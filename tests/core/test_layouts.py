@@ -46,7 +46,7 @@ def test_a_dead_end_off_every_approved_path_does_not_count():
 
 def test_the_pool_has_sixty_distinct_layouts_of_each_kind_in_alternating_order():
     pool, drawn = layout_pool()
-    assert len(pool) == LAYOUT_COUNT == 2 * LAYOUT_KIND_COUNT == 120
+    assert len(pool) == LAYOUT_COUNT == 2 * LAYOUT_KIND_COUNT == 180
     assert len({(L.walls, L.start, L.goal) for L in pool}) == LAYOUT_COUNT
     for L in pool:
         assert L.kind == layout_kind(L.index) == (HONEST if L.index % 2 == 0 else MISLEADING)
@@ -58,12 +58,15 @@ def test_the_pool_has_sixty_distinct_layouts_of_each_kind_in_alternating_order()
 
 
 def test_layouts_0_to_59_are_those_of_every_run_before_the_fresh_ones():
-    """Layouts 60-119 continue the same stream: the first 60 are the pool of every earlier run and pilot
+    """Layouts 60-179 continue the same stream: the first 60 are the pool of every earlier run and pilot
     (this fingerprint is theirs, computed with the 60-layout generator of commit 5a1a7bf)."""
     import hashlib
     pool, _ = layout_pool()
     old = repr([(L.walls, L.start, L.goal) for L in pool[:60]]).encode()
     assert hashlib.sha256(old).hexdigest()[:16] == "2fcf6c4b9a026826"
+    # and 60-119 those of the run of 25 November 2026 (the 120-layout generator of commit 91a0881)
+    then = repr([(L.walls, L.start, L.goal) for L in pool[60:120]]).encode()
+    assert hashlib.sha256(then).hexdigest()[:16] == "0bcb9f796d5b25cf"
 
 
 def test_the_shortest_path_teacher_never_misleads_where_the_manhattan_teacher_does():

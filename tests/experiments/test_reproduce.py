@@ -124,15 +124,15 @@ def test_trial_seeds_come_from_layout_and_repetition():
 
 
 def test_the_deciding_trials_are_fresh():
-    """Layouts 60-119 and seed block 2: no layout and no seed of an earlier run (layouts 0-59, block 1, up to
-    3 repetitions) or of a pilot (seeds 9000-9999) is a deciding trial's."""
+    """Layouts 120-179 and seed block 3: no layout and no seed of an earlier run (layouts 0-119, blocks 1 and 2,
+    up to 3 repetitions) or of a pilot (seeds 9000-9999) is a deciding trial's."""
     from experiments.conditions import QUICK, trial_layout, trial_seed
-    old = {trial_seed(L, r, 1) for L in range(60) for r in range(3)} | set(range(9000, 10000))
+    old = {trial_seed(L, r, b) for L in range(120) for r in range(3) for b in (1, 2)} | set(range(9000, 10000))
     for c in CONDITIONS:
         specs = [trial_spec(c, c.arms[-1], k) for k in range(n_trials(c, FULL))]
         assert not {s.seed for s in specs} & old, c.name
         if not c.is_taxi:
-            assert min(s.layout for s in specs) >= 60, c.name
+            assert min(s.layout for s in specs) >= 120, c.name
             assert max(trial_layout(c, QUICK, k)[0] for k in range(n_trials(c, QUICK))) < 60  # --quick: old ones
 
 
