@@ -114,12 +114,12 @@ def test_trial_seeds_come_from_layout_and_repetition():
         assert len({s.seed for s in specs}) == n  # no two trials share streams
         if c.env.startswith("maze"):
             layouts = {s.layout for s in specs}
-            assert layouts == (set(range(60, 92, 2)) if c.layouts == "honest" else set(range(60, 120)))
+            assert layouts == (set(range(120, 152, 2)) if c.layouts == "honest" else set(range(120, 180)))
     # the same (layout, repetition) is the same trial in every condition of a layout set
     a, b = trial_spec(BY_NAME["maze-high-delay"], "dqn", 7), trial_spec(BY_NAME["maze-flip"], "dqn", 7)
     assert (a.layout, a.seed) == (b.layout, b.seed)
     bigger = dataclasses.replace(FULL, reps=2)
-    assert trial_spec(BY_NAME["maze-flip"], "dqn", 67, bigger).layout == 67
+    assert trial_spec(BY_NAME["maze-flip"], "dqn", 67, bigger).layout == 127  # repetition 1 of the 8th layout
     assert trial_spec(BY_NAME["maze-flip"], "dqn", 67, bigger).seed != a.seed
 
 

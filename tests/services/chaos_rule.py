@@ -22,9 +22,9 @@ What a policy that learnt nothing reaches on the same 1000 steps (uniformly rand
 25 November 2026, later: in the full suite under three workers (load about 5 on 2 cores) an honest run reached
 -0.046 (8 episodes: its learner was down for longer), and under two workers 0.936 (18 episodes) and 0.934 (85).
 The bound was 0.0 until then; it is now -0.2, below every honest run seen, which about 23% of random-policy runs
-pass (300 seeds: above -0.2 23.3%, above -0.1 17.3%, above 0.0 13.0%); a run that finishes no episode fails. Learning itself is checked more
-sharply by the test's other assertions: every step and feedback learned, and the final weights reproduced bit for
-bit by retraining through the restored learner.
+pass (300 seeds: above -0.2 23.3%, above -0.1 17.3%, above 0.0 13.0%); a run that finishes no episode fails.
+Learning itself is checked more sharply by the test's other assertions: every step and feedback learned, and the
+final weights reproduced bit for bit by retraining through the restored learner.
 """
 
 from __future__ import annotations
