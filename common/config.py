@@ -311,3 +311,9 @@ def config_record(config: Any) -> dict:
 def fail(message: str, code: int = 2) -> None:
     print(f"error: {message}", file=sys.stderr)
     raise SystemExit(code)
+
+
+def moved(now: str) -> None:
+    """For a module that was a command before its command was folded into another: run as `python -m`, it says
+    what replaced it (exit 2) instead of importing and exiting 0 having done nothing."""
+    fail(f"this command moved: use `{now}` (docs/commands.md, 'Renamed commands')")

@@ -108,3 +108,8 @@ def main(cfg: AlphaPilotConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return main(parse_config(AlphaPilotConfig, argv, prog="python -m experiments pilot alpha"))
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m experiments pilot alpha")

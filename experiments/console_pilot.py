@@ -181,3 +181,8 @@ def main(cfg: ConsolePilotConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return main(parse_config(ConsolePilotConfig, argv, prog="python -m experiments pilot console"))
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m experiments pilot console")

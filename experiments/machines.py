@@ -94,3 +94,9 @@ def main(args: MachinesConfig) -> int:
     for r in result["rows"]:
         print(f"  {r['cond']} {r['arm']}: {r['differ']} of {r['trials']} trials differ")
     return 0
+
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m experiments machines")

@@ -139,3 +139,8 @@ def main(cfg: MazePilotConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return main(parse_config(MazePilotConfig, argv, prog="python -m experiments pilot maze"))
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m experiments pilot maze")

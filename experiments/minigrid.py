@@ -60,3 +60,8 @@ def main(args: MinigridConfig) -> int:
     print(f"wrote {args.out}.png, {args.out}.json")
     return 0
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m experiments minigrid")

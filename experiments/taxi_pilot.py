@@ -151,3 +151,8 @@ def main(cfg: TaxiPilotConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return main(parse_config(TaxiPilotConfig, argv, prog="python -m experiments pilot taxi"))
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m experiments pilot taxi")

@@ -156,3 +156,8 @@ def main(args: FloodConfig) -> int:
     print(f"sent {sum(sent.values())} garbage messages", flush=True)
     return 0
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services flood")

@@ -37,9 +37,28 @@ def runs_as_main(path: Path) -> bool:
         if isinstance(node, ast.If) and isinstance(node.test, ast.Compare):
             names = {getattr(n, "id", None) for n in [node.test.left, *node.test.comparators]}
             values = {getattr(n, "value", None) for n in [node.test.left, *node.test.comparators]}
-            if "__name__" in names and "__main__" in values:
+            if "__name__" in names and "__main__" in values and not moved_to(node):
                 return True
     return False
+
+
+def moved_to(block: ast.AST) -> str | None:
+    """The new command a folded command's old module points to (`common.config.moved`), else None."""
+    for node in ast.walk(block):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "moved":
+            return node.args[0].value  # type: ignore[attr-defined]
+    return None
+
+
+def moved_modules() -> dict[str, str]:
+    """module -> the command that replaced it, for every old module path that now only points the way."""
+    found = {}
+    for path in project_files():
+        for node in ast.parse(path.read_text()).body:
+            now = moved_to(node) if isinstance(node, ast.If) else None
+            if now is not None:
+                found[module_name(path)] = now
+    return found
 
 
 def entry_points() -> list[str]:
@@ -142,3 +161,22 @@ def test_the_checks_catch_what_they_forbid(tmp_path):
     script = tmp_path / "tool.py"
     script.write_text("import argparse\nif __name__ == '__main__':\n    pass\n")
     assert imports_argparse(script) and runs_as_main(script)
+
+
+def test_an_old_command_path_says_where_it_moved(capsys):
+    """`python -m services.console.measure` (folded into `python -m services.console measure`) used to import and
+    exit 0 having done nothing; every old path of docs/commands.md's renamed table now exits 2 naming the new one."""
+    import runpy
+    import warnings
+
+    import pytest
+
+    moved = moved_modules()
+    renamed = (ROOT / "docs" / "commands.md").read_text().split("## Renamed commands")[1]
+    assert len(moved) >= 15 and "services.console.measure" in moved, moved
+    for module, now in moved.items():
+        assert now in renamed.replace("\\|", "|") or now.rsplit(" ", 1)[0] in renamed, (module, now)
+        with pytest.raises(SystemExit) as exit_, warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # runpy: the package had imported the module already
+            runpy.run_module(module, run_name="__main__")
+        assert exit_.value.code == 2 and f"use `{now}`" in capsys.readouterr().err, module

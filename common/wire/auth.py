@@ -384,3 +384,9 @@ def bench_main(args: AuthBenchConfig) -> int:
         print(f"{r['message']:<10}{r['bytes']:>8}{r['sign_us']:>9.2f} ({r['sign_us_median']:>5.1f})"
               f"{r['check_us']:>9.2f} ({r['check_us_median']:>5.1f})")
     return 0 if all(r["rejected"] == 0 for r in rows) else 1
+
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services auth-bench")

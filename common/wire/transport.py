@@ -266,3 +266,9 @@ def router_main(config: RouterConfig) -> int:
 
     run_router(endpoint, on_ready=ready)
     return 0
+
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services router")

@@ -112,3 +112,8 @@ def main(args: SweepBenchConfig) -> int:
             json.dump(rep, fh, indent=1)
     return 0 if all(r["identical"] for r in rep["rounds"]) and not rep["processes_left"] else 1
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m experiments sweep-bench")

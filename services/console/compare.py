@@ -267,3 +267,8 @@ def main(cfg: CompareConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return main(parse_config(CompareConfig, argv, prog="python -m services.console compare"))
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services.console compare")

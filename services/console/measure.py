@@ -156,3 +156,8 @@ def main(cfg: MeasureConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return main(parse_config(MeasureConfig, argv, prog="python -m services.console measure"))
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services.console measure")

@@ -194,3 +194,8 @@ def main(cfg: ScriptedConfig) -> int:
 def cli(argv: list[str] | None = None) -> int:
     return main(parse_config(ScriptedConfig, argv, prog="python -m services.console scripted"))
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services.console scripted")

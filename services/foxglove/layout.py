@@ -57,3 +57,8 @@ def layout() -> fl.Layout:
 def layout_json() -> str:
     return json.dumps(json.loads(layout().to_json()), indent=2) + "\n"
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services.foxglove layout")

@@ -349,3 +349,8 @@ def cli(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
+
+if __name__ == "__main__":
+    from common.config import moved
+
+    moved("python -m services.teacher face-video")
