@@ -21,7 +21,7 @@ LOCK_ARGS := pyproject.toml --all-extras --python-version 3.11 --python-platform
 step = @echo "setup: $(2)"; mkdir -p $(LOGS); ( $(3) ) >$(LOGS)/$(1).log 2>&1 || \
 	{ cat $(LOGS)/$(1).log; echo "setup failed: $(2) (log: $(LOGS)/$(1).log)"; exit 1; }
 
-.PHONY: setup run test lint lock lock-check bench reproduce report clean
+.PHONY: setup run test lint lock lock-check base-check bench reproduce report clean
 
 setup: $(STAMP)
 
@@ -62,6 +62,20 @@ FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py servic
 	tests/services/test_profiles.py common/protocol/_cli.py experiments/commands.py tests/test_entry_points_and_docs.py \
 	tests/core/test_config_cli.py \
 	tests/console/test_press_next_action.py tests/console/test_measure_first_use.py services/learner/credits.py
+
+# The base install alone, in a fresh venv: torch, then `pip install .` with no extras (pinned by the lock), then the
+# main job with the oracle teacher. CI runs it after `make test` (.ci/run); tests/install/ checks the same imports
+# within the test budget by blocking every module outside the base install.
+BASE_VENV := .cache/base-venv
+base-check: setup
+	$(call step,base-venv,a fresh venv with the base install only ($(BASE_VENV)),\
+		rm -rf $(BASE_VENV) && $(PYTHON) -m venv $(BASE_VENV) && $(BASE_VENV)/bin/pip install torch==2.13.0 && \
+		$(UV) pip install --python $(BASE_VENV)/bin/python -c $(LOCK) .)
+	@$(BASE_VENV)/bin/python -c "import importlib.util as u, sys; extra = [m for m in ('cv2', 'onnxruntime', \
+		'matplotlib', 'pyarrow', 'aiohttp', 'ray') if u.find_spec(m)]; sys.exit(f'base install has {extra}' if extra else 0)"
+	cd $(BASE_VENV) && bin/python -m services up --env maze --algo dqn-tamer --teacher oracle --episodes 3 \
+		--out runs/ --progress false
+	@echo "base-check: the base install runs the actor, learner and oracle teacher"
 
 lock:
 	$(UV) pip compile $(LOCK_ARGS) -o $(LOCK)

@@ -69,7 +69,8 @@ def spawn(spec: ProcessSpec, rundir: Path, restarts: int = 0) -> Child:
         log.write(f"\n----- restart {restarts} at {time.strftime('%H:%M:%S')} -----\n")
         log.flush()
     try:
-        popen = subprocess.Popen([sys.executable, "-m", *spec.module.split(), "--config", str(cfg_path)], cwd=str(ROOT),
+        # In the launcher's own directory (the run's paths may be relative to it); the package is on PYTHONPATH.
+        popen = subprocess.Popen([sys.executable, "-m", *spec.module.split(), "--config", str(cfg_path)],
                                  env=child_env(), stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                  start_new_session=True)
     finally:

@@ -69,7 +69,7 @@ def test_hang_learner_stopped_longer_than_its_lease_is_restarted_and_nothing_is_
 def test_hang_dead_actor_is_restarted_and_the_run_completes(tmp_path):
     """A SIGTERM the launcher did not send is a death: the actor ends 'failed', is restarted, and the run (its
     teacher, learner, recorder) goes on to the last episode."""
-    launch = start_up(tmp_path, "dead", "--episodes", "12", "--rate", "80", "--seed", "1")
+    launch = start_up(tmp_path, "dead", "--episodes", "6", "--rate", "80", "--seed", "1")
     try:
         assert wait_for(lambda: log_size(launch.rundir) > 50_000, 120), "the run never got going"
         actor = service_process(launch.rundir, "services.actor")
@@ -81,7 +81,7 @@ def test_hang_dead_actor_is_restarted_and_the_run_completes(tmp_path):
     assert rc == 0, launch.out
     assert_nothing_left(launch.rundir)
     s = launch.summary()
-    assert_complete(s, episodes=12)
+    assert_complete(s, episodes=6)
     assert [r["service"] for r in s["restarts"]] == ["actor"] and s["restarts"][0]["exit"] == 1, s["restarts"]
     assert s["actor_incarnations"] == 2
 
