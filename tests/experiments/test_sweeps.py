@@ -152,7 +152,7 @@ def load_yaml_text(tmp_path, text):
     (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=dqn-tamer-agent.algo=dqn"], "a minus"),
     (["--grid", "agent.lr=fast"], "agent.lr expects float"),
     (["--set", "observer.delay_probs=[0.5,0.6]"], "must sum to 1"),
-    (["--grid", "env.layout=3,172"], "layout must be in 0..119"),
+    (["--grid", "env.layout=3,1000"], "layout must be in 0..179"),
     (["--set", "env=NoSuchEnv-v0"], "unknown env"),
 ])
 def test_bad_sweeps_fail_with_one_line_before_running(tmp_path, capsys, args, message):

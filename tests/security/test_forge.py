@@ -229,8 +229,8 @@ def test_forge_sequence_jumps_silence_no_real_sender(runs):
     # as a replay where the real teacher had signed a press after it
     refused = learner.get("rejected_bad_seq", 0)
     assert refused >= 1 and refused + learner.get("auth_replayed_feedback", 0) >= sent["stolen_teacher_seq_jump"]
-    s = attacked.summary()  # recorded where authentic, but not counted as the teacher's: not from the run
-    assert s["feedback_logged"] == s["feedback_sent"] and s["log"]["not_from_run"].get("feedback") == refused, s["log"]
+    s = attacked.summary()  # recorded where authentic (one seq, however many copies), not counted as the teacher's
+    assert s["feedback_logged"] == s["feedback_sent"] and s["log"]["not_from_run"].get("feedback") == 1, s["log"]
     assert "unresolved" not in s["feedback_rejected"], s["feedback_rejected"]
 
 

@@ -21,7 +21,7 @@ def test_bench_compare_from_another_directory_with_a_relative_out(tmp_path):
     try:
         done = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--what", "live",
                                "--against", str(other),
-                               "--phases", "ingest", "--steps", "60", "--rounds", "1", "--out", "compared"],
+                               "--phases", "ingest", "--steps", "100", "--rounds", "1", "--out", "compared"],
                               cwd=tmp_path, env=env(), capture_output=True, text=True, timeout=300)
     finally:
         subprocess.run(["git", "worktree", "remove", "--force", str(other)], cwd=ROOT, capture_output=True)
