@@ -67,7 +67,7 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     (DQN, lockstep). Every subscriber drops and counts it (unsigned: before it is even queued, docs/security.md;
     the decoders' own reasons are tested in tests/plumbing); the run acts and learns exactly as the same run
     undisturbed (action for action), and no garbage feedback reaches the learner's core."""
-    args = ("--algo", "dqn", "--episodes", "6", "--seed", "2", "--max-ahead", "0")
+    args = ("--algo", "dqn", "--episodes", "12", "--seed", "2", "--max-ahead", "0")
     # The two runs at the same time: in lockstep DQN acts and learns the same whatever the timing.
     calm = start_up(tmp_path, "calm", *args)
     noisy = start_up(tmp_path, "noisy", *args)
