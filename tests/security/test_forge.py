@@ -37,6 +37,7 @@ class Attacker:
         self.steps = 0
         self.last_step = None
         self.feedback = None
+        self.feedback_signed_at = 0.0  # the newest signing time seen on a real feedback
         self.sent: dict[str, int] = {}
         self._subs = [self.session.declare_subscriber(f"hitl/{run}/**", self._watch)]
 
@@ -59,7 +60,12 @@ class Attacker:
             self.steps += 1
             self.last_step = msg
         elif isinstance(msg, Feedback):
+            from common.wire.auth import _parse
+
             self.feedback = msg
+            signed = _parse(None if sample.attachment is None else sample.attachment.to_bytes())
+            if signed is not None:
+                self.feedback_signed_at = max(self.feedback_signed_at, signed[2])
 
     def put(self, what: str, key: str, data: bytes, attachment: bytes | None = None, sign=None) -> None:
         """Sends `data` ROUNDS times, with `attachment`, or signed afresh just before each send by `sign`."""
@@ -103,11 +109,24 @@ class Attacker:
         # the real teacher's own credential, stolen (issue 25): its next feedback at seq +4000, authentic to every
         # receiver. It used to be admitted and move the learner's window: the teacher's real presses that followed
         # were dropped as duplicates. Now it is `bad_seq`, and the real presses are credited as in the calm run.
-        # Each copy is signed just before it leaves: the real teacher presses all the while, and a copy signed before
-        # the teacher's latest press is (rightly) a replay; the others are authentic.
+        # The real teacher presses all the while. Each copy is signed as it leaves, dated just after the newest real
+        # press the attacker has seen (its own clock: within the receivers' tolerance): a copy that reaches a receiver
+        # after a newer real press is (rightly) a replay there, the others are authentic; and a real press is never
+        # older than an accepted copy, so none is taken for a replay (with the copy dated "now", a real press signed
+        # just before it but arriving after it was: 2 real presses lost at the recorder in one loaded run).
+        import types
+        from unittest import mock
+
         oracle = Auth(load_credential(self.rundir / "credentials" / "teacher.oracle.json"))
+
+        def sign_after_the_newest_press(key: str, data: bytes) -> bytes:
+            clock = types.SimpleNamespace(time=lambda: self.feedback_signed_at + 1e-6)
+            with mock.patch("common.wire.auth.time", clock):
+                return oracle.sign(key, data)
+
         stolen_jump = dataclasses.replace(fb, seq=fb.seq + 4000, t_reaction=time.time()).encode()
-        self.put("stolen_teacher_seq_jump", feedback_key(run, fb.teacher_id), stolen_jump, sign=oracle.sign)
+        self.put("stolen_teacher_seq_jump", feedback_key(run, fb.teacher_id), stolen_jump,
+                 sign=sign_after_the_newest_press)
         jump = dataclasses.replace(fb, seq=fb.seq + 4000, t_reaction=time.time())
         self.put("feedback_seq_jump", feedback_key(run, fb.teacher_id), jump.encode())
         step = self.last_step
@@ -230,7 +249,7 @@ def test_forge_sequence_jumps_silence_no_real_sender(runs):
     refused = learner.get("rejected_bad_seq", 0)
     assert refused >= 1 and refused + learner.get("auth_replayed_feedback", 0) >= sent["stolen_teacher_seq_jump"]
     s = attacked.summary()  # recorded where authentic (one seq, however many copies), not counted as the teacher's
-    assert s["feedback_logged"] == s["feedback_sent"] and s["log"]["not_from_run"].get("feedback") == 1, s["log"]
+    assert s["feedback_logged"] == s["feedback_sent"] and s["log"]["not_from_run"].get("feedback", 0) <= 1, s["log"]
     assert "unresolved" not in s["feedback_rejected"], s["feedback_rejected"]
 
 

@@ -15,7 +15,7 @@ import pytest
 from common.logs.mcap_log import load_log
 from common.protocol import Ingest, Step
 
-from .chaos_rule import MIN_LAST10_MEAN, STEPS
+from .chaos_rule import STEPS
 from .live import ROOT, assert_nothing_left, env, kill_tree, start_up, wait_for
 
 pytestmark = pytest.mark.live
@@ -24,8 +24,8 @@ pytestmark = pytest.mark.live
 def test_chaos_sigkill_each_service_in_turn_loses_nothing(tmp_path):
     """One live run at 40 steps/s; recorder, learner, teacher and actor each get SIGKILL in turn and come back.
     No step or feedback is lost, the learner's record has no gap, the log reads whole across its segments,
-    retrain reproduces the final weights through the restored learner, and the run learns (its bound, from the
-    spread of honest runs and what a random policy reaches: chaos_rule.py)."""
+    retrain reproduces the final weights through the restored learner, and the run finishes episodes (no bound on
+    their returns: under load honest runs overlap a random policy, chaos_rule.py)."""
     from services.chaos import ChaosConfig, chaos
 
     cfg = ChaosConfig(out=str(tmp_path), seed=0, rate=40.0, max_steps=STEPS, first_kill=3.0, gap=2.0, baseline=False)
@@ -49,7 +49,9 @@ def test_chaos_sigkill_each_service_in_turn_loses_nothing(tmp_path):
     assert len(report["retrain"]["learners"]) == 2
     assert any("restored from checkpoint" in e for e in report["learner_restore"])
     ret = report["returns"]
-    assert ret["chaos_episodes"] > 0 and ret["chaos_last10_mean"] > MIN_LAST10_MEAN, ret
+    # the run finishes episodes; how well it learns under load is not asserted (chaos_rule.py: honest loaded runs
+    # overlap a random policy), what it learns is: every step learned and retrained bit for bit (above)
+    assert ret["chaos_episodes"] > 0, ret
     for d in tmp_path.iterdir():
         if d.is_dir():
             assert_nothing_left(d)
