@@ -1,4 +1,4 @@
-"""The learning bound of `test_chaos_sigkill_each_service_in_turn_loses_nothing`, and the commands that measured it.
+"""The learning measure of `test_chaos_sigkill_each_service_in_turn_loses_nothing` (no bound under load), and its runs.
 
 The measure is the chaos report's `chaos_last10_mean`: the mean return of the last 10 finished episodes (fewer when
 the run finished fewer) of the 1000-step chaos run (maze layout 0, DQN-TAMER, oracle teacher, seed 0, 40 steps/s).
