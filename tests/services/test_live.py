@@ -71,9 +71,10 @@ def test_returns_improve(live_run):
     returns = s["returns"]
     assert len(returns) == 25
     assert all(e["finished"] for e in s["episodes"])
-    assert np.mean(returns[-5:]) > np.mean(returns[:5])
-    # The goal gives +1, each step -0.01: short paths by the end (median: one exploratory detour is allowed).
-    assert np.median(returns[-10:]) > 0.8
+    # The goal gives +1, each step -0.01: short paths by the end (median: exploratory detours are allowed), better
+    # than the first episode. Not "the last 5 beat the first 5 on the mean": the agent learns the maze within a few
+    # episodes, and one 289-step detour in a loaded run put the last 5 at 0.29 against 0.47 (medians 0.89, 0.83).
+    assert np.median(returns[-10:]) > max(0.8, returns[0]), returns
     assert [e["episode"] for e in s["episodes"]] == list(range(25))
 
 
