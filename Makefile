@@ -93,7 +93,7 @@ reproduce: setup
 
 # Every verdict, interval and figure again from the committed per-trial table, without running a trial.
 report: setup
-	$(PY) -m experiments report --from docs/results/trials.csv.gz --out runs/report
+	$(PY) -m experiments report --from docs/results/trials.csv.xz --out runs/report
 
 bench: setup
 	$(PY) -m experiments bench

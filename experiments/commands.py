@@ -92,7 +92,7 @@ def reproduce_main(args: ReproduceConfig, argv: list[str]) -> int:
 
 @dataclass(frozen=True)
 class ReportConfig:
-    """Every verdict, interval and figure recomputed from a per-trial table (docs/results/trials.csv.gz) without
+    """Every verdict, interval and figure recomputed from a per-trial table (docs/results/trials.csv.xz) without
     running a trial."""
 
     source: str = option(

@@ -1,8 +1,8 @@
 """The reproduction's per-trial data as one tidy table: one row per (condition, arm, trial, episode).
 
-`docs/results/trials.csv.gz` is committed beside REPORT.md, so anyone can recompute every verdict,
+`docs/results/trials.csv.xz` is committed beside REPORT.md, so anyone can recompute every verdict,
 interval and figure without running a trial: `python -m experiments report --from
-docs/results/trials.csv.gz --out DIR`. `reproduce` writes the table and then analyses the table it wrote
+docs/results/trials.csv.xz --out DIR`. `reproduce` writes the table and then analyses the table it wrote
 (`read_table`), so the committed report and a recomputation read the same numbers.
 
 Columns (COLUMNS): condition, arm, trial (k: the same layout and seed under every arm of a condition's
@@ -11,12 +11,13 @@ cluster (the resampling unit: the layout; Gymnasium's Taxi: the seed), episode (
 then the per-episode extras of the runner: alpha_h at the episode's end, feedback given and credited, the
 greedy actions and those H decided against Q, the mean of the lag distribution credit used. A field an arm
 does not have is empty. Floats are written with Python's shortest round-trip repr: reading gives the
-same bits. gzip's header carries no time stamp, so the same trials give the same file.
+same bits. xz's stream carries no time stamp, so the same trials give the same file.
 """
 from __future__ import annotations
 
 import csv
 import gzip
+import lzma
 import io
 from dataclasses import dataclass
 
@@ -29,7 +30,7 @@ from experiments.trialcache import EXTRA_FIELDS
 
 KEYS = ("condition", "arm", "trial", "layout", "layout_class", "seed", "cluster", "episode", "steps", "return")
 COLUMNS = KEYS + EXTRA_FIELDS
-TABLE = "trials.csv.gz"
+TABLE = "trials.csv.xz"
 """The table's file name in a results directory."""
 INT_FIELDS = ("feedback_given", "feedback_credited", "h_decided", "greedy")
 
@@ -72,13 +73,13 @@ def table_rows(conds: list[Condition], scale: Scale, records: dict) -> list[list
 
 
 def write_table(path: str, conds: list[Condition], scale: Scale, records: dict) -> int:
-    """Write the table (gzip without a time stamp); returns its number of rows."""
+    """Write the table (xz: under the repository's 2 MB per file where gzip was not); returns its number of rows."""
     rows = table_rows(conds, scale, records)
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(COLUMNS)
     writer.writerows(rows)
-    with open(path, "wb") as raw, gzip.GzipFile(fileobj=raw, mode="wb", mtime=0, filename="") as fh:
+    with lzma.open(path, "wb", preset=9) as fh:
         fh.write(text.getvalue().encode())
     return len(rows)
 
@@ -93,7 +94,8 @@ def _arrays(rows: list[dict], field: str, n: int, E: int, dtype=np.float64) -> n
 def read_table(path: str) -> Table:
     """The table at `path` as the analysis's arrays; the conditions come from their names (declared in
     experiments/conditions.py). A malformed table is a ValueError naming what is wrong."""
-    with gzip.open(path, "rt", newline="") as fh:
+    opener = gzip.open if str(path).endswith(".gz") else lzma.open  # (tables written before 26 November: gzip)
+    with opener(path, "rt", newline="") as fh:
         reader = csv.DictReader(fh)
         missing = [c for c in KEYS if c not in (reader.fieldnames or [])]
         if missing:

@@ -1,6 +1,6 @@
 """The per-trial table: reproduce writes it, `report --from` recomputes the same claims.json from it alone,
 and the committed table reproduces the committed docs/results/claims.json exactly."""
-import gzip
+import lzma
 import json
 import os
 import time
@@ -19,11 +19,11 @@ def test_report_from_the_table_recomputes_claims_exactly_without_running_a_trial
     conds = [BY_NAME[n] for n in ("maze-flip", "maze-high-delay")]
     run = tmp_path / "run"
     rep.reproduce(conds, TINY, str(run), workers=1, progress=False, n_boot=50, argv=["reproduce", "--test"])
-    with gzip.open(run / "trials.csv.gz", "rt") as fh:
+    with lzma.open(run / "trials.csv.xz", "rt") as fh:
         header = fh.readline().strip().split(",")
         rows = sum(1 for _ in fh)
     assert tuple(header) == COLUMNS and rows == (4 + 7) * 4 * 3  # arms x trials x episodes
-    table = read_table(str(run / "trials.csv.gz"))
+    table = read_table(str(run / "trials.csv.xz"))
     assert list(table.data) == ["maze-flip", "maze-high-delay"]
     assert list(table.data["maze-high-delay"]) == list(BY_NAME["maze-high-delay"].arms)
 
@@ -31,14 +31,14 @@ def test_report_from_the_table_recomputes_claims_exactly_without_running_a_trial
         raise AssertionError("report --from ran a trial")
     monkeypatch.setattr("experiments.runner.run_trials", no_trials)
     out = tmp_path / "again"
-    assert main(["report", "--from", str(run / "trials.csv.gz"), "--out", str(out), "--n-boot", "50"]) == 0
+    assert main(["report", "--from", str(run / "trials.csv.xz"), "--out", str(out), "--n-boot", "50"]) == 0
     assert json.loads((out / "claims.json").read_text()) == json.loads((run / "claims.json").read_text())
     assert (out / "maze-flip.png").stat().st_size > 5000 and "| C6 | **" in (out / "REPORT.md").read_text()
 
 
 def test_a_malformed_table_is_a_clear_error(tmp_path, capsys):
-    bad = tmp_path / "trials.csv.gz"
-    with gzip.open(bad, "wt") as fh:
+    bad = tmp_path / "trials.csv.xz"
+    with lzma.open(bad, "wt") as fh:
         fh.write("condition,arm\nmaze-flip,dqn\n")
     (tmp_path / "timing.json").write_text(json.dumps({"scale": TINY.__dict__}))
     assert main(["report", "--from", str(bad), "--out", str(tmp_path / "out")]) == 1
@@ -52,7 +52,7 @@ def test_the_committed_table_reproduces_the_committed_claims(tmp_path):
     with open(os.path.join(RESULTS, "claims.json")) as fh:
         committed = json.load(fh)
     if "table" not in committed:
-        assert "M1" not in committed["claims"] and not os.path.exists(os.path.join(RESULTS, "trials.csv.gz"))
+        assert "M1" not in committed["claims"] and not os.path.exists(os.path.join(RESULTS, "trials.csv.xz"))
         return
     table = os.path.join(RESULTS, committed["table"]["file"])
     assert os.path.getsize(table) < 8 * 2**20  # a few MB at most
