@@ -67,9 +67,11 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
                 assert credit["status"] == "credited", credit
                 got = {s["seq"]: s["weight"] for s in credit["steps"]}
                 want = uniform_weights(press["t_sys"], shown)
-                assert set(got) == set(want), (got, want)
+                around = [(s["seq"], s["episode"], round(s["t_sys"] - press["t_sys"], 3)) for s in shown
+                          if abs(s["t_sys"] - press["t_sys"]) < 5]  # (what a failure needs to be read)
+                assert set(got) == set(want), (got, want, around)
                 for seq, w in want.items():
-                    assert got[seq] == pytest.approx(w, abs=1e-6)
+                    assert got[seq] == pytest.approx(w, abs=1e-6), (seq, got, want, around)
                     start = next(s["t_sys"] for s in shown if s["seq"] == seq)
                     assert start <= press["t_sys"] - 0.2  # shown at least 0.2 s before the press...
                     nxt = [s["t_sys"] for s in shown if s["seq"] > seq]
@@ -84,6 +86,7 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             other.wait_for_function("[...hitl.mine.values()].some(f => f.credit && f.credit.status === 'credited')",
                                     timeout=30_000)
             other.evaluate("""() => {
+                hitl.sentBefore = hitl.mine.size;
                 const ws = hitl.ws, now = (performance.timeOrigin + performance.now()) / 1000;
                 ws.send('{not json');
                 ws.send(JSON.stringify({type: 'bogus'}));
@@ -96,11 +99,31 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
                     ws.send(JSON.stringify({type: 'feedback', value: -1, t_page: now,
                                             offset: hitl.clock.offset, rtt: 0}));
             }""")
-            other.wait_for_function("hitl.rejected.flood >= 40 - 16", timeout=10_000)  # (all answered)
+            # each of the 40 presses is answered, sent or refused; how many the bucket refills for while the
+            # console reads them depends on the machine's load (at most 16 at once, then 8 a second)
+            other.wait_for_function("(hitl.rejected.flood || 0) + hitl.mine.size - hitl.sentBefore >= 40",
+                                    timeout=30_000)
             rejected = other.evaluate("hitl.rejected")
-            for reason in ("malformed", "unknown_kind", "absurd_timestamp", "bad_value", "oversized", "bad_frame"):
+            for reason in ("malformed", "unknown_kind", "absurd_timestamp", "bad_value", "oversized", "bad_frame",
+                           "flood"):
                 assert rejected.get(reason, 0) >= 1, (reason, rejected)
-            assert rejected["flood"] >= 40 - 16
+            floods = rejected["flood"]
+            # A better clock estimate 2 s behind is slewed in at half speed, so the page's system time never runs
+            # backwards (the console drops a paint older than the last); one ahead is taken at once.
+            times = other.evaluate("""() => {
+                const c = hitl.clock, t0 = pageNow(), out = [];
+                c.target = c.offset - 2; c.slewedAt = t0;
+                for (let k = 0; k <= 20; k++) { const st = stamp(t0 + 0.5 * k); out.push(st.t_page + st.offset - t0); }
+                c.target = c.offset + 1;
+                const st = stamp(t0 + 10.5);
+                out.push(st.t_page + st.offset - t0);
+                return out;
+            }""")
+            offset0 = times[0]
+            assert all(b > a for a, b in zip(times, times[1:])), times
+            assert times[8] == pytest.approx(offset0 + 2.0, abs=1e-6)  # 4 s at half speed: 2 s caught up
+            assert times[20] == pytest.approx(offset0 + 10 - 2, abs=1e-6)
+            assert times[21] == pytest.approx(offset0 + 10.5 - 2 + 1, abs=1e-6)
             other.close()
 
             # 4. Pause stops the actor; resume starts it again.
@@ -151,7 +174,7 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     paused = [s.seq for s in steps if t_paused < s.t_action < t_resumed]
     assert paused == [], f"steps taken while paused: {paused}"
     stats = json.loads((run.rundir / "stats" / "teacher.web.json").read_text())["counters"]
-    assert stats["page_rejected_malformed"] >= 1 and stats["page_rejected_flood"] >= 40 - 16
+    assert stats["page_rejected_malformed"] >= 1 and stats["page_rejected_flood"] == floods
     assert stats["people_joined"] == 2
     delay = json.loads((run.rundir / "summary.json").read_text())["delay"]
     assert delay["web-1"]["feedbacks"] == len(presses) and delay["web-1"]["median_s"] == pytest.approx(2.1)

@@ -234,9 +234,19 @@ def test_killed_recorder_log_is_recovered_up_to_its_last_chunk(tmp_path):
 
     assert wait_for(lambda: bool(recorder()), 60)
     log = launch.rundir / "session.mcap"
-    assert wait_for(lambda: log.exists() and log.stat().st_size > 20_000, 60)
-    time.sleep(2.0)
-    t_kill = time.time()
+
+    def steps_flushed() -> list:
+        """The steps a reader finds in the log as it is being written (up to its last complete chunk)."""
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LogRecoveryWarning)
+            return steps_in_log(log)[0] if log.exists() and log.stat().st_size > 4096 else []
+
+    # Kill once the log holds more than 20 steps and a later flush has added to it: on progress, not on a clock
+    # (a loaded CI machine made 5 steps in the 2 s a fixed wait gave it).
+    assert wait_for(lambda: len(steps_flushed()) > 20, 120, period=0.5)
+    before = steps_flushed()
+    assert wait_for(lambda: len(steps_flushed()) > len(before), 60, period=0.5)
+    flushed = steps_flushed()
     recorder()[0].send_signal(signal.SIGKILL)
     rc = launch.wait(timeout=40)
     assert rc == 1, launch.out  # a service died: the launcher says so and stops the others
@@ -247,10 +257,8 @@ def test_killed_recorder_log_is_recovered_up_to_its_last_chunk(tmp_path):
         steps, records, status = steps_in_log(log)
     assert any("recovered" in str(w.message) for w in caught)
     assert status.truncated and not status.complete
-    # more than the first chunk was recovered (a loaded machine made 86 steps in the 2 s before the kill, not 400)
-    assert [m.seq for m in steps] == list(range(len(steps))) and len(steps) > 20
-    # Flushed every 0.5 s: what was lost is about the last second before the kill.
-    assert steps[-1].t_action > t_kill - 1.5, f"last recovered step {t_kill - steps[-1].t_action:.2f} s before the kill"
+    # Every step flushed before the kill was recovered, in order, and nothing else was lost on the way.
+    assert [m.seq for m in steps] == list(range(len(steps))) and len(steps) >= len(flushed) > 20
     out = subprocess.run([sys.executable, "-m", "services.replay", str(log), "summary", "--no-plot"], cwd=ROOT,
                          env=env(), capture_output=True, text=True, timeout=120)
     # read up to the cut, and the cut is named: exit 1 (data lost), not 0

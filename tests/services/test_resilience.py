@@ -14,9 +14,10 @@ import pytest
 
 from common.logs.mcap_log import load_log
 from common.protocol import Ingest, Step
+from common.wire.transport import free_port
 
 from .chaos_rule import STEPS
-from .live import ROOT, assert_nothing_left, env, kill_tree, start_up, wait_for
+from .live import ROOT, assert_nothing_left, env, kill_tree, start_up
 
 pytestmark = pytest.mark.live
 
@@ -71,16 +72,17 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     undisturbed (action for action), and no garbage feedback reaches the learner's core."""
     args = ("--algo", "dqn", "--episodes", "12", "--seed", "2", "--max-ahead", "0")
     # The two runs at the same time: in lockstep DQN acts and learns the same whatever the timing.
+    # The flood starts first and waits for the noisy run's router (on a port picked here), so it is flooding
+    # before the run's services are up, however loaded the machine (started after the run, a loaded run ended
+    # before the flood had loaded its imports).
+    port = free_port()
+    report = tmp_path / "flood.json"
+    flood = subprocess.Popen([sys.executable, "-m", "services", "flood", "--connect", f"tcp/127.0.0.1:{port}",
+                              "--run", "noisy", "--rate", "400", "--report", str(report)], cwd=ROOT, env=env(),
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     calm = start_up(tmp_path, "calm", *args)
-    noisy = start_up(tmp_path, "noisy", *args)
+    noisy = start_up(tmp_path, "noisy", *args, "--port", str(port))
     try:
-        run_json = noisy.rundir / "config" / "run.json"
-        assert wait_for(run_json.exists, 60)
-        endpoint = json.loads(run_json.read_text())["launcher"]["endpoint"]
-        report = tmp_path / "flood.json"
-        flood = subprocess.Popen([sys.executable, "-m", "services", "flood", "--connect", endpoint, "--run", "noisy",
-                                  "--rate", "400", "--report", str(report)], cwd=ROOT, env=env(),
-                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             assert noisy.wait(timeout=240) == 0, noisy.out
         finally:

@@ -7,7 +7,7 @@ const pageNow = () => (performance.timeOrigin + performance.now()) / 1000;
 const pageTime = (ts) => (performance.timeOrigin + ts) / 1000;  // an event's or a frame's DOMHighResTimeStamp
 
 const hitl = window.hitl = {
-  ws: null, hello: null, me: null, clock: { offset: 0, rtt: Infinity, ready: false, samples: [] },
+  ws: null, hello: null, me: null, clock: { offset: 0, target: 0, slewedAt: 0, rtt: Infinity, ready: false, samples: [] },
   step: null, prefs: null, curve: [], positions: new Map(), trail: [], mine: new Map(),
   shownLog: [], pressLog: [], paused: false, ended: false, rate: null, pending: null, rejected: {},
   face: null, faceFeedback: [],
@@ -20,7 +20,11 @@ function send(obj) { if (hitl.ws && hitl.ws.readyState === 1) hitl.ws.send(JSON.
 // after CLOCK_SAMPLES tries on a slow network. A page busy loading answers its first pings late (0.34-0.44 s round
 // trips measured), and an offset taken from them is corrected by 0.2 s a second later: the paints around the
 // correction would go back in time and be dropped.
-const CLOCK_GOOD_RTT = 0.05, CLOCK_SAMPLES = 16;
+// Once ready, a better estimate is taken in at once if it is ahead, and slewed in at CLOCK_SLEW seconds per
+// second if it is behind (as NTP slews): the page's system time never runs backwards, so every paint reaches
+// the console in order, and a press is credited over the same paints the page logged (a loaded machine had
+// its first round trips take seconds, and a correction of 2 s back had the console drop 2 s of paints).
+const CLOCK_GOOD_RTT = 0.05, CLOCK_SAMPLES = 16, CLOCK_SLEW = 0.5;
 function ping() { send({ type: "ping", t0: pageNow(), ready: hitl.clock.ready }); }
 function onPong(m) {
   const t3 = pageNow();
@@ -31,15 +35,25 @@ function onPong(m) {
   c.samples.push({ offset, rtt });
   if (c.samples.length > 16) c.samples.shift();
   const best = c.samples.reduce((a, b) => (b.rtt < a.rtt ? b : a));
-  c.offset = best.offset; c.rtt = Math.max(0, best.rtt);
+  c.target = best.offset; c.rtt = Math.max(0, best.rtt);
+  if (!c.ready) c.offset = c.target;
   if (!c.ready && (c.rtt <= CLOCK_GOOD_RTT || c.samples.length >= CLOCK_SAMPLES)) {
-    c.ready = true;
+    c.ready = true; c.slewedAt = t3;
     ping();  // tells the console (a run waiting for its first page starts now)
   }
   document.getElementById("clock").textContent =
     `clock offset ${(c.offset * 1000).toFixed(1)} ms (round trip ${(c.rtt * 1000).toFixed(1)} ms)`;
 }
-function stamp(tPage) { return { t_page: tPage, offset: hitl.clock.offset, rtt: Math.min(hitl.clock.rtt, 60) }; }
+function offsetAt(tPage) {  // the offset in force at page time tPage (see CLOCK_SLEW)
+  const c = hitl.clock;
+  if (c.ready && c.target !== c.offset) {
+    const room = CLOCK_SLEW * Math.max(0, tPage - c.slewedAt);
+    c.offset = c.target > c.offset ? c.target : Math.max(c.target, c.offset - room);
+  }
+  c.slewedAt = Math.max(c.slewedAt || 0, tPage);
+  return c.offset;
+}
+function stamp(tPage) { return { t_page: tPage, offset: offsetAt(tPage), rtt: Math.min(hitl.clock.rtt, 60) }; }
 
 // ---------------------------------------------------------------- drawing (shared with the replay page: draw.js)
 function drawScene() {
