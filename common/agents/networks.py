@@ -7,9 +7,10 @@ weights, a loss), target syncs, row selection, state and per-trial policy weight
 torch nn.Module can implement it (values: a forward pass; fit: loss.backward and its optimiser's step); Q and
 H need not have the same shape.
 
-The numpy MLP (`StackedMLP`): trial i's weights are W1[i], b1[i], W2[i], b2[i]. Each trial is initialised from
-its own torch generator with PyTorch's nn.Linear default (so a trial gets the same weights alone or among
-others, and the same as a torch model of the paper's network), then kept as float32 numpy arrays: all of a
+The numpy MLP (`StackedMLP`): trial i's weights are W1[i], b1[i], W2[i], b2[i]. Each trial is initialised as
+its own seeded torch generator would with PyTorch's nn.Linear default (so a trial gets the same weights alone
+or among others, and the same as a torch model of the paper's network; `torch_uniform` draws torch's numbers
+without importing torch, tested against it), then kept as float32 numpy arrays: all of a
 trial's weights live in one row of a flat [B, P] array (`flat`), and `params` are views into it, so selecting
 trials, an optimiser step or a target-network copy is one operation.
 
@@ -28,21 +29,35 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-import torch
 
 PARAM_NAMES = ("w1", "b1", "w2", "b2")
 
 
-def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, torch.Tensor]:
-    """PyTorch's nn.Linear default initialisation (uniform +-1/sqrt(fan_in)) for one trial."""
-    g = torch.Generator().manual_seed(int(seed) % (2**63))
-    b_in, b_h = 1.0 / math.sqrt(in_dim), 1.0 / math.sqrt(hidden)
-    return {
-        "w1": (torch.rand(in_dim, hidden, generator=g) * 2 - 1) * b_in,
-        "b1": (torch.rand(1, hidden, generator=g) * 2 - 1) * b_in,
-        "w2": (torch.rand(hidden, out_dim, generator=g) * 2 - 1) * b_h,
-        "b2": (torch.rand(1, out_dim, generator=g) * 2 - 1) * b_h,
-    }
+def torch_uniform(seed: int, n: int) -> np.ndarray:
+    """The first n numbers of `torch.rand(n, generator=torch.Generator().manual_seed(seed))` (float32), without
+    torch: its CPU generator is a 32-bit Mersenne Twister seeded with the seed's low 32 bits, the same as
+    numpy's legacy seeding, and a float is the low 24 bits of one draw over 2**24. Importing torch costs a
+    service about 1.3 s of CPU at start; tests/core/test_parts.py checks this against torch."""
+    bits = np.random.MT19937()
+    bits.state = np.random.RandomState(int(seed) % (2**63) & 0xFFFFFFFF).get_state(legacy=False)
+    raw = bits.random_raw(n) if n else np.zeros(0, np.uint64)
+    return ((raw & 0xFFFFFF).astype(np.float32) * np.float32(2.0**-24)).astype(np.float32)
+
+
+def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, np.ndarray]:
+    """PyTorch's nn.Linear default initialisation (uniform +-1/sqrt(fan_in)) for one trial, as float32 arrays
+    equal to what torch's generator gives (the draws in the order torch makes them)."""
+    shapes = param_shapes(in_dim, hidden, out_dim)
+    draws = torch_uniform(seed, sum(a * b for a, b in shapes.values()))
+    bound = {"w1": 1.0 / math.sqrt(in_dim), "b1": 1.0 / math.sqrt(in_dim), "w2": 1.0 / math.sqrt(hidden),
+             "b2": 1.0 / math.sqrt(hidden)}
+    out, at = {}, 0
+    for name in PARAM_NAMES:
+        size = shapes[name][0] * shapes[name][1]
+        r = draws[at:at + size].reshape(shapes[name])
+        out[name] = (r * np.float32(2) - np.float32(1)) * np.float32(bound[name])
+        at += size
+    return out
 
 
 def param_shapes(in_dim: int, hidden: int, out_dim: int) -> dict[str, tuple[int, int]]:
@@ -218,8 +233,8 @@ class StackedMLP:
         self.n_actions = out_dim
         self.shapes = param_shapes(in_dim, hidden, out_dim)
         per_trial = [init_mlp(in_dim, hidden, out_dim, s) for s in seeds]
-        flat = torch.stack([torch.cat([p[k].reshape(-1) for k in PARAM_NAMES]) for p in per_trial])
-        self.set_flat(np.ascontiguousarray(flat.numpy(), np.float32))
+        flat = np.stack([np.concatenate([p[k].reshape(-1) for k in PARAM_NAMES]) for p in per_trial])
+        self.set_flat(np.ascontiguousarray(flat, np.float32))
         self.opt = optimiser
         if optimiser is not None:
             optimiser.attach(self.flat.shape)

@@ -5,18 +5,24 @@ paper's MLP (`--agent.network torch-mlp`) the two paths give the same updates (t
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from common.agents.agent import TrialBatchAgent
 from common.agents.build import build_parts
-from common.agents.config import AgentConfig
-from common.agents.torch_net import TorchValueNetworks, build_modules, resolve_network
+from common.agents.config import AgentConfig, resolve_network
 from common.core.seeding import derive_seed
+
+if TYPE_CHECKING:  # torch is imported only for a torch network (its import costs a service ~1.3 s of CPU)
+    from common.agents.torch_net import TorchValueNetworks
 
 
 def torch_networks(configs: list[AgentConfig], obs_shape: tuple[int, ...], n_actions: int, seeds: list[int],
                    purpose: str, trained: bool = True) -> TorchValueNetworks:
     """One module per trial of `configs[0].network` (seeded by `purpose`), with RMSprop if trained."""
+    from common.agents.torch_net import TorchValueNetworks, build_modules
+
     c = configs[0]
     check_device(c.device)
     modules = build_modules(resolve_network(c.network, obs_shape), obs_shape, n_actions, c.hidden,
@@ -59,5 +65,7 @@ def check_agent(config: AgentConfig, env) -> None:
     shape = obs_shape(env)
     name = resolve_network(config.network, shape)
     if name != "mlp":
+        from common.agents.torch_net import build_modules
+
         check_device(config.device)
         build_modules(name, shape, int(env.action_space.n), config.hidden, [0])

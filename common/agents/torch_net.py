@@ -34,7 +34,7 @@ class PaperMLP(nn.Module):
 
     def __init__(self, in_dim: int, hidden: int, out_dim: int, seed: int | None = None):
         super().__init__()
-        p = init_mlp(in_dim, hidden, out_dim, 0 if seed is None else seed)
+        p = {k: torch.from_numpy(v) for k, v in init_mlp(in_dim, hidden, out_dim, 0 if seed is None else seed).items()}
         self.w1, self.b1 = nn.Parameter(p["w1"]), nn.Parameter(p["b1"])
         self.w2, self.b2 = nn.Parameter(p["w2"]), nn.Parameter(p["b2"])
 

@@ -316,11 +316,13 @@ def apply_torch_threads() -> None:
     """One torch thread and one BLAS thread: the same arithmetic live and in retrain (and room on small
     machines). numpy's OpenBLAS starts threads for products above about 10^5 multiply-adds (a minibatch of
     the one-hot Taxi's 519 inputs), which on a loaded 2-core machine thrash (docs/hyperparameters.md); the
-    in-process runner limits them the same way."""
-    import torch
+    in-process runner limits them the same way. Torch is not imported for it (the numpy MLP never needs torch):
+    if it is loaded already it is told now, else OMP_NUM_THREADS tells it when a torch network loads it."""
     from threadpoolctl import threadpool_limits
 
-    torch.set_num_threads(1)
+    os.environ["OMP_NUM_THREADS"] = "1"
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(1)
     threadpool_limits(1, user_api="blas")  # called, not entered: the limit holds for the process
 
 

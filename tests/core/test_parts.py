@@ -1,5 +1,7 @@
 """The agent's parts, each alone: value networks (gradients against torch autograd, stacked fits, shapes that
 differ), replay, explorer and mixture, and an agent assembled from parts passed in."""
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -7,10 +9,26 @@ import torch
 from common.agents import AgentParts, TrialBatchAgent, agent_config, build_parts
 from common.agents.explorer import EpsilonGreedy, Mixture
 from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, StackedMLP, fit_together,
-                                    mlp_backward, mlp_forward, with_ones)
+                                    init_mlp, mlp_backward, mlp_forward, with_ones)
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import TransitionReplay
 from common.agents.streams import UniformBlocks, to_integers, uniforms
+
+
+@pytest.mark.parametrize("seed", [0, 5, 2**31 - 1, 2**32 + 7, 12345678901234, 2**63 - 1])
+@pytest.mark.parametrize("dims", [(2, 100, 4), (519, 100, 6), (1, 1, 1), (17, 33, 5)])
+def test_the_numpy_initialisation_is_torchs_bit_for_bit(seed, dims):
+    """`init_mlp` draws torch's numbers without torch: the same bits as a seeded torch generator with nn.Linear's
+    default bounds (1/sqrt(fan_in)), in the order torch draws them."""
+    in_dim, hidden, out_dim = dims
+    g = torch.Generator().manual_seed(seed % (2**63))
+    layers = [("w1", (in_dim, hidden), in_dim), ("b1", (1, hidden), in_dim), ("w2", (hidden, out_dim), hidden),
+              ("b2", (1, out_dim), hidden)]
+    got = init_mlp(in_dim, hidden, out_dim, seed)
+    for name, shape, fan_in in layers:
+        want = (torch.rand(*shape, generator=g) * 2 - 1) * (1.0 / math.sqrt(fan_in))
+        assert got[name].dtype == np.float32 and got[name].shape == shape
+        assert np.array_equal(got[name].view(np.uint32), want.numpy().view(np.uint32)), name
 
 
 def test_mlp_gradient_is_autograds():
