@@ -58,6 +58,10 @@ def _as_endpoint(port_or_endpoint: int | str) -> str:
     return tcp_endpoint(port_or_endpoint) if isinstance(port_or_endpoint, int) else port_or_endpoint
 
 
+BLOCK_WAIT_US = 20_000_000
+"""How long (µs) a BLOCK message may wait for room before Zenoh closes the link (see `make_config`)."""
+
+
 def make_config(mode: str, *, listen: list[str] | tuple[str, ...] = (), connect: list[str] | tuple[str, ...] = (),
                 connect_timeout: float | None = None, timestamping: bool = True) -> zenoh.Config:
     """A closed-world config: no multicast scouting, no gossip, only the given endpoints.
@@ -76,6 +80,11 @@ def make_config(mode: str, *, listen: list[str] | tuple[str, ...] = (), connect:
         c.insert_json5("connect/timeout_ms", str(int(connect_timeout * 1000)))
         c.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2}")
     c.insert_json5("timestamping/enabled", "true" if timestamping else "false")
+    # A BLOCK message that waits this long for room closes Zenoh's link, losing what was queued on it (Zenoh's
+    # default: 5 s). Our inboxes wait up to 5 s themselves and then drop and count (common.wire.inbox): the
+    # link must outwait them, or a receiver stalled under load loses messages that nobody counts (seen once:
+    # three Ingest batches missing from a flooded, loaded run's log).
+    c.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", str(BLOCK_WAIT_US))
     return c
 
 

@@ -206,3 +206,14 @@ def test_subscription_closes_inbox_before_undeclaring_and_peers_work_without_rou
         assert inbox.counters["received"] >= 2
         t = time.monotonic()
     assert time.monotonic() - t < 5  # nor did closing the sessions
+
+
+def test_a_block_link_outwaits_every_inbox_before_zenoh_closes_it():
+    """Zenoh closes a link whose BLOCK message waited `wait_before_close` for room, losing what it queued: every
+    session this project opens waits longer than an inbox blocks before it drops and counts."""
+    import inspect
+
+    inbox_wait = inspect.signature(Inbox).parameters["block_timeout"].default
+    for config in (router_config(7447), client_config(7447), peer_config(listen=[7448])):
+        block = json.loads(config.get_json("transport/link/tx/queue/congestion_control/block"))
+        assert block["wait_before_close"] / 1e6 >= 2 * inbox_wait
