@@ -30,7 +30,7 @@ class ReproduceConfig:
     taxi_random_episodes: int | None = option(
         None, "episodes per trial of Gymnasium's Taxi (random passenger and destination) only"
     )
-    taxi_trials: int | None = option(None, "trials per arm of Gymnasium's Taxi (default 6)")
+    taxi_trials: int | None = option(None, "trials per arm of Gymnasium's Taxi (default 4)")
     taxi_fixed_trials: int | None = option(None, "trials per arm of the fixed-task Taxi (default 4)")
     only: tuple[str, ...] = option(
         (), f"run only these conditions ({', '.join(BY_NAME)})", nargs="+", choices=tuple(BY_NAME), metavar="NAME"
