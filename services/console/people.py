@@ -146,7 +146,9 @@ class PageGate:
                 raise PageError("bad_value", "seq")
             if not isinstance(actor, str) or not 1 <= len(actor) <= 128 or not set(actor) <= _TOKEN_CHARS:
                 raise PageError("bad_value", f"actor must match {TOKEN_PATTERN}")
-            t_sys = self._system_time(msg, person, 0.5)
+            # A paint cannot be later than its report's arrival: one stamped ahead (a page whose clock estimate is
+            # being corrected, docs/console.md) is placed at its arrival, not dropped; an absurd one still is.
+            t_sys = min(self._system_time(msg, person, self.max_clock_skew), self.clock())
             return {"type": "shown", "seq": seq, "actor": actor, "t_page": float(msg["t_page"]), "t_sys": t_sys}
         if kind == "feedback":
             try:

@@ -62,21 +62,8 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             assert [p["value"] for p in presses] == [1, -1, 1, -1, 1, -1]
             for s in shown:  # the console never places a paint before the action (its clock check)
                 s["t_sys"] = max(s["t_sys"], s["t_action"])
-            for press, fb in zip(presses, mine):
-                credit = fb["credit"]
-                assert credit["status"] == "credited", credit
-                got = {s["seq"]: s["weight"] for s in credit["steps"]}
-                want = uniform_weights(press["t_sys"], shown)
-                around = [(s["seq"], s["episode"], round(s["t_sys"] - press["t_sys"], 3)) for s in shown
-                          if abs(s["t_sys"] - press["t_sys"]) < 5]  # (what a failure needs to be read)
-                assert set(got) == set(want), (got, want, around)
-                for seq, w in want.items():
-                    assert got[seq] == pytest.approx(w, abs=1e-6), (seq, got, want, around)
-                    start = next(s["t_sys"] for s in shown if s["seq"] == seq)
-                    assert start <= press["t_sys"] - 0.2  # shown at least 0.2 s before the press...
-                    nxt = [s["t_sys"] for s in shown if s["seq"] > seq]
-                    assert not nxt or nxt[0] >= press["t_sys"] - 4.0  # ...and still on screen 4 s before it
-                assert sum(got.values()) + credit["lost_mass"] == pytest.approx(1.0, abs=1e-6)
+            for fb in mine:
+                assert fb["credit"]["status"] == "credited", fb["credit"]
 
             # 3. A second person is a teacher of their own; what no page should send is counted and dropped.
             other = open_console(ctx, url)
@@ -162,12 +149,33 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     # The actor waited for the first page: its very first step was painted on that page.
     assert min(s.seq for s in shown_log if s.screen == "web-1") == 0
     assert sorted(feedback) == list(range(len(presses)))
+    episode_of = {m.seq: m.episode for m in steps}
+    page_time = {s["seq"]: s["t_sys"] for s in shown}
+    credit_of = {fb["seq"]: fb["credit"] for fb in mine}
     for press, seq in zip(presses, sorted(feedback)):
         fb = feedback[seq]
         assert fb.source == "key" and fb.value == press["value"]
         assert fb.t_page == pytest.approx(press["t_page"], abs=1e-6)
         assert fb.t_reaction == pytest.approx(press["t_sys"], abs=1e-6)
         assert fb.shown and fb.actor
+        # The press lists what the console knew the page had painted (times as the page stamped them; never
+        # later: a paint stamped ahead of the console's clock is placed at its arrival), and is credited with
+        # Deep TAMER's uniform rule over those intervals. (Against the page's own log the weights differ when
+        # a loaded page's clock estimate is corrected by seconds mid-run: CI saw 2 s.)
+        for step in fb.shown:
+            assert step.seq in page_time and step.t <= page_time[step.seq] + 1e-6, (step, page_time.get(step.seq))
+        listed = [{"seq": q.seq, "t_sys": q.t, "episode": episode_of[q.seq]} for q in fb.shown]
+        want = uniform_weights(fb.t_reaction, listed)
+        credit = credit_of[seq]
+        got = {q["seq"]: q["weight"] for q in credit["steps"]}
+        assert set(got) == set(want), (got, want, listed)
+        for q, w in want.items():
+            assert got[q] == pytest.approx(w, abs=1e-6), (q, got, want, listed)
+            start = next(x["t_sys"] for x in listed if x["seq"] == q)
+            assert start <= fb.t_reaction - 0.2  # shown at least 0.2 s before the press...
+            nxt = [x["t_sys"] for x in listed if x["seq"] > q]
+            assert not nxt or nxt[0] >= fb.t_reaction - 4.0  # ...and still on screen 4 s before it
+        assert sum(got.values()) + credit["lost_mass"] == pytest.approx(1.0, abs=1e-6)
     assert {c.seq for c in credits if c.teacher_id == "web-1"} >= set(feedback)
     assert len([s for s in shown_log if s.screen == "web-1"]) >= 18
     assert {s.screen for s in shown_log} == {"web-1", "web-2"}

@@ -46,6 +46,11 @@ def test_page_gate_accepts_good_input_and_names_the_reason_for_bad():
         json.dumps({"type": "shown", "seq": -1, "actor": "a", "t_page": NOW, "offset": 0, "rtt": 0}): "bad_value",
         "x" * 5000: "oversized",
     }
+    # a paint stamped ahead of the console's clock is placed at its arrival; one absurdly far is refused
+    ahead = {"type": "shown", "seq": 3, "actor": "a", "t_page": NOW + 2, "offset": 0, "rtt": 0}
+    assert gate.text(json.dumps(ahead), p)["t_sys"] == NOW
+    assert reason(gate.text, json.dumps({"type": "shown", "seq": 4, "actor": "a", "t_page": NOW + 60, "offset": 0,
+                                         "rtt": 0}), p) == "absurd_timestamp"
     assert gate.text(json.dumps({"type": "ping", "t0": NOW, "ready": True}), p)["ready"] is True
     assert gate.text(json.dumps({"type": "ping", "t0": NOW, "ready": "yes"}), p)["ready"] is False
     for text, why in cases.items():
