@@ -245,9 +245,10 @@ def test_forge_sequence_jumps_silence_no_real_sender(runs):
     assert learner["auth_unauthenticated_step"] >= sent["step_seq_jump"] + sent["fake_incarnation_step"]
     assert learner.get("duplicates_feedback", 0) == counters(calm.rundir, "learner").get("duplicates_feedback", 0)
     # the jump signed with the teacher's stolen credential: each copy is refused, as bad_seq where it was authentic,
-    # as a replay where the real teacher had signed a press after it
-    refused = learner.get("rejected_bad_seq", 0)
-    assert refused >= 1 and refused + learner.get("auth_replayed_feedback", 0) >= sent["stolen_teacher_seq_jump"]
+    # as a replay where the real teacher had signed a press after it (which one depends on the machine's load: a
+    # loaded run refused every copy as a replay)
+    refused = learner.get("rejected_bad_seq", 0) + learner.get("auth_replayed_feedback", 0)
+    assert refused >= sent["stolen_teacher_seq_jump"] >= 1
     s = attacked.summary()  # recorded where authentic (one seq, however many copies), not counted as the teacher's
     assert s["feedback_logged"] == s["feedback_sent"] and s["log"]["not_from_run"].get("feedback", 0) <= 1, s["log"]
     assert "unresolved" not in s["feedback_rejected"], s["feedback_rejected"]

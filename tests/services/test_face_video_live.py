@@ -62,12 +62,12 @@ def test_face_video_run_learns_and_reports_the_polarity_error_rate(face_run):
     assert s["feedback_credited"] >= 0.8 * published
     # it learns: after its first finished episode it finds a short path (the goal gives +1, a step -0.01: above 0.5
     # is at most 50 steps). Not "the last episodes are the best": with one reaction per 1.4 s the agent may wander
-    # again after a success; a loaded run finished [0.65, 0.92, -0.88], earlier ones [..., 0.92]. At least as good
-    # as the first, not better: one run's first episode already took the shortest path (0.96, then 0.7, 0.92, ...).
+    # again after a success; a loaded run finished [0.65, 0.92, -0.88], earlier ones [..., 0.92]. Not "better than
+    # the first": two runs' first episodes already took a near-shortest path ([0.96, 0.71, 0.91], [0.96, 0.7, ...]).
     returns = s["returns"]
     finished = [e["return"] for e in s["episodes"] if e["finished"]]
     assert len(finished) >= 2, returns
-    assert max(finished[1:]) >= max(finished[0], 0.5), returns
+    assert max(finished[1:]) > 0.5, returns
 
 
 def test_face_video_log_holds_frames_predictions_and_reactions_with_schemas(face_run):
