@@ -40,8 +40,7 @@ def torch_uniform(seed: int, n: int) -> np.ndarray:
     service about 1.3 s of CPU at start; tests/core/test_parts.py checks this against torch."""
     bits = np.random.MT19937()
     bits.state = np.random.RandomState(int(seed) % (2**63) & 0xFFFFFFFF).get_state(legacy=False)
-    raw = bits.random_raw(n) if n else np.zeros(0, np.uint64)
-    return ((raw & 0xFFFFFF).astype(np.float32) * np.float32(2.0**-24)).astype(np.float32)
+    return (bits.random_raw(n) & 0xFFFFFF).astype(np.float32) * np.float32(2.0**-24)
 
 
 def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, np.ndarray]:
@@ -49,13 +48,11 @@ def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, np.
     equal to what torch's generator gives (the draws in the order torch makes them)."""
     shapes = param_shapes(in_dim, hidden, out_dim)
     draws = torch_uniform(seed, sum(a * b for a, b in shapes.values()))
-    bound = {"w1": 1.0 / math.sqrt(in_dim), "b1": 1.0 / math.sqrt(in_dim), "w2": 1.0 / math.sqrt(hidden),
-             "b2": 1.0 / math.sqrt(hidden)}
     out, at = {}, 0
     for name in PARAM_NAMES:
         size = shapes[name][0] * shapes[name][1]
-        r = draws[at:at + size].reshape(shapes[name])
-        out[name] = (r * np.float32(2) - np.float32(1)) * np.float32(bound[name])
+        bound = np.float32(1.0 / math.sqrt(in_dim if name in ("w1", "b1") else hidden))  # 1/sqrt(fan_in)
+        out[name] = (draws[at:at + size].reshape(shapes[name]) * np.float32(2) - np.float32(1)) * bound
         at += size
     return out
 

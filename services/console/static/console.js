@@ -50,7 +50,7 @@ function offsetAt(tPage) {  // the offset in force at page time tPage (see CLOCK
     const room = CLOCK_SLEW * Math.max(0, tPage - c.slewedAt);
     c.offset = c.target > c.offset ? c.target : Math.max(c.target, c.offset - room);
   }
-  c.slewedAt = Math.max(c.slewedAt || 0, tPage);
+  c.slewedAt = Math.max(c.slewedAt, tPage);
   return c.offset;
 }
 function stamp(tPage) { return { t_page: tPage, offset: offsetAt(tPage), rtt: Math.min(hitl.clock.rtt, 60) }; }
@@ -163,8 +163,9 @@ function paint(ts) {
 
 function reportShown(m, tPage) {
   if (hitl.clock.ready) {
-    send({ type: "shown", seq: m.seq, actor: m.actor, ...stamp(tPage) });
-    hitl.shownLog.push({ seq: m.seq, actor: m.actor, episode: m.episode, t_page: tPage, t_sys: tPage + hitl.clock.offset, info: m.info,
+    const st = stamp(tPage);
+    send({ type: "shown", seq: m.seq, actor: m.actor, ...st });
+    hitl.shownLog.push({ seq: m.seq, actor: m.actor, episode: m.episode, t_page: tPage, t_sys: tPage + st.offset, info: m.info,
       t_action: m.t_action });
     if (hitl.shownLog.length > 2000) hitl.shownLog.shift();
     for (const fn of hitl.onShown || []) fn(m, tPage);
@@ -205,7 +206,7 @@ function give(value, tPage, source) {
   const press = nextPress(), st = stamp(tPage);
   hitl.held.push({ press, value, source, ...st, teacher: hitl.me, seq: null }); keepHeld();
   send({ type: "feedback", value, source, ...st, press });
-  hitl.pressLog.push({ value, t_page: tPage, t_sys: tPage + hitl.clock.offset, source, press });
+  hitl.pressLog.push({ value, t_page: tPage, t_sys: tPage + st.offset, source, press });
   const b = document.getElementById(value > 0 ? "good" : "bad");
   b.classList.add("flash"); setTimeout(() => b.classList.remove("flash"), 120);
 }
