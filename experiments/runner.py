@@ -15,6 +15,7 @@ costs what its running trials cost.
 """
 from __future__ import annotations
 
+import ctypes
 import time
 from dataclasses import dataclass, field
 from collections.abc import Callable
@@ -32,6 +33,26 @@ from common.core.seeding import derive_seed
 from common.core.steploop import StepLoop
 from common.core.util import nz
 from experiments.envbatch import LoopEnvs, TableEnvs
+
+# glibc's malloc options (mallopt(3)): keep this much freed memory at the top of the heap, and grow it by this much.
+M_TRIM_THRESHOLD, M_TOP_PAD = -1, -2
+HEAP_KEPT_BYTES, HEAP_PAD_BYTES = 256 << 20, 64 << 20
+
+
+def hold_freed_heap() -> bool:
+    """Keep freed memory in this process's heap instead of handing it back to the system at once.
+
+    Why: by default glibc trims the heap as soon as 128 KB lie free at its top, and the next step's numpy temporaries
+    fault the same pages back in, zero-filled. On the reproduction's Taxi (519 inputs, an update every step) that was
+    4.1 million page faults and a quarter of a trial's CPU (docs/notes/2026-11-26-reproduction-time.md); the Maze's
+    small arrays never reached the threshold. The allocator holds memory, not arithmetic: results are bit for bit the
+    same (tested). Returns whether the options took (False where the C library has no mallopt)."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return False
+    return mallopt(M_TRIM_THRESHOLD, HEAP_KEPT_BYTES) == 1 and mallopt(M_TOP_PAD, HEAP_PAD_BYTES) == 1
+
 
 EPISODE_FIELDS = ("episode", "return", "steps", "feedback_given", "feedback_credited", "feedback_stale",
                   "epsilon", "alpha_h", "h_decided", "greedy", "mean_lag", "delay_median_s")
@@ -327,6 +348,7 @@ def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] |
     # numpy's OpenBLAS too: above about 10^5 multiply-adds it starts threads, which on a loaded 2-core
     # machine made Taxi's 520-input forward pass 370x slower (13.6 ms against 37 us, measured).
     threadpool_limits(1, user_api="blas")
+    hold_freed_heap()
     assert 0 < REACTION_OFFSET < 1, "delivery assumes reactions land strictly between two steps"
     for s in specs:
         if s.episodes < 0:
