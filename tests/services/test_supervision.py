@@ -158,8 +158,14 @@ def test_a_step_dropped_before_the_learner_knew_its_actor_is_sent_again(tmp_path
     assert s["wall_s"] < 60, s["wall_s"]  # (not after the actor gave up and was restarted: 120 s at the least)
     learner = json.loads((launch.rundir / "stats" / "learner.json").read_text())["counters"]
     actor = json.loads((launch.rundir / "stats" / "actor.json").read_text())["counters"]
-    assert learner["rejected_unknown_incarnation"] == 1 and actor["stall_resends"] >= 1, (learner, actor)
-    assert "re-sent the last 1 steps" in (launch.rundir / "logs" / "actor.log").read_text()
+    assert learner["rejected_unknown_incarnation"] == 1 and actor["resent"] >= 1, (learner, actor)
+    # Re-sent by the stall timer, or (a loaded run, once) earlier: by the whole window the actor re-sends when it
+    # first sees the learner's liveliness, if that came after the step.
+    log = (launch.rundir / "logs" / "actor.log").read_text()
+    if actor.get("stall_resends", 0):
+        assert "re-sent the last 1 steps" in log, log
+    else:
+        assert "learner or recorder (re)started: re-sending the last" in log, log
     assert_nothing_left(launch.rundir)
 
 
