@@ -2,8 +2,8 @@
 an undisturbed run of the same seed (docs/faults.md has the figures this printed here).
 
 Both runs are `python -m services up` at a fixed actor rate for a fixed number of steps. During the chaos run,
-once steps flow, each service in `kill` gets SIGKILL (`first_kill` s after the start, then `gap` s after the
-previous one came back); the launcher restarts it. At the end this reads both summaries and the log and
+once the learner has learned a step, each service in `kill` gets SIGKILL (`first_kill` s after that, then `gap` s
+after the previous one came back); the launcher restarts it. At the end this reads both summaries and the log and
 reports: steps and feedback lost (sent but never ingested by the learner, across its restarts), the time each
 service took to come back (SIGKILL -> its liveliness token again) and what the learner did on restore,
 inputs rejected by reason, how the log (all segments) reads back, whether `replay retrain` reproduces the
@@ -40,7 +40,7 @@ class ChaosConfig:
     rate: float = option(40.0, "actor steps per second (fixed, so the kills land in the middle of the run)")
     max_steps: int = option(1400, "steps per run")
     kill: tuple[str, ...] = option(SERVICES, "services to SIGKILL, in this order")
-    first_kill: float = option(5.0, "seconds after the first step before the first kill")
+    first_kill: float = option(5.0, "seconds after the learner's first learned step before the first kill")
     gap: float = option(3.0, "seconds after a killed service is back before the next kill")
     baseline: bool = option(True, "also run the undisturbed run (for the return comparison)")
     alongside: bool = option(False, "run the undisturbed run at the same time as the chaos run, not before it "
@@ -93,10 +93,10 @@ def wait_for(pred, timeout: float, period: float = 0.05) -> bool:
 
 def alive_tokens(rundir: Path) -> Any:
     """A client of the run's router that records liveliness PUT times per service (to time recoveries) and
-    counts the steps it sees (under `"steps"`: when steps flow)."""
+    records when steps and the learner's ingest records flow (under `"steps"` and `"ingest"`)."""
     import zenoh
 
-    from common.protocol import step_key
+    from common.protocol import ingest_key, step_key
     from common.wire.transport import client_config
 
     run_json = json.loads((rundir / "config" / "run.json").read_text())
@@ -112,13 +112,17 @@ def alive_tokens(rundir: Path) -> Any:
     def on_step(sample):
         puts.setdefault("steps", []).append(time.time())
 
+    def on_ingest(sample):
+        puts.setdefault("ingest", []).append(time.time())
+
     try:
         sub = session.liveliness().declare_subscriber(f"hitl/{run}/alive/*", on, history=True)
         steps = session.declare_subscriber(step_key(run), on_step)
+        ingest = session.declare_subscriber(ingest_key(run), on_ingest)
     except BaseException:
         session.close()
         raise
-    return session, (sub, steps), puts
+    return session, (sub, steps, ingest), puts
 
 
 def kill_in_turn(cfg: ChaosConfig, rundir: Path, proc: subprocess.Popen) -> list[dict[str, Any]]:
@@ -130,6 +134,10 @@ def kill_in_turn(cfg: ChaosConfig, rundir: Path, proc: subprocess.Popen) -> list
     try:
         if not wait_for(lambda: len(puts.get("steps", ())) >= 1 or proc.poll() is not None, 120):
             raise RuntimeError("steps never started flowing")
+        # The clock starts once the learner has learned a step: on a loaded machine the first steps can wait seconds
+        # for it, and a learner killed before it learned anything leaves no record to restore (seen once).
+        if not wait_for(lambda: len(puts.get("ingest", ())) >= 1 or proc.poll() is not None, 120):
+            raise RuntimeError("the learner never learned a step")
         time.sleep(cfg.first_kill)
         for name in cfg.kill:
             if proc.poll() is not None:

@@ -163,8 +163,13 @@ def test_backpressure_slow_learner_keeps_every_process_bounded(tmp_path):
     assert s["steps_sent"] == s["steps_logged"] == s["steps_learned"] == n
     learner = s["services"]["learner"]["counters"]
     assert learner.get("inbox_dropped_full", 0) == 0 and learner.get("inbox_dropped_oldest", 0) == 0
-    # ... the actor ran at the learner's pace: never more than the credit bound (plus one weights period) ahead ...
-    assert lag.max() < (lag_bound + 32) * 0.004 * 3 + 1.0, lag.max()
+    # ... the actor ran at the learner's pace: never more than the credit bound (plus one weights period) ahead,
+    # counted in steps the actor had taken when the learner took each one (in seconds it depends on the machine's
+    # load: a loaded run's learner took 15.7 ms a step, not 4, and lagged 4.5 s while 256 steps ahead) ...
+    acted = np.sort(np.array(list(t_action.values())))
+    ahead = np.array([np.searchsorted(acted, t_learned[k], side="right") - (i + 1)
+                      for i, k in enumerate(sorted(t_action))])
+    assert ahead.max() <= lag_bound + 32, ahead.max()
     assert s["wall_s"] > n * 0.004
     # ... and once the stream is steady, no process keeps growing: over the second half of the learner's life
     # (before the launcher reads the log for its summary), RSS grows by less than 40 MiB.
