@@ -16,6 +16,7 @@ costs what its running trials cost.
 from __future__ import annotations
 
 import ctypes
+import functools
 import time
 from dataclasses import dataclass, field
 from collections.abc import Callable
@@ -39,6 +40,7 @@ M_TRIM_THRESHOLD, M_TOP_PAD = -1, -2
 HEAP_KEPT_BYTES, HEAP_PAD_BYTES = 256 << 20, 64 << 20
 
 
+@functools.cache  # process-wide options: set once, not at every run_trials
 def hold_freed_heap() -> bool:
     """Keep freed memory in this process's heap instead of handing it back to the system at once.
 
