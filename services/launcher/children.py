@@ -16,6 +16,7 @@ from services.teacher.registry import ProcessSpec
 
 ROOT = Path(__file__).resolve().parents[2]
 KILL_AFTER = 3.0  # s between SIGTERM and SIGKILL
+CHILD_UMASK = 0o077  # what a service writes in the run (logs, state, checkpoints) is its user's only: 0600 / 0700
 
 
 @dataclasses.dataclass
@@ -64,7 +65,9 @@ def spawn(spec: ProcessSpec, rundir: Path, restarts: int = 0) -> Child:
     if not restarts:
         write_config(cfg_path, spec.config)
     log_path = rundir / "logs" / f"{spec.name}.log"
-    log = open(log_path, "a" if restarts else "w")
+    fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | (os.O_APPEND if restarts else os.O_TRUNC), 0o600)
+    os.fchmod(fd, 0o600)  # (a log made before, by an older launcher, is made private too)
+    log = os.fdopen(fd, "a" if restarts else "w")
     if restarts:
         log.write(f"\n----- restart {restarts} at {time.strftime('%H:%M:%S')} -----\n")
         log.flush()
@@ -72,7 +75,7 @@ def spawn(spec: ProcessSpec, rundir: Path, restarts: int = 0) -> Child:
         # In the launcher's own directory (the run's paths may be relative to it); the package is on PYTHONPATH.
         popen = subprocess.Popen([sys.executable, "-m", *spec.module.split(), "--config", str(cfg_path)],
                                  env=child_env(), stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                 start_new_session=True)
+                                 start_new_session=True, umask=CHILD_UMASK)
     finally:
         log.close()
     return Child(spec, popen, log_path, restarts=restarts)

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 SUBDIRS = ("config", "logs", "stats", "state")
+PRIVATE_DIR = 0o700  # the run's folders: its logs and state hold what opens the run (the console's key, secrets)
 SUMMARY_RESERVE = 64 * 1024  # bytes summary.json holds from the start, so a full disk can still say why
 LOCK_FILE = ".lock"
 RUNNING = json.dumps({"outcome": "running"})  # summary.json until the launcher writes the real one
@@ -65,8 +66,10 @@ class RunDir:
         try:
             os.ftruncate(fd, 0)
             os.write(fd, f"{os.getpid()}\n".encode())
+            os.chmod(self.path, PRIVATE_DIR)  # no other local user reads the run's logs, state or credentials
             for sub in SUBDIRS:
-                (self.path / sub).mkdir(exist_ok=True)
+                (self.path / sub).mkdir(mode=PRIVATE_DIR, exist_ok=True)
+                os.chmod(self.path / sub, PRIVATE_DIR)
             self.reserve_summary()
         except OSError as exc:
             raise RunDirError(f"cannot write the run directory {self.path}: {describe(exc)}") from None
