@@ -38,13 +38,21 @@ class ConsoleConfig(TaskConfig):
     state_file: str | None = option(None, "the press ledger (services/console/ledger.py), rewritten before each "
                                           "feedback: a restarted console continues every person's seq and "
                                           "recognises presses their pages re-send")
-    token_file: str | None = option(None, "file holding the console's secret token (made, mode 0600, if missing; "
-                                          "the launcher puts it in the run directory). None: a new token per start")
+    token_file: str | None = option(None, "file holding the console's secret (made, mode 0600, if missing; the "
+                                          "launcher puts it in the run directory): every key of the printed "
+                                          "addresses and pages derives from it. None: a new secret per start")
     server_names: tuple[str, ...] = option((), "more names the page may reach the console by (its Host header), "
                                                 "comma-separated: e.g. the machine's DNS name with --host 0.0.0.0 "
                                                 "and --security; loopback names and --host always pass")
     max_people: int = option(8, "pages that may be open at once (a page idle for idle-timeout s is closed)")
     idle_timeout: float = option(30.0, "close a page that sent nothing for this many seconds (a page pings every 2 s)")
+    header_timeout: float = option(10.0, "close a connection that has not sent a whole request header this many "
+                                         "seconds after opening (a slow-header attack), before it presented a key")
+    unauthenticated_idle: float = option(10.0, "close a connection idle this many seconds between requests that never "
+                                               "presented a key (a person's page presents one at once)")
+    max_connections_per_address: int = option(64, "connections one client address may hold before the oldest "
+                                                  "without a key is closed to make room")
+    max_connections: int = option(256, "connections held in all before the oldest without a key is closed")
     max_control_rate: float = option(2.0, "pace / pause / resume / end controls per second accepted per person "
                                           "(bursts of 5; more are dropped and counted)")
     max_frame_bytes: int = option(400_000, "largest webcam frame accepted (JPEG bytes)")
@@ -67,12 +75,13 @@ class ConsoleConfig(TaskConfig):
         if not (math.isfinite(self.rate) and 0 < self.rate <= MAX_RATE):
             raise ValueError(f"rate must be in (0, {MAX_RATE}], got {self.rate}")
         for name in ("max_frame_rate", "max_press_rate", "max_clock_skew", "stop_after", "idle_timeout",
-                     "max_control_rate"):
+                     "max_control_rate", "header_timeout", "unauthenticated_idle"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
-        if self.max_people < 1 or self.max_frame_bytes < 1:
-            raise ValueError("max-people and max-frame-bytes must be >= 1")
+        if min(self.max_people, self.max_frame_bytes, self.max_connections, self.max_connections_per_address) < 1:
+            raise ValueError("max-people, max-frame-bytes, max-connections and max-connections-per-address must be "
+                             ">= 1")
         check_delay_estimate_spec(self.screen_delay)
 
     @property

@@ -31,7 +31,7 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
     host = up.host if up.security else "127.0.0.1"
     prefix = "web" if teacher_id == "oracle" else teacher_id  # the launcher's default id is the oracle's
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
-    from services.console.door import console_address, read_or_make_token
+    from services.console.door import Keys, console_address, read_or_make_token
 
     token_file = up.state_path(f"teacher.{prefix}", ".token")  # kept by a restarted console: open pages go on
     console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), task=up.task, algo=up.algo,
@@ -40,7 +40,8 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
                             start_on_first_page=up.start_paused, token_file=token_file)
     scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
     waits = " (the run starts when the first page opens)" if up.start_paused else ""
-    address = console_address(scheme, host, port, read_or_make_token(token_file))
+    # a one-use entry key of the run's secret (services/console/door.py): printed to the person's terminal only
+    address = console_address(scheme, host, port, Keys(read_or_make_token(token_file)).entry())
     # printed once the console listens (the launcher watches the port): the address opens at the first click
     up.listening_banners = getattr(up, "listening_banners", []) + [(host, port, f"console: {address}{waits}")]
     procs = [(f"teacher.{prefix}", "services.console", console)]

@@ -118,19 +118,21 @@ def replay_main(config) -> int:
     async def serve() -> None:
         import collections
 
-        from services.console.door import Door, console_address, read_or_make_token
+        from services.console.door import Door, Keys, read_or_make_token, spent_file_for
 
         app = web.Application(middlewares=[door])
         app.router.add_get("/", index)
         app.router.add_get("/timeline.json", tl)
+        app.router.add_post("/enter", tl)  # (answered by the door)
         app.router.add_static("/static/", static)
         runner = web.AppRunner(app, access_log=None)
         await runner.setup()
         site = web.TCPSite(runner, config.host, config.port)
         await site.start()
         port = site._server.sockets[0].getsockname()[1]
-        doors.append(Door(read_or_make_token(config.token_file), config.host, port, "http", collections.Counter()))
-        print(f"replay: {console_address('http', config.host, port, doors[0].token)} ({path})", file=sys.stderr,
+        keys = Keys(read_or_make_token(config.token_file), spent_file_for(config.token_file))
+        doors.append(Door(keys, config.host, port, "http", collections.Counter()))
+        print(f"replay: {doors[0].address()} ({path})", file=sys.stderr,
               flush=True)
         try:
             await asyncio.Event().wait()

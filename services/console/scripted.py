@@ -100,8 +100,8 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     try:
         url = None
         while url is None and up.poll() is None and time.monotonic() - t0 < 300:  # a loaded machine starts slowly
-            m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/\?token=[A-Za-z0-9_-]+)", "".join(lines))
-            url = m.group(1) if m else None  # printed once the console listens; the token lets the page in
+            m = re.search(r"console: (http://127\.0\.0\.1:(\d+)/#token=[A-Za-z0-9_.-]+)", "".join(lines))
+            url = m.group(1) if m else None  # printed once the console listens; its key lets one page in
             time.sleep(0.1)
         if url is None:
             raise RuntimeError("services up printed no console address:\n" + "".join(lines)[-2000:])

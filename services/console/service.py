@@ -8,8 +8,9 @@ Clock: the page estimates its offset to this server as NTP does (`ping` t0 -> `p
 ((t1 - t0) + (t2 - t3)) / 2 from the exchange with the smallest round trip) and stamps presses, paints and
 webcam frames with its own clock and that offset; the server checks the result against its clock.
 
-Loopback only by default, and only to its own pages: every request passes the door (`door.py`: Host, Origin,
-the per-run token of the printed address exchanged for a cookie). With `--security` (the run's security.json) the
+Loopback only by default, and only to its own pages: every request passes the door (`door.py`: Host, Origin, and a
+key the page presents itself: no cookie), and a socket that presents no key is bounded in time and number
+(`sockets.py`). With `--security` (the run's security.json) the
 console serves other machines over HTTPS, and only after a person gives a teacher name and password that the
 security file knows. What one page sends or breaks stays with that page (`Pages`).
 """
@@ -27,8 +28,9 @@ from common.protocol import teacher_service_name
 from services.common.runtime import ServiceRuntime, service_main
 from services.console.bridge import Hub
 from services.console.config import ConsoleConfig
-from services.console.door import Door, console_address, read_or_make_token
+from services.console.door import Door, Keys, read_or_make_token, spent_file_for
 from services.console.people import PageError, PageGate, Person, check_name, check_page_id
+from services.console.sockets import SocketGuard
 
 STATIC = Path(__file__).resolve().parent / "static"
 SEND_QUEUE = 256  # messages waiting for a slow page before the oldest are dropped
@@ -192,10 +194,16 @@ def make_app(config: ConsoleConfig, pages: Pages, door: Door) -> web.Application
     async def settings(request: web.Request) -> web.Response:
         return web.json_response({"login": bool(config.security)})
 
+    async def invite(request: web.Request) -> web.Response:  # another one-use address, for another tab or person
+        pages.rt.counters["door_invited"] += 1
+        return web.json_response({"address": door.address()}, headers={"Cache-Control": "no-store"})
+
     app = web.Application(client_max_size=1 << 20, middlewares=[door.middleware])
     app.router.add_get("/", index)
     app.router.add_get("/ws", pages.socket)
     app.router.add_get("/settings", settings)
+    app.router.add_post("/invite", invite)
+    app.router.add_post("/enter", invite)  # (answered by the door; this route only makes POST /enter reach it)
     app.router.add_static("/static/", STATIC)
     return app
 
@@ -218,17 +226,22 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     hub.subscribe()
     tls = tls_context(config)
     scheme = "https" if tls else "http"
-    door = Door(read_or_make_token(config.token_file), config.host, config.port, scheme, rt.counters,
-                config.server_names)
+    guard = SocketGuard(rt.counters, config.header_timeout, config.unauthenticated_idle,
+                        config.max_connections_per_address, config.max_connections)
+    keys = Keys(read_or_make_token(config.token_file), spent_file_for(config.token_file))
+    door = Door(keys, config.host, config.port, scheme, rt.counters, config.server_names, guard)
     pages = Pages(config, rt, hub)
     app = make_app(config, pages, door)
     runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
     await runner.setup()
-    site = web.TCPSite(runner, config.host, config.port, ssl_context=tls)
-    await site.start()
-    rt.set_counters_source(lambda: {"people_now": len(hub.people)})
+    assert runner.server is not None
+    server = await loop.create_server(guard.factory(runner.server), config.host, config.port, ssl=tls,
+                                      reuse_address=True, backlog=1024)
+    sweeper = asyncio.create_task(guard.sweeper())
+    rt.set_counters_source(lambda: {"people_now": len(hub.people), **guard.gauges()})
     rt.ready()
-    rt.log(f"console: {console_address(scheme, config.host, config.port, door.token)}")  # listening now
+    # listening now; this log is private to the run's user (0600 in a 0700 run folder), like the terminal
+    rt.log(f"console: {door.address()}")
     stop_at = None
     try:
         last_announce = 0.0
@@ -248,6 +261,8 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
             hub.person_status(person, "stopped")
         for ws in list(pages.sockets):  # the pages see the run end (and cleanup does not wait for them)
             await ws.close(code=1001, message=b"run over")
+        sweeper.cancel()
+        server.close()
         await runner.cleanup()
         hub.close()
 

@@ -19,6 +19,7 @@ CHROMIUM = "/usr/bin/chromium"
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 SCRIPTED = ROOT / "services" / "console" / "static" / "scripted_person.js"
+ADDRESS = r"console: (https?://127\.0\.0\.1:(\d+)/#token=[A-Za-z0-9_.-]+)"  # a one-use address (door.py)
 
 
 def _listening(port: int) -> bool:
@@ -51,7 +52,7 @@ class WebRun:
     def url(self, timeout: float = 150.0) -> str:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            m = re.search(r"console: (https?://127\.0\.0\.1:(\d+)/\?token=[A-Za-z0-9_-]+)", self.out)
+            m = re.search(ADDRESS, self.out)
             if m:  # printed once the console listens
                 assert _listening(int(m.group(2))), self.out
                 return m.group(1)
@@ -59,6 +60,14 @@ class WebRun:
                 break
             time.sleep(0.1)
         raise AssertionError(f"no console line from services up:\n{self.out[-3000:]}")
+
+    def another_address(self) -> str:
+        """A fresh one-use address, as an open page's 'another page' gives: each printed address opens one page."""
+        from services.console.door import Keys, read_or_make_token
+
+        first = self.url()
+        secret = read_or_make_token(str(self.rundir / "state" / "teacher.web.token"))
+        return first.split("#", 1)[0] + "#token=" + Keys(secret).entry()
 
     def wait(self, timeout: float) -> int:
         try:
@@ -82,6 +91,12 @@ def browser(playwright, user_data_dir: Path, extra_args: tuple[str, ...] = (), p
     return playwright.chromium.launch_persistent_context(
         str(user_data_dir), executable_path=CHROMIUM, headless=True, args=[*FLAGS, *extra_args],
         permissions=list(permissions), viewport={"width": 1280, "height": 760}, ignore_https_errors=ignore_https_errors)
+
+
+def with_query(address: str, query: str) -> str:
+    """The address with `query` (e.g. name=alice) before its fragment."""
+    base, _, fragment = address.partition("#")
+    return f"{base}{'&' if '?' in base else '?'}{query}#{fragment}"
 
 
 def open_console(ctx, url: str, timeout_ms: int = 120_000):

@@ -20,7 +20,7 @@ from services.console.lags import lag_plan
 
 from tests.services.live import ROOT, env
 
-from .harness import SCRIPTED, WebRun, browser, open_console
+from .harness import SCRIPTED, WebRun, browser, open_console, with_query
 
 pytestmark = [pytest.mark.live, pytest.mark.browser]
 
@@ -58,7 +58,7 @@ def alice_on_a_page(tmp_path, name: str, layout: int, seed: int):
         url = run.url()
         with sync_playwright() as pw:
             ctx = browser(pw, tmp_path / f"profile-{name}")
-            yield run, ctx, open_console(ctx, url + ("&" if "?" in url else "?") + "name=alice")
+            yield run, ctx, open_console(ctx, with_query(url, "name=alice"))
     finally:
         run.close()
 

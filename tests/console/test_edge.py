@@ -17,7 +17,7 @@ from common.logs.mcap_read import read_log
 from common.protocol import Control
 from common.wire.transport import free_port
 
-from .harness import WebRun, browser, open_console
+from .harness import WebRun, browser, open_console, with_query
 
 pytestmark = [pytest.mark.live, pytest.mark.browser, pytest.mark.timeout(400)]
 
@@ -32,9 +32,9 @@ fetch("http://127.0.0.1:PORT/settings", {credentials: "include"}).then(
 </script>"""
 
 
-def request(port: int, path: str, headers: dict) -> http.client.HTTPResponse:
+def request(port: int, path: str, headers: dict, method: str = "GET") -> http.client.HTTPResponse:
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=20)
-    conn.request("GET", path, headers=headers)
+    conn.request(method, path, headers=headers)
     resp = conn.getresponse()
     resp.body = resp.read()
     conn.close()
@@ -42,31 +42,33 @@ def request(port: int, path: str, headers: dict) -> http.client.HTTPResponse:
 
 
 def check_raw_http(url: str) -> str:
-    """The door by plain HTTP: returns the cookie the token buys."""
+    """The door by plain HTTP: the printed address's key buys a session key once, and no cookie; returns it."""
     parts = urlsplit(url)
-    port, token = parts.port, parts.query.split("=", 1)[1]
+    port, entry = parts.port, parts.fragment.split("=", 1)[1]
     own = {"Host": f"127.0.0.1:{port}"}
-    for path in ("/", "/settings", "/static/console.js", "/ws"):  # nothing of the run without the token
+    for path in ("/settings", "/ws", "/invite"):  # nothing of the run without a key
         r = request(port, path, own)
         assert r.status == 403 and b"Not open to this page" in r.body, (path, r.status)
+    r = request(port, "/", own)  # the page itself: shipped files only, no cookie
+    assert r.status == 200 and r.getheader("Set-Cookie") is None
     for host in ("evil.example", f"evil.example:{port}", f"127.0.0.1:{port + 1}", "localhost"):  # forged Host
-        r = request(port, f"/?token={token}", {"Host": host})
-        assert r.status == 403, host
-    r = request(port, f"/?token={token}", {**own, "Origin": f"http://127.0.0.1:{free_port()}"})
-    assert r.status == 403  # another origin, even with the token
-    assert request(port, "/?token=wrong-token-000000000", own).status == 403
-    r = request(port, f"/?token={token}&name=alice", {"Host": f"localhost:{port}"})
-    assert r.status == 303 and r.getheader("Location") == "/?name=alice"
-    cookie = r.getheader("Set-Cookie")
-    assert "HttpOnly" in cookie and "SameSite=Strict" in cookie and token not in cookie, cookie
-    jar = cookie.split(";")[0]
-    assert request(port, "/settings", {**own, "Cookie": jar}).status == 200
-    assert request(port, "/settings", {"Host": f"evil.example:{port}", "Cookie": jar}).status == 403
-    upgrade = {**own, "Cookie": jar, "Connection": "Upgrade", "Upgrade": "websocket", "Sec-WebSocket-Version": "13",
+        assert request(port, "/", {"Host": host}).status == 403, host
+    enter = {"Authorization": f"Bearer {entry}"}
+    r = request(port, "/enter", {**own, **enter, "Origin": f"http://127.0.0.1:{free_port()}"}, "POST")
+    assert r.status == 403  # another origin, even with the key (which stays unspent)
+    assert request(port, "/enter", {**own, "Authorization": "Bearer e.wrong-key-00.00"}, "POST").status == 403
+    r = request(port, "/enter", {"Host": f"localhost:{port}", **enter}, "POST")
+    assert r.status == 200 and r.getheader("Set-Cookie") is None
+    key = json.loads(r.body)["key"]
+    assert request(port, "/enter", {**own, **enter}, "POST").status == 403  # one use
+    auth = {"Authorization": f"Bearer {key}"}
+    assert request(port, "/settings", {**own, **auth}).status == 200
+    assert request(port, "/settings", {"Host": f"evil.example:{port}", **auth}).status == 403
+    upgrade = {**own, "Connection": "Upgrade", "Upgrade": "websocket", "Sec-WebSocket-Version": "13",
                "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="}
-    assert request(port, "/ws", {**upgrade, "Origin": "http://localhost:8765"}).status == 403
-    assert request(port, "/ws", {**upgrade, "Origin": "null"}).status == 403
-    return jar
+    assert request(port, f"/ws?key={key}", {**upgrade, "Origin": "http://localhost:8765"}).status == 403
+    assert request(port, f"/ws?key={key}", {**upgrade, "Origin": "null"}).status == 403
+    return key
 
 
 def serve_dir(directory) -> tuple[http.server.ThreadingHTTPServer, int]:
@@ -87,17 +89,17 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
     evil_dir.mkdir()
     server = None
     try:
-        url = run.url()
-        port = urlsplit(url).port
-        check_raw_http(url)
+        port = urlsplit(run.url()).port
+        check_raw_http(run.url())
+        url = run.another_address()  # (the printed one is spent: each opens one page)
         (evil_dir / "index.html").write_text(INTRUDER.replace("PORT", str(port)))
         server, evil_port = serve_dir(evil_dir)
         with sync_playwright() as pw:
             ctx = browser(pw, tmp_path / "profile", ("--host-resolver-rules=MAP evil.example 127.0.0.1",))
-            page = open_console(ctx, url)  # the printed address: one click, and the cookie is set
+            page = open_console(ctx, url)  # the printed address: one click; the page keeps its key itself
             assert page.url == f"http://127.0.0.1:{port}/" and page.evaluate("hitl.me") == "web-1"
 
-            # Pages of other origins in the same browser (it holds the cookie): refused, nothing read or steered.
+            # Pages of other origins in the same browser: refused, nothing read or steered.
             for where in (f"http://127.0.0.1:{evil_port}/index.html", f"http://localhost:{evil_port}/index.html",
                           (evil_dir / "index.html").as_uri()):
                 intruder = ctx.new_page()
@@ -108,13 +110,13 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
                 intruder.close()
             # A rebinding name that resolves to 127.0.0.1: its Host is not the console's.
             rebound = ctx.new_page()
-            resp = rebound.goto(f"http://evil.example:{port}/?token={urlsplit(url).query.split('=', 1)[1]}")
+            resp = rebound.goto(f"http://evil.example:{port}/#token={run.another_address().split('=', 1)[1]}")
             assert resp.status == 403 and "Not open to this page" in rebound.content()
             rebound.close()
 
             # A name of another script: a clear refusal on that page; the console goes on.
             named = ctx.new_page()
-            named.goto(url + "&name=имя")
+            named.goto(with_query(run.another_address(), "name=имя"))
             named.wait_for_function("window.hitl && hitl.refused", timeout=30_000)
             assert "ASCII" in named.locator("#who").inner_text()
             named.close()
@@ -127,7 +129,7 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
             assert not page.evaluate("hitl.closed") and page.evaluate("hitl.pongs") > n
 
             # 20,000 pace controls from one page: a few pass the person's rate limit, the rest are counted.
-            flooder = open_console(ctx, url)
+            flooder = open_console(ctx, run.another_address())
             flooder.evaluate("""() => { for (let i = 0; i < 20000; i++)
                 hitl.ws.send(JSON.stringify({type: 'control', command: 'pace', rate: 1 + (i % 50)})); }""")
             flooder.wait_for_function("(hitl.rejected.control_flood || 0) >= 100", timeout=30_000)
@@ -139,13 +141,14 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
             # Sockets that hold every seat and say nothing: the one past the cap is told the console is full,
             # and a real person still gets in (silent pages are closed to make room).
             page.evaluate("""() => { window.held = []; window.heldMsgs = [];
-                for (let i = 0; i < 8; i++) { const ws = new WebSocket(`ws://${location.host}/ws`);
+                const key = encodeURIComponent(sessionStorage.getItem("hitl-console-key"));
+                for (let i = 0; i < 8; i++) { const ws = new WebSocket(`ws://${location.host}/ws?key=${key}`);
                     ws.onmessage = (ev) => window.heldMsgs.push(JSON.parse(ev.data).type === 'refused'
                         ? JSON.parse(ev.data).reason : 'msg');
                     window.held.push(ws); } }""")
             page.wait_for_function("window.heldMsgs.includes('full')", timeout=20_000)
             page.wait_for_timeout(7000)
-            late = open_console(ctx, url)
+            late = open_console(ctx, run.another_address())
             assert late.evaluate("hitl.me").startswith("web-")
 
             page.click("#end")
@@ -158,7 +161,7 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
         run.close()
     stats = json.loads((run.rundir / "stats" / "teacher.web.json").read_text())["counters"]
     assert stats["door_refused_origin"] >= 3 and stats["door_refused_host"] >= 4, stats
-    assert stats["door_refused_no_token"] >= 4 and stats["page_refused_bad_name"] == 1
+    assert stats["door_refused_no_token"] >= 3 and stats["page_refused_bad_name"] == 1
     assert stats["page_rejected_control_flood"] >= 19_900 and stats.get("page_errors", 0) == 0
     assert stats["page_refused_full"] >= 1 and stats["page_idle_closed"] >= 1
     controls = [r.message for r in read_log(run.rundir / "session.mcap") if isinstance(r.message, Control)]

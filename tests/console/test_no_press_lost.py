@@ -16,7 +16,7 @@ import pytest
 from common.logs.mcap_read import read_log
 from common.protocol import Credit, Feedback
 
-from .harness import WebRun, _listening, browser, open_console
+from .harness import WebRun, _listening, browser, open_console, with_query
 
 pytestmark = [pytest.mark.live, pytest.mark.browser, pytest.mark.timeout(400)]
 
@@ -45,7 +45,7 @@ def test_a_killed_console_and_a_returning_person_lose_no_press(tmp_path):
     run = WebRun(tmp_path, "noloss", "--env", "maze", "--layout", "2", "--episodes", "400", "--max-steps", "6000",
                  "--rate", "8", "--seed", "7")
     try:
-        url = run.url() + "&name=alice"
+        url = with_query(run.url(), "name=alice")
         with sync_playwright() as pw:
             ctx = browser(pw, tmp_path / "profile")
             page = open_console(ctx, url)
@@ -84,7 +84,7 @@ def test_a_killed_console_and_a_returning_person_lose_no_press(tmp_path):
             page.wait_for_function(ALL_ACKNOWLEDGED, timeout=60_000)
 
             page.close()  # 3. the person leaves and comes back with the same name (a new tab)
-            again = open_console(ctx, url)
+            again = open_console(ctx, with_query(run.another_address(), "name=alice"))
             assert again.evaluate("hitl.me") == "web-alice"
             again.wait_for_function("hitl.shownLog.length >= 10", timeout=30_000)
             press(again, ["-", "+", "-", "+"], 0.4)

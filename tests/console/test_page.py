@@ -66,7 +66,7 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
                 assert fb["credit"]["status"] == "credited", fb["credit"]
 
             # 3. A second person is a teacher of their own; what no page should send is counted and dropped.
-            other = open_console(ctx, url)
+            other = open_console(ctx, run.another_address())
             assert other.evaluate("hitl.me") == "web-2"
             other.wait_for_function("hitl.shownLog.length >= 6", timeout=30_000)
             other.keyboard.press("+")

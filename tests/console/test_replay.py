@@ -44,7 +44,7 @@ def replay_url(session_log):
             if line.startswith("replay: "):
                 break
         url = line.split()[1]
-        assert url.startswith(f"http://127.0.0.1:{port}/?token=") and _listening(port), seen
+        assert url.startswith(f"http://127.0.0.1:{port}/#token=") and _listening(port), seen
         yield url
     finally:
         kill_tree(proc.pid)

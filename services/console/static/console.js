@@ -322,7 +322,7 @@ async function loginParams() {
   const q = new URLSearchParams(location.search);
   const params = new URLSearchParams();
   for (const k of ["name", "teacher", "password"]) if (q.get(k)) params.set(k, q.get(k));
-  const settings = await (await fetch("/settings")).json();
+  const settings = await (await consoleKey.request("/settings")).json();
   if (settings.login && !params.get("password")) {  // --security: a teacher name and its password
     params.set("teacher", prompt("teacher name") || "");
     params.set("password", prompt("password") || "");
@@ -333,7 +333,15 @@ async function loginParams() {
 
 async function connect() {
   let params;
-  try { params = await loginParams(); } catch (e) { return reconnectLater(); }  // the console is restarting
+  try {
+    params = await loginParams();
+    params.set("key", await consoleKey.get());
+  } catch (e) {
+    if (!e.refused) return reconnectLater();  // the console is restarting
+    hitl.refused = { reason: "key", why: e.message };
+    document.getElementById("who").textContent = `not connected: ${e.message}`;
+    return;
+  }
   const ws = hitl.ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws?${params}`);
   ws.binaryType = "arraybuffer";
   ws.onopen = () => {  // a burst until the clock is ready, then a ping every 2 s
@@ -350,5 +358,9 @@ async function connect() {
     document.getElementById("who").textContent += " (disconnected)";
     if (!hitl.ended && !hitl.refused) reconnectLater(); };
 }
+document.getElementById("invite").addEventListener("click", async () => {
+  const box = document.getElementById("invited");
+  box.value = await consoleKey.invite(); box.hidden = false; box.select();
+});
 function reconnectLater() { setTimeout(connect, 1000); }  // a restarted console: the page comes back by itself
 connect();

@@ -9,7 +9,7 @@ const replay = window.replay = { data: null, index: 0, playing: false, timer: nu
 
 // ---------------------------------------------------------------- loading
 async function load() {
-  const data = replay.data = await (await fetch("/timeline.json")).json();
+  const data = replay.data = await (await consoleKey.request("/timeline.json")).json();
   data.steps.forEach((s, i) => replay.bySeq.set(`${s.actor}/${s.seq}`, i));
   data.credits.forEach((c, k) => {
     replay.feedbackX.push(stepAxis(c.t));
