@@ -17,9 +17,10 @@ Credential files (JSON, mode 0600 in a 0700 folder) come in two kinds:
   the keys of the services a teacher listens to (actor, learner, launcher, recorder), never the secret: it
   cannot sign as another teacher. On the secured router the access rules also confine it to its own keys.
 
-Replays: per (identity, key) a receiver keeps the newest (incarnation, counter, time): the same incarnation
-must count up; another incarnation is accepted only if it signed later than the newest accepted sample (an
-authenticated restart), never an older one. No zenoh import: the pure core may use this.
+Replays: per (identity, key) a receiver keeps one counter per incarnation (the latest MAX_INCARNATIONS): a sample
+must count up in its own incarnation. Incarnations are not ordered by time, so a copy forged with a stolen teacher
+key under a new incarnation and a later time cannot make a receiver drop the real teacher's next press (issue 33);
+an old sample replayed late is still refused by its signing time (`stale_signature`). No zenoh import.
 """
 from __future__ import annotations
 
@@ -43,6 +44,7 @@ VERSION = b"H1"
 TAG_BYTES = 32
 _HEAD = struct.Struct(">QdB")  # counter, signing time, len(incarnation)
 DOMAIN = b"hitl-auth-v1"
+MAX_INCARNATIONS = 16  # incarnations of one signer on one key whose counters a receiver keeps
 #: Identities whose keys a teacher credential carries (to check what a teacher listens to).
 TEACHER_VERIFIES = ("actor", "learner", "launcher", "recorder")
 
@@ -50,7 +52,7 @@ AUTH_REASONS: dict[str, str] = {
     "unauthenticated": "no authentication envelope, or one that does not parse",
     "not_permitted": "the signer may not publish on this key (common.protocol.PUBLISHES), or is unknown here",
     "bad_tag": "the tag does not match the payload, key and signer (forged or altered)",
-    "replayed": "a counter not newer than one already accepted, or an older incarnation of the signer",
+    "replayed": "a counter not newer than one already accepted from the same incarnation of the signer",
     "stale_signature": "signed more than `max_past` s before arrival or `max_future` s after",
 }
 
@@ -106,8 +108,6 @@ class Credential:
             raise AuthError(f"{where}: key and secret disagree")
         return cred
 
-
-# -- files ------------------------------------------------------------------------------------------------------
 
 def _write_private(path: Path, data: bytes) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -216,7 +216,7 @@ class Auth:
         self._counter = 0
         self._lock = threading.Lock()
         self._keys: dict[str, bytes | None] = {}
-        self._last: dict[tuple[str, str], tuple[str, int, float]] = {}  # (identity, key) -> (inc, counter, t)
+        self._last: dict[tuple[str, str], dict[str, int]] = {}  # (identity, key) -> {incarnation: counter}
         self.rejected: dict[str, int] = {}  # "<reason>_<key kind>" -> count (a service's `auth_*` counters)
         head = cred.identity.encode()
         self._ident = VERSION + bytes([len(head)]) + head
@@ -268,14 +268,21 @@ class Auth:
         if not (now - self.max_past <= t <= now + self.max_future):
             return "stale_signature"
         with self._lock:
-            last = window.get((identity, key_expr))
-            if last is not None:
-                if inc == last[0] and n <= last[1]:
-                    return "replayed"
-                if inc != last[0] and t <= last[2]:
-                    return "replayed"
-            window[(identity, key_expr)] = (inc, n, t)
-        return None
+            return _count_up(window.setdefault((identity, key_expr), {}), inc, n)
+
+
+def _count_up(counters: dict[str, int], inc: str, n: int) -> str | None:
+    """A sample is new if it counts up in its own incarnation: no other incarnation (a forged one signed later with
+    a stolen key) makes a real one's next sample look old. Past MAX_INCARNATIONS the least recently used is
+    forgotten (replaying its samples needs that many newer incarnations: a key holder, who can sign anyway)."""
+    last = counters.get(inc)
+    if last is not None and n <= last:
+        return "replayed"
+    counters.pop(inc, None)  # (re-inserted last: the dict's order is the order of use)
+    counters[inc] = n
+    while len(counters) > MAX_INCARNATIONS:
+        del counters[next(iter(counters))]
+    return None
 
 
 class SignAsSender:
