@@ -244,6 +244,12 @@ class Hub:
 
     def shown(self, person: Person, m: dict) -> None:
         t_action = self.recent.get((m["actor"], m["seq"]))
+        if m.get("resend"):  # painted before this console started: rebuilds the timeline only (logged then)
+            t_action = t_action if t_action is not None else m.get("t_action")
+            t_shown = m["t_sys"] if t_action is None else max(m["t_sys"], t_action)
+            added = person.timeline.add(m["actor"], m["seq"], t_shown)
+            self.rt.counters["shown_resent" if added else "shown_resent_known"] += 1
+            return
         if t_action is None:
             self.rt.counters["page_rejected_unknown_step"] += 1
             return

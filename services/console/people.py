@@ -147,9 +147,14 @@ class PageGate:
             if not isinstance(actor, str) or not 1 <= len(actor) <= 128 or not set(actor) <= _TOKEN_CHARS:
                 raise PageError("bad_value", f"actor must match {TOKEN_PATTERN}")
             # A paint cannot be later than its report's arrival: one stamped ahead (a page whose clock estimate is
-            # being corrected, docs/console.md) is placed at its arrival, not dropped; an absurd one still is.
-            t_sys = min(self._system_time(msg, person, self.max_clock_skew), self.clock())
-            return {"type": "shown", "seq": seq, "actor": actor, "t_page": float(msg["t_page"]), "t_sys": t_sys}
+            # being corrected, docs/console.md) is placed at its arrival, not dropped; an absurd one still is. A
+            # paint re-sent after a reconnect (to rebuild a restarted console's timeline) may be older.
+            resend = msg.get("resend") is True
+            past = self.resend_window if resend else None
+            t_sys = min(self._system_time(msg, person, self.max_clock_skew, past), self.clock())
+            t_action = _number(msg, "t_action", 0.0, self.clock()) if resend and "t_action" in msg else None
+            return {"type": "shown", "seq": seq, "actor": actor, "t_page": float(msg["t_page"]), "t_sys": t_sys,
+                    "resend": resend, "t_action": t_action}
         if kind == "feedback":
             try:
                 return self._feedback(msg, person)

@@ -17,8 +17,10 @@ security file knows. What one page sends or breaks stays with that page (`Pages`
 from __future__ import annotations
 
 import asyncio
+import importlib
 import json
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -276,6 +278,9 @@ def main(config: ConsoleConfig) -> int:
         from services.console.replay import replay_main
 
         return replay_main(config)
+    # torch (the agent showing Q and H) takes seconds to import: while the Zenoh session opens, not after it, so
+    # a restarted console is back for its pages sooner (issue 33)
+    threading.Thread(target=importlib.import_module, args=("common.agents.torch_agent",), daemon=True).start()
     rt = ServiceRuntime(teacher_service_name(config.teacher_prefix), config)
     with rt.session() as session:
         asyncio.run(serve(config, rt, session))

@@ -188,6 +188,18 @@ function acknowledge(m) {
   const i = hitl.held.findIndex((h) => h.seq === m.seq && h.teacher === m.teacher_id);
   if (i >= 0) { hitl.held.splice(i, 1); keepHeld(); showTrail(); }
 }
+const RESHOW_S = 10;  // s of paints before the oldest held press re-sent with it (longer than any assumed delay)
+function reshow() {  // after a reconnect: the paints the held presses may be about, so that a restarted console
+  // (which lost this page's screen timeline) lists the steps they were about, at the times they were shown
+  if (!hitl.held.length) return;
+  const since = Math.min(...hitl.held.map((h) => h.t_page + h.offset)) - RESHOW_S;
+  for (const s of hitl.shownLog) {
+    if (s.t_sys < since) continue;
+    send({ type: "shown", seq: s.seq, actor: s.actor, t_page: s.t_page, offset: s.t_sys - s.t_page,
+      rtt: Math.min(hitl.clock.rtt, 60), t_action: s.t_action, resend: true });
+    hitl.reshown = (hitl.reshown || 0) + 1;
+  }
+}
 function resendHeld() {  // after (re)connecting: the presses not yet acknowledged, paced below the press limit
   const queue = hitl.held.slice();
   const next = () => {
@@ -336,6 +348,9 @@ async function connect() {
   try {
     params = await loginParams();
     params.set("key", await consoleKey.get());
+    // after a close, wait until the console answers plain HTTP: Chromium delays a WebSocket after failed ones by
+    // up to seconds (its throttle), and a restarted console would wait for the page
+    if (hitl.closed) await consoleKey.request("/settings", { cache: "no-store" });
   } catch (e) {
     if (!e.refused) return reconnectLater();  // the console is restarting
     hitl.refused = { reason: "key", why: e.message };
@@ -352,7 +367,11 @@ async function connect() {
   ws.onmessage = (ev) => {
     const m = JSON.parse(ev.data);
     onMessage(m);
-    if (m.type === "hello") { hitl.connections = (hitl.connections || 0) + 1; resendHeld(); }
+    if (m.type === "hello") {
+      (hitl.helloAt = hitl.helloAt || []).push(pageNow());  // (when the page got in, each time)
+      if (hitl.connections) reshow();
+      hitl.connections = (hitl.connections || 0) + 1; resendHeld();
+    }
   };
   ws.onclose = () => { clearInterval(hitl.pinger); clearInterval(hitl.burst); hitl.closed = true;
     document.getElementById("who").textContent += " (disconnected)";
@@ -362,5 +381,7 @@ document.getElementById("invite").addEventListener("click", async () => {
   const box = document.getElementById("invited");
   box.value = await consoleKey.invite(); box.hidden = false; box.select();
 });
-function reconnectLater() { setTimeout(connect, 1000); }  // a restarted console: the page comes back by itself
+// a restarted console: the page comes back by itself (every 0.25 s: a refused connection costs nothing, and the
+// console is back within seconds)
+function reconnectLater() { setTimeout(connect, 250); }
 connect();
