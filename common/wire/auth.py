@@ -293,7 +293,7 @@ class SignAsSender:
         if cred.secret is None:
             raise AuthError(f"re-publishing a run needs a service credential (with the run secret), not "
                             f"{cred.identity!r}'s teacher credential")
-        self.cred = cred
+        self.cred, self.secret = cred, cred.secret
         self._auths: dict[str, Auth] = {}
 
     def sign(self, key_expr: str, payload: bytes) -> bytes | None:
@@ -301,7 +301,7 @@ class SignAsSender:
         if identity is None:
             return None
         if identity not in self._auths:
-            self._auths[identity] = Auth(service_credential(self.cred.secret, self.cred.run, identity))
+            self._auths[identity] = Auth(service_credential(self.secret, self.cred.run, identity))
         return self._auths[identity].sign(key_expr, payload)
 
 

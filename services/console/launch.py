@@ -11,7 +11,7 @@ def console_defaults(up: Any) -> dict:
     """A person watches: pace 2 steps/s unless the user chose one, and time for the last presses to land."""
     from common.envs.scene import static_scene
 
-    out = {}
+    out: dict[str, Any] = {}
     if static_scene(up.env, up.layout) is None:  # no drawing of ours: show the env's own picture
         out["render_frames"] = True
     if up.idle_updates == 0:  # at a person's pace the learner has time to spare between steps
@@ -44,7 +44,7 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
     address = console_address(scheme, host, port, Keys(read_or_make_token(token_file)).entry())
     # printed once the console listens (the launcher watches the port): the address opens at the first click
     up.listening_banners = getattr(up, "listening_banners", []) + [(host, port, f"console: {address}{waits}")]
-    procs = [(f"teacher.{prefix}", "services.console", console)]
+    procs: list[tuple[str, str, object]] = [(f"teacher.{prefix}", "services.console", console)]
     if up.webcam:
         from services.perception.config import PerceptionLiveConfig
 

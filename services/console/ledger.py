@@ -72,7 +72,7 @@ class Ledger:
         t = self.teacher(tid)
         page = self.pages.get(page_id) if page_id else None
         key = None if press is None or page is None or page["teacher"] != tid else str(press)
-        if key is not None and key in page["presses"]:
+        if key is not None and page is not None and key in page["presses"]:
             t["resent"] += 1
             self.save()
             return int(page["presses"][key]), True
@@ -80,7 +80,7 @@ class Ledger:
         t["next_seq"] = seq + 1
         t["published"] += 1
         t["received"] += 1  # (a re-send of a press this console never got is its first receipt)
-        if key is not None:
+        if key is not None and page is not None:
             page["presses"][key] = seq
             while len(page["presses"]) > MAX_PRESSES:
                 del page["presses"][next(iter(page["presses"]))]

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from common.logs.mcap_read import NotMcapError, read_log
 from common.protocol import Credit, ExpressionPrediction, Feedback, Ingest, Shown, Step
 
 
-def _stats(values: list[float], scale: float = 1e3) -> dict | None:
+def _stats(values: Sequence[float], scale: float = 1e3) -> dict | None:
     if not values:
         return None
     a = np.asarray(values, np.float64) * scale
@@ -101,7 +102,8 @@ class FirstUse:
     def _match(self, c: Credit, steps: list[Step], t: np.ndarray) -> None:
         after = int(np.searchsorted(t, c.t_credited, side="right"))  # the first action after the H update
         for i in range(after, len(steps)):
-            if steps[i].weights_revision is not None and steps[i].weights_revision >= c.revision:
+            revision = steps[i].weights_revision
+            if revision is not None and c.revision is not None and revision >= c.revision:
                 self.pairs.append((c, steps[i], i - after))
                 return
         self.unused += 1
@@ -123,7 +125,7 @@ def rule_agreement(credit: Credit, infos: dict) -> float | None:
     if not rows or any(i is None or "target_distance_after" not in i for _, i in rows):
         return None
     total = sum(w for w, _ in rows)
-    return sum(w for w, i in rows if progress_rule(i) == credit.value) / total
+    return sum(w for w, i in rows if i is not None and progress_rule(i) == credit.value) / total
 
 
 @dataclass(frozen=True)

@@ -56,7 +56,10 @@ def timeline(path) -> dict:
     values, learner = _learner_run(path)
     env, layout = learner.get("env", "maze"), int(learner.get("layout") or 0)
     tracker = SceneTracker(env, layout)
-    steps, credits, curve, run = [], [], [], None
+    steps: list[dict] = []
+    credits: list[dict] = []
+    curve: list[dict] = []
+    run: str | None = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", LogRecoveryWarning)
         reader = read_log(path)
@@ -127,9 +130,9 @@ def replay_main(config) -> int:
         app.router.add_static("/static/", static)
         runner = web.AppRunner(app, access_log=None)
         await runner.setup()
-        site = web.TCPSite(runner, config.host, config.port)
-        await site.start()
-        port = site._server.sockets[0].getsockname()[1]
+        assert runner.server is not None  # (after setup)
+        server = await asyncio.get_running_loop().create_server(runner.server, config.host, config.port)
+        port = server.sockets[0].getsockname()[1]  # (port 0: the system's choice)
         keys = Keys(read_or_make_token(config.token_file), spent_file_for(config.token_file))
         doors.append(Door(keys, config.host, port, "http", collections.Counter()))
         print(f"replay: {doors[0].address()} ({path})", file=sys.stderr,
@@ -137,6 +140,7 @@ def replay_main(config) -> int:
         try:
             await asyncio.Event().wait()
         finally:
+            server.close()
             await runner.cleanup()
 
     try:

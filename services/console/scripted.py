@@ -95,7 +95,9 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
         cmd += ["--episode-steps", str(cfg.episode_steps)]
     up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
-    threading.Thread(target=lambda: lines.extend(up.stdout), daemon=True).start()
+    out = up.stdout
+    assert out is not None  # (stdout=PIPE)
+    threading.Thread(target=lambda: lines.extend(out), daemon=True).start()
     t0 = time.monotonic()
     try:
         url = None

@@ -66,6 +66,8 @@ def check_login(config: ConsoleConfig, request: web.Request) -> str | None:
     from common.security import SecurityError
 
     name, password = request.query.get("teacher", ""), request.query.get("password", "")
+    if not config.security:
+        return None
     security = load_security(config.security)
     try:
         username = security.username("teacher", name)
@@ -303,6 +305,6 @@ def cli(argv: list[str] | None = None) -> int:
         studies = {"scripted": Command(scripted.ScriptedConfig, scripted.main),
                    "compare": Command(compare.CompareConfig, compare.main),
                    "measure": Command(measure.MeasureConfig, measure.main)}
-        return run_commands("python -m services.console", cli.__doc__, studies, argv)
+        return run_commands("python -m services.console", cli.__doc__ or "", studies, argv)
     return service_main(ConsoleConfig, main, argv, "python -m services.console",
                         also="Also: python -m services.console scripted|compare|measure --help.")

@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -42,6 +43,7 @@ class WebRun:
         self._reader.start()
 
     def _read(self) -> None:
+        assert self.popen.stdout is not None  # (stdout=PIPE)
         for line in self.popen.stdout:
             self.lines.append(line)
 
@@ -93,6 +95,12 @@ def browser(playwright, user_data_dir: Path, extra_args: tuple[str, ...] = (), p
         permissions=list(permissions), viewport={"width": 1280, "height": 760}, ignore_https_errors=ignore_https_errors)
 
 
+def port_of(address: str) -> int:
+    port = urlsplit(address).port
+    assert port is not None, address
+    return port
+
+
 def with_query(address: str, query: str) -> str:
     """The address with `query` (e.g. name=alice) before its fragment."""
     base, _, fragment = address.partition("#")
@@ -136,7 +144,7 @@ def canvas_pixels(page) -> np.ndarray:
     import cv2
 
     png = page.locator("#scene").screenshot()
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    img = np.asarray(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR))
     border = page.evaluate("parseFloat(getComputedStyle(document.getElementById('scene')).borderLeftWidth)")
     b = int(round(border))
     return img[b:img.shape[0] - b, b:img.shape[1] - b]

@@ -10,11 +10,10 @@ import json
 import os
 import signal
 import time
-from urllib.parse import urlsplit
 
 import pytest
 
-from .harness import WebRun, _listening, browser, open_console, with_query
+from .harness import WebRun, _listening, browser, open_console, port_of, with_query
 from .test_no_press_lost import service_pid
 
 pytestmark = [pytest.mark.live, pytest.mark.browser, pytest.mark.timeout(400)]
@@ -52,7 +51,7 @@ def test_presses_given_while_the_console_restarts_are_kept_and_credited(tmp_path
     )
     try:
         url = with_query(run.url(), "name=alice")
-        port = urlsplit(url).port
+        port = port_of(url)
         with sync_playwright() as pw:
             ctx = browser(pw, tmp_path / "profile")
             page = open_console(ctx, url)

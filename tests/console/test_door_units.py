@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import json
 import os
 import socket
 
@@ -45,8 +46,10 @@ async def door_checks() -> None:
     entry = keys.entry()
     entered = await through(door, "/enter", {**own, "Authorization": f"Bearer {entry}"}, "POST")
     assert entered.status == 200 and "Set-Cookie" not in entered.headers
-    key = __import__("json").loads(entered.body)["key"]
+    assert isinstance(entered, web.Response) and isinstance(entered.body, bytes)
+    key = json.loads(entered.body)["key"]
     again = await through(door, "/enter", {**own, "Authorization": f"Bearer {entry}"}, "POST")
+    assert isinstance(again, web.Response) and isinstance(again.body, bytes)
     assert again.status == 403 and b"used already" in again.body  # one use
     auth = {"Authorization": f"Bearer {key}"}
     assert (await through(door, "/settings", {**own, **auth})).status == 200
@@ -84,7 +87,7 @@ def test_the_secret_is_private_and_a_spent_key_stays_spent_across_a_restart(tmp_
     keys = Keys(secret, spent_file_for(str(path)))
     entry, session = keys.entry(), keys.session()
     assert keys.spend(entry) == "ok" and keys.spend(entry) == "spent" and keys.spend("e.x.y") == "bad"
-    assert os.stat(spent_file_for(str(path))).st_mode & 0o777 == 0o600
+    assert os.stat(str(spent_file_for(str(path)))).st_mode & 0o777 == 0o600
     restarted = Keys(read_or_make_token(str(path)), spent_file_for(str(path)))  # a restarted console
     assert restarted.spend(entry) == "spent" and restarted.valid("s", session)
     assert restarted.spend(restarted.entry()) == "ok"
@@ -128,6 +131,7 @@ async def guard_checks() -> None:
     app.router.add_get("/settings", _settings)
     runner = web.AppRunner(app, access_log=None)
     await runner.setup()
+    assert runner.server is not None
     server = await asyncio.get_running_loop().create_server(guard.factory(runner.server), sock=sock)
     sweeper = asyncio.create_task(guard.sweeper())
     try:

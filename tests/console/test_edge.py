@@ -17,7 +17,7 @@ from common.logs.mcap_read import read_log
 from common.protocol import Control
 from common.wire.transport import free_port
 
-from .harness import WebRun, browser, open_console, with_query
+from .harness import WebRun, browser, open_console, port_of, with_query
 
 pytestmark = [pytest.mark.live, pytest.mark.browser, pytest.mark.timeout(400)]
 
@@ -32,19 +32,27 @@ fetch("http://127.0.0.1:PORT/settings", {credentials: "include"}).then(
 </script>"""
 
 
-def request(port: int, path: str, headers: dict, method: str = "GET") -> http.client.HTTPResponse:
+class Answer:
+    """An HTTP answer, read whole."""
+
+    def __init__(self, resp: http.client.HTTPResponse):
+        self.status, self.body, self.headers = resp.status, resp.read(), resp.headers
+
+    def getheader(self, name: str) -> str | None:
+        return self.headers.get(name)
+
+
+def request(port: int, path: str, headers: dict, method: str = "GET") -> Answer:
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=20)
     conn.request(method, path, headers=headers)
-    resp = conn.getresponse()
-    resp.body = resp.read()
+    answer = Answer(conn.getresponse())
     conn.close()
-    return resp
+    return answer
 
 
 def check_raw_http(url: str) -> str:
     """The door by plain HTTP: the printed address's key buys a session key once, and no cookie; returns it."""
-    parts = urlsplit(url)
-    port, entry = parts.port, parts.fragment.split("=", 1)[1]
+    port, entry = port_of(url), urlsplit(url).fragment.split("=", 1)[1]
     own = {"Host": f"127.0.0.1:{port}"}
     for path in ("/settings", "/ws", "/invite"):  # nothing of the run without a key
         r = request(port, path, own)
@@ -71,10 +79,14 @@ def check_raw_http(url: str) -> str:
     return key
 
 
+class QuietHandler(http.server.SimpleHTTPRequestHandler):
+    def log_message(self, *args) -> None:
+        pass
+
+
 def serve_dir(directory) -> tuple[http.server.ThreadingHTTPServer, int]:
     port = free_port()
-    handler = partial(http.server.SimpleHTTPRequestHandler, directory=str(directory))
-    handler.log_message = lambda *a: None
+    handler = partial(QuietHandler, directory=str(directory))
     server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     return server, port
@@ -89,7 +101,7 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
     evil_dir.mkdir()
     server = None
     try:
-        port = urlsplit(run.url()).port
+        port = port_of(run.url())
         check_raw_http(run.url())
         url = run.another_address()  # (the printed one is spent: each opens one page)
         (evil_dir / "index.html").write_text(INTRUDER.replace("PORT", str(port)))

@@ -34,8 +34,8 @@ def test_the_page_gate_bounds_names_numbers_and_controls():
         try:
             gate.text(json.dumps({"type": "control", "command": "pace", "rate": 4}), person)
             passed += 1
-        except PageError as e:
-            assert e.reason == "control_flood"
+        except PageError as refused:
+            assert refused.reason == "control_flood"
     assert passed == 5  # the burst; then 2 per second
     old = {"type": "feedback", "value": 1, "t_page": NOW - 60, "offset": 0, "rtt": 0, "press": 1}
     with pytest.raises(PageError):

@@ -11,13 +11,12 @@ import os
 import socket
 import threading
 import time
-from urllib.parse import urlsplit
 
 import pytest
 
 from services.console.config import ConsoleConfig
 
-from .harness import WebRun, browser, open_console
+from .harness import WebRun, browser, open_console, port_of
 
 pytestmark = [pytest.mark.live, pytest.mark.browser, pytest.mark.timeout(500)]
 
@@ -78,11 +77,11 @@ def test_a_person_teaches_through_thousands_of_idle_sockets(tmp_path):
         "3",
     )
     held: list[socket.socket] = []
-    stop, closed = threading.Event(), []
+    stop, closed = threading.Event(), list[float]()
     slow = None
     try:
         url = run.url()
-        port = urlsplit(url).port
+        port = port_of(url)
         with sync_playwright() as pw:
             ctx = browser(pw, tmp_path / "profile")
             page = open_console(ctx, url)

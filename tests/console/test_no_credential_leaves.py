@@ -11,13 +11,13 @@ import http.server
 import json
 import sqlite3
 import threading
-from urllib.parse import unquote, urlsplit
+from urllib.parse import unquote
 
 import pytest
 
 from common.wire.transport import free_port
 
-from .harness import WebRun, browser, open_console
+from .harness import WebRun, browser, open_console, port_of
 
 pytestmark = [pytest.mark.live, pytest.mark.browser, pytest.mark.timeout(400)]
 
@@ -73,7 +73,7 @@ def test_another_port_learns_nothing_and_history_holds_no_usable_key(tmp_path):
     profile = tmp_path / "profile"
     try:
         url = run.url()
-        port = urlsplit(url).port
+        port = port_of(url)
         Recorder.page = THIEF.replace("PORT", str(port)).encode()
         secret = (run.rundir / "state" / "teacher.web.token").read_text().strip()
         with sync_playwright() as pw:

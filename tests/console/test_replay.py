@@ -39,6 +39,7 @@ def replay_url(session_log):
                             text=True, start_new_session=True)
     try:
         seen = ""
+        assert proc.stdout is not None  # (stdout=PIPE)
         for line in proc.stdout:  # the address, with its token, is printed once the server listens
             seen += line
             if line.startswith("replay: "):
@@ -55,7 +56,7 @@ def cell_bgr(page, row: int, col: int, size: int = 8) -> np.ndarray:
     import cv2
 
     png = page.locator("#scene").screenshot()
-    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)[1:-1, 1:-1]
+    img = np.asarray(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR))[1:-1, 1:-1]
     c = img.shape[0] / size
     return img[int((row + 0.5) * c), int((col + 0.5) * c)].astype(int)
 
