@@ -83,6 +83,12 @@ def test_another_port_learns_nothing_and_history_holds_no_usable_key(tmp_path):
             key = page.evaluate("sessionStorage.getItem('hitl-console-key')")
             assert key.startswith("s.") and page.evaluate("document.cookie") == "" and ctx.cookies() == []
 
+            page.click("#invite")  # another tab: the page hands out a fresh one-use address
+            page.wait_for_function("document.getElementById('invited').value.includes('#token=e.')")
+            second = open_console(ctx, page.input_value("#invited"))
+            assert second.evaluate("hitl.me") == "web-2"
+            second.close()
+
             thief = ctx.new_page()
             thief.goto(f"http://127.0.0.1:{evil_port}/thief.html")
             thief.wait_for_function("window.seen && window.seen.ws", timeout=30_000)
