@@ -122,6 +122,7 @@ def replay_main(config) -> int:
         import collections
 
         from services.console.door import Door, Keys, read_or_make_token, spent_file_for
+        from services.console.sockets import SocketGuard
 
         app = web.Application(middlewares=[door])
         app.router.add_get("/", index)
@@ -131,15 +132,20 @@ def replay_main(config) -> int:
         runner = web.AppRunner(app, access_log=None)
         await runner.setup()
         assert runner.server is not None  # (after setup)
-        server = await asyncio.get_running_loop().create_server(runner.server, config.host, config.port)
+        counters: collections.Counter = collections.Counter()  # (a replay keeps no stats)
+        guard = SocketGuard(counters, config.header_timeout, config.unauthenticated_idle,
+                            config.max_connections_per_address, config.max_connections)  # as the live console
+        server = await asyncio.get_running_loop().create_server(guard.factory(runner.server), config.host,
+                                                                config.port)
         port = server.sockets[0].getsockname()[1]  # (port 0: the system's choice)
         keys = Keys(read_or_make_token(config.token_file), spent_file_for(config.token_file))
-        doors.append(Door(keys, config.host, port, "http", collections.Counter()))
-        print(f"replay: {doors[0].address()} ({path})", file=sys.stderr,
-              flush=True)
+        doors.append(Door(keys, config.host, port, "http", counters, guard=guard))
+        print(f"replay: {doors[0].address()} ({path})", file=sys.stderr, flush=True)
+        sweeper = asyncio.create_task(guard.sweeper())
         try:
             await asyncio.Event().wait()
         finally:
+            sweeper.cancel()
             server.close()
             await runner.cleanup()
 
