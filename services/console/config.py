@@ -6,15 +6,15 @@ from dataclasses import dataclass
 
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
-from common.config import option
+from common.config import Groups, all_but, nested, option
 from common.core.delay import delay_from_spec
-from common.core.delay_model import LearnedDelayConfig, check_delay_estimate_spec, is_learned
+from common.core.delay_model import LearnedDelayConfig, is_learned
 from common.protocol import MAX_RATE
-from services.common.config import TaskConfig, _check_name
+from services.common.config import ActorSettings, LearnerSettings, TaskConfig, _check_name
 
 
 @dataclass(frozen=True)
-class ConsoleConfig(TaskConfig):
+class ConsoleConfig(TaskConfig, Groups):
     """The console: one web page per person, bridged to the run over a WebSocket. A person watches the agent
     (environment picture, learning curve, Q and H per action), teaches it with keys, buttons or their webcam,
     and paces, pauses or ends the run. Each open page is its own teacher (`<teacher-prefix>-<n>`); its feedback
@@ -27,12 +27,15 @@ class ConsoleConfig(TaskConfig):
     port: int = option(8765, "web server port (the launcher picks a free one)")
     teacher_prefix: str = option("web", "people are teachers <prefix>-1, <prefix>-2, ... in the order they open "
                                         "the page (or <prefix>-<name> with ?name=NAME)")
-    rate: float = option(2.0, "the actor's pace at start (steps per second), shown on the page")
-    episodes: int = option(50, "episodes of the run (the learning curve's width)")
-    start_on_first_page: bool = option(False, "the actor waits paused (its --start-paused) until the first page "
-                                              "opens; then this console resumes it")
-    screen_delay: str = option("learned", "the learner's delay in seconds (its longest value sets how far back a "
-                                          "feedback lists the steps shown: 6 s for a learned one)")
+    actor: ActorSettings = option(ActorSettings(), "the run's actor: its pace at start (shown on the page), its "
+                                                   "episodes (the learning curve's width), and start-paused: it "
+                                                   "waits until the first page opens, then this console resumes it",
+                                  flatten=True, exclude=all_but(ActorSettings, "rate", "episodes", "start_paused"),
+                                  was={"start_paused": "--start-on-first-page"})
+    learner: LearnerSettings = option(LearnerSettings(), "the run's learner: its screen delay's longest value sets "
+                                                         "how far back a feedback lists the steps shown (6 s for a "
+                                                         "learned one)",
+                                      flatten=True, exclude=all_but(LearnerSettings, "screen_delay"))
     camera: str | None = option(None, "camera id to publish webcam frames on (hitl/<run>/camera/<camera>) for the "
                                       "perception service; none = no webcam panel")
     state_file: str | None = option(None, "the press ledger (services/console/ledger.py), rewritten before each "
@@ -58,14 +61,16 @@ class ConsoleConfig(TaskConfig):
 
     def __post_init__(self):
         object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
+        object.__setattr__(self, "actor", nested(self.actor, ActorSettings, name="actor"))
+        object.__setattr__(self, "learner", nested(self.learner, LearnerSettings, name="learner"))
         super().__post_init__()
         _check_name(self.teacher_prefix, "teacher-prefix")
         if self.camera is not None:
             _check_name(self.camera, "camera")
         if not 0 <= self.port < 65536:
             raise ValueError(f"port must be in 0..65535, got {self.port}")
-        if not (math.isfinite(self.rate) and 0 < self.rate <= MAX_RATE):
-            raise ValueError(f"rate must be in (0, {MAX_RATE}], got {self.rate}")
+        if not self.rate <= MAX_RATE:  # (the actor's own check: >= 0, 0 = as fast as possible)
+            raise ValueError(f"rate must be at most {MAX_RATE}, got {self.rate}")
         for name in ("max_frame_rate", "max_press_rate", "max_clock_skew", "stop_after", "idle_timeout",
                      "max_control_rate"):
             v = getattr(self, name)
@@ -73,7 +78,11 @@ class ConsoleConfig(TaskConfig):
                 raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
         if self.max_people < 1 or self.max_frame_bytes < 1:
             raise ValueError("max-people and max-frame-bytes must be >= 1")
-        check_delay_estimate_spec(self.screen_delay)
+
+    @property
+    def start_on_first_page(self) -> bool:
+        """The actor starts paused: this console resumes it when the first page opens."""
+        return self.actor.start_paused
 
     @property
     def span(self) -> float:
