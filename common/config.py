@@ -349,6 +349,38 @@ def run_commands(prog: str, description: str, commands: dict, argv: list[str] | 
     return ns._command.run(config, argv) if ns._command.argv else ns._command.run(config)
 
 
+def _flag_text(value: Any) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value)
+    return str(value)
+
+
+def config_argv(config: Any) -> list[str]:
+    """The flags that give `config` on its command line (each setting that differs from the default's), for a
+    command written out (compose.yaml): `parse_config(type(config), config_argv(config)) == config`."""
+    cls = type(config)
+    try:
+        base = cls()  # (a preset, e.g. the agent's, says its own values)
+    except ValueError:  # a setting without a usable default
+        base = None
+    out: list[str] = []
+    for path, flag, f, _ in _leaves(cls):
+        value, default = config, base
+        for name in path:
+            value, default = getattr(value, name), getattr(default, name, None)
+        if value == (default if base is not None else _default_at(cls, path, f)):
+            continue
+        if f.metadata.get("positional"):
+            raise ValueError(f"config_argv: positional setting {flag!r} is not supported")
+        words = [str(v) for v in value] if f.metadata.get("nargs") else [_flag_text(value)]
+        out += [f"--{flag}", *words]
+    return out
+
+
 def config_record(config: Any) -> dict:
     """The config as a JSON-able dict (tuples become lists, nested configs nested dicts), with its type name."""
     data = dataclasses.asdict(config)

@@ -35,8 +35,10 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
 
     token_file = up.state_path(f"teacher.{prefix}", ".token")  # kept by a restarted console: open pages go on
     console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), task=up.task, algo=up.algo,
-                            agent=up.agent, host=host, port=port, teacher_prefix=prefix, actor=up.actor,
-                            learner=up.learner, camera=WEBCAM if up.webcam else None, token_file=token_file)
+                            agent=up.agent, host=host, port=port, teacher_prefix=prefix,
+                            actor=dict(rate=up.rate, episodes=up.episodes, start_paused=up.start_paused),
+                            learner=dict(screen_delay=up.screen_delay), camera=WEBCAM if up.webcam else None,
+                            token_file=token_file)
     scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
     waits = " (the run starts when the first page opens)" if up.start_paused else ""
     address = console_address(scheme, host, port, read_or_make_token(token_file))

@@ -126,7 +126,7 @@ class Launch:
         self.cfg, self.run, self.rundir, self.endpoint = cfg, run, rundir, endpoint
         self.connect_endpoints = (endpoint if cfg.host not in ("0.0.0.0", "::") else
                                   endpoint.replace(cfg.host, "127.0.0.1"),)
-        self.parent_pid = os.getpid()
+        self.parent_pid: int | None = os.getpid()
         self.banners: list[str] = []  # printed once the run is up (the Foxglove bridge's address)
         self.listening_banners: list[tuple[str, int, str]] = []  # (host, port, line): printed once that port listens
 
