@@ -94,12 +94,14 @@ class UpConfig(Groups):
         put in the group that declares it: for Python callers, as the command line has them."""
         own = {f.name for f in dataclasses.fields(cls)}
         given: dict[str, Any] = {k: v for k, v in settings.items() if k in own}
-        for group, of in (("actor", ActorSettings), ("learner", LearnerSettings), ("agent", AgentConfig)):
+        groups: tuple[tuple[str, type], ...] = (("task", Task), ("actor", ActorSettings), ("learner", LearnerSettings),
+                                                ("agent", AgentConfig))
+        for group, of in groups:
             names = {f.name for f in dataclasses.fields(of)} - own
             part = {k: v for k, v in settings.items() if k in names}
             if part:
                 given[group] = {**(given.get(group) or {}), **part}
-        unknown = sorted(set(settings) - own - {k for g in ("actor", "learner", "agent") for k in given.get(g) or {}})
+        unknown = sorted(set(settings) - own - {k for g, _ in groups for k in given.get(g) or {}})
         if unknown:
             raise ValueError(f"unknown setting {unknown[0]!r}")
         return cls(**given)
