@@ -14,7 +14,39 @@ from services.common.config import ActorSettings, LearnerSettings, TaskConfig, _
 
 
 @dataclass(frozen=True)
-class ConsoleConfig(TaskConfig, Groups):
+class ConsoleSettings:
+    """What a user sets of the console: declared once, the console's own (`ConsoleConfig` is these plus its
+    wiring) and nested by the launcher (`UpConfig.console`: `--console.port`, `--console.max-people`, ...)."""
+
+    port: int = option(8765, "web server port (services up: 0, a free one)")
+    server_names: tuple[str, ...] = option((), "more names the page may reach the console by (its Host header), "
+                                                "comma-separated: e.g. the machine's DNS name with --host 0.0.0.0 "
+                                                "and --security; loopback names and --host always pass")
+    max_people: int = option(8, "pages that may be open at once (a page idle for idle-timeout s is closed)")
+    idle_timeout: float = option(30.0, "close a page that sent nothing for this many seconds (a page pings every 2 s)")
+    max_control_rate: float = option(2.0, "pace / pause / resume / end controls per second accepted per person "
+                                          "(bursts of 5; more are dropped and counted)")
+    max_frame_bytes: int = option(400_000, "largest webcam frame accepted (JPEG bytes)")
+    max_frame_rate: float = option(15.0, "webcam frames per second accepted per person (more are dropped)")
+    max_press_rate: float = option(8.0, "feedback presses per second accepted per person (a flood is dropped)")
+    max_clock_skew: float = option(5.0, "reject a page time that maps more than this many seconds from the server's "
+                                        "clock (absurd timestamps)")
+    stop_after: float = option(3.0, "seconds to keep serving after the learner stopped (the page shows the end)")
+
+    def __post_init__(self):
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port must be in 0..65535, got {self.port}")
+        for name in ("max_frame_rate", "max_press_rate", "max_clock_skew", "stop_after", "idle_timeout",
+                     "max_control_rate"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
+        if self.max_people < 1 or self.max_frame_bytes < 1:
+            raise ValueError("max-people and max-frame-bytes must be >= 1")
+
+
+@dataclass(frozen=True)
+class ConsoleConfig(TaskConfig, ConsoleSettings, Groups):
     """The console: one web page per person, bridged to the run over a WebSocket. A person watches the agent
     (environment picture, learning curve, Q and H per action), teaches it with keys, buttons or their webcam,
     and paces, pauses or ends the run. Each open page is its own teacher (`<teacher-prefix>-<n>`); its feedback
@@ -24,7 +56,6 @@ class ConsoleConfig(TaskConfig, Groups):
     agent: AgentConfig | None = option(None, "the run's agent (its network holds the weights shown)",
                                        exclude=("algo",))
     host: str = option("127.0.0.1", "address the web server listens on (anything but loopback needs --security)")
-    port: int = option(8765, "web server port (the launcher picks a free one)")
     teacher_prefix: str = option("web", "people are teachers <prefix>-1, <prefix>-2, ... in the order they open "
                                         "the page (or <prefix>-<name> with ?name=NAME)")
     actor: ActorSettings = option(ActorSettings(), "the run's actor: its pace at start (shown on the page), its "
@@ -43,19 +74,6 @@ class ConsoleConfig(TaskConfig, Groups):
                                           "recognises presses their pages re-send")
     token_file: str | None = option(None, "file holding the console's secret token (made, mode 0600, if missing; "
                                           "the launcher puts it in the run directory). None: a new token per start")
-    server_names: tuple[str, ...] = option((), "more names the page may reach the console by (its Host header), "
-                                                "comma-separated: e.g. the machine's DNS name with --host 0.0.0.0 "
-                                                "and --security; loopback names and --host always pass")
-    max_people: int = option(8, "pages that may be open at once (a page idle for idle-timeout s is closed)")
-    idle_timeout: float = option(30.0, "close a page that sent nothing for this many seconds (a page pings every 2 s)")
-    max_control_rate: float = option(2.0, "pace / pause / resume / end controls per second accepted per person "
-                                          "(bursts of 5; more are dropped and counted)")
-    max_frame_bytes: int = option(400_000, "largest webcam frame accepted (JPEG bytes)")
-    max_frame_rate: float = option(15.0, "webcam frames per second accepted per person (more are dropped)")
-    max_press_rate: float = option(8.0, "feedback presses per second accepted per person (a flood is dropped)")
-    max_clock_skew: float = option(5.0, "reject a page time that maps more than this many seconds from the server's "
-                                        "clock (absurd timestamps)")
-    stop_after: float = option(3.0, "seconds to keep serving after the learner stopped (the page shows the end)")
     replay: str | None = option(None, "instead of joining a run: serve this session.mcap (or run directory) as a "
                                       "replay with a timeline to scrub (services/console/replay.py)")
 
@@ -64,20 +82,12 @@ class ConsoleConfig(TaskConfig, Groups):
         object.__setattr__(self, "actor", nested(self.actor, ActorSettings, name="actor"))
         object.__setattr__(self, "learner", nested(self.learner, LearnerSettings, name="learner"))
         super().__post_init__()
+        ConsoleSettings.__post_init__(self)
         _check_name(self.teacher_prefix, "teacher-prefix")
         if self.camera is not None:
             _check_name(self.camera, "camera")
-        if not 0 <= self.port < 65536:
-            raise ValueError(f"port must be in 0..65535, got {self.port}")
         if not self.rate <= MAX_RATE:  # (the actor's own check: >= 0, 0 = as fast as possible)
             raise ValueError(f"rate must be at most {MAX_RATE}, got {self.rate}")
-        for name in ("max_frame_rate", "max_press_rate", "max_clock_skew", "stop_after", "idle_timeout",
-                     "max_control_rate"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
-        if self.max_people < 1 or self.max_frame_bytes < 1:
-            raise ValueError("max-people and max-frame-bytes must be >= 1")
 
     @property
     def start_on_first_page(self) -> bool:

@@ -16,6 +16,7 @@ from common.core.task import Task
 from common.protocol import teacher_id_of
 from services.common.config import (ActorConfig, ActorSettings, FoxgloveConfig, LearnerConfig, LearnerSettings,
                                      RecorderConfig)
+from services.console.config import ConsoleSettings
 from services.teacher.registry import TEACHERS, ProcessSpec, missing_extra
 
 
@@ -51,7 +52,9 @@ class UpConfig(Groups):
                                          "at most 8 s")
     security: str | None = option(None, "security.json of the router machine (python -m services security init): "
                                         "run the secured router (TLS on HOST:PORT) and connect every service to it")
-    console_port: int = option(0, "--teacher web: the console's web port (0 = pick a free one)")
+    console: ConsoleSettings = option(ConsoleSettings(port=0), "--teacher web: the console's settings "
+                                                                "(services.console: the same flags, here --console.*)",
+                                      was={"port": "--console-port"})
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
     foxglove: int | None = option(None, "also serve the run's channels (as in the log) over Foxglove's WebSocket "
                                         "protocol on this port (services/foxglove; docs/logs.md)")
@@ -68,6 +71,8 @@ class UpConfig(Groups):
         object.__setattr__(self, "observer", nested(self.observer, ObserverConfig, name="observer"))
         object.__setattr__(self, "actor", nested(self.actor, ActorSettings))
         object.__setattr__(self, "learner", nested(self.learner, LearnerSettings))
+        from_preset = lambda **given: dataclasses.replace(ConsoleSettings(port=0), **given)  # noqa: E731
+        object.__setattr__(self, "console", nested(self.console, ConsoleSettings, build=from_preset, name="console"))
         object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         if self.teacher not in TEACHERS:
             raise ValueError(f"unknown teacher {self.teacher!r}; choose one of {', '.join(TEACHERS)}")

@@ -149,6 +149,7 @@ def test_the_launcher_gives_each_service_the_one_setting():
             lambda c: c.agent.assumed_delay_probs,
         ),
         (["--update-interval", "4"], ["--agent.update-interval", "4"], lambda c: c.agent.update_interval),
+        (["--console-port", "9123"], ["--console.port", "9123"], lambda c: c.console.port),
     ],
 )
 def test_old_launcher_flags_keep_working(old, new, read):
