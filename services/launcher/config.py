@@ -101,12 +101,17 @@ class UpConfig(Groups):
         given: dict[str, Any] = {k: v for k, v in settings.items() if k in own}
         groups: tuple[tuple[str, type], ...] = (("task", Task), ("actor", ActorSettings), ("learner", LearnerSettings),
                                                 ("agent", AgentConfig))
+        placed = set(given)
         for group, of in groups:
             names = {f.name for f in dataclasses.fields(of)} - own
             part = {k: v for k, v in settings.items() if k in names}
             if part:
-                given[group] = {**(given.get(group) or {}), **part}
-        unknown = sorted(set(settings) - own - {k for g, _ in groups for k in given.get(g) or {}})
+                whole: Any = given.get(group)  # a dict, None or already a `of`
+                if isinstance(whole, of):
+                    whole = {f.name: getattr(whole, f.name) for f in dataclasses.fields(of) if f.init}
+                given[group] = {**(whole or {}), **part}
+                placed |= set(part)
+        unknown = sorted(set(settings) - placed)
         if unknown:
             raise ValueError(f"unknown setting {unknown[0]!r}")
         return cls(**given)

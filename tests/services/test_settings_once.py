@@ -179,3 +179,13 @@ def test_the_scripted_person_s_preset_pace_survives_a_given_episode_count():
     assert (cfg.episodes, cfg.rate) == (3, 2.0)
     assert group_flags(cfg, "actor") == ["--episodes", "3", "--rate", "2.0"]
     assert group_flags(cfg, "learner") == ["--screen-delay", "uniform:0.2,4", "--screen-credit", "onset"]
+
+
+def test_python_callers_name_settings_as_their_flags():
+    from common.core.task import Task
+    from services.launcher.config import UpConfig
+
+    up = UpConfig.flat(task=Task(env="maze", layout=2), seed=3, rate=2.0, update_interval=4, algo="dqn")
+    assert (up.task.layout, up.task.seed, up.actor.rate, up.agent.update_interval) == (2, 3, 2.0, 4)
+    with pytest.raises(ValueError, match="unknown setting 'bogus'"):
+        UpConfig.flat(bogus=1)
