@@ -7,7 +7,9 @@ resulting object is written as the first record of every log (`config_record`).
 Configs nest: a field whose type is a config dataclass becomes a group of dotted flags
 (`--agent.lr 5e-4`, `--observer.p-feedback 0.2`) and a nested object in `--config FILE` (JSON or YAML)
 and in the record. `flatten=True` keeps a group's flags unprefixed (the task's `--env`, `--seed`);
-`exclude=(...)` leaves some of the group's fields off the command line (the parent sets them). The parent builds
+`exclude=(...)` leaves some of the group's fields off the command line (the parent sets them); `was={name: "--old"}`
+on a group (or `was=("--old",)` on a field) keeps a renamed flag working. A parent that subclasses `Groups`
+reads its flattened groups' settings as its own (`up.rate` is `up.actor.rate`). The parent builds
 the nested object from the values given (a dict: see `nested`) in its `__post_init__`, so it can start
 from a preset (the agent's algorithm). Errors (an unknown flag or setting, a bad value) are one line
 naming the offender.
@@ -30,8 +32,9 @@ T = TypeVar("T")
 def option(default: Any, help: str, **extra) -> Any:
     """A documented dataclass field; `choices=`, `positional=True`, `nargs=` ("+", "*", "?": a tuple field
     given as several words, `--grid A B --grid C` adds up), `metavar=`, `flag=` (the flag's name where the
-    field's cannot be it: `--from`), `cli=False`, `flatten=True` and `exclude=(names)` (nested configs) are
-    honoured by the CLI. A bool flag given alone means true."""
+    field's cannot be it: `--from`), `was=("--old-flag",)` (a renamed flag that keeps working), `cli=False`,
+    `flatten=True`, `exclude=(names)` and `was={name: "--old-flag"}` (nested configs) are honoured by the CLI.
+    A bool flag given alone means true."""
     if isinstance(default, (list, dict, set)) or dataclasses.is_dataclass(default):
         return dataclasses.field(default_factory=lambda: default, metadata={"help": help, **extra})
     return dataclasses.field(default=default, metadata={"help": help, **extra})
@@ -44,7 +47,7 @@ def nested(value: Any, cls: type[T], build=None, name: str = "") -> T:
     if isinstance(value, cls):
         return value
     settings = dict(value or {})
-    names = {f.name for f in dataclasses.fields(cls)}
+    names = {f.name for f in dataclasses.fields(typing.cast(Any, cls))}
     unknown = sorted(set(settings) - names)
     prefix = f"{name}: " if name else ""
     if unknown:
@@ -113,13 +116,57 @@ def _leaves(cls: type, flag_prefix: str = "", path: tuple[str, ...] = (), exclud
             yield path + (f.name,), flag_prefix + f.metadata.get("flag", f.name.replace("_", "-")), f, hints[f.name]
 
 
+def _old_flags(cls: type, path: tuple[str, ...], f: dataclasses.Field) -> list[str]:
+    """The renamed flags that still mean the setting at `path` (its own `was`, and its group's)."""
+    old = [flag for flag in f.metadata.get("was", ()) if isinstance(flag, str)]
+    for depth in range(len(path) - 1):
+        group = {g.name: g for g in dataclasses.fields(cls)}[path[depth]]
+        was = group.metadata.get("was", {})
+        if isinstance(was, dict) and path[depth + 1] in was:
+            old.append(was[path[depth + 1]])
+        cls = _config_type(typing.get_type_hints(cls)[path[depth]]) or cls
+    return old
+
+
+def all_but(cls: type, *keep: str) -> tuple[str, ...]:
+    """For `exclude=`: every field of `cls` but `keep` (a group of which the parent shows a few settings)."""
+    return tuple(f.name for f in dataclasses.fields(cls) if f.name not in keep)
+
+
+class Groups:
+    """Mixin for a config with flattened groups: `cfg.rate` reads `cfg.actor.rate` when `rate` is no field of
+    its own (the flags are unprefixed, so reading them unprefixed is the same spelling)."""
+
+    def __getattr__(self, name: str) -> Any:
+        if not name.startswith("_"):
+            for f in dataclasses.fields(typing.cast(Any, self)):  # the subclass is a dataclass
+                group = self.__dict__.get(f.name)
+                if f.metadata.get("flatten") and dataclasses.is_dataclass(group) and hasattr(group, name):
+                    return getattr(group, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+
 def _default(f: dataclasses.Field) -> Any:
-    return f.default if f.default is not dataclasses.MISSING else f.default_factory()
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    return f.default_factory() if callable(f.default_factory) else None
+
+
+def _default_at(cls: type, path: tuple[str, ...], f: dataclasses.Field) -> Any:
+    """The default of the setting at `path`: a group whose default is a preset (`ActorSettings(episodes=15)`)
+    says its own value, not the declaring class's."""
+    node: Any = None
+    for depth, name in enumerate(path[:-1]):
+        node = (_default({g.name: g for g in dataclasses.fields(cls)}[name]) if depth == 0
+                else getattr(node, name, None))
+        if not dataclasses.is_dataclass(node):
+            return _default(f)
+    return getattr(node, path[-1]) if node is not None else _default(f)
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
     for path, flag, f, hint in _leaves(cls):
-        default = _default(f)
+        default = _default_at(cls, path, f)
         shown = ",".join(str(x) for x in default) if isinstance(default, tuple) else default
         text = f.metadata.get("help", "")
         text = text if "default" in text else f"{text} (default: {shown})"
@@ -142,7 +189,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
             kwargs.setdefault("metavar", flag.upper())
             parser.add_argument("/".join(path), **kwargs)
         else:
-            parser.add_argument(f"--{flag}", dest="/".join(path), **kwargs)
+            parser.add_argument(f"--{flag}", *_old_flags(cls, path, f), dest="/".join(path), **kwargs)
     parser.add_argument("--config", dest="_config_file", default=None, metavar="FILE",
                         help="JSON or YAML file of settings (nested as the log's config record); flags given on "
                              "the command line override it")
@@ -290,7 +337,7 @@ def run_commands(prog: str, description: str, commands: dict, argv: list[str] | 
     command that moved elsewhere to its new spelling (said in the error)."""
     given = list(sys.argv[1:] if argv is None else argv)
     if given[:1] and given[0] in (moved or {}):
-        fail(f"{prog} {given[0]} moved: {moved[given[0]]}")
+        fail(f"{prog} {given[0]} moved: {(moved or {})[given[0]]}")
     parser = ConfigParser(prog=prog, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     _add_commands(parser.add_subparsers(dest="_command_name", required=True, metavar="COMMAND"), commands)
     ns = parser.parse_args(argv)
@@ -300,6 +347,38 @@ def run_commands(prog: str, description: str, commands: dict, argv: list[str] | 
         ns._parser.error(str(exc))
     argv = list(sys.argv[1:] if argv is None else argv)
     return ns._command.run(config, argv) if ns._command.argv else ns._command.run(config)
+
+
+def _flag_text(value: Any) -> str:
+    if value is None:
+        return "none"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, tuple):
+        return ",".join(str(v) for v in value)
+    return str(value)
+
+
+def config_argv(config: Any) -> list[str]:
+    """The flags that give `config` on its command line (each setting that differs from the default's), for a
+    command written out (compose.yaml): `parse_config(type(config), config_argv(config)) == config`."""
+    cls = type(config)
+    try:
+        base = cls()  # (a preset, e.g. the agent's, says its own values)
+    except ValueError:  # a setting without a usable default
+        base = None
+    out: list[str] = []
+    for path, flag, f, _ in _leaves(cls):
+        value, default = config, base
+        for name in path:
+            value, default = getattr(value, name), getattr(default, name, None)
+        if value == (default if base is not None else _default_at(cls, path, f)):
+            continue
+        if f.metadata.get("positional"):
+            raise ValueError(f"config_argv: positional setting {flag!r} is not supported")
+        words = [str(v) for v in value] if f.metadata.get("nargs") else [_flag_text(value)]
+        out += [f"--{flag}", *words]
+    return out
 
 
 def config_record(config: Any) -> dict:

@@ -22,6 +22,7 @@ def commands() -> dict:
     from services.credentials import CredentialsConfig, credentials
     from services.flood import FloodConfig, main as flood
     from services.launcher import UpConfig, up
+    from services.launcher.compose import ComposeConfig, compose
 
     return {"up": Command(UpConfig, up), "bench": Command(BenchConfig, bench), "chaos": Command(ChaosConfig, chaos),
             "flood": Command(FloodConfig, flood), "credentials": Command(CredentialsConfig, credentials),
@@ -31,7 +32,7 @@ def commands() -> dict:
                          "zenohd-config": Command(SecuredRouterConfig, zenohd_config,
                                                   "print the secured router's config as JSON (for zenohd -c)")},
             "router": Command(RouterConfig, router_main), "protocol": Command(ProtocolConfig, protocol_main),
-            "auth-bench": Command(AuthBenchConfig, bench_main)}
+            "auth-bench": Command(AuthBenchConfig, bench_main), "compose": Command(ComposeConfig, compose)}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -228,7 +228,7 @@ def bench(cfg: BenchConfig) -> int:
         pinger = Pinger(tcp_endpoint(port), run, cfg.ping_period)
         pinger.start()
         print(f"\n== phase {name} ({cfg.steps} steps) ==", file=sys.stderr, flush=True)
-        up_cfg = UpConfig(out=str(out), run=run, port=port, **phase_settings(name, cfg))
+        up_cfg = UpConfig.flat(out=str(out), run=run, port=port, **phase_settings(name, cfg))
         rc = up(up_cfg)
         pinger.finish()
         res = analyse(out / run)

@@ -84,12 +84,10 @@ class TaskConfig(ServiceConfig):
 
 
 @dataclass(frozen=True)
-class ActorConfig(TaskConfig):
-    """The actor: steps the environment, acts with the newest weights it has, publishes every Step."""
+class ActorSettings:
+    """What a user sets of the actor: declared once, the actor's own (`ActorConfig` is these plus its wiring)
+    and nested by the launcher (`UpConfig.actor`), the console and the scripted person."""
 
-    algo: str = option("dqn-tamer", "agent (sets the exploration and mixing schedules)", choices=ALGOS)
-    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset); the "
-                                             "actor uses its network and schedules", exclude=("algo",))
     episodes: int = option(50, "episodes to run, then stop")
     max_steps: int | None = option(None, "also stop after this many steps (none = no limit)")
     episode_steps: int | None = option(None, "cut an episode (truncated) after this many steps (none = the env's own "
@@ -105,6 +103,29 @@ class ActorConfig(TaskConfig):
                                 "newest weights: bounds what is in flight and queued (back-pressure; docs/faults.md)")
     render_frames: bool = option(False, "publish the env's RGB render after each step as JPEG on hitl/<run>/camera/env "
                                         "(the console shows environments it has no scene for)")
+
+    def __post_init__(self):
+        if self.episodes < 0:
+            raise ValueError(f"episodes must be >= 0, got {self.episodes}")
+        if self.max_steps is not None and self.max_steps < 0:
+            raise ValueError(f"max-steps must be >= 0 or none, got {self.max_steps}")
+        if self.episode_steps is not None and self.episode_steps < 1:
+            raise ValueError(f"episode-steps must be >= 1 or none, got {self.episode_steps}")
+        if not (math.isfinite(self.rate) and self.rate >= 0):
+            raise ValueError(f"rate must be >= 0, got {self.rate}")
+        if self.max_ahead is not None and self.max_ahead < 0:
+            raise ValueError(f"max-ahead must be >= 0 or none, got {self.max_ahead}")
+        if self.max_lag < 0:
+            raise ValueError(f"max-lag must be >= 0, got {self.max_lag}")
+
+
+@dataclass(frozen=True)
+class ActorConfig(TaskConfig, ActorSettings):
+    """The actor: steps the environment, acts with the newest weights it has, publishes every Step."""
+
+    algo: str = option("dqn-tamer", "agent (sets the exploration and mixing schedules)", choices=ALGOS)
+    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset); the "
+                                             "actor uses its network and schedules", exclude=("algo",))
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
@@ -118,23 +139,12 @@ class ActorConfig(TaskConfig):
 
     def __post_init__(self):
         super().__post_init__()
+        ActorSettings.__post_init__(self)
         if self.algo not in ALGOS:
             raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
         object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
-        if self.episodes < 0:
-            raise ValueError(f"episodes must be >= 0, got {self.episodes}")
-        if self.max_steps is not None and self.max_steps < 0:
-            raise ValueError(f"max-steps must be >= 0 or none, got {self.max_steps}")
-        if self.episode_steps is not None and self.episode_steps < 1:
-            raise ValueError(f"episode-steps must be >= 1 or none, got {self.episode_steps}")
         if not self.stall_resend > 0:
             raise ValueError(f"stall-resend must be > 0 seconds, got {self.stall_resend}")
-        if not (math.isfinite(self.rate) and self.rate >= 0):
-            raise ValueError(f"rate must be >= 0, got {self.rate}")
-        if self.max_ahead is not None and self.max_ahead < 0:
-            raise ValueError(f"max-ahead must be >= 0 or none, got {self.max_ahead}")
-        if self.max_lag < 0:
-            raise ValueError(f"max-lag must be >= 0, got {self.max_lag}")
         for name in self.wait_for:
             _check_name(name, "wait-for")
 
@@ -170,13 +180,10 @@ class TeacherConfig(TaskConfig):
 
 
 @dataclass(frozen=True)
-class LearnerConfig(TaskConfig):
-    """The learner: aligns feedback to steps by timestamp, trains Q and H, publishes weights and episodes."""
+class LearnerSettings:
+    """What a user sets of the learner: declared once, the learner's own (`LearnerConfig` is these plus its
+    wiring) and nested by the launcher (`UpConfig.learner`), the console and the scripted person."""
 
-    algo: str = option("dqn-tamer", "agent", choices=ALGOS)
-    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset; "
-                                             "update-interval b > 1 trades learning per step for throughput)",
-                                       exclude=("algo",))
     idle_updates: int = option(0, "extra Q and D_global minibatch steps between two steps when no input came for "
                                   "50 ms (a paced run's idle time; recorded in the Ingest order, so retrain repeats "
                                   "them; 0 = the paper's schedule only)")
@@ -185,10 +192,11 @@ class LearnerConfig(TaskConfig):
                                           "learned:PRIOR for another prior), or fixed: uniform:LOW,HIGH or any "
                                           "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, loc, "
                                           "scale); common.core.delay_model")
-    oracle_delay: str = option("steps", "delay of a teacher without a screen (the oracle: stamps on the wall clock): "
-                                        "steps (the agent's assumed-delay-probs on the step clock, the paper's), "
-                                        "learned (in seconds, per teacher, as screen-delay) or a fixed NAME:ARGS in "
-                                        "seconds")
+    oracle_delay: str = option("auto", "delay of a teacher without a screen (the oracle: stamps on the wall clock): "
+                                       "steps (the agent's assumed-delay-probs on the step clock, the paper's), "
+                                       "learned (in seconds, per teacher, as screen-delay), a fixed NAME:ARGS in "
+                                       "seconds, or auto: learned when the actor is paced (a delay in seconds means "
+                                       "something), else steps (a learner started by hand: steps)")
     screen_credit: str = option("onset", "how a step's time on a person's screen enters credit: interval (Deep "
                                             "TAMER: the delay's probability over the time it was shown) or onset "
                                             "(the person reacts to its appearance: the delay's density at the time "
@@ -199,35 +207,19 @@ class LearnerConfig(TaskConfig):
                                         "teach (services/learner/teacher_delays.py)")
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
                                     "learned steps while it is behind")
-    snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
-                                      "each episode end (numbers only), on request and the final ones")
-    ingest_batch: int = option(64, "at most this many entries per Ingest message")
-    ingest_period: float = option(0.05, "seconds an entry may wait for its Ingest message (one message per period, "
-                                        "not one per step: each message costs every process on its way)")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
-    wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
-    credits_in_ingest: tuple[str, ...] = option((), "teacher ids whose Credits ride in the next Ingest message "
-                                                    "instead of one message each (the launcher: its own teachers; a "
-                                                    "person's console wants each at once, on its own key)")
-    checkpoint: str | None = option(None, "checkpoint file: restored at start if it exists, rewritten atomically "
-                                          "every checkpoint-period s while learning")
     checkpoint_period: float = option(2.0, "seconds between checkpoints (when something was learned)")
-    catchup_log: str | None = option(None, "the run's MCAP log (first segment): at start, consume the steps and "
-                                           "feedback it holds beyond the checkpoint (none: only what arrives live)")
-    inbox_size: int = option(1 << 16, "bounded input queue (steps + feedback); when full, Zenoh's BLOCK "
-                                      "congestion control slows the publishers down")
+    inbox_size: int = option(1 << 16, "the learner's bounded input queue (steps + feedback); when full, Zenoh's BLOCK "
+                                      "congestion control slows the publishers down",
+                              was=("--learner-inbox",))
     debug_update_sleep: float = option(0.0, "TEST ONLY: sleep this many seconds after each learned step "
                                             "(a deliberately slow learner)")
     debug_drop_steps: int = option(0, "TEST ONLY: drop the first N steps as if their actor were not announced yet "
                                       "(what a late announcement does on a loaded machine)")
 
     def __post_init__(self):
-        super().__post_init__()
-        if self.algo not in ALGOS:
-            raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
-        object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
         check_delay_estimate_spec(self.screen_delay)  # a one-line ValueError if malformed
-        if self.oracle_delay != "steps":
+        if self.oracle_delay not in ("auto", "steps"):
             check_delay_estimate_spec(self.oracle_delay)
         if self.screen_credit not in SCREEN_CREDIT:
             raise ValueError(f"screen-credit must be one of {', '.join(SCREEN_CREDIT)}, got {self.screen_credit!r}")
@@ -237,12 +229,6 @@ class LearnerConfig(TaskConfig):
             raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
         if self.idle_updates < 0:
             raise ValueError(f"idle-updates must be >= 0, got {self.idle_updates}")
-        if self.snapshot_every < 1:
-            raise ValueError(f"snapshot-every must be >= 1, got {self.snapshot_every}")
-        if not (math.isfinite(self.ingest_period) and 0 <= self.ingest_period <= 10):
-            raise ValueError(f"ingest-period must be in 0..10 s, got {self.ingest_period}")
-        if not 1 <= self.ingest_batch <= 2048:
-            raise ValueError(f"ingest-batch must be in 1..2048, got {self.ingest_batch}")
         if not (math.isfinite(self.end_grace) and self.end_grace >= 0):
             raise ValueError(f"end-grace must be >= 0, got {self.end_grace}")
         if not (math.isfinite(self.checkpoint_period) and self.checkpoint_period > 0):
@@ -253,6 +239,50 @@ class LearnerConfig(TaskConfig):
             raise ValueError(f"debug-update-sleep must be >= 0, got {self.debug_update_sleep}")
         if self.debug_drop_steps < 0:
             raise ValueError(f"debug-drop-steps must be >= 0, got {self.debug_drop_steps}")
+
+    def resolved_oracle_delay(self, rate: float) -> str:
+        """`oracle_delay` with auto resolved by the actor's pace (`rate` steps/s; 0 = as fast as possible)."""
+        if self.oracle_delay == "auto":
+            return "learned" if rate > 0 else "steps"
+        return self.oracle_delay
+
+
+@dataclass(frozen=True)
+class LearnerConfig(TaskConfig, LearnerSettings):
+    """The learner: aligns feedback to steps by timestamp, trains Q and H, publishes weights and episodes."""
+
+    algo: str = option("dqn-tamer", "agent", choices=ALGOS)
+    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset; "
+                                             "update-interval b > 1 trades learning per step for throughput)",
+                                       exclude=("algo",))
+    snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
+                                      "each episode end (numbers only), on request and the final ones")
+    ingest_batch: int = option(64, "at most this many entries per Ingest message")
+    ingest_period: float = option(0.05, "seconds an entry may wait for its Ingest message (one message per period, "
+                                        "not one per step: each message costs every process on its way)")
+    wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
+    credits_in_ingest: tuple[str, ...] = option((), "teacher ids whose Credits ride in the next Ingest message "
+                                                    "instead of one message each (the launcher: its own teachers; a "
+                                                    "person's console wants each at once, on its own key)")
+    checkpoint: str | None = option(None, "checkpoint file: restored at start if it exists, rewritten atomically "
+                                          "every checkpoint-period s while learning")
+    catchup_log: str | None = option(None, "the run's MCAP log (first segment): at start, consume the steps and "
+                                           "feedback it holds beyond the checkpoint (none: only what arrives live)")
+
+    def __post_init__(self):
+        super().__post_init__()
+        LearnerSettings.__post_init__(self)
+        # auto needs the actor's pace, which a learner does not know: the launcher resolves it; by hand, steps
+        object.__setattr__(self, "oracle_delay", self.resolved_oracle_delay(0.0))
+        if self.algo not in ALGOS:
+            raise ValueError(f"unknown algo {self.algo!r}; choose one of {', '.join(ALGOS)}")
+        object.__setattr__(self, "agent", agent_for(self.algo, self.agent))
+        if self.snapshot_every < 1:
+            raise ValueError(f"snapshot-every must be >= 1, got {self.snapshot_every}")
+        if not (math.isfinite(self.ingest_period) and 0 <= self.ingest_period <= 10):
+            raise ValueError(f"ingest-period must be in 0..10 s, got {self.ingest_period}")
+        if not 1 <= self.ingest_batch <= 2048:
+            raise ValueError(f"ingest-batch must be in 1..2048, got {self.ingest_batch}")
 
 
 @dataclass(frozen=True)

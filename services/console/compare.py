@@ -234,7 +234,7 @@ def preflight(design: Design) -> str | None:
         try:
             up = parse_config(UpConfig, flags)  # and what the launcher makes of it for the learner and the console
             LearnerConfig(run="preflight", algo=arm.algo, screen_delay=up.screen_delay, screen_credit=up.screen_credit)
-            ConsoleConfig(run="preflight", algo=arm.algo, screen_delay=up.screen_delay)
+            ConsoleConfig(run="preflight", algo=arm.algo, learner=up.learner)
         except (SystemExit, ValueError) as exc:
             return f"arm {arm.name!r} ({' '.join(flags)}): {exc}"
     return None

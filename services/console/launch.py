@@ -25,9 +25,11 @@ def console_defaults(up: Any) -> dict:
 
 def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]:
     from common.wire.transport import free_port
+    from services.common.config import ActorSettings, LearnerSettings
     from services.console.config import ConsoleConfig
+    from services.launcher.config import settings
 
-    port = up.console_port or free_port(up.host if up.security else "127.0.0.1")
+    port = up.console.port or free_port(up.host if up.security else "127.0.0.1")
     host = up.host if up.security else "127.0.0.1"
     prefix = "web" if teacher_id == "oracle" else teacher_id  # the launcher's default id is the oracle's
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
@@ -35,9 +37,10 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
 
     token_file = up.state_path(f"teacher.{prefix}", ".token")  # kept by a restarted console: open pages go on
     console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), task=up.task, algo=up.algo,
-                            agent=up.agent, host=host, port=port, teacher_prefix=prefix, rate=up.rate,
-                            episodes=up.episodes, screen_delay=up.screen_delay, camera=WEBCAM if up.webcam else None,
-                            start_on_first_page=up.start_paused, token_file=token_file)
+                            agent=up.agent, **{**settings(up.console), "port": port}, host=host, teacher_prefix=prefix,
+                            actor=ActorSettings(rate=up.rate, episodes=up.episodes, start_paused=up.start_paused),
+                            learner=LearnerSettings(screen_delay=up.screen_delay), camera=WEBCAM if up.webcam else None,
+                            token_file=token_file)
     scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
     waits = " (the run starts when the first page opens)" if up.start_paused else ""
     # a one-use entry key of the run's secret (services/console/door.py): printed to the person's terminal only

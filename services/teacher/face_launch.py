@@ -56,7 +56,9 @@ def face_video_defaults(up) -> dict:
     rate = up.rate if up.rate > 0 else DEFAULT_RATE
     if up.rate <= 0:
         out["rate"] = rate
-    if tuple(up.assumed_delay_probs) == tuple(fields["assumed_delay_probs"]):
+    from common.agents.config import agent_for
+
+    if tuple(up.agent.assumed_delay_probs) == tuple(agent_for(up.algo, None).assumed_delay_probs):
         out["assumed_delay_probs"] = face_assumed_delay(rate)
     if up.teacher_id == fields["teacher_id"]:
         out["teacher_id"] = "face"

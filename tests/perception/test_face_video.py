@@ -143,9 +143,9 @@ def test_launcher_defaults_for_face_video():
     from services.launcher import UpConfig
 
     c = UpConfig(teacher="face-video")
-    assert c.rate == 3.0 and c.assumed_delay_probs == (0.0, 0.3333, 0.3333, 0.3334) and c.teacher_id == "face"
-    c = UpConfig(teacher="face-video", rate=1.0, teacher_id="me", assumed_delay_probs=(0.5, 0.5), end_grace=20)
-    assert (c.rate, c.teacher_id, c.assumed_delay_probs, c.end_grace) == (1.0, "me", (0.5, 0.5), 20)
+    assert c.rate == 3.0 and c.agent.assumed_delay_probs == (0.0, 0.3333, 0.3333, 0.3334) and c.teacher_id == "face"
+    c = UpConfig.flat(teacher="face-video", rate=1.0, teacher_id="me", assumed_delay_probs=(0.5, 0.5), end_grace=20)
+    assert (c.rate, c.teacher_id, c.agent.assumed_delay_probs, c.end_grace) == (1.0, "me", (0.5, 0.5), 20)
     assert face_video_defaults(UpConfig()) == {"rate": 3.0, "assumed_delay_probs": (0.0, 0.3333, 0.3333, 0.3334),
                                                "teacher_id": "face", "end_grace": 8.0}
     assert UpConfig().rate == 0.0  # the oracle is untouched

@@ -15,7 +15,7 @@ def test_episode_steps_must_be_positive():
 
 
 def test_services_up_hands_episode_steps_to_the_actor(tmp_path: Path):
-    launch = Launch(UpConfig(episode_steps=9), "r", tmp_path, "tcp/127.0.0.1:7447")
+    launch = Launch(UpConfig.flat(episode_steps=9), "r", tmp_path, "tcp/127.0.0.1:7447")
     procs, _ = build_processes(launch)
     actor = next(p for p in procs if p.name == "actor")
     assert actor.config.episode_steps == 9
