@@ -21,7 +21,8 @@ plausible timestamp and the right tensor names and shapes; everything else is dr
 
 Pace: `rate` steps per second (a fixed period, for a human watching) or as fast as possible (0). Each Step
 carries the actor's incarnation, a contiguous seq, the wall time of the action (strictly increasing), the
-episode, the weights version it acted with, and the env's info for the simulated teacher's rule.
+episode, the weights version it acted with, and the env's `info` whole (numbers; a key a Step cannot carry stops the
+run with an error naming it) for the simulated teacher's rule.
 """
 from __future__ import annotations
 
@@ -31,8 +32,8 @@ import numpy as np
 
 from common.agents import TrialBatchAgent, make_agent
 from common.envs import make_env, obs_shape
-from common.protocol import (ProtocolError, ServiceStatus, Step, Weights, control_key, status_key, step_key,
-                             weights_key)
+from common.protocol import (InfoError, ProtocolError, ServiceStatus, Step, Weights, control_key, status_key,
+                             step_info, step_key, weights_key)
 from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
 from common.core.seeding import derive_seed
@@ -41,9 +42,8 @@ from services.common.gate import first_time_logger
 from services.common.resend import ResendRing, publish_kept
 from services.common.watches import AliveWatch, IncarnationWatch
 from services.common.progress import ProgressFile
-from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main, wait_alive
+from services.common.runtime import ServiceRuntime, TerminalError, apply_torch_threads, service_main, wait_alive
 
-INFO_KEYS = ("target_distance_before", "target_distance_after", "subgoal_reached", "row", "col")
 RECORDER_WAIT = 20.0  # s to wait at the end for a recorder that is restarting (it must get what it missed)
 
 
@@ -251,6 +251,11 @@ class Actor:
         action = int(agent.act(obs.reshape(1, -1))[0])
         t_action = max(time.time(), t_prev + 1e-6)  # strictly increasing, even if the clock steps back
         nxt, reward, terminated, truncated, info = self.env.step(action)
+        try:
+            info = step_info(info)  # whole: the teacher's rule reads what the in-process runner's rule reads
+        except InfoError as exc:  # the env's own output: a restart would send it again
+            self.rt.event(f"{config.env}: {exc}", 5)
+            raise TerminalError(f"{config.env}: {exc}") from None
         if terminated or truncated:
             self.save_state(self.episode + 1)  # before the last step goes out: a restart never repeats an episode
         publish_kept(self.pub, Step(run=config.run, incarnation=self.rt.incarnation, seq=self.seq,
@@ -259,7 +264,7 @@ class Actor:
                                     next_obs=np.asarray(nxt).tolist(), terminated=bool(terminated),
                                     truncated=bool(truncated), weights_version=self.slot.version,
                                     weights_revision=self.slot.revision,
-                                    info={k: float(info[k]) for k in INFO_KEYS if k in info}), self.ring)
+                                    info=info), self.ring)
         if self.frames is not None:
             self.frames.publish(self.seq)
         self.seq += 1
