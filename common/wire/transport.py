@@ -153,7 +153,8 @@ def wait_for_matching(publisher: zenoh.Publisher, timeout: float = 5.0) -> bool:
     """True once at least one subscriber matches the publisher's key."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if publisher.matching_status.matching:
+        status: Any = publisher.matching_status  # an object with .matching, not the bool zenoh's stub says
+        if status.matching:
             return True
         time.sleep(0.01)
     return False

@@ -32,7 +32,7 @@ import time
 import numpy as np
 
 from common.agents import make_agent
-from common.envs import make_env, obs_shape
+from common.envs import make_env, n_actions, obs_shape
 from common.protocol import InfoError, Step, control_key, status_key, step_info, step_key, weights_key
 from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
@@ -61,8 +61,7 @@ class Actor:
             if not hasattr(self.env, "max_steps"):
                 raise ValueError(f"--episode-steps: {config.env} has no max_steps to set")
             self.env.max_steps = config.episode_steps
-        n_actions = int(self.env.action_space.n)
-        self.agent = make_agent([config.agent], obs_shape(self.env), n_actions, [config.seed])
+        self.agent = make_agent([config.agent], obs_shape(self.env), n_actions(self.env), [config.seed])
         spec = {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
         self.slot = WeightsFollower(self.agent, spec, rt)
         self.seq = 0  # steps this incarnation published
@@ -84,7 +83,8 @@ class Actor:
         self.frames = FramePublisher(session, config.run, self.env, self.rt.counters) \
             if config.render_frames and enable_rgb(self.env) else None
         self.watch = AliveWatch(session, config.run, ("learner", "recorder"))
-        self.slot.watch = IncarnationWatch(session, config.run, "learner")
+        self.learner_watch = IncarnationWatch(session, config.run, "learner")
+        self.slot.watch = self.learner_watch
 
     def save_state(self, episodes: int) -> None:
         if self.progress:
@@ -234,7 +234,7 @@ class Actor:
         self.rt.failed = self.code != 0  # gave up: not the end of the run (the launcher restarts it)
         self.watch.before_exit(self.ring, RECORDER_WAIT, self.rt.log)
         self.watch.close()
-        self.slot.watch.close()
+        self.learner_watch.close()
         if self.frames is not None:
             self.frames.close()
 

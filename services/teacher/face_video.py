@@ -37,7 +37,7 @@ import numpy as np
 from common.config import option
 from common.core.delay import parse_probs
 from common.envs import make_env
-from common.core.observer import ObserverConfig, SimulatedObserver
+from common.core.observer import FeedbackEvent, ObserverConfig, SimulatedObserver
 from common.protocol import (CompressedImage, ObserverReaction, Step, Time, camera_key, observer_service_name,
                              reaction_key, status_key, step_key)
 from common.core.seeding import derive_seed
@@ -164,7 +164,7 @@ class FaceVideoCore:
         for v, seg in library.segments.items():
             if len(seg) < self.clip_frames:
                 raise ValueError(f"clip of {self.clip_frames} frames is longer than the {v:+d} segment ({len(seg)})")
-        self._pending: list[tuple[float, int, object, int]] = []  # (due, counter, observer event, step seq)
+        self._pending: list[tuple[float, int, FeedbackEvent, int]] = []  # (due, counter, observer event, step seq)
         self._counter = 0
         self.counters: collections.Counter[str] = collections.Counter()
         self.follower = StepFollower(self.counters)

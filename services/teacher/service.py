@@ -17,7 +17,9 @@ from __future__ import annotations
 import sys
 import time
 
-from common.envs import make_env
+import numpy as np
+
+from common.envs import make_env, n_actions, obs_shape
 from common.envs.rules import RuleError
 from common.protocol import Feedback, ProtocolError, Step, feedback_key, status_key, step_key
 from services.common.config import TeacherConfig
@@ -46,7 +48,7 @@ class Teacher:
         self.published = int(self.state["next_seq"]) if self.state else 0  # the next feedback seq
         self.ring = ResendRing(config.resend_window)
         env, _ = make_env(config.env, config.layout)
-        self.gate = InputGate(int(env.observation_space.shape[0]), int(env.action_space.n),
+        self.gate = InputGate(int(np.prod(obs_shape(env))), n_actions(env),
                               max_future=config.max_future, max_past=config.max_past)
         env.close()
         self.note_rejected = first_time_logger(rt.event, "step")
@@ -80,7 +82,7 @@ class Teacher:
             msg = received.decode()
         except ProtocolError as e:
             rt.counters[f"rejected_{e.reason}"] += 1
-            self.note_rejected(e.reason)
+            self.note_rejected(e.reason, "")
             return None
         for inc in self.actors.take():
             self.gate.announce(inc)
@@ -89,7 +91,7 @@ class Teacher:
             rt.counters["duplicates_step"] += 1
         elif reason:
             rt.counters[f"rejected_{reason}"] += 1
-            self.note_rejected(reason)
+            self.note_rejected(reason, "")
         return None if reason else msg
 
     def take_step(self) -> None:

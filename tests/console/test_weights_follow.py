@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from common.agents import make_agent
-from common.envs import make_env, obs_shape
+from common.envs import make_env, n_actions, obs_shape
 from common.protocol import ServiceStatus, Weights, status_key, teacher_service_name, weights_key
 from common.wire.auth import make_run_credentials
 from common.wire.inbox import Inbox, Received
@@ -54,7 +54,7 @@ def test_the_console_adopts_and_drops_weights_as_the_actor_does():
     creds = make_run_credentials(tempfile.mkdtemp(prefix="creds-"), RUN, teachers=["web"])
     console_cfg = ConsoleConfig(run=RUN, credentials=str(creds["teacher.web"]))
     env, _ = make_env(console_cfg.env, console_cfg.layout)
-    agent = make_agent([console_cfg.agent], obs_shape(env), int(env.action_space.n), [0])
+    agent = make_agent([console_cfg.agent], obs_shape(env), n_actions(env), [0])
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
     actor_rt = ServiceRuntime(
         "actor", ActorConfig(run=RUN, credentials=str(creds["actor"])), install_signals=False, process_default=False

@@ -55,5 +55,6 @@ def test_the_maze_info_travels_whole_in_a_step():
         info=sent,
     )
     received = Step.decode(step.encode())
+    assert isinstance(received, Step)
     assert received.info == info and {"path_distance_after", "reward"} <= set(received.info)
     assert rule(received.info) == rule(info)

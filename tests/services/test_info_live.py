@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import bisect
 import json
+from typing import Any
 
 import pytest
 
@@ -71,7 +72,8 @@ def in_process_feedback(env: str, rule: str, observer: dict, n_steps: int, episo
     from common.core.observer import ObserverConfig
     from experiments.runner import TrialSpec, run_trials
 
-    obs_cfg = ObserverConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in observer.items()})
+    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in observer.items()}
+    obs_cfg = ObserverConfig(**fields)
     seen: list[tuple[float, int]] = []
 
     def on_input(_trial: int, kind: str, record: dict) -> None:
