@@ -20,11 +20,12 @@ import contextlib
 import dataclasses
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from common.envs import make_env, obs_shape
+from common.envs import make_env, n_actions, obs_shape
 from common.envs.scene import SceneTracker, static_scene
 from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary,
                              ExpressionPrediction, Feedback,
@@ -49,7 +50,7 @@ class Hub:
 
         self.config, self.rt, self.session, self.loop = config, rt, session, loop
         env, _ = make_env(config.env, config.layout)
-        self.obs_dim, self.n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
+        self.obs_dim, self.n_actions = int(np.prod(obs_shape(env))), n_actions(env)
         env.close()
         self.agent = make_agent([config.agent], obs_shape(env), self.n_actions, [config.seed])
         self.spec = {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
@@ -110,9 +111,10 @@ class Hub:
                 self.broadcast({"type": "frame", "seq": int(msg.frame_id), "format": msg.format,
                                 "data": base64.b64encode(msg.data).decode("ascii")})
             return
-        handler = {Step: self._step, EpisodeSummary: self._episode, Credit: self._credit,
-                   ServiceStatus: self._status, Feedback: self._feedback, ExpressionPrediction: self._face,
-                   Control: self._control}.get(type(msg))
+        handlers: dict[type, Callable[[Any, float], None]] = {
+            Step: self._step, EpisodeSummary: self._episode, Credit: self._credit, ServiceStatus: self._status,
+            Feedback: self._feedback, ExpressionPrediction: self._face, Control: self._control}
+        handler = handlers.get(type(msg))
         if handler is not None and getattr(msg, "run", self.config.run) == self.config.run:
             handler(msg, t_recv)
 
@@ -172,7 +174,7 @@ class Hub:
     def _control(self, c: Control, t_recv: float) -> None:
         if c.command in ("pause", "resume"):
             self.paused = c.command == "pause"
-        elif c.command == "pace":
+        elif c.command == "pace" and c.rate is not None:  # (Control's check: a pace carries a rate)
             self.rate = float(c.rate)
         self.broadcast(self.control_state(by=c.source))
 
