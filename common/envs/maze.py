@@ -190,8 +190,8 @@ class MazeEnv(gym.Env):
 
     `info` carries what the simulated teacher's rules need: the Manhattan distance to the goal before and
     after the action (`target_distance_before`, `target_distance_after`), the shortest-path distance
-    (`path_distance_before`, `path_distance_after`: what a person who knows the maze sees) and
-    `subgoal_reached`.
+    (`path_distance_before`, `path_distance_after`: what a person who knows the maze sees),
+    `subgoal_reached` and the step's `reward`.
     """
 
     metadata = {"render_modes": ["ansi"]}
@@ -238,7 +238,7 @@ class MazeEnv(gym.Env):
         after = manhattan(self.pos, self.layout.goal)
         info = {"target_distance_before": float(before), "target_distance_after": float(after),
                 "path_distance_before": float(path_before), "path_distance_after": float(self._path[self.pos]),
-                "subgoal_reached": 1.0 if terminated else 0.0,
+                "subgoal_reached": 1.0 if terminated else 0.0, "reward": float(reward),
                 "row": float(self.pos[0]), "col": float(self.pos[1])}  # where the agent is (for pictures)
         return self._obs(), reward, terminated, truncated, info
 

@@ -134,6 +134,14 @@ def check_task(env: str, rule: str | None = None) -> None:
         resolve_rule(rule)
 
 
+def n_actions(env: gym.Env) -> int:
+    """The number of actions of a discrete-action env (every env the runners make); a ValueError otherwise."""
+    space = env.action_space
+    if not isinstance(space, gym.spaces.Discrete):
+        raise ValueError(f"the agent needs a discrete action space, got {space}")
+    return int(space.n)
+
+
 def obs_shape(env: gym.Env) -> tuple[int, ...]:
     """The shape the network sees (an image's height, width, channels), not the flat vector's."""
     return tuple(getattr(env, "obs_shape", env.observation_space.shape))

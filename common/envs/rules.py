@@ -3,13 +3,14 @@
 The contract of a rule (documented in docs/envs.md): a function `rule(info) -> int` that returns +1 or
 -1 and reads only the step's `info`, a mapping of names to floats. What a rule may count on finding:
 
-  * `reward`: the environment's reward for the step (every environment the runners make adds it);
+  * `reward`: the environment's reward for the step (every environment the runners make gives it);
   * `target_distance_before`, `target_distance_after`: the distance (in steps or actions) from the
     agent to its current target before and after the action, where the environment or its wrapper
     provides it (the project's maze and taxi; FrozenLake, CliffWalking and MiniGrid via
     `common.envs.gym_tasks`);
   * `subgoal_reached`: 1.0 when the action completed a sub-goal (goal, pick-up, door opened), else 0.0;
-  * whatever else the environment itself puts in `info` (numbers only: other values are dropped).
+  * whatever else the environment itself puts in `info` (numbers only: `TaskEnv` drops other values; live, the
+    actor sends `info` whole and stops with an error naming a key a Step cannot carry).
 
 Rules are named here (`RULES`) or given as `module:function`, so a user's rule needs no package edit.
 """
@@ -19,6 +20,10 @@ import importlib
 from collections.abc import Callable, Mapping
 
 TeacherRule = Callable[[Mapping[str, float]], int]
+
+
+class RuleError(ValueError):
+    """A teacher rule that raised or answered something else than +1/-1; the message names the rule."""
 
 
 def progress_rule(info: Mapping[str, float]) -> int:
@@ -89,10 +94,10 @@ def checked_rule(rule: TeacherRule, name: str) -> TeacherRule:
         try:
             value = rule(info)
         except Exception as exc:
-            raise ValueError(f"teacher rule {name!r} failed on info {sorted(info)}: "
+            raise RuleError(f"teacher rule {name!r} failed on info {sorted(info)}: "
                              f"{type(exc).__name__}: {exc}") from None
         if value not in (1, -1):
-            raise ValueError(f"teacher rule {name!r} must return +1 or -1, got {value!r}")
+            raise RuleError(f"teacher rule {name!r} must return +1 or -1, got {value!r}")
         return int(value)
 
     apply.__name__ = getattr(rule, "__name__", "rule")

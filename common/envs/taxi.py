@@ -93,7 +93,7 @@ class TaxiEnv(gym.Env):
         after = self._target_distance(self.state, target_from=before_state)
         picked_up = self._decode(before_state)[2] != 4 and self._decode(self.state)[2] == 4
         info = {"target_distance_before": float(before), "target_distance_after": float(after),
-                "subgoal_reached": 1.0 if (picked_up or terminated) else 0.0}
+                "subgoal_reached": 1.0 if (picked_up or terminated) else 0.0, "reward": float(reward)}
         return self._obs(), float(reward), bool(terminated), truncated, info
 
     def render(self):

@@ -32,6 +32,7 @@ from ._roles import (ALIVE, NAMED_ROLES, OBSERVER_PREFIX, OWN_KINDS, PUBLISHES, 
                      sender_of, split_identity, teacher_id_of, teacher_service_name)
 from ._spec import REASONS, ProtocolError
 from ._foxglove import FoxgloveProto, SceneUpdate
+from ._info import InfoError, step_info
 from ._observe import Request, TensorSummary, WeightsSnapshot
 from ._topics import key_from_topic, log_topic
 from ._weights import Weights, check_spec
@@ -47,7 +48,7 @@ __all__ = [
     "status_key",
     "camera_key", "perception_key", "config_key", "ObserverReaction", "reaction_key",
     "Shown", "ShownStep", "MAX_SHOWN", "MAX_INGEST_CREDITS", "Control", "CONTROL_COMMANDS", "MAX_RATE", "Credit",
-    "CreditedStep", "DelayEstimate",
+    "CreditedStep", "DelayEstimate", "InfoError", "step_info",
     "shown_key", "control_key", "credit_key", "log_topic", "key_from_topic",
     "FoxgloveProto", "SceneUpdate", "Request", "TensorSummary", "WeightsSnapshot",
     "ALIVE", "NAMED_ROLES", "OBSERVER_PREFIX", "OWN_KINDS", "PUBLISHES", "ROLES", "SERVICE_ROLES", "TEACHER_PREFIX",

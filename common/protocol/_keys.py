@@ -29,7 +29,7 @@ class KeySpec:
     """One row of the key table."""
 
     kind: str  # the third chunk: "step", "feedback", ...
-    message: type  # the message class
+    message: type[Any]  # the message class (a Message, or a FoxgloveProto for Foxglove's own schemas)
     param: str | None  # name of the fourth chunk, if any ("teacher_id", "service", "camera")
     congestion: str  # "block" (never dropped by Zenoh under load) or "drop"
     queue_policy: str  # default receive policy: "block" or "drop_oldest"

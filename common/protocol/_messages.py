@@ -17,6 +17,8 @@ NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.:-]{0,63}$"
 TOKEN_PATTERN = r"^[!-~]{1,128}$"
 
 MAX_OBS = 1024  # observation length limit (the paper's largest is Taxi's one-hot of 19)
+MAX_INFO_ITEMS = 16  # Step.info entries: the env's numeric extras a teacher rule reads
+MAX_INFO_KEY = 64  # characters in one Step.info key
 
 
 def Name(description: str) -> Str:
@@ -64,9 +66,9 @@ class Step(Message):
     terminated: bool = fld(Bool(description="The episode ended in a terminal state."))
     truncated: bool = fld(Bool(description="The episode was cut by the step limit."))
     weights_version: int = fld(Count("Version of the weights the actor acted with (0 before any Weights arrived)."))
-    info: dict = fld(Map(Float(), max_items=16, description=(
-        "Small numeric extras, e.g. `target_distance_before` / `target_distance_after` for the simulated "
-        "teacher's rule.")))
+    info: dict = fld(Map(Float(), max_items=MAX_INFO_ITEMS, key_max_len=MAX_INFO_KEY, description=(
+        "The environment's `info` for this step, whole (finite numbers only), for the simulated teacher's rule: "
+        "e.g. `target_distance_before` / `target_distance_after`, `reward`, and any key the env adds.")))
     weights_revision: int | None = fld(Nullable(Count(
         "Revision of the weights the actor acted with (Weights' `revision`: moved by every Q or H update); null "
         "before any revised Weights arrived.")), optional=True)

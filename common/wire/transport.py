@@ -153,7 +153,8 @@ def wait_for_matching(publisher: zenoh.Publisher, timeout: float = 5.0) -> bool:
     """True once at least one subscriber matches the publisher's key."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if publisher.matching_status.matching:
+        status: Any = publisher.matching_status  # an object with .matching, not the bool zenoh's stub says
+        if status.matching:
             return True
         time.sleep(0.01)
     return False
@@ -207,7 +208,8 @@ class MessagePublisher:
 def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None, *, maxsize: int = 1024,
               policy: str | None = None, block_timeout: float = 5.0,
               auth: Any = None) -> tuple[zenoh.Subscriber, Inbox]:
-    """Declare a callback subscriber feeding an :class:`Inbox` (a new one unless given).
+    """Declare a callback subscriber feeding an :class:`Inbox` (a new one unless given), held open beyond a
+    ``with`` block (else use :func:`subscription`).
 
     Undeclare the subscriber (or close the session) and ``inbox.close()`` when done."""
     if inbox is None:
@@ -216,13 +218,35 @@ def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None,
     return sub, inbox
 
 
+class Forward(Inbox):
+    """An Inbox that queues nothing: each authentic sample goes to ``deliver`` at once, on zenoh's thread (for a
+    consumer with its own event loop: ``deliver`` must not block, e.g. ``loop.call_soon_threadsafe``). The checks
+    and counters are the Inbox's (``received``, ``dropped_<auth reason>``, ``dropped_closed``)."""
+
+    def __init__(self, deliver: Callable[[Received], None], *, auth: Any = None):
+        super().__init__(1, "drop_oldest", auth=auth)
+        self.deliver = deliver
+
+    def put(self, item: Received) -> bool:
+        with self._cond:
+            self.counters["received"] += 1
+            if self._closed:
+                self.counters["dropped_closed"] += 1
+                return False
+        self.deliver(item)
+        return True
+
+
 @contextlib.contextmanager
 def subscriptions(session: zenoh.Session, key_exprs: list[str], *, maxsize: int = 1024, policy: str | None = None,
-                  block_timeout: float = 5.0, auth: Any = None) -> Iterator[Inbox]:
+                  block_timeout: float = 5.0, auth: Any = None,
+                  deliver: Callable[[Received], None] | None = None) -> Iterator[Inbox]:
     """``with subscriptions(session, [key, ...]) as inbox: ...``: callback subscribers feeding one Inbox (in arrival
     order; policy by default the key table's for the first key); on exit the inbox is closed first (releasing a
-    callback blocked on a full queue), then the subscribers are undeclared."""
-    inbox = Inbox(maxsize, policy or default_policy(key_exprs[0]), block_timeout=block_timeout, auth=auth)
+    callback blocked on a full queue), then the subscribers are undeclared. With ``deliver``, the samples go to it
+    instead of a queue (:class:`Forward`: the console's event loop)."""
+    inbox = Forward(deliver, auth=auth) if deliver is not None else \
+        Inbox(maxsize, policy or default_policy(key_exprs[0]), block_timeout=block_timeout, auth=auth)
     subs = []
     try:
         subs = [session.declare_subscriber(k, inbox.handler()) for k in key_exprs]

@@ -37,9 +37,10 @@ class RunControl:
                 self.log(f"paused by {msg.source}")
             elif msg.command == "resume" and self.paused:
                 self.paused, changed = False, True
-                self.counters["paused_ms"] += int((time.monotonic() - self._paused_at) * 1e3)
+                if self._paused_at is not None:
+                    self.counters["paused_ms"] += int((time.monotonic() - self._paused_at) * 1e3)
                 self.log(f"resumed by {msg.source}")
-            elif msg.command == "pace":
+            elif msg.command == "pace" and msg.rate is not None:  # (Control's check: a pace carries a rate)
                 self.period, changed = 1.0 / float(msg.rate), True
                 self.log(f"pace {msg.rate:g} steps/s (asked by {msg.source})")
             elif msg.command == "end":

@@ -34,7 +34,7 @@ class FramePublisher:
         import cv2
 
         try:
-            rgb = np.asarray(self.env.render(), np.uint8)
+            rgb: np.ndarray = np.asarray(self.env.render(), np.uint8)
             scale = MAX_SIDE / max(rgb.shape[:2])
             if scale < 1:
                 rgb = cv2.resize(rgb, (int(rgb.shape[1] * scale), int(rgb.shape[0] * scale)),

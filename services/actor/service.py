@@ -17,11 +17,13 @@ state file is a new incarnation that continues the run: it starts the next episo
 the learner), waits for the current weights of an announced learner first and counts its schedules and lockstep
 from that version on. Weights are accepted only from a learner incarnation that a ServiceStatus announced, with a
 plausible timestamp and the right tensor names and shapes; everything else is dropped and counted. Steps of the last
-`resend_window` s are published again when a learner or recorder (re)starts.
+`resend_window` s are published again when a learner or recorder (re)starts. The weights are followed by
+`services.common.weights.WeightsFollower`, the console's too.
 
 Pace: `rate` steps per second (a fixed period, for a human watching) or as fast as possible (0). Each Step
 carries the actor's incarnation, a contiguous seq, the wall time of the action (strictly increasing), the
-episode, the weights version it acted with, and the env's info for the simulated teacher's rule.
+episode, the weights version it acted with, and the env's `info` whole (numbers; a key a Step cannot carry stops the
+run with an error naming it) for the simulated teacher's rule.
 """
 from __future__ import annotations
 
@@ -29,100 +31,20 @@ import time
 
 import numpy as np
 
-from common.agents import TrialBatchAgent, make_agent
-from common.envs import make_env, obs_shape
-from common.protocol import (ProtocolError, ServiceStatus, Step, Weights, control_key, status_key, step_key,
-                             weights_key)
+from common.agents import make_agent
+from common.envs import make_env, n_actions, obs_shape
+from common.protocol import InfoError, Step, control_key, status_key, step_info, step_key, weights_key
 from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
 from common.core.seeding import derive_seed
 from services.common.config import ActorConfig
-from services.common.gate import first_time_logger
 from services.common.resend import ResendRing, publish_kept
 from services.common.watches import AliveWatch, IncarnationWatch
+from services.common.weights import WeightsFollower
 from services.common.progress import ProgressFile
-from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main, wait_alive
+from services.common.runtime import ServiceRuntime, TerminalError, apply_torch_threads, service_main, wait_alive
 
-INFO_KEYS = ("target_distance_before", "target_distance_after", "subgoal_reached", "row", "col")
 RECORDER_WAIT = 20.0  # s to wait at the end for a recorder that is restarting (it must get what it missed)
-
-
-class WeightsSlot:
-    """The newest weights received (a drop_oldest inbox of size 1 feeds it); never goes back in version."""
-
-    def __init__(self, agent: TrialBatchAgent, spec: dict, rt: ServiceRuntime):
-        self.agent, self.spec, self.rt = agent, spec, rt
-        self.version = 0
-        self.revision: int | None = None  # of the weights held (None: the seed's, or a learner without revisions)
-        self.limit: int | None = None  # no version above this (steps published + 1); None: any (a restart's wait)
-        self.learner: str | None = None
-        self.announced: list[str] = []  # learner incarnations announced by their ServiceStatus (newest last)
-        self.watch = None  # an IncarnationWatch of the learner (liveliness), set once the session is open
-        self._note = first_time_logger(rt.event, "weights")
-
-    def on_status(self, inbox) -> None:
-        for it in inbox.drain():
-            try:
-                st = it.decode()
-            except ProtocolError:
-                self.rt.counters["rejected_status"] += 1
-                continue
-            if isinstance(st, ServiceStatus) and st.incarnation and st.incarnation not in self.announced:
-                self.announced = (self.announced + [st.incarnation])[-16:]
-
-    @property
-    def progress(self) -> tuple[int, int]:
-        return (self.version, -1 if self.revision is None else self.revision)
-
-    def known(self, incarnation: str) -> bool:
-        return (incarnation == self.learner or incarnation in self.announced
-                or (self.watch is not None and self.watch.known(incarnation)))
-
-    def _reject(self, reason: str) -> None:
-        self.rt.counters[f"weights_dropped_{reason}"] += 1
-        self._note(reason, "")
-
-    def adopt(self, inbox, timeout: float | None = None, status=None) -> bool:
-        """Take the newest queued weights (waiting up to `timeout` s for one if given). True if adopted."""
-        item = inbox.get(timeout) if timeout is not None else None
-        items = ([item] if item is not None else []) + inbox.drain()
-        adopted = False
-        cfg = self.rt.config
-        for it in items:
-            try:
-                w = Weights.decode(it.data, expected=self.spec)
-            except ProtocolError as e:
-                self._reject(e.reason)
-                continue
-            if w.run != cfg.run:
-                self._reject("wrong_run")
-                continue
-            if w.t_published > it.t_recv + cfg.max_future:
-                self._reject("future_timestamp")
-                continue
-            if w.t_published < it.t_recv - cfg.max_past:
-                self._reject("stale_timestamp")
-                continue
-            if not self.known(w.incarnation) and status is not None:
-                self.on_status(status)  # its announcement may be waiting in the status queue
-            if not self.known(w.incarnation):
-                self._reject("unknown_incarnation")
-                continue
-            if self.limit is not None and w.version > self.limit:
-                self._reject("version_ahead")  # a learner cannot have learned steps this actor never sent
-                continue
-            if w.incarnation == self.learner and w.progress <= self.progress:
-                self.rt.counters["weights_not_newer"] += 1
-                continue
-            if w.incarnation != self.learner and self.learner is not None:
-                self.rt.counters["learner_restarts"] += 1
-            self.agent.load_policy_weights(w.tensors, 0)
-            now = time.time()
-            self.learner, self.version, self.revision = w.incarnation, int(w.version), w.revision
-            self.rt.counters["weights_adopted"] += 1
-            self.rt.samples["adopt_latency_s"].append(now - w.t_published)
-            adopted = True
-        return adopted
 
 
 class Actor:
@@ -139,10 +61,9 @@ class Actor:
             if not hasattr(self.env, "max_steps"):
                 raise ValueError(f"--episode-steps: {config.env} has no max_steps to set")
             self.env.max_steps = config.episode_steps
-        n_actions = int(self.env.action_space.n)
-        self.agent = make_agent([config.agent], obs_shape(self.env), n_actions, [config.seed])
+        self.agent = make_agent([config.agent], obs_shape(self.env), n_actions(self.env), [config.seed])
         spec = {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
-        self.slot = WeightsSlot(self.agent, spec, rt)
+        self.slot = WeightsFollower(self.agent, spec, rt)
         self.seq = 0  # steps this incarnation published
         self.ring = ResendRing(config.resend_window)
         rt.set_counters_source(lambda: {"steps_published": self.seq, "weights_version": self.slot.version,
@@ -162,7 +83,8 @@ class Actor:
         self.frames = FramePublisher(session, config.run, self.env, self.rt.counters) \
             if config.render_frames and enable_rgb(self.env) else None
         self.watch = AliveWatch(session, config.run, ("learner", "recorder"))
-        self.slot.watch = IncarnationWatch(session, config.run, "learner")
+        self.learner_watch = IncarnationWatch(session, config.run, "learner")
+        self.slot.watch = self.learner_watch
 
     def save_state(self, episodes: int) -> None:
         if self.progress:
@@ -251,6 +173,11 @@ class Actor:
         action = int(agent.act(obs.reshape(1, -1))[0])
         t_action = max(time.time(), t_prev + 1e-6)  # strictly increasing, even if the clock steps back
         nxt, reward, terminated, truncated, info = self.env.step(action)
+        try:
+            info = step_info(info)  # whole: the teacher's rule reads what the in-process runner's rule reads
+        except InfoError as exc:  # the env's own output: a restart would send it again
+            self.rt.event(f"{config.env}: {exc}", 5)
+            raise TerminalError(f"{config.env}: {exc}") from None
         if terminated or truncated:
             self.save_state(self.episode + 1)  # before the last step goes out: a restart never repeats an episode
         publish_kept(self.pub, Step(run=config.run, incarnation=self.rt.incarnation, seq=self.seq,
@@ -259,7 +186,7 @@ class Actor:
                                     next_obs=np.asarray(nxt).tolist(), terminated=bool(terminated),
                                     truncated=bool(truncated), weights_version=self.slot.version,
                                     weights_revision=self.slot.revision,
-                                    info={k: float(info[k]) for k in INFO_KEYS if k in info}), self.ring)
+                                    info=info), self.ring)
         if self.frames is not None:
             self.frames.publish(self.seq)
         self.seq += 1
@@ -307,7 +234,7 @@ class Actor:
         self.rt.failed = self.code != 0  # gave up: not the end of the run (the launcher restarts it)
         self.watch.before_exit(self.ring, RECORDER_WAIT, self.rt.log)
         self.watch.close()
-        self.slot.watch.close()
+        self.learner_watch.close()
         if self.frames is not None:
             self.frames.close()
 
@@ -334,7 +261,8 @@ def main(config: ActorConfig) -> int:
     return actor.code
 
 
-def pace(control: RunControl, control_in, slot: WeightsSlot, weights_in, learner_status, rt: ServiceRuntime) -> bool:
+def pace(control: RunControl, control_in, slot: WeightsFollower, weights_in, learner_status,
+         rt: ServiceRuntime) -> bool:
     """Apply the person's controls; while paused, wait here (adopting weights). True if anything changed."""
     changed = control.take(control_in)
     while control.paused and not control.end and not rt.stop.is_set():

@@ -23,6 +23,13 @@ from common.protocol import (ServiceStatus, alive_key, incarnation_alive_key, st
 
 HARD_EXIT_AFTER = 5.0  # s a service gets to stop cleanly once its launcher is gone
 MAX_SAMPLES = 200_000  # latency samples kept per kind
+# The exit code of a service stopped by an error that a restart would only repeat (a teacher rule that raises, an
+# env info key a Step cannot carry): the launcher ends the run with the error instead of restarting the service.
+TERMINAL_EXIT = 78
+
+
+class TerminalError(Exception):
+    """An error that stops the run: its message (one line, naming what failed) is the run's error."""
 
 
 def set_from_handler(event: threading.Event) -> None:
@@ -339,6 +346,9 @@ def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, 
     except AuthError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except TerminalError as exc:
+        print(f"error: {exc}", file=sys.stderr, flush=True)
+        return TERMINAL_EXIT
     rt = _CURRENT[0]
     if code == 0 and rt is not None and rt.final_state == "failed":
         return 1  # ended without finishing its part: the launcher restarts it

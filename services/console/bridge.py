@@ -16,23 +16,27 @@ from __future__ import annotations
 import asyncio
 import base64
 import collections
+import contextlib
 import dataclasses
 import os
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from common.envs import make_env, obs_shape
+from common.envs import make_env, n_actions, obs_shape
 from common.envs.scene import SceneTracker, static_scene
 from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary,
                              ExpressionPrediction, Feedback,
-                             ProtocolError, ServiceStatus, Shown, Step, Time, Weights, camera_key, control_key,
+                             ProtocolError, ServiceStatus, Shown, Step, Time, camera_key, control_key,
                              decode, episode_key, feedback_key, perception_key, shown_key, status_key,
                              step_key, weights_key)
+from common.wire.inbox import Received
 from services.console.config import ConsoleConfig
 from services.console.ledger import Ledger
 from services.console.people import Person, RateLimit
+from services.common.weights import WeightsFollower
 
 TEACHER = TEACHER_PREFIX
 
@@ -46,7 +50,7 @@ class Hub:
 
         self.config, self.rt, self.session, self.loop = config, rt, session, loop
         env, _ = make_env(config.env, config.layout)
-        self.obs_dim, self.n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
+        self.obs_dim, self.n_actions = int(np.prod(obs_shape(env))), n_actions(env)
         env.close()
         self.agent = make_agent([config.agent], obs_shape(env), self.n_actions, [config.seed])
         self.spec = {k: tuple(v.shape) for k, v in self.agent.policy_weights(0).items()}
@@ -63,17 +67,22 @@ class Hub:
         self.awaiting_start = config.start_on_first_page  # until the first step or a person's own control
         self.start_sent_at = 0.0
         self.actor_stopped = self.learner_stopped = False
-        self.weights_version = 0
-        self.weights_progress = (0, -1)  # (version, revision) held: a press's H update shows before the next step
+        # the actor's follower and checks: a press's H update (a new revision) shows before the next step
+        self.weights = WeightsFollower(self.agent, self.spec, rt)
         self.control_seq = 0
         self.pub = lambda key: MessagePublisher(session, key)  # noqa: E731
         self.control_pub = MessagePublisher(session, control_key(config.run))
         self.camera_pub = MessagePublisher(session, camera_key(config.run, config.camera)) if config.camera else None
         self.pubs: dict[str, Any] = {}
-        self.subs: list[Any] = []
+        self.subs = contextlib.ExitStack()
 
     # -- Zenoh -> loop ---------------------------------------------------------------------------------------------
     def subscribe(self) -> None:
+        """Every key the pages need, through the project's one subscription helper (signatures checked there:
+        a forgery never reaches a page or a person's status), each sample handed to the loop."""
+        from common.wire.transport import subscriptions
+        from services.common.watches import IncarnationWatch
+
         run = self.config.run
         keys = [step_key(run), episode_key(run), weights_key(run), KEYS["credit"].wildcard(run),
                 KEYS["status"].wildcard(run), KEYS["feedback"].wildcard(run), KEYS["control"].wildcard(run)]
@@ -81,20 +90,19 @@ class Hub:
             keys.append(perception_key(run, self.config.camera))
         if self.scene_static is None:  # the actor's picture of an env we cannot draw (services/actor/render.py)
             keys.append(camera_key(run, "env"))
-        for key in keys:
-            self.subs.append(self.session.declare_subscriber(key, self._on_sample))
+        self.weights.watch = self.subs.enter_context(contextlib.closing(IncarnationWatch(self.session, run, "learner")))
+        self.subs.enter_context(subscriptions(self.session, keys, auth=self.rt.auth, deliver=self._on_sample))
 
-    def _on_sample(self, sample: Any) -> None:  # a zenoh thread: hand the bytes to the loop
-        item = (str(sample.key_expr), sample.payload.to_bytes(), time.time())
-        auth = self.rt.auth  # checked first (common/wire/auth.py): a forgery never reaches a page or a person's status
-        att = sample.attachment
-        if auth is not None and auth.check(item[0], item[1], None if att is None else att.to_bytes(), item[2]):
-            return
-        self.loop.call_soon_threadsafe(self.on_message, *item)
+    def _on_sample(self, item: Received) -> None:  # a zenoh thread: hand the bytes to the loop
+        self.loop.call_soon_threadsafe(self.on_message, item.key, item.data, item.t_recv)
 
     def on_message(self, key: str, data: bytes, t_recv: float) -> None:
+        if key == weights_key(self.config.run):
+            if self.weights.offer(data, t_recv):
+                self.broadcast(self.preferences())
+            return
         try:
-            msg = Weights.decode(data, expected=self.spec) if key.endswith("/weights") else decode(key, data)
+            msg = decode(key, data)
         except ProtocolError as e:
             self.rt.counters[f"run_rejected_{e.reason}"] += 1
             return
@@ -103,9 +111,10 @@ class Hub:
                 self.broadcast({"type": "frame", "seq": int(msg.frame_id), "format": msg.format,
                                 "data": base64.b64encode(msg.data).decode("ascii")})
             return
-        handler = {Step: self._step, EpisodeSummary: self._episode, Weights: self._weights, Credit: self._credit,
-                   ServiceStatus: self._status, Feedback: self._feedback, ExpressionPrediction: self._face,
-                   Control: self._control}.get(type(msg))
+        handlers: dict[type, Callable[[Any, float], None]] = {
+            Step: self._step, EpisodeSummary: self._episode, Credit: self._credit, ServiceStatus: self._status,
+            Feedback: self._feedback, ExpressionPrediction: self._face, Control: self._control}
+        handler = handlers.get(type(msg))
         if handler is not None and getattr(msg, "run", self.config.run) == self.config.run:
             handler(msg, t_recv)
 
@@ -134,16 +143,7 @@ class Hub:
             return {"type": "prefs", "q": None, "h": None}
         q, h, aq, ah = self.agent.preferences(0, self.obs)
         return {"type": "prefs", "q": [round(float(x), 4) for x in q], "h": [round(float(x), 4) for x in h],
-                "alpha_q": aq, "alpha_h": round(ah, 5), "weights_version": self.weights_version}
-
-    def _weights(self, w: Weights, t_recv: float) -> None:
-        import torch
-
-        if w.progress <= self.weights_progress and w.version != 0:
-            return
-        self.agent.load_policy_weights({k: torch.from_numpy(np.array(v)) for k, v in w.tensors.items()}, 0)
-        self.weights_version, self.weights_progress = int(w.version), w.progress
-        self.broadcast(self.preferences())
+                "alpha_q": aq, "alpha_h": round(ah, 5), "weights_version": self.weights.version}
 
     def _episode(self, ep: EpisodeSummary, t_recv: float) -> None:
         point = {"episode": ep.episode, "return": ep.return_, "steps": ep.steps,
@@ -174,7 +174,7 @@ class Hub:
     def _control(self, c: Control, t_recv: float) -> None:
         if c.command in ("pause", "resume"):
             self.paused = c.command == "pause"
-        elif c.command == "pace":
+        elif c.command == "pace" and c.rate is not None:  # (Control's check: a pace carries a rate)
             self.rate = float(c.rate)
         self.broadcast(self.control_state(by=c.source))
 
@@ -182,6 +182,8 @@ class Hub:
         return {"type": "control", "paused": self.paused, "rate": self.rate, "ended": self.actor_stopped, "by": by}
 
     def _status(self, st: ServiceStatus, t_recv: float) -> None:
+        if st.service == "learner":
+            self.weights.announce(st)
         if st.state != "stopped":
             return
         if st.service == "actor" and not self.actor_stopped:
@@ -320,7 +322,6 @@ class Hub:
                 "trail": list(self.trail), "ended": self.actor_stopped, "screen_delay": self.config.screen_delay}
 
     def close(self) -> None:
-        for s in self.subs:
-            s.undeclare()
+        self.subs.close()
         for pub in [self.control_pub, *self.pubs.values()] + ([self.camera_pub] if self.camera_pub else []):
             pub.close()

@@ -10,6 +10,7 @@ from typing import Any
 
 from common.config import config_record
 from services.common.config import ServiceConfig
+from services.common.runtime import TERMINAL_EXIT
 from services.launcher.children import Child, spawn, stop_children, tail
 from services.launcher.config import Launch, UpConfig, build_processes
 from services.launcher.report import Progress, finish
@@ -91,6 +92,8 @@ class Run:
             if DISK_FULL_TEXT in tail(c.log_path, 40) or self.rundir.free_mb() < self.cfg.min_free_mb:
                 self.disk_full(f"{c.name} exited with code {rc} ({self.rundir.free_mb():.1f} MiB free under "
                                f"{self.rundir.path})")
+            elif rc == TERMINAL_EXIT:
+                self.terminal(c)
             elif self.interrupts == 0 and self.outcome == "ok" and self.sup.can_restart(c.name):
                 self.sup.died(c, rc)
             elif self.outcome == "ok":
@@ -98,6 +101,14 @@ class Run:
                 why = "" if self.interrupts else f" ({self.sup.restarts[c.name]} restarts already)"
                 print(f"\nerror: {c.name} exited with code {rc}{why}; last lines of {c.log_path}:\n{tail(c.log_path)}",
                       file=sys.stderr)
+
+    def terminal(self, c: Child) -> None:
+        """A service stopped by an error a restart would repeat (a teacher rule that raises): end the run with it."""
+        errors = [line for line in tail(c.log_path, 40).splitlines() if line.startswith("error: ")]
+        why = errors[-1][len("error: "):] if errors else f"exited with code {TERMINAL_EXIT}"
+        print(f"\nerror: {c.name}: {why}; stopping the run (no restart: it would fail the same way)",
+              file=sys.stderr, flush=True)
+        self.end("failed", f"{c.name}: {why}", grace=min(self.cfg.stop_timeout, 5.0))
 
     def respawns(self) -> None:
         for name, due in list(self.sup.pending.items()):

@@ -9,6 +9,7 @@ is shifted to match (`face_assumed_delay`).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 from common.protocol import observer_service_name, teacher_service_name
 
@@ -51,7 +52,7 @@ def face_video_defaults(up) -> dict:
     """
     import dataclasses as dc
 
-    fields = {f.name: f.default for f in dc.fields(type(up))}
+    fields: dict[str, Any] = {f.name: f.default for f in dc.fields(type(up))}
     out: dict = {}
     rate = up.rate if up.rate > 0 else DEFAULT_RATE
     if up.rate <= 0:

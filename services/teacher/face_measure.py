@@ -19,6 +19,14 @@ import numpy as np
 from common.config import option, parse_config
 
 
+def _decoded(decode_image, data: bytes) -> np.ndarray:
+    """A clip frame as an image; the library's own frames always decode (else it is damaged: say so)."""
+    image = decode_image(data)
+    if image is None:
+        raise ValueError("face clip library: a frame does not decode (rebuild it: `make setup`)")
+    return image
+
+
 def measure(clip_lengths_s: list[float], width: int = 320, quality: int = 80, step: int = 1,
             gap_s: float = 0.6) -> dict:
     import cv2
@@ -31,7 +39,7 @@ def measure(clip_lengths_s: list[float], width: int = 320, quality: int = 80, st
     fps = lib.fps
     lengths = sorted({max(1, int(round(s * fps))) for s in clip_lengths_s})
     n_max = lengths[-1]
-    blank = decode_image(lib.blank)
+    blank = _decoded(decode_image, lib.blank)
     pipe = PerceptionPipeline.from_config(PipelineConfig())
     cv2.setNumThreads(1)
     decoded: dict[int, np.ndarray] = {}
@@ -48,7 +56,7 @@ def measure(clip_lengths_s: list[float], width: int = 320, quality: int = 80, st
             for k in range(n_max):
                 i = start + k
                 if i not in decoded:
-                    decoded[i] = decode_image(lib.frames[i])
+                    decoded[i] = _decoded(decode_image, lib.frames[i])
                 _, ev = pipe.process(decoded[i], index, t)
                 if ev is not None:
                     events.append((int(ev.value), k))

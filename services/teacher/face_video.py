@@ -37,13 +37,14 @@ import numpy as np
 from common.config import option
 from common.core.delay import parse_probs
 from common.envs import make_env
-from common.core.observer import ObserverConfig, SimulatedObserver
+from common.core.observer import FeedbackEvent, ObserverConfig, SimulatedObserver
+from common.envs.rules import RuleError
 from common.protocol import (CompressedImage, ObserverReaction, Step, Time, camera_key, observer_service_name,
                              reaction_key, status_key, step_key)
 from common.core.seeding import derive_seed
 from services.common.config import TaskConfig, _check_name
 from services.common.progress import ProgressFile
-from services.common.runtime import ServiceRuntime, service_main
+from services.common.runtime import ServiceRuntime, TerminalError, service_main
 from services.teacher.face_launch import DEFAULT_RATE
 from services.teacher.follow import StepFollower
 
@@ -164,7 +165,7 @@ class FaceVideoCore:
         for v, seg in library.segments.items():
             if len(seg) < self.clip_frames:
                 raise ValueError(f"clip of {self.clip_frames} frames is longer than the {v:+d} segment ({len(seg)})")
-        self._pending: list[tuple[float, int, object, int]] = []  # (due, counter, observer event, step seq)
+        self._pending: list[tuple[float, int, FeedbackEvent, int]] = []  # (due, counter, observer event, step seq)
         self._counter = 0
         self.counters: collections.Counter[str] = collections.Counter()
         self.follower = StepFollower(self.counters)
@@ -181,7 +182,10 @@ class FaceVideoCore:
         if not news:
             return
         self.counters["steps_seen"] += 1
-        event = self.observer.react(step.t_action, step.info, step.episode, step.seq, step_ref=step.seq)
+        try:
+            event = self.observer.react(step.t_action, step.info, step.episode, step.seq, step_ref=step.seq)
+        except RuleError as exc:  # a restart would fail the same way: stop the run with the rule's error
+            raise TerminalError(str(exc)) from None
         if event is not None:
             self._counter += 1
             heapq.heappush(self._pending, (event.t_reaction, self._counter, event, step.seq))

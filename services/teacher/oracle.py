@@ -21,7 +21,7 @@ import dataclasses
 import heapq
 
 from common.envs import make_env
-from common.core.observer import SimulatedObserver
+from common.core.observer import FeedbackEvent, SimulatedObserver
 from common.protocol import Step
 from common.core.seeding import derive_seed
 from services.common.config import TeacherConfig
@@ -46,7 +46,7 @@ class OracleTeacher:
         unit = 1.0 if config.clock == "steps" else config.step_unit
         self.observer = SimulatedObserver(obs_cfg, rule, derive_seed(config.seed, "observer"), unit)
         self.clock = StepClock(len(obs_cfg.delay_probs) + 8)
-        self._pending: list[tuple[float, int, object, int]] = []  # (due key, counter, event, ref_seq)
+        self._pending: list[tuple[float, int, FeedbackEvent, int]] = []  # (due key, counter, event, ref_seq)
         self._counter = 0
         self.counters: collections.Counter[str] = collections.Counter()
         self.follower = StepFollower(self.counters)
@@ -86,7 +86,8 @@ class OracleTeacher:
             tau = self._pending[0][0]
             t_wall = self.clock.to_wall(tau)
             if t_wall is None:
-                if self.clock.newest_index is not None and tau < self.clock.oldest_index:
+                oldest = self.clock.oldest_index
+                if self.clock.newest_index is not None and oldest is not None and tau < oldest:
                     heapq.heappop(self._pending)  # its steps fell out of the clock (after a gap): lost
                     self.counters["reactions_dropped"] += 1
                     continue
@@ -103,7 +104,7 @@ class OracleTeacher:
 
     def due(self, now: float) -> list[Reaction]:
         """Wall clock: reactions whose time has come."""
-        out = []
+        out: list[Reaction] = []
         if self.config.clock != "wall":
             return out
         while self._pending and self._pending[0][0] <= now:

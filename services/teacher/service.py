@@ -8,21 +8,26 @@ SIGTERM); its final status carries `feedback_published`, which the learner waits
 Faults (docs/faults.md): steps pass the `InputGate` (announced actor incarnation, shapes, timestamps, dedup);
 with `state_file` the next seq survives a restart (so `feedback_published` counts every incarnation and no
 seq is used twice); the feedback of the last `resend_window` s is re-sent when a learner or recorder
-(re)starts. A teacher that crashes is simply silent meanwhile (the paper's unsustainability).
+(re)starts. A teacher that crashes is simply silent meanwhile (the paper's unsustainability). A teacher rule that
+fails (raises, or answers other than +1/-1) stops the run with the rule's name and its error (exit code
+`TERMINAL_EXIT`: the launcher does not restart a service that would fail the same way).
 """
 from __future__ import annotations
 
 import sys
 import time
 
-from common.envs import make_env
+import numpy as np
+
+from common.envs import make_env, n_actions, obs_shape
+from common.envs.rules import RuleError
 from common.protocol import Feedback, ProtocolError, Step, feedback_key, status_key, step_key
 from services.common.config import TeacherConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
 from services.common.resend import ResendRing, publish_kept
 from services.common.watches import AliveWatch, IncarnationWatch, decoded_statuses
 from services.common.progress import ProgressFile
-from services.common.runtime import ServiceRuntime, service_main
+from services.common.runtime import ServiceRuntime, TerminalError, service_main
 from services.teacher.oracle import OracleTeacher
 
 STEPS_AFTER_STOP_TIMEOUT = 5.0  # s to wait for steps still in flight once the actor reported 'stopped'
@@ -43,7 +48,7 @@ class Teacher:
         self.published = int(self.state["next_seq"]) if self.state else 0  # the next feedback seq
         self.ring = ResendRing(config.resend_window)
         env, _ = make_env(config.env, config.layout)
-        self.gate = InputGate(int(env.observation_space.shape[0]), int(env.action_space.n),
+        self.gate = InputGate(int(np.prod(obs_shape(env))), n_actions(env),
                               max_future=config.max_future, max_past=config.max_past)
         env.close()
         self.note_rejected = first_time_logger(rt.event, "step")
@@ -77,7 +82,7 @@ class Teacher:
             msg = received.decode()
         except ProtocolError as e:
             rt.counters[f"rejected_{e.reason}"] += 1
-            self.note_rejected(e.reason)
+            self.note_rejected(e.reason, "")
             return None
         for inc in self.actors.take():
             self.gate.announce(inc)
@@ -86,7 +91,7 @@ class Teacher:
             rt.counters["duplicates_step"] += 1
         elif reason:
             rt.counters[f"rejected_{reason}"] += 1
-            self.note_rejected(reason)
+            self.note_rejected(reason, "")
         return None if reason else msg
 
     def take_step(self) -> None:
@@ -101,7 +106,15 @@ class Teacher:
             if step is not None:
                 self.rt.samples["step_transit_s"].append(got.t_recv - step.t_action)
                 self.rt.samples["step_queued_s"].append(time.time() - got.t_recv)
-                self.send(self.core.on_step(step))
+                self.send(self.react(step))
+
+    def react(self, step: Step) -> list:
+        """The oracle's reactions due now; a rule that fails stops the run (a restart would fail the same way)."""
+        try:
+            return self.core.on_step(step)
+        except RuleError as exc:
+            self.rt.event(str(exc), 5)
+            raise TerminalError(str(exc)) from None
 
     def follow_actor(self) -> None:
         """Read the actor's statuses: announcements for the gate, and how many steps it sent once stopped."""

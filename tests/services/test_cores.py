@@ -263,7 +263,7 @@ def test_actor_never_goes_back_to_an_older_version():
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
     from common.wire.transport import Inbox, Received
-    from services.actor.service import WeightsSlot
+    from services.common.weights import WeightsFollower
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
 
@@ -271,7 +271,7 @@ def test_actor_never_goes_back_to_an_older_version():
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
     rt = ServiceRuntime("actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False,
                         process_default=False)
-    slot = WeightsSlot(agent, spec, rt)
+    slot = WeightsFollower(agent, spec, rt)
     slot.announced = ["learner-1", "learner-2"]  # their ServiceStatus / liveliness announced them
     inbox = Inbox(8, "block")
 

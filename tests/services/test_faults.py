@@ -344,7 +344,7 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
     from common.wire.transport import Inbox, Received
-    from services.actor.service import WeightsSlot
+    from services.common.weights import WeightsFollower
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
 
@@ -353,7 +353,7 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     before = agent.policy_weights(0)  # copies
     rt = ServiceRuntime("actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False,
                         process_default=False)
-    slot = WeightsSlot(agent, spec, rt)
+    slot = WeightsFollower(agent, spec, rt)
     if announced:
         slot.announced = ["learner-1"]
     inbox = Inbox(4, "drop_oldest")
