@@ -64,7 +64,7 @@ FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py servic
 	tests/services/test_profiles.py common/protocol/_cli.py experiments/commands.py tests/test_entry_points_and_docs.py \
 	tests/core/test_config_cli.py \
 	tests/console/test_press_next_action.py tests/console/test_measure_first_use.py services/learner/credits.py \
-	tests/console/test_compare_resume.py
+	tests/console/test_compare_resume.py experiments/power.py tests/experiments/test_power.py
 
 # The base install alone, in a fresh venv: torch, then `pip install .` with no extras (pinned by the lock), then the
 # main job with the oracle teacher. CI runs it after `make test` (.ci/run); tests/install/ checks the same imports
