@@ -124,6 +124,12 @@ def _component(v: np.ndarray, clusters: np.ndarray, member_trials: np.ndarray, m
     return Component(universe, trials, counts, member, margin)
 
 
+def _layout_set(clusters: np.ndarray) -> str:
+    """The name of a condition set's layouts (the maze conditions share one; the delay observers' is smaller)."""
+    ids = np.unique(clusters)
+    return f"{len(ids)} layouts {ids.min()}-{ids.max()}"
+
+
 def claim_models(data: Data) -> list[ClaimModel]:
     """Every claim whose primary test's conditions are in `data`, as ln-steps components on its population."""
     models = []
@@ -139,7 +145,7 @@ def claim_models(data: Data) -> list[ClaimModel]:
             v, clusters, margin = everyone
             cond = e.terms[0][1]
             member = np.isin(clusters, mine[1])
-            universe = "taxi" if next(iter(data[cond].values())).taxi else ",".join(map(str, np.unique(clusters)))
+            universe = "taxi" if next(iter(data[cond].values())).taxi else _layout_set(clusters)
             comps.append(_component(v, clusters, member, margin, universe))
         if comps:
             models.append(ClaimModel(c.cid, c.family, test.kind, comps))
@@ -273,8 +279,16 @@ def figure(results: dict[str, list[dict]], path: Path, target: float = TARGET) -
     fig, axes = plt.subplots(1, len(results), figsize=(6.5 * len(results), 4.8), squeeze=False, sharey=True)
     for ax, (name, rows) in zip(axes[0], results.items()):
         x = [r["layouts"] * r["seeds"] for r in rows]
-        for cid in rows[0]["claims"]:
-            ax.plot(x, [r["claims"][cid]["agreement"] for r in rows], marker="o", label=cid)
+        colours = plt.get_cmap("tab20")  # 20 distinct colours: one per claim
+        for i, cid in enumerate(rows[0]["claims"]):
+            ax.plot(
+                x,
+                [r["claims"][cid]["agreement"] for r in rows],
+                marker="os^"[i % 3],
+                color=colours(i),
+                linestyle="-" if cid.startswith("C") else "--",
+                label=cid,
+            )
         ax.axhline(target, color="k", linestyle="--", linewidth=1)
         ax.set(
             xlabel="maze trials per arm and condition (layouts x seeds)",
