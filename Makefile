@@ -69,7 +69,8 @@ FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py servic
 	tests/services/test_settings_once.py services/launcher/compose.py tests/services/test_compose.py \
 	tests/services/test_netns_live.py \
 	common/protocol/_info.py tests/services/info_rule.py tests/services/test_info_live.py tests/plumbing/test_step_info.py \
-	services/common/weights.py tests/console/test_weights_follow.py
+	services/common/weights.py tests/console/test_weights_follow.py \
+	tests/console/test_compare_resume.py experiments/power.py tests/experiments/test_power.py
 
 # The base install alone, in a fresh venv: torch, then `pip install .` with no extras (pinned by the lock), then the
 # main job with the oracle teacher. CI runs it after `make test` (.ci/run); tests/install/ checks the same imports

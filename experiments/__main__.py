@@ -9,8 +9,16 @@ import os
 import sys
 import time
 
+from common.agents import AgentConfig
 from common.config import Command, config_record, fail, run_commands
 from experiments.run_config import RunConfig
+
+
+def agent_of(config: RunConfig) -> AgentConfig:
+    """The run's agent settings (RunConfig fills them from the algo's preset when none are given)."""
+    if config.agent is None:
+        raise ValueError(f"no agent settings for {config.algo}")
+    return config.agent
 
 
 def check_run(config: RunConfig) -> None:
@@ -19,7 +27,7 @@ def check_run(config: RunConfig) -> None:
     from common.envs import make_env
 
     env, _ = make_env(config.task.env, config.task.layout, config.task.teacher_rule)
-    check_agent(config.agent, env)
+    check_agent(agent_of(config), env)
 
 
 def cmd_run(config: RunConfig) -> int:
@@ -30,7 +38,7 @@ def cmd_run(config: RunConfig) -> int:
 
     os.makedirs(config.out, exist_ok=True)
     task = config.task
-    spec = TrialSpec(task.env, config.agent, config.observer, task.seed, task.layout, config.episodes,
+    spec = TrialSpec(task.env, agent_of(config), config.observer, task.seed, task.layout, config.episodes,
                      task.teacher_rule, config.step_seconds)
     with open(os.path.join(config.out, "config.json"), "w") as fh:
         json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
@@ -79,6 +87,7 @@ def commands() -> dict:
     from experiments.machines import MachinesConfig, main as machines
     from experiments.maze_pilot import MazePilotConfig, main as maze_pilot
     from experiments.minigrid import MinigridConfig, main as minigrid
+    from experiments.power import PowerConfig, main as power
     from experiments.sweeps.bench import SweepBenchConfig, main as sweep_bench
     from experiments.sweeps.cli import SweepConfig, main as sweep
     from experiments.taxi_pilot import TaxiPilotConfig, main as taxi_pilot
@@ -93,7 +102,7 @@ def commands() -> dict:
             "minigrid": Command(MinigridConfig, minigrid), "machines": Command(MachinesConfig, machines),
             "bench": Command(BenchConfig, bench_main), "sweep-bench": Command(SweepBenchConfig, sweep_bench),
             "bench-compare": Command(BenchCompareConfig, bench_compare),
-            "delay-check": Command(DelayCheckConfig, delay_check)}
+            "delay-check": Command(DelayCheckConfig, delay_check), "power": Command(PowerConfig, power)}
 
 
 def main(argv: list[str] | None = None) -> int:

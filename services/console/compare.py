@@ -14,6 +14,12 @@ the tenth time. Primary test, the only one that decides: DQN's measure minus DQN
 signed-rank over the pairs (zero differences dropped), at 0.05 divided by the number of designs tested so far
 (`multiplicity: looks`), or one such test per declared person and layout kind with Holm's step-down at 0.05 over
 them (`multiplicity: holm`). Secondary, shown and never deciding: the sign test, steps over all episodes, other arms.
+
+Resuming: each finished run is kept under OUT/DESIGN/COMMIT/ and skipped when the command is run again, so a design
+can be completed over several stretches; a run is keyed by design, pair (and person), arm and the git commit of the
+code. A tree with uncommitted changes is keyed COMMIT-dirty-HASH (a hash of its changes), never as the commit; a
+design that names its commit (`commit:`) refuses any other checkout and any dirty tree. Each stretch prints how
+many runs are done and how many remain, with an estimate of the time left.
 """
 from __future__ import annotations
 
@@ -22,14 +28,14 @@ import shutil
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from common.config import option, parse_config
-from services.console.design import Arm, Design, load_designs
+from services.console.design import Arm, Design, checkout_key, load_designs
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -43,7 +49,7 @@ class CompareConfig:
 
     design: str = option("first", "which declared design (services/console/designs/NAME.yaml): " + "; ".join(
         f"{n} ({d.summary})" for n, d in DESIGNS.items()), choices=tuple(DESIGNS))
-    out: str = option("runs/compare", "directory of the runs and results")
+    out: str = option("runs/compare", "directory of the runs and results (each design's under OUT/DESIGN/COMMIT)")
     parallel: int = option(8, "runs at once")
     pairs: int | None = option(None, "only the first N pairs (a trial of the machinery; no verdict is written)")
     timeout: float = option(2400.0, "seconds a run may take")
@@ -55,27 +61,67 @@ def _tag(arm: Arm, person: str | None, layout: int, seed: int) -> str:
     return f"{arm.algo}-{arm.screen_delay.replace(':', '').replace(',', '-')}{credit}{who}-l{layout}-s{seed}"
 
 
-def run_arm(cfg: CompareConfig, design: Design, arm: Arm, person: str | None, layout: int, seed: int) -> dict:
-    """One scripted session (its own process); its result dict, reused when it already exists."""
-    tag = _tag(arm, person, layout, seed)
-    result = Path(cfg.out) / "results" / f"{tag}.json"
-    if not result.exists():
-        shutil.rmtree(Path(cfg.out) / "runs" / tag, ignore_errors=True)  # a failed attempt's: run it again
+def scripted_command(design: Design, arm: Arm, person: str | None, layout: int, seed: int, base: Path, tag: str,
+                     timeout: float) -> list[str]:
+    """The `services.console scripted` process of one run (its result JSON at base/results/TAG.json)."""
+    cmd = [sys.executable, "-m", "services.console", "scripted", "--algo", arm.algo, "--layout", str(layout),
+           "--seed", str(seed), "--episodes", str(design.episodes), "--rate", str(design.rate),
+           "--episode-steps", str(design.episode_steps), "--screen-delay", arm.screen_delay,
+           "--screen-credit", arm.screen_credit, "--p", str(design.p_press),
+           "--good-factor", str(design.good_factor), "--out", str(base / "runs"), "--run", tag,
+           "--timeout", str(timeout), "--result", str(base / "results" / f"{tag}.json")]
+    return cmd + (["--lag", design.people[person]] if person is not None else [])
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of a design: its key is the design, the arm, the person, the pair and the code's commit."""
+
+    arm: Arm
+    person: str | None
+    layout: int
+    seed: int
+
+    @property
+    def tag(self) -> str:
+        return _tag(self.arm, self.person, self.layout, self.seed)
+
+
+def run_dir(cfg: CompareConfig, design: Design, key: str) -> Path:
+    """Where the runs of `design` made by the code `key` are kept (so that no other code's run is reused)."""
+    return Path(cfg.out) / design.name / key
+
+
+def finished(base: Path, run: Run, key: str) -> dict | None:
+    """The record of a finished run of this code (None: not run, or left unfinished by a stopped stretch)."""
+    done = base / "results" / f"{run.tag}.done.json"
+    if not done.exists():
+        return None
+    record = json.loads(done.read_text())
+    return record if record.get("key") == key else None
+
+
+def run_arm(cfg: CompareConfig, design: Design, run: Run, key: str) -> dict:
+    """One scripted session (its own process), or the kept result of the same run of the same code; its row."""
+    base = run_dir(cfg, design, key)
+    result = base / "results" / f"{run.tag}.json"
+    if finished(base, run, key) is None:
+        shutil.rmtree(base / "runs" / run.tag, ignore_errors=True)  # a stopped or failed attempt's: run it again
+        result.unlink(missing_ok=True)
         result.parent.mkdir(parents=True, exist_ok=True)
-        cmd = [sys.executable, "-m", "services.console", "scripted", "--algo", arm.algo, "--layout", str(layout),
-               "--seed", str(seed), "--episodes", str(design.episodes), "--rate", str(design.rate),
-               "--episode-steps", str(design.episode_steps), "--screen-delay", arm.screen_delay,
-               "--screen-credit", arm.screen_credit, "--p", str(design.p_press),
-               "--good-factor", str(design.good_factor), "--out", str(Path(cfg.out) / "runs"), "--run", tag,
-               "--timeout", str(cfg.timeout), "--result", str(result)]
-        if person is not None:
-            cmd += ["--lag", design.people[person]]
-        log = (Path(cfg.out) / "results" / f"{tag}.log").open("w")
-        subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, check=False)
-    if not result.exists():
-        raise RuntimeError(f"run {tag} wrote no result: see {result.with_suffix('.log')}")
+        t0 = time.monotonic()
+        cmd = scripted_command(design, run.arm, run.person, run.layout, run.seed, base, run.tag, cfg.timeout)
+        with (base / "results" / f"{run.tag}.log").open("w") as log:
+            rc = subprocess.run(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, check=False).returncode
+        if rc != 0 or not result.exists():
+            raise RuntimeError(f"run {run.tag} failed (exit {rc}): see {result.with_suffix('.log')}")
+        json.loads(result.read_text())  # a torn result file is no finished run
+        done = result.with_suffix(".done.json")
+        done.with_suffix(".tmp").write_text(json.dumps({"key": key, "design": design.name, "wall_s":
+                                                        round(time.monotonic() - t0, 1)}))
+        done.with_suffix(".tmp").replace(done)  # the run counts as finished only once this record is whole
     row = json.loads(result.read_text())["runs"][0]
-    return {"arm": arm.name, "person": person, "layout": layout, "seed": seed, **row}
+    return {"arm": run.arm.name, "person": run.person, "layout": run.layout, "seed": run.seed, **row}
 
 
 def episodes_to_goal(row: dict, design: Design) -> int:
@@ -240,28 +286,68 @@ def preflight(design: Design) -> str | None:
     return None
 
 
+def time_left(walls: list[float], remaining: int, parallel: int, design: Design) -> str:
+    """The time the remaining runs should take: the median finished run (before any, the longest a run can be:
+    every episode cut at its step limit) times the rounds of `parallel` runs they need."""
+    per_run = float(np.median(walls)) if walls else design.episodes * design.episode_steps / design.rate
+    seconds = per_run * -(-remaining // max(parallel, 1))
+    basis = f"median run {per_run:.0f} s" if walls else f"no run finished yet: at most {per_run:.0f} s a run"
+    return f"about {seconds / 3600:.1f} h left ({basis}, {parallel} at once)"
+
+
+def run_design(cfg: CompareConfig, design: Design, root: Path = ROOT) -> int:
+    """Run every run of `design` not yet finished by this code, keeping each as it finishes (a stopped stretch
+    loses only the runs in flight); then, with every run done, its table, figure and verdict."""
+    try:
+        key = checkout_key(design, root)
+    except ValueError as exc:
+        print(f"[compare] refused: {exc}", file=sys.stderr)
+        return 2
+    from tqdm import tqdm
+
+    base = run_dir(cfg, design, key)
+    pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
+    runs = [Run(a, who, lay, s) for who in design.persons() for lay, s in pairs for a in design.arms]
+    kept = {run: finished(base, run, key) for run in runs}
+    walls = [r["wall_s"] for r in kept.values() if r]
+    print(f"[compare] design {design.name} on {key}: {len(walls)} of {len(runs)} runs done, {len(runs) - len(walls)}"
+          f" remain, {time_left(walls, len(runs) - len(walls), cfg.parallel, design)}; kept in {base}",
+          file=sys.stderr, flush=True)
+    results: dict[Run, dict] = {}
+    failed: list[str] = []
+    with tqdm(total=len(runs), initial=len(walls), desc=design.name, unit="run", file=sys.stderr) as bar, \
+            ThreadPoolExecutor(cfg.parallel) as pool:
+        futures = {pool.submit(run_arm, cfg, design, run, key): run for run in runs}
+        for future in as_completed(futures):
+            run = futures[future]
+            try:
+                results[run] = future.result()
+            except RuntimeError as exc:  # the others go on, and stay kept
+                failed.append(str(exc))
+                continue
+            if kept[run] is None:  # made in this stretch
+                walls.append((finished(base, run, key) or {"wall_s": 0.0})["wall_s"])
+                bar.update(1)
+                bar.set_postfix_str(time_left(walls, len(runs) - bar.n, cfg.parallel, design))
+    if failed:
+        print("[compare] " + "\n[compare] ".join(failed) + f"\n[compare] {len(failed)} runs failed; the "
+              f"{len(results)} others are kept: run the same command again to retry", file=sys.stderr)
+        return 1
+    rows = [results[run] for run in runs]
+    if cfg.pairs:
+        print(json.dumps(rows, indent=1))
+        return 0
+    report(rows, design, base)
+    return 0
+
+
 def main(cfg: CompareConfig) -> int:
     design = DESIGNS[cfg.design]
     refused = preflight(design)
     if refused:
         print(f"[compare] design {design.name} cannot run here: {refused}", file=sys.stderr)
         return 2
-    pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
-    jobs = [(a, who, lay, s) for who in design.persons() for lay, s in pairs for a in design.arms]
-    print(f"[compare] {len(jobs)} runs, {cfg.parallel} at once, {design.episodes} episodes at {design.rate} steps/s",
-          file=sys.stderr, flush=True)
-    t0, rows = time.monotonic(), []
-    with ThreadPoolExecutor(cfg.parallel) as pool:
-        for row in pool.map(lambda j: run_arm(cfg, design, *j), jobs):
-            rows.append(row)
-            print(f"[compare] {row['arm']} {row['person'] or ''} layout {row['layout']} seed {row['seed']}: first "
-                  f"good episode {row['first_good_episode'] or 'never'}, {row['total_steps']} steps "
-                  f"({time.monotonic() - t0:.0f} s)", file=sys.stderr, flush=True)
-    if cfg.pairs:
-        print(json.dumps(rows, indent=1))
-        return 0
-    report(rows, design, Path(cfg.out))
-    return 0
+    return run_design(cfg, design)
 
 
 def cli(argv: list[str] | None = None) -> int:

@@ -8,11 +8,17 @@ seed), the measure, and the multiplicity rule:
     holm   one test per declared person (`tests_by: person`, over all its pairs, honest and misleading layouts
            alike) or per person and layout kind (`tests_by: person_kind`), Holm's step-down at alpha over them all
 
+A design names the one commit all its runs come from (`commit: TAG`, before its first run); compare refuses to
+run it from any other checkout or from a tree with uncommitted changes (`checkout_key`).
+
 Older designs have one person, the uniform 0.3-1.5 s lag of `static/scripted_person.js` (`people` absent).
 """
 
 from __future__ import annotations
 
+import hashlib
+import subprocess
+import sys
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -22,6 +28,7 @@ from common.envs.maze import LAYOUT_COUNT, layout_kind
 from services.console.lags import check_lag_spec
 
 DESIGN_DIR = Path(__file__).resolve().parent / "designs"
+ROOT = DESIGN_DIR.parents[2]
 MEASURES = ("first_good", "goals")
 MULTIPLICITY = ("looks", "holm")
 TESTS_BY = ("person", "person_kind")
@@ -60,6 +67,10 @@ class Design:
     people: dict[str, str] = field(default_factory=dict)
     """Scripted people by name: their lag shape (services/console/lags.py); empty = uniform 0.3-1.5 s."""
     p_press: float = 0.5
+    commit: str = ""
+    """The one commit every run of the design comes from (a git tag, named before the first run): compare refuses
+    any other checkout, or a tree with uncommitted changes. Empty in the designs declared before issue 35, whose
+    runs are keyed by the checkout's commit (a dirty tree's as COMMIT-dirty-HASH of its changes)."""
 
     def tests(self) -> list[tuple[str | None, str | None]]:
         """The declared tests: (person, layout kind) for holm; one (None, None) test over every pair for looks."""
@@ -128,3 +139,57 @@ def load_designs(directory: Path = DESIGN_DIR) -> dict[str, Design]:
     if extra:
         raise ValueError(f"{directory}: designs not in index.yaml's order: {sorted(extra)}")
     return designs
+
+
+def _git(root: Path, *args: str) -> str:
+    done = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, check=False)
+    if done.returncode:
+        raise ValueError(f"git {' '.join(args)} in {root}: {done.stderr.strip() or done.returncode}")
+    return done.stdout
+
+
+def code_key(root: Path = ROOT) -> tuple[str, bool]:
+    """(key, dirty) of the code in the checkout at `root`: its commit, or, where files differ from it (changed,
+    staged or untracked and not ignored), `COMMIT-dirty-HASH` with a hash of those changes, so that a dirty tree
+    never passes for its commit and its runs are kept for that exact set of changes only."""
+    head = _git(root, "rev-parse", "HEAD").strip()
+    status = _git(root, "status", "--porcelain", "--untracked-files=all")
+    if not status:
+        return head, False
+    digest = hashlib.sha256(_git(root, "diff", "HEAD", "--binary").encode())
+    for line in sorted(status.splitlines()):
+        if line.startswith("??"):
+            path = root / line[3:]
+            digest.update(line.encode() + (path.read_bytes() if path.is_file() else b""))
+    return f"{head}-dirty-{digest.hexdigest()[:12]}", True
+
+
+def checkout_key(design: Design, root: Path = ROOT) -> str:
+    """The key of this checkout's runs of `design`; a ValueError saying why it may not run them, where the design
+    names its commit (`commit:` in its file) and the checkout is another commit or has uncommitted changes."""
+    key, dirty = code_key(root)
+    if not design.commit:
+        if dirty:
+            print(
+                f"[compare] design {design.name} names no commit and this tree has uncommitted changes: its runs "
+                f"are keyed {key}, kept for exactly these changes, never counted as the commit's",
+                file=sys.stderr,
+            )
+        return key
+    try:
+        declared = _git(root, "rev-parse", "--verify", "--quiet", f"{design.commit}^{{commit}}").strip()
+    except ValueError:
+        raise ValueError(
+            f"design {design.name} runs on commit {design.commit}, which this checkout does not have (git fetch --tags)"
+        ) from None
+    if key.split("-dirty-")[0] != declared:
+        raise ValueError(
+            f"design {design.name} runs on commit {design.commit} ({declared[:12]}) only; this "
+            f"checkout is {key[:12]}: git checkout {design.commit}"
+        )
+    if dirty:
+        raise ValueError(
+            f"design {design.name} runs on commit {design.commit} only, and this tree has uncommitted "
+            f"changes, so it is not that commit (git status): commit or stash them"
+        )
+    return key
