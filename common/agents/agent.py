@@ -137,7 +137,7 @@ class TrialBatchAgent(FeedbackDoor):
         h = self.h.values(rows, x, x1) if compare or np.count_nonzero(ah) else None
         scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
         greedy = scores[:, 0, :].argmax(axis=1)
-        if compare:
+        if compare and q is not None and h is not None:  # (both are computed when their choices are compared)
             q_best = q[:, 0, :].argmax(axis=1)
             self.greedy_count[sel] += both
             self.h_decided_count[sel] += both & (greedy != q_best)

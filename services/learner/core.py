@@ -30,10 +30,12 @@ import dataclasses
 import heapq
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from common.agents import make_agent
 from common.agents.agent import STATUS_NAMES
+from common.agents.config import AgentConfig
 from common.config import config_record
 from common.envs import make_env, obs_shape
 from common.protocol import Feedback, IngestEntry, Step
@@ -41,7 +43,7 @@ from common.core.delay_model import FixedDelay, LearnedDelay, delay_estimate, es
 from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
-from services.learner.screen import ScreenCredit
+from services.learner.screen import ScreenCredit, decode_feedback
 from services.learner.teacher_delays import Profiles
 
 REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
@@ -77,10 +79,14 @@ class LearnerCore:
     def __init__(self, config: LearnerConfig):
         self.config = config
         env, self.rule = make_env(config.env, config.layout)
-        self.obs_dim = int(env.observation_space.shape[0])
-        self.n_actions = int(env.action_space.n)
+        shape, actions = env.observation_space.shape, env.action_space
+        if not shape or not isinstance(actions, gym.spaces.Discrete):
+            raise ValueError(f"{config.env}: the learner needs a shaped observation and discrete actions")
+        self.obs_dim, self.n_actions = int(shape[0]), int(actions.n)
         env.close()
-        self.agent_config = config.agent
+        if config.agent is None:  # (LearnerConfig's __post_init__ resolves it from the algo)
+            raise ValueError("LearnerConfig.agent is not resolved")
+        self.agent_config: AgentConfig = config.agent
         self.agent = make_agent([self.agent_config], obs_shape(env), self.n_actions, [config.seed])
         self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
@@ -302,7 +308,7 @@ class LearnerCore:
             raise ValueError("checkpoint: agent step count does not match its metadata")
         self.actor, self.next_seq = meta["actor"], int(meta["next_seq"])
         self.teacher_next = {str(k): int(v) for k, v in meta["teacher_next"].items()}
-        self._held = [(float(t), int(a), Feedback.decode(fb.encode()), int(pos)) for t, a, fb, pos in meta["held"]]
+        self._held = [(float(t), int(a), decode_feedback(fb), int(pos)) for t, a, fb, pos in meta["held"]]
         heapq.heapify(self._held)
         self._arrivals = int(meta["arrivals"])
         self.position = int(meta["position"])
@@ -373,6 +379,6 @@ class LearnerCore:
 
 def learner_config_from_record(record: dict) -> LearnerConfig:
     """Inverse of `LearnerCore.config_record()['learner']`."""
-    data = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k != "type"}
     known = {f.name for f in dataclasses.fields(LearnerConfig)}
-    return LearnerConfig(**{k: v for k, v in data.items() if k in known})
+    data: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in known}
+    return LearnerConfig(**data)

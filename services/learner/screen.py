@@ -21,6 +21,14 @@ from common.agents.feedback import Screen
 from common.protocol import Feedback
 
 
+def decode_feedback(text: str) -> Feedback:
+    """A Feedback from its checkpointed JSON text (a ValueError if it is another message)."""
+    message = Feedback.decode(text.encode())
+    if not isinstance(message, Feedback):
+        raise ValueError(f"checkpoint: expected a Feedback, got {type(message).__name__}")
+    return message
+
+
 class ScreenCredit:
     """The learner's map from the actor's Step.seq to its step index, and the screen feedback waiting for a step."""
 
@@ -59,6 +67,8 @@ class ScreenCredit:
     def of(self, fb: Feedback) -> Screen:
         """What `fb`'s person saw (`fb.shown`), for the agent's door: each step's step-clock index (NaN: no longer
         held) and the interval it was on screen, [appeared, next appeared)."""
+        if fb.shown is None:
+            raise ValueError("a feedback without a screen has no steps shown")
         starts = np.array([s.t for s in fb.shown], np.float64)
         times = np.array([self.index.get(s.seq, np.nan) for s in fb.shown], np.float64)
         return Screen(times, starts, np.append(starts[1:], np.inf))
@@ -71,4 +81,4 @@ class ScreenCredit:
         self.index = collections.OrderedDict((int(k), int(v)) for k, v in state["index"])
         self.seq_of = {i: q for q, i in self.index.items()}
         self.past_actors = [str(a) for a in state["past_actors"]]
-        self.held = [(Feedback.decode(fb.encode()), int(pos)) for fb, pos in state["held"]]
+        self.held = [(decode_feedback(fb), int(pos)) for fb, pos in state["held"]]
