@@ -132,14 +132,8 @@ class FeedbackDoor:
             for k in nz(timed):
                 teacher = DEFAULT_TEACHER if teachers is None else teachers[k]
                 screen = None if screens is None else screens[k]
-                self._credit_timed(
-                    int(k),
-                    int(rows[k]),
-                    float(stamps[k]),
-                    values[k, : counts[k]],
-                    teacher,
-                    screen,
-                    (status, steps, lost),
+                status[k], steps[k], lost[k] = self._credit_timed(
+                    int(k), int(rows[k]), float(stamps[k]), values[k, : counts[k]], teacher, screen
                 )
         learn = self.train_h[rows] & ~self.shaping[rows] & ~timed
         if np.count_nonzero(learn):
@@ -157,9 +151,12 @@ class FeedbackDoor:
             return c.positions[j, :n], c.weights[j, :n]
         return np.zeros(0, np.int64), np.zeros(0)
 
-    def _credit_timed(self, k: int, row: int, t: float, values, teacher: str, screen: Screen | None, out) -> None:
-        """Each round of trial `row`'s feedback credited in seconds with its teacher's delay, over the intervals its
-        screen showed the steps or, without one, the held steps' own times."""
+    def _credit_timed(
+        self, k: int, row: int, t: float, values: np.ndarray, teacher: str, screen: Screen | None
+    ) -> tuple[int, int, float]:
+        """Each round of trial `row`'s feedback (the k-th asked about) credited in seconds with its teacher's delay,
+        over the intervals its screen showed the steps or, without one, the held steps' own times. Returns the last
+        round's (status code, steps, lost mass)."""
         delay = self.delays.of(row, teacher, screen is not None)
         if delay is None:
             raise ValueError(f"teacher {teacher!r} gave feedback on a screen but has no delay in seconds")
@@ -170,13 +167,12 @@ class FeedbackDoor:
             ends = np.append(starts[1:], np.inf)
         else:
             positions, starts, ends = self.history.find(row, screen.step_times), screen.starts, screen.ends
-        status, steps, lost = out
+        result = FeedbackOutcome("ignored")
         for value in values:
             result, weights = self._credit_in_seconds(row, t, int(value), positions, starts, ends, delay)
-            status[k] = STATUS_NAMES.index(result.status)
-            steps[k], lost[k] = result.steps, result.lost_mass
             credited = (weights > 0) & (positions >= 0)
             self.last_timed[k] = (positions[credited], weights[credited])
+        return STATUS_NAMES.index(result.status), result.steps, result.lost_mass
 
     def _credit_in_seconds(
         self, row: int, t_feedback: float, value: int, positions, starts, ends, delay

@@ -346,6 +346,8 @@ class LearnerCore:
                                [fb.teacher_id], [screen])
         result = self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
         result.feedback = fb
+        if screen is not None and result.status == "stale" and np.isnan(screen.step_times).all():
+            self.counters["feedback_too_old"] += 1  # the reason: every step it was about has left the history
         if result.status == "credited":
             positions, weights = self.agent.credited(0)
             seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
