@@ -63,11 +63,9 @@ class TrialBatchAgent(FeedbackDoor):
         self.q, self.q_target, self.h = p.q, p.q_target, p.h
         self.replay, self.feedback_memory, self.history = p.replay, p.feedback_memory, p.history
         self.explorer, self.mixture = p.explorer, p.mixture
-        self.assumed_delay = p.assumed_delay
+        self.delays = p.delays
         # At most one held step per point mass of the assumed delay can be credited by one feedback.
-        probs = getattr(self.assumed_delay, "probs", None)
-        width = getattr(self.assumed_delay, "width", None) or (len(probs) if probs is not None else None)
-        self.local_width = min(width, base.history_steps) if width is not None else base.history_steps
+        self.local_width = min(self.delays.width, base.history_steps)
         self.train_q = np.array([c.train_q for c in configs])
         self.train_h = np.array([c.train_h for c in configs])
         self.shaping = np.array([c.reward_shaping for c in configs])
@@ -78,9 +76,10 @@ class TrialBatchAgent(FeedbackDoor):
         # where the mixture's greedy action differed from Q's own (H overruled Q).
         self.greedy_count = np.zeros(B, dtype=np.int64)
         self.h_decided_count = np.zeros(B, dtype=np.int64)
-        # The latest feedback round's credit of its H trials (their indices into its rows, the credit): what the
-        # live learner reports in Credit messages, so it never computes a feedback's credit twice.
-        self.last_credit: tuple[np.ndarray, BatchCredit] | None = None
+        # The latest feedback round's credit (`credited`): what the live learner reports in Credit messages, so it
+        # never computes a feedback's credit twice.
+        self.last_credit: tuple[np.ndarray, BatchCredit] | None = None  # its step-clock trials: (indices, credit)
+        self.last_timed: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # its trials in seconds: index -> positions, w
         # Rows that train both Q and H (whose choices `act` compares), and whether there is one, per row set.
         self._learns_both = RowConstants(lambda rows: (self.train_q[rows] & self.train_h[rows],
                                                        bool((self.train_q[rows] & self.train_h[rows]).any())))
@@ -138,7 +137,7 @@ class TrialBatchAgent(FeedbackDoor):
         h = self.h.values(rows, x, x1) if compare or np.count_nonzero(ah) else None
         scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
         greedy = scores[:, 0, :].argmax(axis=1)
-        if compare:
+        if compare and q is not None and h is not None:  # (both are computed when their choices are compared)
             q_best = q[:, 0, :].argmax(axis=1)
             self.greedy_count[sel] += both
             self.h_decided_count[sel] += both & (greedy != q_best)

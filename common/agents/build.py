@@ -17,8 +17,7 @@ from common.agents.networks import StackedMLP, ValueNetworks
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.agents.streams import UniformBlocks
-from common.core.delay import DelayModel
-from common.core.delay_learning import TrialDelays
+from common.core.delay_learning import TeacherDelays
 from common.core.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
@@ -38,27 +37,25 @@ class AgentParts:
     history: BatchStepHistory
     explorer: EpsilonGreedy
     mixture: Mixture
-    assumed_delay: object  # anything with a CDF (`common.core.credit.DelayDistribution`)
+    delays: TeacherDelays  # the teachers' delays: assumed step lags per trial, a delay in seconds per teacher
     q_draws: UniformBlocks  # Q's replay minibatch draws (counter-based, per trial)
     h_draws: UniformBlocks  # H's D_global minibatch draws
 
     _ROWS = ("q", "q_target", "h", "replay", "feedback_memory", "history", "explorer", "mixture", "q_draws",
              "h_draws")
-    _STATE = ("q", "q_target", "h", "replay", "feedback_memory", "history")
-
-    def _per_trial(self) -> tuple[str, ...]:
-        """Parts with per-trial state beyond the fixed ones: the delay when it is one per trial (learned)."""
-        return ("assumed_delay",) if isinstance(self.assumed_delay, TrialDelays) else ()
+    _STATE = ("q", "q_target", "h", "replay", "feedback_memory", "history", "mixture", "delays")
 
     def select(self, rows: np.ndarray) -> None:
-        for name in self._ROWS + self._per_trial():
+        for name in self._ROWS + ("delays",):
             getattr(self, name).select(rows)
 
     def state_dict(self) -> dict:
-        return {name: getattr(self, name).state_dict() for name in self._STATE + ("mixture",) + self._per_trial()}
+        return {name: getattr(self, name).state_dict() for name in self._STATE}
 
     def load_state_dict(self, state: dict) -> None:
-        for name in self._STATE + ("mixture",) + self._per_trial():
+        if "assumed_delay" in state:  # (written before the registry: a trial's learned delay, by its old name)
+            state = {**state, "delays": state["assumed_delay"]}
+        for name in self._STATE:
             if name in state:  # (logs written before a part kept state lack it)
                 getattr(self, name).load_state_dict(state[name])
 
@@ -75,15 +72,6 @@ def mlp(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[in
     return StackedMLP(obs_dim, c.hidden, n_actions, [derive_seed(s, purpose) for s in seeds], opt)
 
 
-def _assumed_delay(configs: list[AgentConfig], step_unit: float):
-    """The paper's one point-mass model when every trial assumes the same lags and none learns them; else one
-    distribution per trial, learned in seconds where configured (`common.core.delay_learning.TrialDelays`)."""
-    c = configs[0]
-    if all(x.assumed_delay_probs == c.assumed_delay_probs and not x.learn_delay for x in configs):
-        return DelayModel(c.assumed_delay_probs, step_unit)
-    return TrialDelays(configs, step_unit)
-
-
 def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
                 step_unit: float = 1.0, make_network=mlp) -> AgentParts:
     """The parts of an agent for these configs. `make_network(configs, obs_dim, n_actions, seeds, purpose,
@@ -98,7 +86,7 @@ def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds:
         history=BatchStepHistory(B, c.history_steps, obs_dim),
         explorer=EpsilonGreedy(configs, _keys(seeds, "explore"), n_actions),
         mixture=Mixture(configs),
-        assumed_delay=_assumed_delay(configs, step_unit),
+        delays=TeacherDelays(configs, step_unit),
         q_draws=UniformBlocks(_keys(seeds, "q-replay"), c.batch_size),
         h_draws=UniformBlocks(_keys(seeds, "h-replay"), c.h_batch_size),
     )

@@ -1,27 +1,30 @@
-"""Feedback into the agent: the one door every feedback passes (`TrialBatchAgent` inherits it).
+"""Feedback into the agent: the one door every feedback passes (`TrialBatchAgent` inherits it), whichever the
+driver (the in-process runner, the live learner, `replay retrain`).
 
-Two ways in, one rule (credit over the intervals the steps were shown, `common.core.credit`):
-  feedback_rounds  the step clock's feedback of many trials at once (the in-process runner, the live learner's
-                   oracle): a fixed delay is credited batched over the held steps' intervals; a trial that learns
-                   its teacher's delay goes through `credit_shown` with its held steps' times in seconds;
-  credit_shown     one feedback on steps shown during given intervals (a person's screen, or the held steps):
-                   weights from a delay estimate (`common.core.delay_model`), which also learns from it.
-Shaping trials add the value to the reward of the newest step shown at or before the feedback; H trials
-grow D_global and take one H step on D_local. A feedback's candidates are the held steps shown before it,
-whatever their episode.
+`feedback_rounds` takes rounds of feedback of many trials at once, each from a named teacher (the runner's one
+teacher per trial by default) and, for a person, the screen that showed the steps. The agent's registry of its
+teachers' delays (`common.core.delay_learning.TeacherDelays`) says how each is credited, by one rule (credit over
+the intervals the steps were shown, `common.core.credit`):
+  on the step clock  a teacher without a delay in seconds: the assumed point-mass lags, batched over the held
+                     steps' intervals (the paper's);
+  in seconds         a teacher with a delay in seconds (`common.core.delay_model`: learned or fixed; it also
+                     learns from the feedback), over the intervals the held steps were shown: on the person's
+                     screen (`Screen`) or at the times they were taken (`record_steps`' seconds).
+Shaping trials add the value to the reward of the newest step shown at or before the feedback; H trials grow
+D_global and take one H step on D_local. A feedback's candidates are the held steps shown before it, whatever
+their episode. `credited(k)` says which held steps the latest round's k-th trial credited, with what weight.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
 from common.agents.history import BatchCredit, BatchStepHistory
 from common.agents.networks import SQUARED_SUM, FitJob, ValueNetworks
 from common.agents.replay import FeedbackMemory, TransitionReplay
-from common.core.delay_learning import TrialDelays
+from common.core.delay_learning import DEFAULT_TEACHER, TeacherDelays
 from common.core.delay_model import polarity_likelihood
 from common.core.util import nz
 
@@ -39,6 +42,16 @@ class FeedbackOutcome:
     lost_mass: float = 0.0
 
 
+@dataclass(frozen=True)
+class Screen:
+    """What a person's screen showed before their feedback, oldest first: each step's time on the step clock (NaN:
+    not known to the learner) and the interval [starts, ends) it was shown, in seconds on the feedback's clock."""
+
+    step_times: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+
+
 class FeedbackDoor:
     """The feedback methods of `TrialBatchAgent` (they use its parts: history, replay, h, feedback_memory)."""
 
@@ -47,34 +60,26 @@ class FeedbackDoor:
     replay: TransitionReplay
     feedback_memory: FeedbackMemory
     h: ValueNetworks
-    assumed_delay: Any
+    delays: TeacherDelays
     shaping: np.ndarray
     train_h: np.ndarray
     h_updates: np.ndarray
     local_width: int
     last_credit: tuple[np.ndarray, BatchCredit] | None
+    last_timed: dict[int, tuple[np.ndarray, np.ndarray]]
 
     def mean_lag(self, rows: np.ndarray) -> np.ndarray:
-        """Mean of the lag distribution (in steps) credit uses now for trials `rows` (nan if not point masses,
-        or learned in seconds: `median_delay_s`)."""
-        d = self.assumed_delay
-        if hasattr(d, "mean_lag"):
-            return d.mean_lag(rows)
-        probs = getattr(d, "probs", None)
-        value = float(np.dot(probs, np.arange(len(probs)))) if probs is not None else float("nan")
-        return np.full(len(rows), value)
+        """Mean of the lag distribution (in steps) credit uses now for trials `rows` (nan where it is learned in
+        seconds: `median_delay_s`)."""
+        return self.delays.mean_lag(rows)
 
     def median_delay_s(self, rows: np.ndarray, mean: bool = False) -> np.ndarray:
         """The learned median (or `mean`) delay (s) of each trial's teacher (nan where it is not learned)."""
-        d = self.assumed_delay
-        if not isinstance(d, TrialDelays):
-            return np.full(len(rows), np.nan)
-        return d.mean_s(rows) if mean else d.median_s(rows)
+        return self.delays.mean_s(rows) if mean else self.delays.median_s(rows)
 
     def delay_summary(self, i: int) -> dict | None:
         """Trial i's learned delay (`LearnedDelay.summary`), None where it is not learned."""
-        d = self.assumed_delay
-        learned = d.learned[i] if isinstance(d, TrialDelays) else None
+        learned = self.delays.learned(i)
         return None if learned is None else learned.summary()
 
     def give_feedback(self, events: list[tuple[int, float, int]]) -> list[FeedbackOutcome]:
@@ -103,61 +108,78 @@ class FeedbackDoor:
         values: np.ndarray,
         counts: np.ndarray,
         seconds: np.ndarray | None = None,
+        teachers: list[str] | None = None,
+        screens: list[Screen | None] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Rounds of feedback stamped at the same times: round r gives values[k, r] (+-1, not checked) to
-        trial rows[k] if counts[k] > r. Shaping trials add it to the newest step's reward; H trials credit it
-        by timestamp (computed once: nothing is recorded between rounds), grow D_global and update H on
-        D_local, one update per round, in order; trials that learn their teacher's delay credit each round by
-        its posterior in seconds (`seconds`: the stamps on the teacher's clock, default t_feedback) through
-        `credit_shown`. Returns (status, steps, lost mass) per trial."""
+        """The one door. Rounds of feedback stamped at the same times: round r gives values[k, r] (+-1, not
+        checked) to trial rows[k] if counts[k] > r, from `teachers[k]` (default: the trial's one teacher), stamped
+        t_feedback[k] on the step clock and `seconds[k]` on the teacher's clock (default t_feedback), seen on
+        `screens[k]` (None: no screen). A teacher with a delay in seconds (or a screen) is credited by its posterior
+        in seconds, one round at a time; the others on the step clock: shaping trials add the value to the newest
+        step's reward; H trials credit it by timestamp (computed once: nothing is recorded between rounds), grow
+        D_global and update H on D_local, one update per round, in order. Returns (status, steps, lost) per trial."""
         n = len(rows)
-        self.last_credit = None
+        self.last_credit, self.last_timed = None, {}
         status = np.full(n, IGNORED, np.int64)
         steps = np.zeros(n, np.int64)
         lost = np.zeros(n, np.float64)
-        shaping = self.shaping[rows]
+        timed = self.delays.timed(rows, teachers, screens)
+        shaping = self.shaping[rows] & ~timed
         if np.count_nonzero(shaping):
             self._shape(rows, t_feedback, values, counts, nz(shaping), status, steps, lost)
-        learn = self.train_h[rows] & ~shaping
-        delays = self.assumed_delay
-        if isinstance(delays, TrialDelays) and np.count_nonzero(learn & delays.learn[rows]):
-            learned = learn & delays.learn[rows]
-            learn &= ~learned
-            self._credit_learned(
-                rows, t_feedback if seconds is None else seconds, values, counts, nz(learned), status, steps, lost
-            )
+        if np.count_nonzero(timed):
+            stamps = t_feedback if seconds is None else seconds
+            for k in nz(timed):
+                teacher = DEFAULT_TEACHER if teachers is None else teachers[k]
+                screen = None if screens is None else screens[k]
+                status[k], steps[k], lost[k] = self._credit_timed(
+                    int(k), int(rows[k]), float(stamps[k]), values[k, : counts[k]], teacher, screen
+                )
+        learn = self.train_h[rows] & ~self.shaping[rows] & ~timed
         if np.count_nonzero(learn):
             self._credit_h(rows, t_feedback, values, counts, nz(learn), status, steps, lost)
         return status, steps, lost
 
-    def _credit_learned(self, rows, seconds, values, counts, k, status, steps, lost) -> None:
-        """Each round of each trial in k credited by its own posterior under the trial's learned delay."""
-        for j in k:
-            row = int(rows[j])
-            for rnd in range(int(counts[j])):
-                out, _, _ = self.credit_in_seconds(
-                    row, float(seconds[j]), int(values[j, rnd]), self.assumed_delay.learned[row]
-                )
-                status[j] = STATUS_NAMES.index(out.status)
-                steps[j], lost[j] = out.steps, out.lost_mass
+    def credited(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The held steps (ring positions) the latest round's k-th trial credited, oldest first, and their weights."""
+        if k in self.last_timed:
+            return self.last_timed[k]
+        if self.last_credit is not None and k in self.last_credit[0]:
+            j = int(np.flatnonzero(self.last_credit[0] == k)[0])
+            c = self.last_credit[1]
+            n = int(c.counts[j])
+            return c.positions[j, :n], c.weights[j, :n]
+        return np.zeros(0, np.int64), np.zeros(0)
 
-    def credit_in_seconds(self, row: int, t_seconds: float, value: int, delay):
-        """A feedback of a teacher without a screen, credited with `delay` over the held steps' times in seconds
-        (`record_steps`' seconds: the virtual clock's, or the actor's wall clock). Returns the outcome, the held
-        steps' times (the step clock's) and their weights."""
-        pos, times = self.history.held(np.array([row]))
-        held = np.isfinite(times[0])
-        pos = pos[0][held]
-        starts = self.history.seconds[row, pos]
-        out, weights = self.credit_shown(row, t_seconds, value, pos, starts, np.append(starts[1:], np.inf), delay)
-        return out, times[0][held], weights
+    def _credit_timed(
+        self, k: int, row: int, t: float, values: np.ndarray, teacher: str, screen: Screen | None
+    ) -> tuple[int, int, float]:
+        """Each round of trial `row`'s feedback (the k-th asked about) credited in seconds with its teacher's delay,
+        over the intervals its screen showed the steps or, without one, the held steps' own times. Returns the last
+        round's (status code, steps, lost mass)."""
+        delay = self.delays.of(row, teacher, screen is not None)
+        if delay is None:
+            raise ValueError(f"teacher {teacher!r} gave feedback on a screen but has no delay in seconds")
+        if screen is None:
+            positions, times = self.history.held(np.array([row]))
+            positions = positions[0][np.isfinite(times[0])]
+            starts = self.history.seconds[row, positions]
+            ends = np.append(starts[1:], np.inf)
+        else:
+            positions, starts, ends = self.history.find(row, screen.step_times), screen.starts, screen.ends
+        result = FeedbackOutcome("ignored")
+        for value in values:
+            result, weights = self._credit_in_seconds(row, t, int(value), positions, starts, ends, delay)
+            credited = (weights > 0) & (positions >= 0)
+            self.last_timed[k] = (positions[credited], weights[credited])
+        return STATUS_NAMES.index(result.status), result.steps, result.lost_mass
 
-    def credit_shown(
+    def _credit_in_seconds(
         self, row: int, t_feedback: float, value: int, positions, starts, ends, delay
     ) -> tuple[FeedbackOutcome, np.ndarray]:
-        """The one door of a feedback on steps shown during [starts, ends) (oldest first; seconds on the clock of
-        t_feedback): `positions` are the history's ring positions of those steps (`history.find`; -1: no longer
-        held). `delay` (`common.core.delay_model`: learned or fixed) gives each its credit and learns from the
+        """A feedback on steps shown during [starts, ends) (oldest first; seconds on the clock of t_feedback):
+        `positions` are the history's ring positions of those steps (`history.find`; -1: no longer held).
+        `delay` (`common.core.delay_model`: learned or fixed) gives each its credit and learns from the
         feedback on the task rule's polarity of the candidates. Shaping trials add the value to the reward of
         the newest held step shown at or before t_feedback. Returns the outcome and each listed step's weight."""
         if value not in (-1, 1):
@@ -214,10 +236,7 @@ class FeedbackDoor:
     def _credit_h(self, rows, t_feedback, values, counts, k, status, steps, lost) -> None:
         """Credit by timestamp: D_local, added to D_global, and an H step on D_local (summed) per round."""
         r = rows[k]
-        delay = self.assumed_delay
-        if isinstance(delay, TrialDelays):  # one distribution per trial
-            delay = delay.rows(r)
-        credit = self.history.credit(r, t_feedback[k], delay, self.local_width)
+        credit = self.history.credit(r, t_feedback[k], self.delays.step_delay(r), self.local_width)
         self.last_credit = (k, credit)
         ok = credit.counts > 0
         status[k] = np.where(ok, CREDITED, STALE)

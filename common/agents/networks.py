@@ -38,9 +38,9 @@ def torch_uniform(seed: int, n: int) -> np.ndarray:
     torch: its CPU generator is a 32-bit Mersenne Twister seeded with the seed's low 32 bits, the same as
     numpy's legacy seeding, and a float is the low 24 bits of one draw over 2**24. Importing torch costs a
     service about 1.3 s of CPU at start; tests/core/test_parts.py checks this against torch."""
-    bits = np.random.MT19937()
-    bits.state = np.random.RandomState(int(seed) % (2**63) & 0xFFFFFFFF).get_state(legacy=False)
-    return (bits.random_raw(n) & 0xFFFFFF).astype(np.float32) * np.float32(2.0**-24)
+    legacy = np.random.RandomState(int(seed) % (2**63) & 0xFFFFFFFF)
+    raw = legacy.randint(0, 2**32, size=n, dtype=np.uint32)  # (the full 32-bit range: one raw draw each)
+    return (raw & 0xFFFFFF).astype(np.float32) * np.float32(2.0**-24)
 
 
 def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, np.ndarray]:
@@ -151,6 +151,8 @@ class Loss:
             d = pred - target
             np.maximum(d, np.float32(-1), out=d)
             np.minimum(d, np.float32(1), out=d)
+        elif weights is None:
+            raise ValueError("a squared loss here is weighted: its job needs weights")
         else:
             d = np.float32(2) * weights * (pred - target)
         if self.reduce == "mean":

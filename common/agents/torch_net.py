@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from common.agents.config import NETWORKS, resolve_network  # noqa: F401 (resolve_network: re-exported)
-from common.agents.networks import init_mlp
+from common.agents.networks import ValueNetworks, init_mlp
 
 
 class PaperMLP(nn.Module):
@@ -127,8 +127,8 @@ class TorchValueNetworks:
     def forward(self, rows: np.ndarray | None, x) -> torch.Tensor:
         """x [n, N, obs] -> values [n, N, A] (a tensor, with autograd) for trials `rows` (all when None)."""
         x = torch.as_tensor(np.asarray(x, np.float32), device=self.device)
-        rows = range(self.trials) if rows is None else rows
-        out = [self.modules[int(r)](x[k]) for k, r in enumerate(rows)]
+        order = range(self.trials) if rows is None else rows
+        out = [self.modules[int(r)](x[k]) for k, r in enumerate(order)]
         return out[0].unsqueeze(0) if len(out) == 1 else torch.stack(out)
 
     def values(self, rows: np.ndarray | None, x: np.ndarray, x1: np.ndarray | None = None) -> np.ndarray:
@@ -139,6 +139,9 @@ class TorchValueNetworks:
     def fit(self, job) -> None:
         """One RMSprop step of trials `job.rows` on the job's loss (summed over its trials: each trial's
         gradient is its own); the other trials are not touched."""
+        if self.opts is None:
+            raise RuntimeError("this network is not trained (a target network is synced, never fitted)")
+        opts = self.opts
         pred = self.forward(job.rows, job.x)
         actions = torch.as_tensor(np.asarray(job.actions, np.int64), device=self.device).unsqueeze(-1)
         pred = pred.gather(-1, actions).squeeze(-1)
@@ -150,21 +153,23 @@ class TorchValueNetworks:
             per_row = weights * (pred - target) ** 2
         loss = per_row.mean(dim=1) if job.loss.reduce == "mean" else per_row.sum(dim=1)
         for r in job.rows:
-            self.opts[int(r)].zero_grad(set_to_none=True)
+            opts[int(r)].zero_grad(set_to_none=True)
         loss.sum().backward()
         for r in job.rows:
-            self.opts[int(r)].step()
+            opts[int(r)].step()
 
-    def sync_from(self, other: TorchValueNetworks, rows: np.ndarray) -> None:
+    def sync_from(self, other: ValueNetworks, rows: np.ndarray) -> None:
+        if not isinstance(other, TorchValueNetworks):
+            raise TypeError(f"a torch network syncs from another, not from {type(other).__name__}")
         for r in rows:
             self.modules[int(r)].load_state_dict(other.modules[int(r)].state_dict())
 
     def select(self, rows: np.ndarray) -> None:
         """Keep trials `rows` (modules and optimisers), in that order."""
-        rows = [int(r) for r in rows]
-        self.modules = [self.modules[r] for r in rows]
+        keep = [int(r) for r in rows]
+        self.modules = [self.modules[r] for r in keep]
         if self.opts is not None:
-            self.opts = [self.opts[r] for r in rows]
+            self.opts = [self.opts[r] for r in keep]
 
     def policy_state(self, row: int) -> dict[str, np.ndarray]:
         return {k: v.detach().cpu().numpy().copy() for k, v in self.modules[row].state_dict().items()}

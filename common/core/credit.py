@@ -25,7 +25,7 @@ or between intervals is lost (returned, so the caller can count it). Weights and
 """
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, overload
 
 import numpy as np
 
@@ -49,7 +49,11 @@ def interval_mass(delay, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     return np.clip(np.asarray(delay.cdf(high), np.float64) - np.asarray(delay.cdf(low), np.float64), 0.0, 1.0)
 
 
-def credit_weights(t_feedback, starts, delay, ends=None) -> tuple[np.ndarray, np.ndarray]:
+@overload
+def credit_weights(t_feedback: float, starts, delay, ends=None) -> tuple[np.ndarray, float]: ...
+@overload
+def credit_weights(t_feedback: np.ndarray, starts, delay, ends=None) -> tuple[np.ndarray, np.ndarray]: ...
+def credit_weights(t_feedback, starts, delay, ends=None) -> tuple[np.ndarray, np.ndarray | float]:
     """Weights of each held step for a feedback at `t_feedback`, and the mass lost.
 
     Batched over leading axes: t_feedback [...], starts [..., K] ascending along K (held steps, oldest first;

@@ -8,7 +8,7 @@ model (unit one step on the step clock). `delay_from_spec` also builds continuou
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -40,12 +40,15 @@ class DelayModel:
 
     probs: tuple[float, ...]
     unit: float = 1.0
+    # Kept as arrays for `mass_between`, which credit calls for every feedback (set from the two above: not
+    # arguments, and no part of ==).
+    _lags: np.ndarray = field(init=False, repr=False, compare=False)
+    _probs: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "probs", parse_probs(self.probs, "delay probabilities"))
         if not (self.unit > 0 and math.isfinite(self.unit)):
             raise ValueError(f"delay unit must be positive, got {self.unit}")
-        # Kept as arrays for `mass_between`, which credit calls for every feedback (not fields: no effect on ==).
         object.__setattr__(self, "_lags", np.arange(len(self.probs), dtype=np.float64) * self.unit)
         object.__setattr__(self, "_probs", np.asarray(self.probs, np.float64))
 

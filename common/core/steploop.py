@@ -3,10 +3,11 @@ the virtual clock), the live learner (one trial, from Zenoh inputs) and `replay 
 
 For each step of each trial, in this order:
 
-1. `credit` (the step clock) or `credit_shown` (a person's screen): the feedback that arrived before this
-   step's action is credited by timestamp over the intervals the held steps were shown, whatever their
-   episode (D_local, an H update per feedback, D_global grows) or, for shaping agents, added to the newest
-   shown step's reward;
+1. `credit`: the feedback that arrived before this step's action is credited through the agent's one door
+   (`feedback_rounds`) by timestamp over the intervals the held steps were shown, whatever their episode, with
+   its teacher's delay from the agent's registry (the step clock's assumed lags, or a delay in seconds, over a
+   person's screen where there is one): D_local, an H update per feedback, D_global grows; or, for shaping
+   agents, added to the newest shown step's reward;
 2. `step`: the step's transition is recorded (replay, the step history that credit reads);
 3. the every-b-steps updates run (a Q minibatch from replay, an H minibatch from D_global), then the
    target network syncs when due.
@@ -23,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.agents.agent import TrialBatchAgent
+from common.agents.feedback import Screen
 
 
 @dataclass
@@ -39,10 +41,12 @@ class StepLoop:
         self.agent = agent
 
     def credit(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray,
-               counts: np.ndarray | None = None, seconds: np.ndarray | None = None) -> FeedbackRound:
+               counts: np.ndarray | None = None, seconds: np.ndarray | None = None,
+               teachers: list[str] | None = None, screens: list[Screen | None] | None = None) -> FeedbackRound:
         """Feedback that arrived before the next action: values[k, r] (+-1) for trial rows[k], stamped
-        t_feedback[k] (`seconds[k]` on the teacher's clock, for a learned delay), for r < counts[k] (rounds in
-        arrival order; values may be 1-d for one round each)."""
+        t_feedback[k] on the step clock (`seconds[k]` on the teacher's clock, for a delay in seconds), for
+        r < counts[k] (rounds in arrival order; values may be 1-d for one round each), from `teachers[k]` (default:
+        the trial's one teacher), seen on `screens[k]` (a person's; None: none)."""
         values = np.asarray(values, np.int64)
         if values.ndim == 1:
             values = values[:, None]
@@ -50,14 +54,8 @@ class StepLoop:
             counts = np.ones(len(rows), np.int64)
         return FeedbackRound(*self.agent.feedback_rounds(np.asarray(rows, np.int64),
                                                          np.asarray(t_feedback, np.float64), values, counts,
-                                                         None if seconds is None else np.asarray(seconds, np.float64)))
-
-    def credit_shown(self, row: int, t_feedback: float, value: int, step_times, starts, ends, delay):
-        """A feedback on steps shown during [starts, ends) (a person's screen: seconds), the held steps recorded at
-        `step_times` (NaN: no longer held), credited with `delay` (`common.core.delay_model`) through the agent's
-        one door. Returns (agent.FeedbackOutcome, weights)."""
-        positions = self.agent.history.find(row, step_times)
-        return self.agent.credit_shown(row, t_feedback, value, positions, starts, ends, delay)
+                                                         None if seconds is None else np.asarray(seconds, np.float64),
+                                                         teachers, screens))
 
     def step(self, rows: np.ndarray, obs, actions, rewards, next_obs, terminated, t_action,
              episodes, seconds=None, polarity=None) -> None:

@@ -4,11 +4,13 @@ and exactly what `replay retrain` does with the recorded ones.
 It wraps the core's `TrialBatchAgent` (B = 1) the way the in-process runner does: steps are recorded with
 their step number as time (the runner's virtual clock) and their wall-clock time in seconds, with the task
 rule's polarity of each (from its `info`: the model of the rated event a learned delay is fitted on). A
-teacher's feedback is credited by the core's credit function at its step-clock time (`StepClock`: its
-wall-clock stamp placed between the two actions around it; `oracle_delay` steps, the paper's) or, with a delay
-in seconds (`common.core.delay_model`, one per teacher: `delays`), over the held steps' wall-clock times; a
-person's (`shown`) over the times their screen showed the steps. Either way it goes through the agent's one
-door, and its candidates are the steps shown before it, whatever their episode.
+teacher's feedback goes through the agent's one door (`StepLoop.credit`, as in the runner), stamped both at its
+step-clock time (`StepClock`: its wall-clock stamp placed between the two actions around it) and in seconds, with
+the screen its person saw (`shown`, if any). The agent's registry of its teachers' delays decides the rule: the
+step clock's assumed lags (`oracle_delay` steps, the paper's), or a delay in seconds (`common.core.delay_model`,
+made for each teacher when first heard by `new_delay`, from this config), over the held steps' wall-clock times
+or the times the person's screen showed them. Its candidates are the steps shown before it, whatever their
+episode.
 
 Per input, in consumption order:
 
@@ -28,18 +30,20 @@ import dataclasses
 import heapq
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
 from common.agents import make_agent
 from common.agents.agent import STATUS_NAMES
+from common.agents.config import AgentConfig
 from common.config import config_record
 from common.envs import make_env, obs_shape
 from common.protocol import Feedback, IngestEntry, Step
-from common.core.delay_model import delay_estimate, estimate_from_state
+from common.core.delay_model import FixedDelay, LearnedDelay, delay_estimate, estimate_from_state
 from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
-from services.learner.screen import ScreenCredit
+from services.learner.screen import ScreenCredit, decode_feedback
 from services.learner.teacher_delays import Profiles
 
 REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
@@ -75,16 +79,20 @@ class LearnerCore:
     def __init__(self, config: LearnerConfig):
         self.config = config
         env, self.rule = make_env(config.env, config.layout)
-        self.obs_dim = int(env.observation_space.shape[0])
-        self.n_actions = int(env.action_space.n)
+        shape, actions = env.observation_space.shape, env.action_space
+        if not shape or not isinstance(actions, gym.spaces.Discrete):
+            raise ValueError(f"{config.env}: the learner needs a shaped observation and discrete actions")
+        self.obs_dim, self.n_actions = int(shape[0]), int(actions.n)
         env.close()
-        self.agent_config = config.agent
+        if config.agent is None:  # (LearnerConfig's __post_init__ resolves it from the algo)
+            raise ValueError("LearnerConfig.agent is not resolved")
+        self.agent_config: AgentConfig = config.agent
         self.agent = make_agent([self.agent_config], obs_shape(env), self.n_actions, [config.seed])
         self.loop = StepLoop(self.agent)
         self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
         self.screen = ScreenCredit(self.agent_config.history_steps)
-        self.delays: dict[str, Any] = {}  # teacher id -> its delay (common.core.delay_model), made when first heard
         self.profiles = Profiles(config.profiles)  # returning people start from their last estimate
+        self.agent.delays.new_delay = self.new_delay  # each teacher's delay, made when first heard
         self.actor: str | None = None
         self.next_seq = 0
         self.teacher_next: dict[str, int] = {}
@@ -244,19 +252,23 @@ class LearnerCore:
             return 0
         return value if value in (-1, 1) else 0
 
-    def delay_of(self, fb: Feedback):
-        """The delay `fb`'s teacher is credited with (made on first use), None for the step clock's (paper)."""
-        est = self.delays.get(fb.teacher_id)
-        if est is None:
-            c = self.config
-            spec = c.screen_delay if fb.shown is not None else c.oracle_delay
-            if spec == "steps" and self.agent_config.learn_delay:  # the agent's own setting, as in the runner
-                spec = f"learned:{self.agent_config.delay_prior}"
-            if spec == "steps":
-                return None
-            est = delay_estimate(spec, c.screen_credit if fb.shown is not None else "onset")
-            est = self.delays[fb.teacher_id] = self.profiles.load(fb.teacher_id, est) if fb.shown is not None else est
-        return est
+    @property
+    def delays(self) -> dict[str, LearnedDelay | FixedDelay]:
+        """{teacher id: its delay in seconds}: the agent's registry (teachers on the step clock have none)."""
+        return self.agent.delays.models[0]
+
+    def new_delay(self, teacher: str, on_screen: bool) -> LearnedDelay | FixedDelay | None:
+        """The delay a teacher heard for the first time is credited with (`TeacherDelays.new_delay`): in seconds,
+        from `screen_delay` for a person's screen (a returning person's from their profile) or `oracle_delay`; None
+        for the step clock's assumed lags (the paper's)."""
+        c = self.config
+        spec = c.screen_delay if on_screen else c.oracle_delay
+        if spec == "steps" and self.agent_config.learn_delay:  # the agent's own setting, as in the runner
+            spec = f"learned:{self.agent_config.delay_prior}"
+        if spec == "steps":
+            return None
+        est = delay_estimate(spec, c.screen_credit if on_screen else "onset")
+        return self.profiles.load(teacher, est) if on_screen else est
 
     def delay_summary(self) -> dict:
         """{teacher id: {"median_s", "p10_s", "p90_s", "feedbacks"}} of every teacher credited in seconds;
@@ -286,7 +298,7 @@ class LearnerCore:
             "teacher_next": dict(self.teacher_next), "held": held, "arrivals": self._arrivals,
             "position": self.position, "counters": dict(self.counters), "ended": self.ended, "episode": dict(self._ep),
             "clock": [list(self.clock._index), list(self.clock._time)], "screen": self.screen.state(),
-            "delays": {t: d.state() for t, d in self.delays.items()}, "returning": sorted(self.profiles.returning),
+            "returning": sorted(self.profiles.returning),  # (their delays are the agent's, in its state)
         }
         return self.agent.state_dict(), meta
 
@@ -296,7 +308,7 @@ class LearnerCore:
             raise ValueError("checkpoint: agent step count does not match its metadata")
         self.actor, self.next_seq = meta["actor"], int(meta["next_seq"])
         self.teacher_next = {str(k): int(v) for k, v in meta["teacher_next"].items()}
-        self._held = [(float(t), int(a), Feedback.decode(fb.encode()), int(pos)) for t, a, fb, pos in meta["held"]]
+        self._held = [(float(t), int(a), decode_feedback(fb), int(pos)) for t, a, fb, pos in meta["held"]]
         heapq.heapify(self._held)
         self._arrivals = int(meta["arrivals"])
         self.position = int(meta["position"])
@@ -307,7 +319,8 @@ class LearnerCore:
         for i, t in zip(*meta["clock"]):
             self.clock.push(int(i), float(t))
         self.screen.load(meta["screen"])
-        self.delays = {str(t): estimate_from_state(d) for t, d in meta.get("delays", {}).items()}
+        for teacher, state in meta.get("delays", {}).items():  # (written before the agent kept them)
+            self.delays[str(teacher)] = estimate_from_state(state)
         self.profiles.returning = {str(t) for t in meta.get("returning", [])}  # (their models come from the checkpoint)
         self.entries = []
 
@@ -320,41 +333,27 @@ class LearnerCore:
         return result
 
     def _credit_once(self, fb: Feedback, pos: int, t: float) -> FeedbackResult:
-        delay = self.delay_of(fb)
-        if fb.shown is not None:  # a person's screen: seconds over the on-screen intervals
-            out, credited = self.screen.credit(self.loop, fb, self.actor, delay)
-            result = self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
-            result.feedback, result.credited = fb, credited
+        """`fb` through the agent's one door, as the runner's feedback goes; what became of it, with the steps it
+        went to (a Credit message; the log's scene draws it)."""
+        if fb.shown is not None and fb.actor != self.actor:  # a screen of a replaced actor: its steps are gone
+            result = self._outcome(fb, pos, "actor_restarted", t, 0, 1.0)
+            result.feedback = fb
             return result
-        if delay is not None:  # seconds: over the held steps' wall-clock times
-            out, credited = self._credit_in_seconds(fb, delay)
-            result = self._outcome(fb, pos, out.status, t, out.steps, out.lost_mass)
-            result.feedback, result.credited = fb, credited
-            return result
-        tau = self.clock.to_steps(fb.t_reaction)
-        out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]))
+        screen = self.screen.of(fb) if fb.shown is not None else None
+        # (a press on a screen may come after the newest action: on the step clock it is nowhere, in seconds exact)
+        tau = self.clock.to_steps(fb.t_reaction) if self.clock.placeable(fb.t_reaction) else np.nan
+        out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]), None, np.array([fb.t_reaction]),
+                               [fb.teacher_id], [screen])
         result = self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
-        # What became of it, for people and viewers (a Credit message; the log's scene draws it).
-        result.feedback, result.credited = fb, self._steps_credited() if result.status == "credited" else []
+        result.feedback = fb
+        if screen is not None and result.status == "stale" and np.isnan(screen.step_times).all():
+            self.counters["feedback_too_old"] += 1  # the reason: every step it was about has left the history
+        if result.status == "credited":
+            positions, weights = self.agent.credited(0)
+            seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
+            times = self.agent.history.times_at(0, positions)
+            result.credited = [(seq_of[int(i)], float(w)) for i, w in zip(times, weights) if int(i) in seq_of]
         return result
-
-    def _credit_in_seconds(self, fb: Feedback, delay):
-        """A teacher without a screen credited with a delay in seconds over the held steps' wall-clock times."""
-        out, times, weights = self.agent.credit_in_seconds(0, float(fb.t_reaction), int(fb.value), delay)
-        seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
-        return out, [(seq_of[int(i)], float(w)) for i, w in zip(times, weights) if w > 0 and int(i) in seq_of]
-
-    def _steps_credited(self) -> list[tuple[int, float]]:
-        """[(Step.seq, weight)] of the held steps the feedback just credited went to: the agent's own credit of
-        it (`agent.last_credit`), not computed again."""
-        agent = self.loop.agent
-        if agent.last_credit is None:
-            return []
-        c = agent.last_credit[1]
-        n = int(c.counts[0])
-        seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
-        times = agent.history.times_at(0, c.positions[0, :n])
-        return [(seq_of[int(i)], float(w)) for i, w in zip(times, c.weights[0, :n]) if int(i) in seq_of]
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:
         results = []
@@ -382,6 +381,6 @@ class LearnerCore:
 
 def learner_config_from_record(record: dict) -> LearnerConfig:
     """Inverse of `LearnerCore.config_record()['learner']`."""
-    data = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k != "type"}
     known = {f.name for f in dataclasses.fields(LearnerConfig)}
-    return LearnerConfig(**{k: v for k, v in data.items() if k in known})
+    data: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in known}
+    return LearnerConfig(**data)

@@ -2,22 +2,31 @@
 
 A console Feedback lists the steps its person saw (`shown`: Step.seq and the system time each appeared) and is
 stamped with the time of the key press or camera frame. The learner credits it through the agent's one door
-(`credit_shown`) with that person's delay in seconds (`LearnerConfig.screen_delay`: learned per person by
-default, `common.core.delay_model`), at the moment each step appeared (`screen_credit` onset) or over its
-on-screen interval [appeared, next appeared) (interval, Deep TAMER's).
+(`feedback_rounds`, given this `Screen`) with that person's delay in seconds (`LearnerConfig.screen_delay`:
+learned per person by default, `common.core.delay_model`), at the moment each step appeared (`screen_credit`
+onset) or over its on-screen interval [appeared, next appeared) (interval, Deep TAMER's).
 
 Such a feedback is held until the learner has learned the newest step it lists (the person cannot have
 seen a step the actor had not taken, so it comes). Like the step clock, everything here depends only on the
-order of the inputs, so `replay retrain` repeats it bit for bit.
+order of the inputs, so `replay retrain` repeats it bit for bit. Whether a press is credited at all, and how, is the
+agent's door's (`common.agents.feedback`): this only says what the screen showed.
 """
 from __future__ import annotations
 
 import collections
-from typing import Any
 
 import numpy as np
 
+from common.agents.feedback import Screen
 from common.protocol import Feedback
+
+
+def decode_feedback(text: str) -> Feedback:
+    """A Feedback from its checkpointed JSON text (a ValueError if it is another message)."""
+    message = Feedback.decode(text.encode())
+    if not isinstance(message, Feedback):
+        raise ValueError(f"checkpoint: expected a Feedback, got {type(message).__name__}")
+    return message
 
 
 class ScreenCredit:
@@ -55,19 +64,14 @@ class ScreenCredit:
             self.held = [h for h in self.held if self.must_wait(h[0], actor, next_seq)]
         return ready
 
-    def credit(self, loop: Any, fb: Feedback, actor: str | None, delay):
-        """Credit `fb` on trial 0 through the step loop with its person's `delay` (`common.core.delay_model`).
-        Returns (outcome, [(seq, weight), ...] credited)."""
-        from common.agents.agent import FeedbackOutcome
-
-        if fb.actor != actor:
-            return FeedbackOutcome("actor_restarted", 0, 1.0), []
-        seqs = [s.seq for s in fb.shown]
+    def of(self, fb: Feedback) -> Screen:
+        """What `fb`'s person saw (`fb.shown`), for the agent's door: each step's step-clock index (NaN: no longer
+        held) and the interval it was on screen, [appeared, next appeared)."""
+        if fb.shown is None:
+            raise ValueError("a feedback without a screen has no steps shown")
         starts = np.array([s.t for s in fb.shown], np.float64)
-        ends = np.append(starts[1:], np.inf)
-        times = np.array([self.index.get(q, np.nan) for q in seqs], np.float64)  # NaN: no longer held
-        out, weights = loop.credit_shown(0, float(fb.t_reaction), int(fb.value), times, starts, ends, delay)
-        return out, [(q, float(w)) for q, w in zip(seqs, weights) if w > 0]
+        times = np.array([self.index.get(s.seq, np.nan) for s in fb.shown], np.float64)
+        return Screen(times, starts, np.append(starts[1:], np.inf))
 
     def state(self) -> dict:
         return {"index": [[k, v] for k, v in self.index.items()], "past_actors": list(self.past_actors),
@@ -77,4 +81,4 @@ class ScreenCredit:
         self.index = collections.OrderedDict((int(k), int(v)) for k, v in state["index"])
         self.seq_of = {i: q for q, i in self.index.items()}
         self.past_actors = [str(a) for a in state["past_actors"]]
-        self.held = [(Feedback.decode(fb.encode()), int(pos)) for fb, pos in state["held"]]
+        self.held = [(decode_feedback(fb), int(pos)) for fb, pos in state["held"]]

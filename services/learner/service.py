@@ -26,6 +26,7 @@ publish weights, flush Ingest, checkpoint, stop waiting) never touch the learner
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit,
@@ -62,6 +63,15 @@ def restore(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: 
             "steps_learned": core.steps_learned, "t_saved": meta["service"]["t_saved"]}
 
 
+@dataclasses.dataclass(frozen=True)
+class PublishedWeights:
+    """The weights last published: the step count they are at (their version), the revision, the message sent."""
+
+    version: int
+    revision: int
+    data: bytes | None = None
+
+
 class Learner:
     """The service around `LearnerCore`: inputs through the gate into the core, Ingest / Weights / EpisodeSummary
     out, checkpoints, and the end rule. Wall-clock decisions here never touch the learner's state."""
@@ -83,7 +93,7 @@ class Learner:
         self.snaps = Snapshots(config.run, rt.incarnation, config.snapshot_every,
                                lambda m: publish_kept(spub, m, self.ring))
         self.note_rejected = first_time_logger(rt.event, "input")
-        self.last_weights = {"v": 0 if resumed is None else -1, "r": core.revision, "data": None}
+        self.last_weights = PublishedWeights(0 if resumed is None else -1, core.revision)
         self.last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
         self.actor_final: int | None = None
         self.teachers_final: dict[str, int] = {}
@@ -119,12 +129,15 @@ class Learner:
         t0 = time.perf_counter()
         tensors, data = self.current_weights(version)
         self.wpub.put(data)
-        self.last_weights.update(v=version, r=self.core.revision, data=data)
+        self.last_weights = PublishedWeights(version, self.core.revision, data)
         # The log gets snapshots at a bounded rate, not every version (docs/logs.md).
         (self.snaps.final if final else self.snaps.on_weights)(version, tensors, data)
         self.rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
 
     def save_checkpoint(self) -> None:
+        if self.config.checkpoint is None:  # (called only with a checkpoint path)
+            raise ValueError("no checkpoint path configured")
+        path = self.config.checkpoint
         self.flush_ingest()  # position = entries handed out
         t0 = time.perf_counter()
         tensors, meta = self.core.snapshot()
@@ -132,7 +145,7 @@ class Learner:
                 "service": {"counters": dict(self.rt.counters), "incarnation": self.rt.incarnation,
                             "t_saved": time.time()},
                 "config": self.core.config_record()}
-        checkpoint.save(self.config.checkpoint, tensors, meta)
+        checkpoint.save(path, tensors, meta)
         self.rt.counters["checkpoints"] += 1
         self.rt.samples["checkpoint_cost_s"].append(time.perf_counter() - t0)
         self.last_ckpt.update(t=time.monotonic(), steps=self.core.steps_learned)
@@ -265,10 +278,10 @@ class Learner:
         """New weights go out when they changed and nothing else is waiting, or after `weights_every` steps while
         catching up; a change without a new step (a press, an idle update) waits while steps stream in."""
         v, last = self.core.steps_learned, self.last_weights
-        if v != last["v"]:
-            if idle or v - last["v"] >= self.config.weights_every:
+        if v != last.version:
+            if idle or v - last.version >= self.config.weights_every:
                 self.publish_weights(v)
-        elif self.core.revision != last["r"] and idle and time.monotonic() - self.last_step_at >= REVISION_QUIET:
+        elif self.core.revision != last.revision and idle and time.monotonic() - self.last_step_at >= REVISION_QUIET:
             self.publish_weights(v)
 
     def on_restarts(self) -> None:
@@ -277,8 +290,8 @@ class Learner:
             if name == "recorder" and len(self.ring):
                 self.rt.event(f"recorder (re)started: re-sending {len(self.ring)} recent ingest/episode messages")
                 self.ring.resend()
-                if self.last_weights["data"] is not None:
-                    self.wpub.put(self.last_weights["data"])
+                if self.last_weights.data is not None:
+                    self.wpub.put(self.last_weights.data)
             elif name == "actor":  # (even before any step is learned: a restarted actor waits for weights)
                 self.publish_weights(self.core.steps_learned)
 
@@ -330,7 +343,8 @@ class Learner:
         self.flush_ingest()
         self.publish_weights(core.steps_learned + 1, final=True)
         # the final weights too, if the recorder must get them again
-        self.ring.add(self.wpub, self.last_weights["data"])
+        if self.last_weights.data is not None:
+            self.ring.add(self.wpub, self.last_weights.data)
         self.watch.before_exit(self.ring, 20.0, self.rt.log)
         for pub in self.credit_pubs.values():
             pub.close()
@@ -375,7 +389,7 @@ def main(config: LearnerConfig) -> int:
             actors.close()
             for s in subs:
                 s.undeclare()
-    rt.write_stats(final_version=learner.last_weights["v"] if learner else 0, resumed=resumed,
+    rt.write_stats(final_version=learner.last_weights.version if learner else 0, resumed=resumed,
                    delay=core.delay_summary())
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0

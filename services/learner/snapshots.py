@@ -41,7 +41,7 @@ def tensor_summaries(tensors: dict[str, np.ndarray]) -> list[TensorSummary]:
 class Snapshots:
     """Decides and publishes WeightsSnapshots. `publish(message)` sends one (the service's publish_kept)."""
 
-    def __init__(self, run: str, incarnation: str, every: int, publish: Callable[[WeightsSnapshot], None]):
+    def __init__(self, run: str, incarnation: str, every: int, publish: Callable[[WeightsSnapshot], object]):
         self.run, self.incarnation, self.every, self._publish = run, incarnation, every, publish
         self.last_version: int | None = None  # of the last snapshot with raw weights
         self._last_request = 0.0

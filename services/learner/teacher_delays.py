@@ -1,9 +1,10 @@
 """Returning people's delay estimates (`--profiles DIR`), and the estimate a person's console is sent.
 
-The learner keeps one delay model per teacher (`LearnerCore.delays`, `common.core.delay_model`). With
-`profiles DIR`, a named person (`web-alice`: the console's `?name=alice`) starts from the estimate their last
-session ended with, `DIR/web-alice.json` (`LearnedDelay.state(window=False)`: their last density becomes the
-prior), and the learner writes it back atomically every `save_period` seconds while it moves and at the end.
+The agent keeps one delay model per teacher (`TeacherDelays`, read as `LearnerCore.delays`;
+`common.core.delay_model`). With `profiles DIR`, a named person (`web-alice`: the console's `?name=alice`)
+starts from the estimate their last session ended with, `DIR/web-alice.json` (`LearnedDelay.state(window=False)`:
+their last density becomes the prior), and the learner writes it back atomically every `save_period` seconds
+while it moves and at the end.
 Numbered people (`web-1`, `web-2`: whoever opened a page first) are not profiled: the next `web-1` is someone
 else. Nor is a fixed delay, which learns nothing.
 

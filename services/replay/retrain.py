@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 
 from common.logs.mcap_log import LogRecoveryWarning, read_log
-from common.protocol import Feedback, Ingest, Step, Weights, WeightsSnapshot
+from common.protocol import Feedback, Ingest, IngestEntry, Step, Weights, WeightsSnapshot
 
 
 @dataclasses.dataclass
@@ -109,7 +109,7 @@ def _entries(path, log: _Log, learner: str | None) -> tuple[str, list, dict]:
         raise ValueError(f"{path}: the first Ingest message of {origin} (with its config) is missing")
     if merged is not None:
         return learner, merged, batches[0].config
-    entries = []
+    entries: list[IngestEntry] = []
     for b in batches:
         if b.index != len(entries):
             break  # a batch lost (truncated log): replay up to the gap

@@ -82,7 +82,7 @@ def test_agent_history_credits_with_the_credit_function():
         for i, ti in zip(rows, t):
             times[i].append(ti)
         t_f = np.array([(times[i][-1] if times[i] else 0.0) + rng.uniform(-1, 3) for i in range(4)])
-        got = agent.history.credit(np.arange(4), t_f, agent.assumed_delay, agent.local_width)
+        got = agent.history.credit(np.arange(4), t_f, agent.delays.step_delay(np.arange(4)), agent.local_width)
         for i in range(4):
             w, lost = credit_weights(t_f[i], times[i][-6:], model)
             nz = w[w > 0]

@@ -3,6 +3,7 @@ the same weights bit for bit, for all four agents."""
 import pytest
 
 from common.agents import ALGOS
+from common.agents.config import AgentConfig
 from common.core.observer import ObserverConfig
 from common.protocol import Feedback, Step
 from experiments.runner import TrialSpec, run_trials
@@ -12,6 +13,13 @@ from services.learner.core import LearnerCore
 
 RUN = "one-loop"
 T0, PERIOD = 1.7e9, 0.01  # wall clock of the live run: step k acts at T0 + k * PERIOD
+
+
+def agent_of(config: LearnerConfig) -> AgentConfig:
+    """The learner's agent config (its `__post_init__` resolves it from the algo)."""
+    if config.agent is None:
+        raise ValueError("LearnerConfig.agent is not resolved")
+    return config.agent
 
 
 def runner_inputs(spec: TrialSpec):
@@ -28,7 +36,8 @@ def rule_info(polarity: int) -> dict:
 def to_messages(inputs, t0: float = T0, period: float = PERIOD) -> list:
     """The runner's inputs as the actor's Steps and a teacher's Feedback, stamped on a wall clock (a reaction
     at virtual time k + 0.5 is stamped half-way between the wall times of actions k and k + 1)."""
-    out, seq_fb, t_in = [], 0, 0
+    out: list[Step | Feedback] = []
+    seq_fb, t_in = 0, 0
     for kind, rec in inputs:
         if kind == "step":
             k = int(rec["t"])
@@ -47,7 +56,7 @@ def to_messages(inputs, t0: float = T0, period: float = PERIOD) -> list:
 @pytest.mark.parametrize("algo", ALGOS)
 def test_runner_and_live_learner_end_with_identical_weights(algo):
     config = LearnerConfig(run=RUN, task=Task(env="maze", layout=2, seed=11), algo=algo)
-    agent = config.agent
+    agent = agent_of(config)
     spec = TrialSpec("maze", agent, ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11, layout=2,
                      episodes=8)
     result, inputs = runner_inputs(spec)
@@ -77,8 +86,8 @@ def test_with_a_delay_learned_in_seconds_too():
     from dataclasses import replace
 
     config = LearnerConfig(run=RUN, task=Task(env="maze", layout=2, seed=11), algo="dqn-tamer",
-                           agent=replace(LearnerConfig(run=RUN).agent, learn_delay=True))
-    spec = TrialSpec("maze", config.agent, ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11,
+                           agent=replace(agent_of(LearnerConfig(run=RUN)), learn_delay=True))
+    spec = TrialSpec("maze", agent_of(config), ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11,
                      layout=2, episodes=8, step_seconds=0.5)
     result, inputs = runner_inputs(spec)
     core = LearnerCore(config)

@@ -123,6 +123,30 @@ def test_a_feedback_between_two_steps_moves_the_weights_revision():
     assert core.on_feedback(dataclasses.replace(press, seq=1)) and core.revision == revision + 2  # each press moves it
 
 
+def test_a_late_press_is_credited_while_its_steps_are_held_and_counted_as_too_old_after():
+    """A press that arrives late (the console was down, the learner lagged) is credited to the steps its person saw
+    while they are still among the learner's held steps (32 here); once they have all left, it is stale and counted
+    by its reason (`feedback_too_old`)."""
+    from common.protocol import ShownStep
+
+    core = LearnerCore(config())
+    steps = make_steps(80, [100.0 + k for k in range(80)])
+
+    def press(seq: int) -> Feedback:
+        return Feedback(run=RUN, teacher_id="web-1", seq=seq, t_reaction=113.9, value=1, source="key",
+                        actor="actor-1", shown=[ShownStep(k, 100.05 + k) for k in range(10, 14)])
+
+    for s in steps[:40]:
+        core.on_step(s)
+    [late] = core.on_feedback(press(0))  # 26 steps later: steps 10-13 are still held
+    assert late.status == "credited" and {q for q, _ in late.credited} <= {10, 11, 12, 13} and late.credited
+    for s in steps[40:]:
+        core.on_step(s)
+    [too_old] = core.on_feedback(press(1))  # 66 steps later: they have left the history
+    assert too_old.status == "stale" and too_old.lost_mass == 1.0
+    assert core.counters["feedback_too_old"] == 1 and core.counters["feedback_stale"] == 1
+
+
 def test_stale_feedback_and_gaps_are_counted():
     core = LearnerCore(config())
     steps = make_steps(60, [100.0 + k for k in range(60)])

@@ -51,18 +51,19 @@ def weights_bytes(core: LearnerCore) -> dict[str, bytes]:
     return {k: v.tobytes() for k, v in core.policy_weights().items()}
 
 
-@pytest.mark.parametrize("algo", ["dqn-tamer", "dqn-rs"])
-def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo):
+@pytest.mark.parametrize("algo, oracle_delay", [("dqn-tamer", "steps"), ("dqn-rs", "steps"), ("dqn-tamer", "learned")])
+def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo, oracle_delay):
     """Learn, checkpoint mid-way (with held feedback), restore into a fresh core, continue: the same weights,
-    entries and counters as a learner that never stopped."""
+    entries and counters as a learner that never stopped (with a delay learned in seconds too: the agent's
+    registry of its teachers' delays is in the checkpoint)."""
     inputs = scenario()
     cut = next(i for i in range(150, len(inputs)) if isinstance(inputs[i], Feedback) and
                inputs[i].t_reaction > inputs[i - 1].t_action)  # a held feedback at the cut
-    ref = LearnerCore(LearnerConfig(run=RUN, algo=algo))
+    ref = LearnerCore(LearnerConfig(run=RUN, algo=algo, oracle_delay=oracle_delay))
     feed(ref, inputs)
     ref.end()
 
-    a = LearnerCore(LearnerConfig(run=RUN, algo=algo))
+    a = LearnerCore(LearnerConfig(run=RUN, algo=algo, oracle_delay=oracle_delay))
     feed(a, inputs[:cut + 1])
     assert a.held >= 1 or algo == "dqn-rs"
     head = a.take_entries()
@@ -70,7 +71,7 @@ def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo):
     size = checkpoint.save(tmp_path / "learner.ckpt", tensors, meta)
     assert size > 0 and not list(tmp_path.glob(".*tmp"))
     tensors2, meta2 = checkpoint.load(tmp_path / "learner.ckpt")
-    b = LearnerCore(LearnerConfig(run=RUN, algo=algo))
+    b = LearnerCore(LearnerConfig(run=RUN, algo=algo, oracle_delay=oracle_delay))
     b.restore(tensors2, meta2)
     assert b.position == len(head)
     feed(b, inputs[cut + 1:])
@@ -79,6 +80,7 @@ def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo):
     assert [dataclasses.astuple(e)[:4] for e in head + b.take_entries()] == \
         [dataclasses.astuple(e)[:4] for e in ref.take_entries()]
     assert b.counters == ref.counters
+    assert b.delay_summary() == ref.delay_summary() and (oracle_delay == "steps") == (not b.delays)
     full_a, full_ref = a.agent.state_dict(), ref.agent.state_dict()  # noqa: F841 (a kept learning state)
     assert checkpoint.load(tmp_path / "missing.ckpt") is None
 
