@@ -115,6 +115,34 @@ class BatchStepHistory:
     def state_dict(self) -> dict:
         return {name: getattr(self, name).copy() for name in self.FIELDS}
 
+    def forget_shown_before(self, trial: int, seconds: float) -> None:
+        """Let trial's held steps shown before `seconds` go, oldest first (a history sized in seconds: the live
+        learner's, which does not know the actor's rate)."""
+        count, head = int(self.count[trial]), int(self.head[trial])
+        while count and self.seconds[trial, (head - count) % self.capacity] < seconds:
+            count -= 1
+        self.count[trial] = count
+
     def load_state_dict(self, state: dict) -> None:
+        """A state of another capacity (a checkpoint taken with another history size) keeps its newest held steps
+        that fit, oldest first from ring position 0."""
+        stored = np.asarray(state["times"]).shape[1]
+        if stored != self.capacity:
+            state = _resized(state, stored, self.capacity)
         for name, value in state.items():
             getattr(self, name)[...] = value
+
+
+def _resized(state: dict, stored: int, capacity: int) -> dict:
+    """`state` of a ring of `stored` steps per trial, as a ring of `capacity`: each trial's newest held steps."""
+    count = np.minimum(np.asarray(state["count"], np.int64), capacity)
+    head = np.asarray(state["head"], np.int64)
+    trials = np.arange(len(count))[:, None]
+    j = np.arange(capacity)[None, :]
+    source = (head[:, None] - count[:, None] + np.minimum(j, stored - 1)) % stored  # oldest kept first
+    out = {"count": count, "head": count % capacity}
+    for name in BatchStepHistory.FIELDS[:-2]:
+        value = np.asarray(state[name])[trials, source]
+        mask = (j < count[:, None]).reshape(len(count), capacity, *(1,) * (value.ndim - 2))
+        out[name] = np.where(mask, value, np.zeros_like(value))
+    return out

@@ -205,6 +205,11 @@ class LearnerSettings:
     profiles: str | None = option(None, "directory of returning people's delay estimates: a named person "
                                         "(web-alice) starts from DIR/web-alice.json and it is rewritten as they "
                                         "teach (services/learner/teacher_delays.py)")
+    history_s: float = option(60.0, "seconds of recent steps a feedback may still be credited to (a press that "
+                                    "comes later is counted as feedback_too_old): the credit rule's longest delay "
+                                    "(6 s) plus a console restart or a lagging learner; 0: the agent's "
+                                    "history-steps instead, a count (the in-process runner's)")
+    history_max_steps: int = option(4096, "but at most this many steps (memory: each holds its observation)")
     weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
                                     "learned steps while it is behind")
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
@@ -237,6 +242,9 @@ class LearnerSettings:
             raise ValueError(f"inbox-size must be >= 1, got {self.inbox_size}")
         if not (math.isfinite(self.debug_update_sleep) and self.debug_update_sleep >= 0):
             raise ValueError(f"debug-update-sleep must be >= 0, got {self.debug_update_sleep}")
+        if not (math.isfinite(self.history_s) and self.history_s >= 0) or self.history_max_steps < 1:
+            raise ValueError(f"history-s must be >= 0 and history-max-steps >= 1, got {self.history_s}, "
+                             f"{self.history_max_steps}")
         if self.debug_drop_steps < 0:
             raise ValueError(f"debug-drop-steps must be >= 0, got {self.debug_drop_steps}")
 

@@ -87,10 +87,14 @@ class LearnerCore:
         if config.agent is None:  # (LearnerConfig's __post_init__ resolves it from the algo)
             raise ValueError("LearnerConfig.agent is not resolved")
         self.agent_config: AgentConfig = config.agent
-        self.agent = make_agent([self.agent_config], obs_shape(env), self.n_actions, [config.seed])
+        # Held steps: those shown in the last `history_s` seconds (the learner does not know the actor's rate), at
+        # most `history_max_steps`; or, with history_s 0, the agent's count (the runner's).
+        held = config.history_max_steps if config.history_s > 0 else self.agent_config.history_steps
+        sized = dataclasses.replace(self.agent_config, history_steps=held)
+        self.agent = make_agent([sized], obs_shape(env), self.n_actions, [config.seed])
         self.loop = StepLoop(self.agent)
-        self.clock = StepClock(self.agent_config.history_steps + len(self.agent_config.assumed_delay_probs) + 2)
-        self.screen = ScreenCredit(self.agent_config.history_steps)
+        self.clock = StepClock(held + len(self.agent_config.assumed_delay_probs) + 2)
+        self.screen = ScreenCredit(held)
         self.profiles = Profiles(config.profiles)  # returning people start from their last estimate
         self.agent.delays.new_delay = self.new_delay  # each teacher's delay, made when first heard
         self.actor: str | None = None
@@ -179,6 +183,9 @@ class LearnerCore:
                        np.array([float(index)]), np.array([step.episode]), np.array([step.t_action]),
                        np.array([self.polarity(step)]))
         self.screen.learned(step.seq, index)
+        if self.config.history_s > 0:  # the steps shown longer ago than history_s leave the history
+            self.agent.history.forget_shown_before(0, step.t_action - self.config.history_s)
+            self.screen.forget_before(index + 1 - int(self.agent.history.count[0]))
         for fb, pos in self.screen.release(self.actor, self.next_seq):  # a person's feedback that waited for it
             results.append(self._credit(fb, pos, t))
         self.counters["steps_learned"] += 1

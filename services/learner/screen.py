@@ -51,6 +51,11 @@ class ScreenCredit:
         while len(self.index) > self.capacity:
             self.seq_of.pop(self.index.popitem(last=False)[1], None)
 
+    def forget_before(self, index: int) -> None:
+        """Forget the steps before step-clock `index` (they have left the agent's history)."""
+        while self.index and next(iter(self.index.values())) < index:
+            self.seq_of.pop(self.index.popitem(last=False)[1], None)
+
     def must_wait(self, fb: Feedback, actor: str | None, next_seq: int) -> bool:
         """True while the newest step the person saw is not learned yet (or its actor not yet seen)."""
         if fb.actor != actor:

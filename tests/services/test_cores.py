@@ -125,8 +125,8 @@ def test_a_feedback_between_two_steps_moves_the_weights_revision():
 
 def test_a_late_press_is_credited_while_its_steps_are_held_and_counted_as_too_old_after():
     """A press that arrives late (the console was down, the learner lagged) is credited to the steps its person saw
-    while they are still among the learner's held steps (32 here); once they have all left, it is stale and counted
-    by its reason (`feedback_too_old`)."""
+    while they are still among the learner's held steps (those of the last 60 s, `history_s`); once they have all
+    left, it is stale and counted by its reason (`feedback_too_old`)."""
     from common.protocol import ShownStep
 
     core = LearnerCore(config())
@@ -149,14 +149,15 @@ def test_a_late_press_is_credited_while_its_steps_are_held_and_counted_as_too_ol
 
 def test_stale_feedback_and_gaps_are_counted():
     core = LearnerCore(config())
-    steps = make_steps(60, [100.0 + k for k in range(60)])
+    steps = make_steps(60, [100.0 + 2 * k for k in range(60)])
     for s in steps[:50]:
         core.on_step(s)
-    assert core.on_feedback(fb(0, 100.5))[0].status == "stale"  # older than the 32 held steps
+    assert core.on_feedback(fb(0, 100.5))[0].status == "stale"  # older than the 60 s of held steps
+    assert core.on_feedback(fb(1, 140.5))[0].status == "credited"  # 58 s: still held
     core.on_step(steps[55])  # 5 steps lost
     assert core.counters["steps_lost"] == 5
     # A feedback about steps before the gap cannot be credited across it.
-    assert core.on_feedback(fb(1, 153.5))[0].status == "stale"
+    assert core.on_feedback(fb(2, 100.0 + 2 * 53 + 0.5))[0].status == "stale"
 
 
 def test_actor_restart_forgets_history():
