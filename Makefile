@@ -67,7 +67,7 @@ FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py servic
 	services/console/sockets.py tests/console/test_door_units.py tests/console/test_no_credential_leaves.py \
 	tests/console/test_idle_sockets.py tests/console/test_console_restart.py tests/security/test_auth_incarnations.py \
 	tests/services/test_settings_once.py services/launcher/compose.py tests/services/test_compose.py \
-	tests/services/test_netns_live.py tests/services/test_history_seconds.py \
+	tests/services/test_netns_live.py tests/services/test_history_seconds.py tests/console/test_presses_under_load.py \
 	common/protocol/_info.py tests/services/info_rule.py tests/services/test_info_live.py tests/plumbing/test_step_info.py \
 	services/common/weights.py tests/console/test_weights_follow.py \
 	tests/console/test_compare_resume.py experiments/power.py tests/experiments/test_power.py

@@ -97,6 +97,8 @@ class LearnerCore:
         self.screen = ScreenCredit(held)
         self.profiles = Profiles(config.profiles)  # returning people start from their last estimate
         self.agent.delays.new_delay = self.new_delay  # each teacher's delay, made when first heard
+        # (made once now: it imports scipy, which at a person's first press stalled a loaded run for 8 s)
+        delay_estimate(config.screen_delay, config.screen_credit)
         self.actor: str | None = None
         self.next_seq = 0
         self.teacher_next: dict[str, int] = {}
