@@ -15,7 +15,7 @@ CONTROL_COMMANDS = ("pause", "resume", "pace", "end")
 MAX_RATE = 50.0  # steps per second a console may ask for
 #: `duplicate`: a feedback re-sent after it was consumed (e.g. by a console page after a reconnect): not credited
 #: again; the Credit only tells the page that the learner has it.
-CREDIT_STATUSES = ("credited", "stale", "ignored", "after_end", "actor_restarted", "duplicate")
+CREDIT_STATUSES = ("credited", "stale", "too_old", "ignored", "after_end", "actor_restarted", "duplicate")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -208,7 +208,8 @@ INGEST_ENTRY_SPEC = Obj({
         "The input's origin: the actor incarnation (step), the teacher id (feedback, outcome), the learner (end).")),
     "seq": Int(0, description="The input's own `seq` (Step.seq, Feedback.seq); 0 for `end`."),
     "status": Str(32, description=(
-        "For `outcome`: credited, stale, ignored, after_end, actor_restarted; for `step`: learned, gap, old, "
+        "For `outcome`: credited, stale, too_old (a person's press whose steps all left the history), ignored, "
+        "after_end, actor_restarted; for `step`: learned, gap, old, "
         "after_end; "
         "else empty.")),
     "t": Float(0.0, description="Wall-clock time (s) of consumption: diagnostics only, never used by retrain."),

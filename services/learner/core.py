@@ -46,7 +46,7 @@ from services.common.stepclock import StepClock
 from services.learner.screen import ScreenCredit, decode_feedback
 from services.learner.teacher_delays import Profiles
 
-REJECT_REASONS = ("stale", "ignored", "after_end", "actor_restarted")
+REJECT_REASONS = ("stale", "too_old", "ignored", "after_end", "actor_restarted")
 ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
 
 
@@ -54,7 +54,7 @@ ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
 class FeedbackResult:
     teacher: str
     seq: int
-    status: str  # credited | stale | ignored | after_end | actor_restarted
+    status: str  # credited | stale | too_old | ignored | after_end | actor_restarted
     steps: int = 0
     lost_mass: float = 0.0
     received_at: int = 0  # position of the feedback in the ingest record (for latency bookkeeping)
@@ -353,10 +353,11 @@ class LearnerCore:
         tau = self.clock.to_steps(fb.t_reaction) if self.clock.placeable(fb.t_reaction) else np.nan
         out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]), None, np.array([fb.t_reaction]),
                                [fb.teacher_id], [screen])
-        result = self._outcome(fb, pos, STATUS_NAMES[out.status[0]], t, int(out.steps[0]), float(out.lost[0]))
+        status = STATUS_NAMES[out.status[0]]
+        if screen is not None and status == "stale" and np.isnan(screen.step_times).all():
+            status = "too_old"  # the reason: every step it was about has left the history
+        result = self._outcome(fb, pos, status, t, int(out.steps[0]), float(out.lost[0]))
         result.feedback = fb
-        if screen is not None and result.status == "stale" and np.isnan(screen.step_times).all():
-            self.counters["feedback_too_old"] += 1  # the reason: every step it was about has left the history
         if result.status == "credited":
             positions, weights = self.agent.credited(0)
             seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)

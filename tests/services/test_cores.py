@@ -126,7 +126,7 @@ def test_a_feedback_between_two_steps_moves_the_weights_revision():
 def test_a_late_press_is_credited_while_its_steps_are_held_and_counted_as_too_old_after():
     """A press that arrives late (the console was down, the learner lagged) is credited to the steps its person saw
     while they are still among the learner's held steps (those of the last 60 s, `history_s`); once they have all
-    left, it is stale and counted by its reason (`feedback_too_old`)."""
+    left, it is rejected by its reason, `too_old` (counted as `feedback_too_old`)."""
     from common.protocol import ShownStep
 
     core = LearnerCore(config())
@@ -143,8 +143,8 @@ def test_a_late_press_is_credited_while_its_steps_are_held_and_counted_as_too_ol
     for s in steps[40:]:
         core.on_step(s)
     [too_old] = core.on_feedback(press(1))  # 66 steps later: they have left the history
-    assert too_old.status == "stale" and too_old.lost_mass == 1.0
-    assert core.counters["feedback_too_old"] == 1 and core.counters["feedback_stale"] == 1
+    assert too_old.status == "too_old" and too_old.lost_mass == 1.0
+    assert core.counters["feedback_too_old"] == 1 and core.counters["feedback_stale"] == 0
 
 
 def test_stale_feedback_and_gaps_are_counted():

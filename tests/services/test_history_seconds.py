@@ -41,20 +41,20 @@ def test_a_late_press_is_credited_while_its_steps_are_younger_than_history_s_wha
     # agent's count) has lost them, one of 60 s holds them.
     assert late_press(LearnerCore(config()), 1000, 0.01) == "credited"
     counted = LearnerCore(config(history_s=0))
-    assert late_press(counted, 1000, 0.01) == "stale" and counted.counters["feedback_too_old"] == 1
+    assert late_press(counted, 1000, 0.01) == "too_old" and counted.counters["feedback_too_old"] == 1
     assert int(counted.agent.history.count[0]) == 32
     # 1 step/s: 30 steps (30 s) later, held; 70 s later, too old and counted by its reason.
     assert late_press(LearnerCore(config()), 134, 1.0) == "credited"
     old = LearnerCore(config())
-    assert late_press(old, 174, 1.0) == "stale" and old.counters["feedback_too_old"] == 1
+    assert late_press(old, 174, 1.0) == "too_old" and old.counters["feedback_too_old"] == 1
     assert int(old.agent.history.count[0]) == 61  # the steps shown in the last 60 s, the newest's included
     shorter = LearnerCore(config(history_s=5.0))
-    assert late_press(shorter, 1000, 0.01) == "stale" and shorter.counters["feedback_too_old"] == 1
+    assert late_press(shorter, 1000, 0.01) == "too_old" and shorter.counters["feedback_too_old"] == 1
 
 
 def test_the_history_is_bounded_by_history_max_steps():
     core = LearnerCore(config(history_max_steps=500))
-    assert late_press(core, 1000, 0.01) == "stale" and core.counters["feedback_too_old"] == 1
+    assert late_press(core, 1000, 0.01) == "too_old" and core.counters["feedback_too_old"] == 1
     assert core.agent.history.capacity == 500 and int(core.agent.history.count[0]) == 500
     assert len(core.screen.index) == 500
 

@@ -22,7 +22,7 @@ from .live import ROOT, assert_nothing_left, env, processes_mentioning, start_up
 
 pytestmark = pytest.mark.live
 
-REJECT_REASONS = {"stale", "ignored", "after_end", "actor_restarted"}
+REJECT_REASONS = {"stale", "too_old", "ignored", "after_end", "actor_restarted"}
 
 
 @pytest.fixture(scope="module")
