@@ -393,4 +393,5 @@ def learner_config_from_record(record: dict) -> LearnerConfig:
     """Inverse of `LearnerCore.config_record()['learner']`."""
     known = {f.name for f in dataclasses.fields(LearnerConfig)}
     data: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in known}
+    data.setdefault("history_s", 0.0)  # a log recorded before history_s held the agent's step count: retrain as it ran
     return LearnerConfig(**data)
