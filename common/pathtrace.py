@@ -26,6 +26,7 @@ from typing import Any, TypeVar, cast
 ENV = "HITL_TRACE"
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT_DIRS = ("common/", "services/", "experiments/")
+SELF = "common/pathtrace.py"  # the marks' own wrapper is not part of any path
 MAX_CALLS = 300  # per label and process: a short run's calls, never a file that grows without bound
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -37,7 +38,7 @@ def project_file(filename: str) -> str | None:
         rel = Path(filename).resolve().relative_to(ROOT).as_posix()
     except ValueError:  # outside the checkout: the standard library, the venv's packages
         return None
-    return rel if rel.startswith(PROJECT_DIRS) else None
+    return rel if rel.startswith(PROJECT_DIRS) and rel != SELF else None
 
 
 class CallRecorder:
