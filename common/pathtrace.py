@@ -2,9 +2,10 @@
 
 A service marks the calls that make up a step's or a press's path with `@traced("label")`. When the environment
 variable `HITL_TRACE` names a folder, each marked call is profiled on its own thread (`sys.setprofile`, for that
-call only) and one JSON line per call is appended to `HITL_TRACE/trace-<pid>.jsonl`: the label and every project
-function that ran inside it, as `file:qualified name`. Only the project's own code counts (`common/`,
-`services/`, `experiments/`): not third-party packages, not tests, not a module's import-time code.
+call only) and one JSON line per distinct call (its functions differ from every earlier call's) is appended to
+`HITL_TRACE/trace-<pid>.jsonl`: the label and every project function that ran inside it, as `file:qualified
+name`. Only the project's own code counts (`common/`, `services/`, `experiments/`): not third-party packages, not
+tests, not a module's import-time code.
 
 Without `HITL_TRACE` the decorator returns the function itself, so the services pay nothing.
 `tests/test_paths_traced.py` reads the lines and writes the paths into the doc.
@@ -27,7 +28,7 @@ ENV = "HITL_TRACE"
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT_DIRS = ("common/", "services/", "experiments/")
 SELF = "common/pathtrace.py"  # the marks' own wrapper is not part of any path
-MAX_CALLS = 300  # per label and process: a short run's calls, never a file that grows without bound
+MAX_CALLS = 300  # distinct calls per label and process: a short run's, never a file that grows without bound
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -63,20 +64,26 @@ class CallRecorder:
 
 
 class TraceLog:
-    """One process's trace file; counts the calls written per label."""
+    """One process's trace file: each label's distinct calls (a call that ran the same functions as one already
+    written is only counted: a service idling for a minute would otherwise fill the cap before its first step)."""
 
     def __init__(self, folder: str) -> None:
         self.path = Path(folder) / f"trace-{os.getpid()}.jsonl"
-        self.calls: Counter[str] = Counter()
+        self.calls: Counter[str] = Counter()  # calls made, written or not
+        self.written: dict[str, set[frozenset[str]]] = {}
         self.lock = threading.Lock()
 
     def wants(self, label: str) -> bool:
-        return self.calls[label] < MAX_CALLS
+        return len(self.written.get(label, ())) < MAX_CALLS
 
     def write(self, label: str, functions: set[str]) -> None:
         with self.lock:
-            line = json.dumps({"label": label, "call": self.calls[label], "functions": sorted(functions)})
+            call, seen = self.calls[label], self.written.setdefault(label, set())
             self.calls[label] += 1
+            if frozenset(functions) in seen:
+                return
+            seen.add(frozenset(functions))
+            line = json.dumps({"label": label, "call": call, "functions": sorted(functions)})
             with self.path.open("a") as f:
                 f.write(line + "\n")
 

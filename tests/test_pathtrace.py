@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import common.pathtrace as pathtrace
-from common.core.util import nz
+from common.core.util import RowConstants, nz
 from common.pathtrace import ENV, files_of, read_traces, traced
 
 
 def uses_the_core(mask):
+    if not mask.any():  # another branch: other functions run
+        RowConstants(lambda rows: (rows,))(mask.nonzero()[0])
     return nz(mask)
 
 
@@ -24,13 +26,14 @@ def test_on_each_call_lists_the_project_files_it_ran(tmp_path, monkeypatch):
     monkeypatch.setattr(pathtrace, "_log", None)
     monkeypatch.setattr(pathtrace, "MAX_CALLS", 2)
     marked = traced("unit")(uses_the_core)
-    for _ in range(3):  # the third call is past MAX_CALLS: not written
-        assert list(marked(np.array([False, True]))) == [1]
+    for mask in ([False, True], [True, False], [False, False], [False, False]):  # the 2nd repeats, the 4th is past
+        assert list(marked(np.array(mask))) == list(np.flatnonzero(mask))
     outer = traced("outer")(lambda mask: marked(mask))  # a mark inside a mark: the outer one records
     outer(np.array([True]))
     calls = read_traces(tmp_path)
-    assert [(c["label"], c["call"]) for c in calls] == [("unit", 0), ("unit", 1), ("outer", 0)]
+    assert [(c["label"], c["call"]) for c in calls] == [("unit", 0), ("unit", 2), ("outer", 0)]  # (a repeat: unwritten)
     assert files_of(calls[2]["functions"]) == {"common/core/util.py"}
     # numpy's own files and this test file ran too, and are not the project's; the marks' wrapper is not listed
     assert files_of(calls[0]["functions"]) == {"common/core/util.py"}
-    assert "common/core/util.py:nz" in calls[0]["functions"]
+    assert calls[0]["functions"] == ["common/core/util.py:nz"]
+    assert "common/core/util.py:RowConstants.__call__" in calls[1]["functions"]
