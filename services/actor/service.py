@@ -33,6 +33,7 @@ import numpy as np
 
 from common.agents import make_agent
 from common.envs import make_env, n_actions, obs_shape
+from common.pathtrace import traced
 from common.protocol import InfoError, Step, control_key, status_key, step_info, step_key, weights_key
 from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
@@ -96,6 +97,7 @@ class Actor:
         self.rt.stop.set()
         self.code = code
 
+    @traced("actor.weights")
     def adopt_weights(self, timeout: float | None = None) -> bool:
         return self.slot.adopt(self.weights_in, timeout=timeout, status=self.learner_status)
 
@@ -167,11 +169,21 @@ class Actor:
 
     def act_and_publish(self, obs: np.ndarray, t_prev: float, t_in_episode: int):
         """Act on `obs`, step the environment, publish the Step. Returns (next obs, t_action, episode ended)."""
-        config, agent = self.config, self.agent
-        agent.steps[0] = self.base + self.seq  # the schedules (epsilon, alpha_h, exploration stream) at this step
-        self.adopt_weights()  # what arrived since the wait (a press's H update just before this action)
-        action = int(agent.act(obs.reshape(1, -1))[0])
+        action = self.next_action(obs)
         t_action = max(time.time(), t_prev + 1e-6)  # strictly increasing, even if the clock steps back
+        return self.step_and_publish(obs, action, t_action, t_in_episode)
+
+    @traced("actor.act")
+    def next_action(self, obs: np.ndarray) -> int:
+        """The action on `obs` with the newest weights: the end of a step's and of a press's path."""
+        self.agent.steps[0] = self.base + self.seq  # the schedules (epsilon, alpha_h, exploration stream) now
+        self.adopt_weights()  # what arrived since the wait (a press's H update just before this action)
+        return int(self.agent.act(obs.reshape(1, -1))[0])
+
+    @traced("actor.step")
+    def step_and_publish(self, obs: np.ndarray, action: int, t_action: float, t_in_episode: int):
+        """Step the environment with `action`, publish the Step. Returns (next obs, t_action, episode ended)."""
+        config = self.config
         nxt, reward, terminated, truncated, info = self.env.step(action)
         try:
             info = step_info(info)  # whole: the teacher's rule reads what the in-process runner's rule reads

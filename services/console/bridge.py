@@ -49,6 +49,7 @@ class Hub:
         from common.wire.transport import MessagePublisher
 
         self.config, self.rt, self.session, self.loop = config, rt, session, loop
+        self.span = config.span  # (parsed from the delay spec once, not on every press)
         env, _ = make_env(config.env, config.layout)
         self.obs_dim, self.n_actions = int(np.prod(obs_shape(env))), n_actions(env)
         env.close()
@@ -270,7 +271,7 @@ class Hub:
         """Publish a press (a re-sent one with the seq it had: the learner drops it if it was consumed, and its
         duplicate Credit acknowledges it to the page)."""
         seq, again = self.ledger.seq_for(person.teacher_id, person.page_id, m["press"])
-        actor, shown = person.timeline.window(m["t_sys"], self.config.span)
+        actor, shown = person.timeline.window(m["t_sys"], self.span)
         fb = Feedback(run=self.config.run, teacher_id=person.teacher_id, seq=seq,
                       t_reaction=m["t_sys"], value=m["value"], source=m["source"], t_page=max(0.0, m["t_page"]),
                       actor=actor, shown=shown if actor is not None else None)
@@ -318,7 +319,7 @@ class Hub:
         return {"type": "hello", "teacher_id": person.teacher_id, "run": self.config.run, "env": self.config.env,
                 "layout": self.config.layout, "algo": self.config.algo, "scene": self.scene_static,
                 "n_actions": self.n_actions, "rate": self.rate, "paused": self.paused, "episodes": self.config.episodes,
-                "camera": self.config.camera is not None, "span": self.config.span, "curve": self.curve,
+                "camera": self.config.camera is not None, "span": self.span, "curve": self.curve,
                 "trail": list(self.trail), "ended": self.actor_stopped, "screen_delay": self.config.screen_delay}
 
     def close(self) -> None:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
+from common.pathtrace import traced
 from common.protocol import teacher_service_name
 from services.common.runtime import ServiceRuntime, service_main
 from services.console.bridge import Hub
@@ -165,6 +166,7 @@ class Pages:
             person.last_heard = time.monotonic()
             self.handle(msg, person, page)
 
+    @traced("console.page")
     def handle(self, msg, person: Person, page: Page) -> None:
         hub, t1 = self.hub, time.time()
         try:

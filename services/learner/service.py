@@ -29,10 +29,9 @@ from __future__ import annotations
 import dataclasses
 import time
 
-from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit,
-                             EpisodeSummary, Feedback,
-                             Ingest, ProtocolError, ServiceStatus, Step, Weights, episode_key,
-                             feedback_wildcard,
+from common.pathtrace import traced
+from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, EpisodeSummary, Feedback,
+                             Ingest, ProtocolError, ServiceStatus, Step, Weights, episode_key, feedback_wildcard,
                              ingest_key, step_key, weights_key)
 from services.common.config import LearnerConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
@@ -249,6 +248,7 @@ class Learner:
             self.on_status(st)
 
     # -- the loop --------------------------------------------------------------------------------------------
+    @traced("learner.input")
     def take_input(self) -> None:
         """One input from the inbox (if any) into the core; publish weights and flush Ingest when due."""
         got = self.inbox.get(timeout=0.05)
