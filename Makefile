@@ -67,7 +67,7 @@ FORMATTED := tests/install tests/conftest.py tests/services/chaos_rule.py servic
 	services/console/sockets.py tests/console/test_door_units.py tests/console/test_no_credential_leaves.py \
 	tests/console/test_idle_sockets.py tests/console/test_console_restart.py tests/security/test_auth_incarnations.py \
 	tests/services/test_settings_once.py services/launcher/compose.py tests/services/test_compose.py \
-	tests/services/test_netns_live.py services/bench_paced.py
+	tests/services/test_netns_live.py services/bench_paced.py tests/services/test_bench_paced.py
 
 # The base install alone, in a fresh venv: torch, then `pip install .` with no extras (pinned by the lock), then the
 # main job with the oracle teacher. CI runs it after `make test` (.ci/run); tests/install/ checks the same imports

@@ -29,7 +29,7 @@ from typing import Any
 
 ROOT = Path(__file__).resolve().parents[1]
 TICK = os.sysconf("SC_CLK_TCK")
-URL = re.compile(r"console: (http://127\.0\.0\.1:\d+/#token=[A-Za-z0-9_.-]+)")
+URL = re.compile(r"console: (http://127\.0\.0\.1:\d+/[#?]token=[A-Za-z0-9_.-]+)")  # (older: ?token=)
 
 
 @dataclass(frozen=True)
@@ -173,6 +173,8 @@ def measure(page: Any, up: subprocess.Popen, s: PacedSettings) -> dict[str, Any]
         time.sleep(1.0)
         watch.sample()
     wall = time.monotonic() - t0
+    if up.poll() is not None:  # the run ended inside the window: its figures are not a paced run's
+        raise RuntimeError(f"services up exited with code {up.returncode} {wall:.1f} s into the measured window")
     seq1 = page.evaluate("hitl.step ? hitl.step.seq : -1")
     presses = page.evaluate("(window.hitlScriptedPlan || []).length")
     return {"wall_s": round(wall, 2), "steps": seq1 - seq0, "presses": presses, "cpu_pct": watch.shares(wall)}
@@ -243,6 +245,7 @@ def paced_phase(s: PacedSettings, checkouts: tuple[str, ...], stamp: str) -> dic
         r = paced_once(Path(co).resolve(), s, f"bench-{stamp}-paced-{i}")
         r["totals"] = totals(r)
         out[co] = r
+        print(format_paced({co: r}), file=sys.stderr, flush=True)
     return out
 
 
