@@ -1,6 +1,9 @@
 """The paced bench's CPU accounting (services/bench_paced.py) on real processes: /proc's times, the process tree,
 the labels. The figures themselves come from `python -m services bench --phases paced`, never from a test."""
 
+import contextlib
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -45,15 +48,18 @@ def test_descendants_follow_the_tree_and_a_gone_process_reads_as_none():
         stdout=subprocess.PIPE,
         text=True,
     )
+    assert parent.stdout is not None  # (stdout=PIPE)
+    child = int(parent.stdout.readline())
     try:
-        child = int(parent.stdout.readline())
         assert set(descendants(parent.pid)) == {parent.pid, child}
-        assert read_cpu(child)[0] == parent.pid
+        got = read_cpu(child)
+        assert got is not None and got[0] == parent.pid  # (parent pid, CPU seconds)
         assert label(child, parent.pid) == "other" and label(parent.pid, parent.pid) == "service:launcher+router"
     finally:
         parent.kill()
         parent.wait()
-        subprocess.run(["kill", str(child)], check=False)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(child, signal.SIGKILL)
     time.sleep(0.2)
     assert read_cpu(parent.pid) is None
 
