@@ -12,6 +12,9 @@ Phases (default: all):
               `max_ahead` steps ahead of its weights: sustained steps/s of the whole system with learning
   paper-b4    the same with a minibatch update every 4 steps (b = 4; Algorithm 2's knob)
   rate        a fixed actor rate (`rate`), b = 1, actor never waiting for weights: latencies at that load
+  paced       a person's pace (`paced-rate`, 2 steps/s) taught by a scripted page in Debian's Chromium: each
+              service's and the browser's share of one core, read from /proc after start-up
+              (services/bench_paced.py); with `paced-checkouts` the same on other checkouts, side by side
 
 Zero loss is checked in every phase: the actor's count, the log's Step seqs and the learner's ingest agree.
 """
@@ -34,7 +37,7 @@ from common.agents import ALGOS
 from common.config import option
 from common.core.task import Task
 
-PHASES = ("ingest", "paper", "paper-b4", "rate")
+PHASES = ("ingest", "paper", "paper-b4", "rate", "paced")
 PING_KEY = "hitl-bench/{run}/ping"
 PONG_KEY = "hitl-bench/{run}/pong"
 
@@ -52,6 +55,11 @@ class BenchConfig:
     phases: tuple[str, ...] = option(PHASES, f"phases to run, comma-separated, of {', '.join(PHASES)}")
     out: str = option("runs/bench", "directory of the phases' run directories and bench.json")
     ping_period: float = option(0.005, "seconds between Zenoh pings")
+    paced_seconds: float = option(60.0, "paced phase: seconds measured (after paced-warmup)")
+    paced_warmup: float = option(15.0, "paced phase: seconds of start-up left out once the page is in")
+    paced_rate: float = option(2.0, "paced phase: actor steps per second (a person's pace)")
+    paced_checkouts: tuple[str, ...] = option((), "paced phase: other checkouts of the project to measure the "
+                                                  "same way after this one (e.g. the base commit's), comma-separated")
 
     def __post_init__(self):
         Task(env=self.env)  # a bad env is a one-line error here
@@ -223,6 +231,9 @@ def bench(cfg: BenchConfig) -> int:
                                            "load_avg_before": [round(x, 2) for x in os.getloadavg()]},
                                "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__}, "phases": {}}
     for name in cfg.phases:
+        if name == "paced":
+            results["paced"] = run_paced(cfg, out, stamp)
+            continue
         run = f"bench-{stamp}-{name}"
         port = free_port()
         pinger = Pinger(tcp_endpoint(port), run, cfg.ping_period)
@@ -249,7 +260,20 @@ def bench(cfg: BenchConfig) -> int:
     path.write_text(json.dumps(results, indent=2))
     print("\n" + report(results), flush=True)
     print(f"\nwrote {path}", file=sys.stderr)
-    return 0 if all(p["zero_loss"] and p["exit_code"] == 0 for p in results["phases"].values()) else 1
+    paced = results.get("paced", {})
+    ok = all(p["zero_loss"] and p["exit_code"] == 0 for p in [*results["phases"].values(), *paced.values()])
+    return 0 if ok else 1
+
+
+def run_paced(cfg: BenchConfig, out: Path, stamp: str) -> dict[str, Any]:
+    from services.bench_paced import PacedSettings, format_paced, paced_phase
+
+    print(f"\n== phase paced ({cfg.paced_rate:g} steps/s, {cfg.paced_seconds:g} s) ==", file=sys.stderr, flush=True)
+    settings = PacedSettings(seconds=cfg.paced_seconds, warmup=cfg.paced_warmup, rate=cfg.paced_rate, env=cfg.env,
+                             algo=cfg.algo, out=out.resolve())
+    res = paced_phase(settings, cfg.paced_checkouts, stamp)
+    print(format_paced(res), file=sys.stderr, flush=True)
+    return res
 
 
 def _fmt(p: dict | None) -> str:
@@ -276,5 +300,9 @@ def report(results: dict) -> str:
              f"after {m['load_avg_after']}"]
     for name, r in results["phases"].items():
         lines.append(format_phase(name, r))
+    if results.get("paced"):
+        from services.bench_paced import format_paced
+
+        lines.append(format_paced(results["paced"]))
     return "\n".join(lines)
 

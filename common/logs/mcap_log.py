@@ -103,6 +103,7 @@ class LogWriter:
         self.paths: list[Path] = []
         self.counters: collections.Counter[str] = collections.Counter()
         self._lock = threading.RLock()
+        self._wake = threading.Event()  # set by write() when the file turns dirty, and by finish()
         self._dirty = False
         self._last_flush = time.monotonic()
         self._finished = False
@@ -178,7 +179,9 @@ class LogWriter:
                                  sequence=self.counters["messages"] & 0xFFFFFFFF)
         self.counters["messages"] += 1
         self.counters["bytes"] += len(data)
-        self._dirty = True
+        if not self._dirty:
+            self._dirty = True
+            self._wake.set()
 
     def flush(self) -> None:
         """Close the current chunk and push everything to the OS (survives a SIGKILL; not an fsync)."""
@@ -193,13 +196,19 @@ class LogWriter:
         self.counters["flushes"] += 1
 
     def _flush_loop(self) -> None:
-        period = max(0.02, self.flush_interval / 4)
-        while not self._stop.wait(period):
+        # Sleeps until something is written (write() sets _wake when the file turns dirty), then until its flush
+        # is due: a quiet log costs no wake-ups (it looked 4 times per flush interval before).
+        while not self._stop.is_set():
             with self._lock:
                 if self._finished:
                     return
-                if self._dirty and time.monotonic() - self._last_flush >= self.flush_interval:
+                self.counters["flush_thread_passes"] += 1
+                due = self._last_flush + self.flush_interval if self._dirty else None
+                if due is not None and time.monotonic() >= due:
                     self._flush_locked()
+                    due = None
+                self._wake.clear()
+            self._wake.wait(None if due is None else max(0.0, due - time.monotonic()))
 
     def _finish_segment(self) -> None:
         self._writer.finish()
@@ -208,6 +217,7 @@ class LogWriter:
     def finish(self) -> None:
         """Write the summary and close. Idempotent. Call in finally."""
         self._stop.set()
+        self._wake.set()
         with self._lock:
             if self._finished:
                 return

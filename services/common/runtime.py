@@ -14,10 +14,13 @@ import sys
 import threading
 import time
 import uuid
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Iterator
 
 from services.common.statefiles import atomic_write
+if TYPE_CHECKING:
+    from common.wire.inbox import Inbox
+    from common.wire.transport import MessagePublisher
 from common.protocol import (ServiceStatus, alive_key, incarnation_alive_key, status_key, teacher_id_of,
                              validate_name)
 
@@ -36,6 +39,37 @@ def set_from_handler(event: threading.Event) -> None:
     """Set `event` from a signal handler. Not directly: a handler that interrupted `event.wait()` in the same
     thread would deadlock on the Event's internal lock; a helper thread takes it once the waiter lets go."""
     threading.Thread(target=event.set, name="signal-set", daemon=True).start()
+
+
+def wait_for_exit(pid: int) -> None:
+    """Return once process `pid` has exited. Sleeps in the kernel on a pidfd (readable when the process ends), so
+    a service waiting on its launcher never wakes while it lives; where pidfds are missing (Linux < 5.3), it
+    looks every 0.5 s instead."""
+    import select
+
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return
+    except (AttributeError, OSError):
+        fd = None
+    if fd is not None:
+        try:
+            poller = select.poll()
+            poller.register(fd, select.POLLIN)
+            while not poller.poll():  # (an empty answer only after EINTR)
+                pass
+        finally:
+            os.close(fd)
+        return
+    while True:
+        time.sleep(0.5)
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return
+        except PermissionError:
+            continue
 
 
 def new_incarnation(service: str) -> str:
@@ -68,15 +102,15 @@ class ServiceRuntime:
         self.failed = False  # set by a service that ends without finishing its part of the run
         self.signalled = False
         self.final_state: str | None = None
-        self._run_end = None  # inbox of the launcher's status: 'stopping' means the run is ending
+        self._run_end: Inbox | None = None  # inbox of the launcher's status: 'stopping' means the run is ending
         self._supervised = self._run_ending = False
         _CURRENT[0] = self
         self.auth = load_auth(name, config, self.incarnation, process_default)
-        self._session = None
-        self._status_pub = None
-        self._log_pub = None
-        self._token = None
-        self._inc_token = None
+        self._session: Any = None  # the open zenoh.Session (zenoh is imported only where a session is opened)
+        self._status_pub: MessagePublisher | None = None
+        self._log_pub: MessagePublisher | None = None
+        self._token: Any = None  # zenoh liveliness tokens
+        self._inc_token: Any = None
         self._last_status = 0.0
         self._extra_counters: Callable[[], dict[str, int]] | None = None
         self._cpu_at_ready: float | None = None
@@ -96,21 +130,13 @@ class ServiceRuntime:
     def _watch_parent(self, pid: int) -> None:
         """The launcher is gone (e.g. SIGKILLed): stop, and if a clean stop does not finish within
         HARD_EXIT_AFTER s (zenoh.open retrying a dead router cannot be interrupted), exit hard."""
-        while True:
-            time.sleep(0.5)
-            try:
-                os.kill(pid, 0)
-                continue
-            except ProcessLookupError:
-                pass
-            except PermissionError:
-                continue
-            self.log(f"parent {pid} is gone; stopping")
-            self.counters["parent_gone"] += 1
-            self.stop.set()
-            time.sleep(HARD_EXIT_AFTER)
-            self.log(f"still running {HARD_EXIT_AFTER} s after the parent left; exiting hard")
-            os._exit(3)
+        wait_for_exit(pid)
+        self.log(f"parent {pid} is gone; stopping")
+        self.counters["parent_gone"] += 1
+        self.stop.set()
+        time.sleep(HARD_EXIT_AFTER)
+        self.log(f"still running {HARD_EXIT_AFTER} s after the parent left; exiting hard")
+        os._exit(3)
 
     def log(self, text: str) -> None:
         print(f"[{self.name}] {text}", file=sys.stderr, flush=True)
@@ -125,7 +151,8 @@ class ServiceRuntime:
         cfg = self.config
         with open_session(self.zenoh_config()) as session:
             self._session = session
-            self._status_pub = MessagePublisher(session, status_key(cfg.run, self.name), congestion="block")
+            status_pub = MessagePublisher(session, status_key(cfg.run, self.name), congestion="block")
+            self._status_pub = status_pub
             run_end_sub, self._run_end = subscribe(session, status_key(cfg.run, "launcher"), maxsize=4)
             ok = False
             try:
@@ -143,7 +170,7 @@ class ServiceRuntime:
                         with contextlib.suppress(Exception):
                             token.undeclare()
                 time.sleep(0.2)  # let the transmission queues empty before the session closes
-                self._status_pub.close()
+                status_pub.close()
                 if self._log_pub is not None:
                     self._log_pub.close()
                     self._log_pub = None
@@ -245,6 +272,10 @@ class ServiceRuntime:
                                            incarnation=self.incarnation))
         self._last_status = time.monotonic()
 
+    def status_due_in(self) -> float:
+        """Seconds until the periodic status is due (0 when it is)."""
+        return max(0.0, self._last_status + self.config.status_period - time.monotonic())
+
     def tick(self) -> None:
         """Publish the periodic status when due."""
         if time.monotonic() - self._last_status >= self.config.status_period:
@@ -340,7 +371,7 @@ def service_main(cls: type, main: Callable[[Any], int], argv: list[str] | None, 
     from common.config import parse_config
 
     doc = (cls.__doc__ or "").strip()
-    config = parse_config(cls, argv, prog=prog, description=f"{doc}\n\n{also}" if also else doc)
+    config: Any = parse_config(cls, argv, prog=prog, description=f"{doc}\n\n{also}" if also else doc)
     try:
         code = main(config)
     except AuthError as exc:

@@ -16,6 +16,7 @@ from services.launcher.config import Launch, UpConfig, build_processes
 from services.launcher.report import Progress, finish
 from services.launcher.rundir import RunDir, RunDirError, default_run_name, describe, is_disk_full
 from services.launcher.supervise import Supervisor
+from services.common.runtime import set_from_handler
 from services.launcher.unfinished import finish_unfinished_runs
 
 DISK_CHECK_PERIOD = 1.0  # s between free-space checks
@@ -267,6 +268,8 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
 
     def on_signal(signum, frame):
         r.interrupts += 1
+        if getattr(r, "sup", None) is not None:
+            set_from_handler(r.sup.wake)  # the loop's pass now, not after its rest
 
     old_int = signal.signal(signal.SIGINT, on_signal)
     old_term = signal.signal(signal.SIGTERM, on_signal)
@@ -323,7 +326,7 @@ def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: l
             progress.pump()
             if r.step():
                 break
-            time.sleep(0.05)
+            r.sup.rest(busy=bool(waiting) or r.graceful_deadline is not None or r.interrupts > 0)
         sub.undeclare()
         r.sup.pump()
     finally:

@@ -20,6 +20,11 @@ MIN_STATUSES = 3  # statuses seen from an incarnation before its silence counts 
 # How often the children's CPU times are read: reading one costs about 0.2-0.6 ms (psutil, /proc), which at
 # every 50 ms pass of the launcher took some 5 % of a core from the run; once a second is fine against TOKEN_GRACE.
 CPU_SAMPLE_PERIOD = 1.0
+# The launcher's loop: a pass every BUSY_PASS s while something is under way (start-up, a restart, the end), every
+# IDLE_PASS s in steady state. A liveliness change (a service ready, or gone with its session) and a signal wake
+# it at once; 20 passes a second while nothing happens were most of what the launcher did in a paced run.
+BUSY_PASS = 0.05
+IDLE_PASS = 0.5
 
 
 def cpu_seconds(pid: int) -> float | None:
@@ -115,6 +120,7 @@ class Supervisor:
         self.ring = ResendRing(window=3600.0, max_items=1000)
         self.hangs = HangWatch(cfg.hang_timeout)
         self._next_cpu_sample = 0.0  # monotonic time of the next reading of the children's CPU times
+        self.wake = threading.Event()  # the loop's next pass is due now (see rest())
         self.pub = MessagePublisher(session, log_key(run, "launcher"))
         self.recorder_watch = AliveWatch(session, run, ["recorder"])
         self._sub = session.liveliness().declare_subscriber(alive_key(run), self._on_alive, history=True)
@@ -129,6 +135,13 @@ class Supervisor:
                 self.hangs.token(name, True)
             else:
                 self.hangs.token(name, False)
+        self.wake.set()
+
+    def rest(self, busy: bool) -> None:
+        """Wait for the loop's next pass: BUSY_PASS s while `busy` or a restart is pending, else IDLE_PASS s,
+        sooner when a liveliness change or a signal wakes it."""
+        self.wake.wait(BUSY_PASS if busy or self.pending else IDLE_PASS)
+        self.wake.clear()
 
     def say(self, text: str, level: int = 3) -> None:
         from common.protocol import Log, Time

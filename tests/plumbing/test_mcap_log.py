@@ -169,6 +169,30 @@ def test_background_flush_makes_pending_messages_durable_within_a_second(tmp_pat
         w.finish()
 
 
+def test_background_flush_sleeps_while_quiet_and_wakes_for_the_next_write(tmp_path):
+    """The flush thread sleeps while nothing is pending (no periodic look), and a write after a quiet spell
+    is still flushed by it within the interval."""
+    path = tmp_path / "session.mcap"
+    w = LogWriter(path, CONFIG, flush_interval=0.2)
+    try:
+        w.write(step_key(RUN), example(Step, seq=0).encode())
+        time.sleep(0.6)
+        after_first, passes = w.counters["flushes"], w.counters["flush_thread_passes"]
+        time.sleep(0.6)  # quiet: nothing to flush, and the thread does not even look
+        assert w.counters["flushes"] == after_first >= 1
+        assert w.counters["flush_thread_passes"] == passes
+        w.write(step_key(RUN), example(Step, seq=1).encode())
+        time.sleep(0.6)  # only the (sleeping) thread can flush this one
+        assert w.counters["flushes"] == after_first + 1
+        snapshot = tmp_path / "snap.mcap"
+        shutil.copyfile(path, snapshot)
+        with pytest.warns(LogRecoveryWarning):
+            records, _ = load_log(snapshot, segments=False)
+        assert [getattr(r.message, "seq", None) for r in records] == [None, 0, 1]
+    finally:
+        w.finish()
+
+
 @pytest.mark.timeout(60)
 def test_sigkill_loses_at_most_about_one_second(tmp_path):
     path = tmp_path / "session.mcap"

@@ -72,16 +72,13 @@ function drawScene() {
   }
   drawWorld(cv, s, st && st.scene, drawTrail);
 }
-
 function legend(s) {
   const trail = "Tinted cells: the steps your latest feedback was credited to (green +1, red -1; darker = more weight).";
   if (!s) return "The environment's own picture, rendered by the actor after each step.";
   if (s.kind === "maze") return `Blue: the agent. Yellow: the goal. Dark: walls. ${trail}`;
   return `Orange: the taxi (purple while carrying). Purple dot: the passenger. Yellow frame: the destination. ${trail}`;
 }
-
 function cellOf(seq) { const sc = hitl.positions.get(seq); return sc && (sc.agent || sc.taxi); }
-
 function drawTrail(g, c) {
   // The newest credits of this person: each credited step's cell tinted by the weight it got.
   const recent = hitl.trail.filter((t) => t.teacher_id === hitl.me).slice(-3);
@@ -110,20 +107,36 @@ function showPrefs() {
   const names = (hitl.hello.scene && hitl.hello.scene.actions) || p.q.map((_, i) => `a${i}`);
   const score = p.q.map((q, i) => p.alpha_q * q + p.alpha_h * p.h[i]);
   const best = score.indexOf(Math.max(...score));
-  tb.innerHTML = p.q.map((q, i) => `<tr class="${i === best ? "best" : ""}"><td>${names[i]}</td><td>${q.toFixed(3)}</td>` +
+  const rows = p.q.map((q, i) => `<tr class="${i === best ? "best" : ""}"><td>${names[i]}</td><td>${q.toFixed(3)}</td>` +
     `<td>${p.h[i].toFixed(3)}</td><td>${score[i].toFixed(3)}</td></tr>`).join("");
-  document.getElementById("alpha").textContent = `alpha_q ${p.alpha_q}  alpha_h ${p.alpha_h.toFixed(4)}  (weights v${p.weights_version})`;
+  if (rows !== hitl.prefsRows) tb.innerHTML = hitl.prefsRows = rows;
+  setText("alpha", `alpha_q ${p.alpha_q}  alpha_h ${p.alpha_h.toFixed(4)}  (weights v${p.weights_version})`);
 }
 
+// A DOM write that changes nothing still costs a style pass, a layout and a frame: write only changes.
+function setText(id, text) { const el = document.getElementById(id); if (el.textContent !== text) el.textContent = text; }
 function showStatus() {
   const st = hitl.step;
   if (st) {
-    document.getElementById("episode").textContent = `episode ${st.episode}`;
-    document.getElementById("step").textContent = `step ${st.t_in_episode}`;
-    document.getElementById("return").textContent = `return ${(hitl.episodeReturn || 0).toFixed(2)}`;
+    setText("episode", `episode ${st.episode}`);
+    setText("step", `step ${st.t_in_episode}`);
+    setText("return", `return ${(hitl.episodeReturn || 0).toFixed(2)}`);
   }
-  document.getElementById("runstate").textContent = hitl.ended ? "run over" : hitl.paused ? "paused" : `${hitl.rate} steps/s`;
-  document.getElementById("pause").textContent = hitl.paused ? "resume" : "pause";
+  setText("runstate", hitl.ended ? "run over" : hitl.paused ? "paused" : `${hitl.rate} steps/s`);
+  setText("pause", hitl.paused ? "resume" : "pause");
+}
+
+// Preferences follow the weights, which at a person's pace change many times a step (idle-time updates: 14 prefs/s
+// at 2 steps/s, measured), each re-render a layout and a frame: the newest is shown with the next step's paint,
+// or PREFS_EVERY s after the last one shown.
+const PREFS_EVERY = 0.5;
+function onPrefs(m) {
+  hitl.prefs = m; hitl.prefsDirty = true;
+  if (!hitl.prefsTimer) hitl.prefsTimer = setTimeout(flushPrefs, Math.max(0, (hitl.prefsShownAt || 0) + PREFS_EVERY * 1000 - performance.now()));
+}
+function flushPrefs() {
+  clearTimeout(hitl.prefsTimer); hitl.prefsTimer = null;
+  if (hitl.prefsDirty) { hitl.prefsDirty = false; hitl.prefsShownAt = performance.now(); showPrefs(); }
 }
 
 function showTrail() {
@@ -154,7 +167,7 @@ function paint(ts) {
   if (!m) return;
   hitl.pending = null;
   hitl.step = m;
-  drawScene(); showStatus();
+  drawScene(); showStatus(); flushPrefs();
   const drawn = performance.now();
   // What was drawn appears with the frame this callback produces; the next frame's callback time is when
   // that frame was presented (never earlier than the drawing itself).
@@ -295,7 +308,7 @@ function onMessage(m) {
       break;
     }
     case "step": onStep(m); break;
-    case "prefs": hitl.prefs = m; showPrefs(); break;
+    case "prefs": onPrefs(m); break;
     case "episode": hitl.curve.push(m); drawCurve(); break;
     case "sent": {
       const h = hitl.held.find((x) => x.press === m.press);
