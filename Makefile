@@ -71,7 +71,7 @@ FORMATTED := tests/install common/pathtrace.py tests/test_paths_traced.py tests/
 	common/protocol/_info.py tests/services/info_rule.py tests/services/test_info_live.py tests/plumbing/test_step_info.py \
 	services/common/weights.py tests/console/test_weights_follow.py \
 	tests/console/test_compare_resume.py experiments/power.py tests/experiments/test_power.py \
-	services/bench_paced.py tests/services/test_bench_paced.py
+	services/bench_paced.py tests/services/test_bench_paced.py tests/services/test_credit_size.py
 
 # The base install alone, in a fresh venv: torch, then `pip install .` with no extras (pinned by the lock), then the
 # main job with the oracle teacher. CI runs it after `make test` (.ci/run); tests/install/ checks the same imports

@@ -262,13 +262,24 @@ class SceneBuilder:
         return walls
 
 
-def derived_records(run: str, message: Any, scene: SceneBuilder | None) -> list[tuple[str, bytes]]:
+def derived_records(run: str, message: Any, scene: SceneBuilder | None,
+                    dropped: Any = None) -> list[tuple[str, bytes]]:
     """(key, bytes) a log or a live viewer adds for one decoded message of `run`: the Credits an Ingest carries,
-    each as if it had come alone on its own key, and the scene drawn from the message and from those Credits."""
-    from common.protocol import carried
+    each as if it had come alone on its own key, and the scene drawn from the message and from those Credits.
+    A carried message that cannot stand alone (e.g. over its own size limit) is left out and counted in
+    `dropped` (a Counter, `derived_dropped_<reason>`): the Ingest that carried it is logged whole anyway."""
+    from common.protocol import ProtocolError, carried
 
-    inner = carried(message)
-    out = [(key, m.encode()) for key, m in inner]
+    inner = []
+    out = []
+    for key, m in carried(message):
+        try:
+            out.append((key, m.encode()))
+        except ProtocolError as e:
+            if dropped is not None:
+                dropped[f"derived_dropped_{e.reason}"] += 1
+            continue
+        inner.append((key, m))
     if scene is not None:
         for m in [message] + [m for _, m in inner]:
             out += scene.feed(run, m)

@@ -119,7 +119,8 @@ class Credit(Message):
     t_reaction: float = fld(Seconds("The feedback's t_reaction."))
     t_credited: float = fld(Seconds("System time (s) at which the learner updated H with it."))
     actor: str | None = fld(Nullable(Token("The actor incarnation of the steps.")))
-    steps: list = fld(List(CREDITED_STEP_SPEC, max_items=256, description="Steps credited, oldest first."))
+    steps: list = fld(List(CREDITED_STEP_SPEC, max_items=256, description=(
+        "Steps credited, oldest first (the learner lists at most 128: those of largest weight).")))
     lost_mass: float = fld(Float(0.0, 1.0, description="Assumed-delay mass that fell on no step held."))
     delay: DelayEstimate | None = fld(Nullable(DELAY_ESTIMATE_SPEC, description=(
         "The delay the learner now assumes for this teacher (learned, or the fixed one), after this feedback: "

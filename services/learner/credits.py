@@ -19,11 +19,24 @@ def credit_message(run: str, result, actor: str | None, t_done: float, delay=Non
         t_reaction=fb.t_reaction,
         t_credited=t_done,
         actor=fb.actor or actor,
-        steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in result.credited[:256]],
+        steps=[CreditedStep(int(q), min(1.0, float(w))) for q, w in heaviest(result.credited)],
         lost_mass=min(1.0, max(0.0, float(result.lost_mass))),
         delay=delay,
         revision=result.revision,
     )
+
+
+# A Credit lists at most this many steps, so that it stays within its size limit (10 KB) with a delay estimate:
+# a feedback credited in seconds over a long history (history_s) can spread over hundreds of steps.
+MAX_LISTED_STEPS = 128
+
+
+def heaviest(credited: list) -> list:
+    """[(Step.seq, weight)]: the MAX_LISTED_STEPS of largest weight (ties: the newer), oldest first."""
+    if len(credited) <= MAX_LISTED_STEPS:
+        return list(credited)
+    kept = sorted(credited, key=lambda qw: (-float(qw[1]), -int(qw[0])))[:MAX_LISTED_STEPS]
+    return sorted(kept, key=lambda qw: int(qw[0]))
 
 
 def publish_credit(session, pubs: dict, credit: Credit) -> None:

@@ -103,7 +103,7 @@ def main(config: RecorderConfig) -> int:
                             rt.counters[f"rejected_{e.reason}"] += 1
                             note_rejected(e.reason, item.key[:80])
                             continue
-                        for key, data in derived_records(config.run, st, scene):  # carried Credits, the scene
+                        for key, data in derived_records(config.run, st, scene, rt.counters):  # Credits, scene
                             writer.write(key, data, log_time=t_log)
                         if config.stop_when and "/status/" in item.key:
                             if isinstance(st, ServiceStatus) and st.state == "stopped":

@@ -1,0 +1,68 @@
+"""A Credit stays within its size limit however many steps a feedback spread over, and one that cannot stand
+alone is counted and dropped by the log, never a crash (a recorder once died on one: 10,333 bytes > 10,240)."""
+
+from __future__ import annotations
+
+import collections
+
+from common.logs.scene import derived_records
+from common.protocol import Credit, CreditedStep, Feedback, Ingest
+from services.learner.core import FeedbackResult
+from services.learner.credits import MAX_LISTED_STEPS, credit_message
+
+RUN = "t"
+
+
+def spread_result(n: int) -> FeedbackResult:
+    """A feedback credited in seconds over `n` held steps, with weights that have long decimal expansions."""
+    feedback = Feedback(run=RUN, teacher_id="oracle", seq=0, t_reaction=50.0, value=1, source="oracle")
+    weights = [(k % 7 + 1) / (7.0 * n) + 1e-9 * k for k in range(n)]
+    result = FeedbackResult("oracle", 0, "credited", n, 0.0, 0, feedback=feedback)
+    result.credited = list(zip(range(100, 100 + n), weights, strict=True))
+    return result
+
+
+def test_a_credit_over_hundreds_of_steps_lists_the_heaviest_oldest_first_and_encodes():
+    result = spread_result(400)
+    credit = credit_message(RUN, result, "actor-1", 51.0)
+    assert len(credit.steps) == MAX_LISTED_STEPS
+    seqs = [s.seq for s in credit.steps]
+    assert seqs == sorted(seqs)
+    smallest_kept = min(s.weight for s in credit.steps)
+    assert all(w <= smallest_kept for q, w in result.credited if q not in set(seqs))
+    assert len(credit.encode()) <= Credit.MAX_BYTES
+    few = credit_message(RUN, spread_result(10), "actor-1", 51.0)
+    assert [s.seq for s in few.steps] == list(range(100, 110))
+
+
+def test_a_carried_credit_too_big_to_stand_alone_is_counted_and_dropped():
+    big = Credit(
+        run=RUN,
+        teacher_id="oracle",
+        seq=0,
+        value=1,
+        status="credited",
+        t_reaction=1.0,
+        t_credited=2.0,
+        actor="actor-1",
+        steps=[CreditedStep(100_000 + k, 1 / 3) for k in range(256)],
+        lost_mass=0.0,
+    )
+    small = Credit(
+        run=RUN,
+        teacher_id="oracle",
+        seq=1,
+        value=1,
+        status="credited",
+        t_reaction=1.5,
+        t_credited=2.0,
+        actor="actor-1",
+        steps=[CreditedStep(3, 1.0)],
+        lost_mass=0.0,
+    )
+    ingest = Ingest(run=RUN, learner="learner-1", seq=0, index=0, entries=[], credits=[big, small])
+    dropped: collections.Counter[str] = collections.Counter()
+    out = derived_records(RUN, ingest, None, dropped)
+    assert [key for key, _ in out] == [f"hitl/{RUN}/credit/oracle"]
+    assert Credit.decode(out[0][1]).seq == 1
+    assert dropped == {"derived_dropped_oversized": 1}
