@@ -57,7 +57,7 @@ lint: setup lock-check
 	$(VENV)/bin/mypy
 
 # Files kept by `ruff format`; new files join this list. The rest keeps its compact hand wrapping (why: pyproject.toml).
-FORMATTED := tests/install common/pathtrace.py tests/test_paths_traced.py tests/test_pathtrace.py tests/conftest.py tests/services/chaos_rule.py services/replay/curve.py \
+FORMATTED := common/agents/sparse.py tests/install common/pathtrace.py tests/test_paths_traced.py tests/test_pathtrace.py tests/conftest.py tests/services/chaos_rule.py services/replay/curve.py \
 	common/core/delay_model.py common/agents/feedback.py experiments/delay_check.py tests/core/test_credit_boundary.py \
 	tests/experiments/test_delay_check.py services/console/lags.py services/console/design.py services/replay/heldout.py \
 	services/learner/teacher_delays.py tests/console/test_delay_page.py tests/replay/test_heldout.py \

@@ -30,6 +30,8 @@ from typing import Protocol
 
 import numpy as np
 
+from common.agents.sparse import NonzeroInputs, rows_forward, rows_backward, takes_rows
+
 PARAM_NAMES = ("w1", "b1", "w2", "b2")
 
 
@@ -99,10 +101,15 @@ def with_ones(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def mlp_forward(p: dict[str, np.ndarray], x: np.ndarray, x1: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def mlp_forward(p: dict[str, np.ndarray], x: np.ndarray, x1: np.ndarray | None = None,
+                nz: NonzeroInputs | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(hidden activations, outputs) for x: [n, N, in] -> [n, N, hidden], [n, N, out]. x1: `with_ones(x)`
-    if the caller has it already."""
-    h = (with_ones(x) if x1 is None else x1) @ p["a1"]
+    if the caller has it already; nz: its nonzero entries, for a wide first layer (`sparse.takes_rows`)."""
+    x1 = with_ones(x) if x1 is None else x1
+    if takes_rows(p["a1"]):
+        h = rows_forward(p["a1"], NonzeroInputs.of(x1) if nz is None else nz)
+    else:
+        h = x1 @ p["a1"]
     np.tanh(h, out=h)
     out = h @ p["w2"]
     out += p["b2"]
@@ -118,12 +125,22 @@ def row_max(q: np.ndarray) -> np.ndarray:
 
 
 def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: np.ndarray,
-                 x1: np.ndarray | None = None) -> np.ndarray:
-    """Gradient of sum(d_out * out) with respect to each trial's weights, flat [n, P] (w1, b1, w2, b2).
+                 x1: np.ndarray | None = None, nz: NonzeroInputs | None = None) -> np.ndarray:
+    """`mlp_backward_rows`' gradient alone."""
+    return mlp_backward_rows(p, x, h, d_out, x1, nz)[0]
+
+
+def mlp_backward_rows(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: np.ndarray,
+                      x1: np.ndarray | None = None, nz: NonzeroInputs | None = None
+                      ) -> tuple[np.ndarray, np.ndarray | None]:
+    """(grad, touched): gradient of sum(d_out * out) with respect to each trial's weights, flat [n, P] (w1, b1, w2, b2).
 
     h is `mlp_forward`'s first output (x1: `with_ones(x)` if the caller has it). Bias gradients are sums over
     the N rows, written as products (with the ones column of the augmented input, or a row of ones) so that
-    every reduction is a per-trial matrix product."""
+    every reduction is a per-trial matrix product. A wide first layer's gradient is a scatter-add of d_pre into
+    the rows of its nonzero inputs (`sparse.rows_backward`; nz: `NonzeroInputs.of(x1)` where the caller has it):
+    then `touched` are the first-layer rows it touched (flat keys trial * (in + 1) + input; every other row's
+    gradient is zero), else None."""
     n, N = x.shape[:2]
     g_w2 = h.transpose(0, 2, 1) @ d_out                              # [n, hidden, out]
     g_b2 = _constant("ones", n, 1, N) @ d_out                        # [n, 1, out]
@@ -131,9 +148,17 @@ def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: 
     slope = h * h
     np.subtract(np.float32(1), slope, out=slope)                     # tanh' = 1 - tanh^2
     d_pre *= slope
-    g1 = (with_ones(x) if x1 is None else x1).transpose(0, 2,
-                                                        1) @ d_pre                     # [n, in + 1, hidden] = (w1; b1)
-    return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1)
+    x1 = with_ones(x) if x1 is None else x1
+    if not takes_rows(p["a1"]):
+        g1 = x1.transpose(0, 2, 1) @ d_pre                           # [n, in + 1, hidden] = (w1; b1)
+        return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1), None
+    in1, hidden = p["a1"].shape[1:]
+    grad = np.zeros((n, in1 * hidden + g_w2[0].size + g_b2[0].size), np.float32)
+    keys, sums = rows_backward(d_pre, NonzeroInputs.of(x1) if nz is None else nz, in1)
+    grad[:, :in1 * hidden].reshape(n, in1, hidden)[keys // in1, keys % in1] = sums  # (a view: splits one axis)
+    grad[:, in1 * hidden:-g_b2[0].size] = g_w2.reshape(n, -1)
+    grad[:, -g_b2[0].size:] = g_b2.reshape(n, -1)
+    return grad, keys
 
 
 @dataclass(frozen=True)
@@ -335,7 +360,8 @@ def fit_together(jobs: list[FitJob]) -> None:
             x, x1 = np.concatenate([j.x for j in jobs]), None
     if x1 is None:
         x1 = with_ones(x)
-    hidden, out = mlp_forward(params, x, x1)
+    nz = NonzeroInputs.of(x1) if takes_rows(params["a1"]) else None  # (once for the forward and the backward)
+    hidden, out = mlp_forward(params, x, x1, nz)
     # d loss / d out: each row's loss gradient at its action taken, 0 at the other actions (a scatter into
     # zeros at flat positions row * A + action: the same numbers as a mask and np.where, at half the cost).
     d_out = np.zeros_like(out)
@@ -346,12 +372,22 @@ def fit_together(jobs: list[FitJob]) -> None:
         pred = out[start:start + n].reshape(-1)[at].reshape(n, -1)
         d_out[start:start + n].reshape(-1)[at] = j.loss.grad(pred, j.targets, j.weights).reshape(-1)
         start += n
-    grad = mlp_backward(params, x, hidden, d_out, x1)
+    grad, touched = mlp_backward_rows(params, x, hidden, d_out, x1, nz)
     if len(jobs) == 1:
-        jobs[0].net.opt.step_rows(jobs[0].net.flat, r, grad)
+        jobs[0].net.opt.step_rows(jobs[0].net.flat, r, grad, _blocks(params, touched, 0, len(jobs[0].rows)))
         return
     start = 0
     for j, r in zip(jobs, idx):
         n = len(j.rows)
-        j.net.opt.step_rows(j.net.flat, r, grad[start:start + n])
+        j.net.opt.step_rows(j.net.flat, r, grad[start:start + n], _blocks(params, touched, start, n))
         start += n
+
+
+def _blocks(params: dict[str, np.ndarray], touched: np.ndarray | None, start: int, n: int):
+    """The optimiser's view of trials start..start+n's touched first-layer rows: (rows per trial, row width,
+    flat keys from 0), or None where every weight may have a gradient."""
+    if touched is None:
+        return None
+    in1, hidden = params["a1"].shape[1:]
+    lo, hi = np.searchsorted(touched, [start * in1, (start + n) * in1])
+    return in1, hidden, touched[lo:hi] - start * in1

@@ -20,16 +20,40 @@ class FlatRMSProp:
         """Start with a zero running average for parameters of this [B, P] shape."""
         self.square_avg = np.zeros(shape, np.float32)
 
-    def step_rows(self, flat: np.ndarray, idx, grad: np.ndarray) -> None:
+    def step_rows(self, flat: np.ndarray, idx, grad: np.ndarray, blocks: tuple | None = None) -> None:
         """Step rows `idx` of `flat` (all when None; a slice or an index array) with `grad` [their number, P].
 
         All rows or a slice are stepped in place (views, no copies); other selections are gathered,
-        stepped and scattered back. The arithmetic is the same either way."""
+        stepped and scattered back. The arithmetic is the same either way.
+
+        blocks (count, width, keys): the first count * width columns of a row are `count` blocks of `width`, and
+        only the blocks `keys` (flat: row * count + block, distinct) have a nonzero gradient (a wide first
+        layer's touched inputs). A zero gradient leaves a weight as it is and only decays its running average
+        (alpha sq + 0, and p - 0 / (...) = p, exactly), so the other blocks get just that: the same bits as the
+        dense step."""
         inplace = idx is None or isinstance(idx, slice)
         sel = slice(None) if idx is None else idx
         p = flat[sel]
         sq = self.square_avg[sel]
-        sq *= self.alpha                                  # sq = alpha sq + (1 - alpha) g^2
+        if blocks is not None:
+            sq *= self.alpha
+            count, width, keys = blocks
+            tail = count * width
+            self._update(p[:, tail:], sq[:, tail:], grad[:, tail:])
+            at = keys // count, keys % count
+            p3, sq3, g3 = (a[:, :tail].reshape(len(a), count, width) for a in (p, sq, grad))  # (views)
+            p_b, sq_b = p3[at], sq3[at]
+            self._update(p_b, sq_b, g3[at])
+            p3[at], sq3[at] = p_b, sq_b
+        else:
+            sq *= self.alpha                              # sq = alpha sq + (1 - alpha) g^2
+            self._update(p, sq, grad)
+        if not inplace:
+            self.square_avg[sel] = sq
+            flat[sel] = p
+
+    def _update(self, p: np.ndarray, sq: np.ndarray, grad: np.ndarray) -> None:
+        """The step after the decay: sq += (1 - alpha) g^2, p -= lr g / (sqrt(sq) + eps), in place."""
         tmp = grad * grad
         tmp *= np.float32(1) - self.alpha
         sq += tmp
@@ -38,9 +62,6 @@ class FlatRMSProp:
         np.divide(grad, tmp, out=tmp)
         tmp *= self.lr
         p -= tmp
-        if not inplace:
-            self.square_avg[sel] = sq
-            flat[sel] = p
 
     def select(self, idx: np.ndarray) -> None:
         self.square_avg = self.square_avg[idx]

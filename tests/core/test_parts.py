@@ -31,11 +31,25 @@ def test_the_numpy_initialisation_is_torchs_bit_for_bit(seed, dims):
         assert np.array_equal(got[name].view(np.uint32), want.numpy().view(np.uint32)), name
 
 
-def test_mlp_gradient_is_autograds():
-    net = StackedMLP(3, 5, 4, [1, 2])
+def one_hot_rows(rng, n, N, width, hot):
+    """[n, N, width] float32 rows with `hot` ones each (Taxi's kind of input); a few rows also hold other values."""
+    x = np.zeros((n, N, width), np.float32)
+    for i in range(n):
+        for j in range(N):
+            x[i, j, rng.choice(width, hot, replace=False)] = 1.0
+    x[:, 0, :3] = rng.standard_normal((n, 3))
+    return x
+
+
+@pytest.mark.parametrize("dims", [(3, 5, 4), (519, 100, 6)])
+def test_mlp_gradient_is_autograds(dims):
+    """Dense inputs (the maze) and wide one-hot ones taken as row lookups and scatter-adds (`sparse`)."""
+    in_dim, hidden_dim, out_dim = dims
+    net = StackedMLP(in_dim, hidden_dim, out_dim, [1, 2])
     rng = np.random.default_rng(0)
-    x = rng.standard_normal((2, 6, 3)).astype(np.float32)
-    d_out = rng.standard_normal((2, 6, 4)).astype(np.float32)
+    x = rng.standard_normal((2, 6, 3)).astype(np.float32) if in_dim == 3 else one_hot_rows(rng, 2, 6, in_dim, 5)
+    x[1, 2] = 0.0  # (a row with no input set: only its bias)
+    d_out = rng.standard_normal((2, 6, out_dim)).astype(np.float32)
     hidden, out = mlp_forward(net.params, x)
     grad = mlp_backward(net.params, x, hidden, d_out)
     for i in range(2):
@@ -194,3 +208,28 @@ def test_the_teachers_reliability_lowers_alpha_h_only_for_the_teacher_q_contradi
     np.testing.assert_allclose(other.alpha_h(rows, late), ah)
     with pytest.raises(ValueError, match="alpha_h_trust"):
         agent_config("dqn-tamer", alpha_h_trust_ref=0.0)
+
+
+@pytest.mark.parametrize("rows", [None, slice(1, 3), np.array([0, 2])])
+def test_rmsprop_on_touched_rows_is_the_dense_step_bit_for_bit(rows):
+    """A wide first layer's gradient is zero outside the rows of its inputs that were set: stepping only those
+    (and decaying every running average) gives the same bits as the dense step, weights and averages."""
+    rng = np.random.default_rng(3)
+    count, width, tail = 6, 4, 5
+    flat = rng.standard_normal((3, count * width + tail)).astype(np.float32)
+    n = 3 if rows is None else 2
+    grad = np.zeros((n, count * width + tail), np.float32)
+    keys = np.array([1, 4, 6, 11]) if n == 3 else np.array([0, 5, 7])
+    grad[:, :count * width].reshape(n, count, width)[keys // count, keys % count] = rng.standard_normal(
+        (len(keys), width))
+    grad[:, count * width:] = rng.standard_normal((n, tail))
+    dense, blocked = FlatRMSProp(1e-2), FlatRMSProp(1e-2)
+    weights, start_avg = {}, rng.random(flat.shape).astype(np.float32)
+    for name, opt, blocks in (("dense", dense, None), ("blocked", blocked, (count, width, keys))):
+        opt.attach(flat.shape)
+        opt.square_avg[...] = start_avg
+        weights[name] = w = flat.copy()
+        for _ in range(3):
+            opt.step_rows(w, rows, grad, blocks)
+    assert np.array_equal(weights["dense"], weights["blocked"]) and not np.array_equal(weights["dense"], flat)
+    assert np.array_equal(dense.square_avg, blocked.square_avg)

@@ -64,5 +64,6 @@ def test_a_carried_credit_too_big_to_stand_alone_is_counted_and_dropped():
     dropped: collections.Counter[str] = collections.Counter()
     out = derived_records(RUN, ingest, None, dropped)
     assert [key for key, _ in out] == [f"hitl/{RUN}/credit/oracle"]
-    assert Credit.decode(out[0][1]).seq == 1
+    alone = Credit.decode(out[0][1])
+    assert isinstance(alone, Credit) and alone.seq == 1
     assert dropped == {"derived_dropped_oversized": 1}
