@@ -1,4 +1,9 @@
-"""The runner's held heap (`experiments.runner.hold_freed_heap`): the same trial, far fewer page faults."""
+"""The runner's held heap (`experiments.runner.hold_freed_heap`): the same trial, and no page faults per step.
+
+Before the held heap, glibc handed the top of the heap back after each step and Taxi's dense [32, 519] temporaries
+faulted it back in: 847 thousand page faults for two batched trials of 4000 steps, against 2.4 thousand held. Since
+Taxi's first layer is computed by row lookups (`common/agents/sparse.py`) those temporaries are gone and the default
+heap faults as little (2,330 against 2,498 in one run), so the check is now on faults per step, held or not."""
 
 import json
 import subprocess
@@ -24,10 +29,10 @@ print(json.dumps({"digest": digest.hexdigest(), "faults": faults, "steps": sum(r
 """
 
 
-def test_a_held_heap_gives_the_same_taxi_trial_with_far_fewer_page_faults():
+def test_a_held_heap_gives_the_same_taxi_trial_and_no_page_faults_per_step():
     runs = {how: subprocess.Popen([sys.executable, "-c", TRIAL, how, "2"], stdout=subprocess.PIPE, text=True)
             for how in ("default", "held")}
     got = {how: json.loads(p.communicate(timeout=120)[0]) for how, p in runs.items()}
     assert got["held"]["digest"] == got["default"]["digest"] and got["held"]["steps"] > 100
-    # measured: 847 thousand page faults against 2.4 thousand (two batched trials, 4000 steps)
-    assert got["held"]["faults"] * 10 < got["default"]["faults"], got
+    # measured: about 0.6 faults a step either way (was 212 a step with the default heap before the row lookups)
+    assert all(run["faults"] < 4 * run["steps"] for run in got.values()), got
