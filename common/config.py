@@ -14,6 +14,7 @@ the nested object from the values given (a dict: see `nested`) in its `__post_in
 from a preset (the agent's algorithm). Errors (an unknown flag or setting, a bad value) are one line
 naming the offender.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -85,7 +86,8 @@ def _converter(tp, name: str):
                 return tuple(item(x) for x in text.split(",") if x.strip())
             except ValueError:
                 raise argparse.ArgumentTypeError(
-                    f"--{name} expects comma-separated {item.__name__}s, got {text!r}") from None
+                    f"--{name} expects comma-separated {item.__name__}s, got {text!r}"
+                ) from None
         if base is bool:
             if text.lower() in ("1", "true", "yes", "on"):
                 return True
@@ -157,8 +159,7 @@ def _default_at(cls: type, path: tuple[str, ...], f: dataclasses.Field) -> Any:
     says its own value, not the declaring class's."""
     node: Any = None
     for depth, name in enumerate(path[:-1]):
-        node = (_default({g.name: g for g in dataclasses.fields(cls)}[name]) if depth == 0
-                else getattr(node, name, None))
+        node = _default({g.name: g for g in dataclasses.fields(cls)}[name]) if depth == 0 else getattr(node, name, None)
         if not dataclasses.is_dataclass(node):
             return _default(f)
     return getattr(node, path[-1]) if node is not None else _default(f)
@@ -190,9 +191,14 @@ def add_config_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
             parser.add_argument("/".join(path), **kwargs)
         else:
             parser.add_argument(f"--{flag}", *_old_flags(cls, path, f), dest="/".join(path), **kwargs)
-    parser.add_argument("--config", dest="_config_file", default=None, metavar="FILE",
-                        help="JSON or YAML file of settings (nested as the log's config record); flags given on "
-                             "the command line override it")
+    parser.add_argument(
+        "--config",
+        dest="_config_file",
+        default=None,
+        metavar="FILE",
+        help="JSON or YAML file of settings (nested as the log's config record); flags given on "
+        "the command line override it",
+    )
 
 
 def _load_file(path: str) -> dict:
@@ -259,15 +265,19 @@ def config_from_namespace(cls: type[T], ns: argparse.Namespace) -> T:
 
 
 def suggest(name: str, known: list[str]) -> str:
-    """"; did you mean X?" for a flag or setting that was renamed or misspelt: the nested one with the same
+    """ "; did you mean X?" for a flag or setting that was renamed or misspelt: the nested one with the same
     leaf name (`--p-feedback` -> `--observer.p-feedback`), else the closest spelling; "" when none is near."""
+
     def leaf(flag: str) -> str:
         return flag.lstrip("-").rsplit(".", 1)[-1].replace("_", "-")
 
     same_leaf = [k for k in known if leaf(k) == leaf(name) and k != name]
     close_leaf = difflib.get_close_matches(leaf(name), [leaf(k) for k in known], n=1, cutoff=0.8)
-    close = (same_leaf or difflib.get_close_matches(name, known, n=1, cutoff=0.75)
-             or [k for k in known if close_leaf and leaf(k) == close_leaf[0]])
+    close = (
+        same_leaf
+        or difflib.get_close_matches(name, known, n=1, cutoff=0.75)
+        or [k for k in known if close_leaf and leaf(k) == close_leaf[0]]
+    )
     return f"; did you mean {' or '.join(close[:3])}?" if close else ""
 
 
@@ -291,8 +301,9 @@ class ConfigParser(argparse.ArgumentParser):
         return ns
 
 
-def parse_config(cls: type[T], argv: list[str] | None = None, prog: str | None = None,
-                 description: str | None = None) -> T:
+def parse_config(
+    cls: type[T], argv: list[str] | None = None, prog: str | None = None, description: str | None = None
+) -> T:
     """Build `cls` from the command line; a bad value exits with a one-line error naming it."""
     parser = ConfigParser(prog=prog, description=description or (cls.__doc__ or "").strip())
     add_config_arguments(parser, cls)
@@ -319,19 +330,23 @@ def _add_commands(sub, commands: dict) -> None:
         if isinstance(command, dict):  # a group: `pilot maze|taxi|console`
             doc = command.get("", "")
             group = sub.add_parser(name, help=doc, description=doc)
-            _add_commands(group.add_subparsers(dest=f"_{name}", required=True, metavar="COMMAND"),
-                          {k: v for k, v in command.items() if k})
+            _add_commands(
+                group.add_subparsers(dest=f"_{name}", required=True, metavar="COMMAND"),
+                {k: v for k, v in command.items() if k},
+            )
             continue
         doc = (command.config.__doc__ or "").strip()
         first = re.split(r"(?<!e\.g)\. |; ", " ".join(doc.split("\n\n")[0].split()))[0]  # its first sentence
-        p = sub.add_parser(name, help=command.help or first, description=doc,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p = sub.add_parser(
+            name, help=command.help or first, description=doc, formatter_class=argparse.RawDescriptionHelpFormatter
+        )
         add_config_arguments(p, command.config)
         p.set_defaults(_command=command, _parser=p)
 
 
-def run_commands(prog: str, description: str, commands: dict, argv: list[str] | None = None,
-                 moved: dict[str, str] | None = None) -> int:
+def run_commands(
+    prog: str, description: str, commands: dict, argv: list[str] | None = None, moved: dict[str, str] | None = None
+) -> int:
     """`prog COMMAND [SUBCOMMAND] --flags`: parse the chosen command's config and run it. `commands` maps a
     name to a `Command` or to a group (a dict of names to commands, its help under the key ""); `moved` maps a
     command that moved elsewhere to its new spelling (said in the error)."""

@@ -1,6 +1,7 @@
 """python -m experiments COMMAND: experiments on the in-process runner (virtual clock), and their tools.
 
 Every command has --help; every setting is a field of the command's documented config (common/config.py)."""
+
 from __future__ import annotations
 
 import csv
@@ -38,8 +39,16 @@ def cmd_run(config: RunConfig) -> int:
 
     os.makedirs(config.out, exist_ok=True)
     task = config.task
-    spec = TrialSpec(task.env, agent_of(config), config.observer, task.seed, task.layout, config.episodes,
-                     task.teacher_rule, config.step_seconds)
+    spec = TrialSpec(
+        task.env,
+        agent_of(config),
+        config.observer,
+        task.seed,
+        task.layout,
+        config.episodes,
+        task.teacher_rule,
+        config.step_seconds,
+    )
     with open(os.path.join(config.out, "config.json"), "w") as fh:
         json.dump(config_record(config), fh, indent=2)  # the whole tree: task, agent, observer
     bar = tqdm(total=config.episodes, desc=f"{config.algo} on {task.env}", unit="ep", file=sys.stderr)
@@ -56,16 +65,26 @@ def cmd_run(config: RunConfig) -> int:
         writer = csv.DictWriter(fh, fieldnames=EPISODE_FIELDS)
         writer.writeheader()
         writer.writerows(result.episodes)
-    plot_curves({config.algo: result.returns}, os.path.join(config.out, "curve.png"),
-                f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
-                stop_episode=config.observer.stop_episode)
-    summary = {"episodes": len(result.episodes), "steps": result.total_steps, "wall_s": round(wall, 3),
-               "returns": result.returns.tolist(), "delay": {"observer": result.delay}}
+    plot_curves(
+        {config.algo: result.returns},
+        os.path.join(config.out, "curve.png"),
+        f"{config.algo} on {task.env} layout {task.layout}, seed {task.seed}",
+        stop_episode=config.observer.stop_episode,
+    )
+    summary = {
+        "episodes": len(result.episodes),
+        "steps": result.total_steps,
+        "wall_s": round(wall, 3),
+        "returns": result.returns.tolist(),
+        "delay": {"observer": result.delay},
+    }
     with open(os.path.join(config.out, "summary.json"), "w") as fh:
         json.dump(summary, fh, indent=1)
-    print(f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
-          f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, summary.json, "
-          f"curve.png")
+    print(
+        f"{config.episodes} episodes, {result.total_steps} steps in {wall:.1f} s "
+        f"({result.total_steps / max(wall, 1e-9):.0f} steps/s); wrote {config.out}/episodes.csv, summary.json, "
+        f"curve.png"
+    )
     return 0
 
 
@@ -92,17 +111,26 @@ def commands() -> dict:
     from experiments.sweeps.cli import SweepConfig, main as sweep
     from experiments.taxi_pilot import TaxiPilotConfig, main as taxi_pilot
 
-    return {"run": Command(RunConfig, run_main), "sweep": Command(SweepConfig, sweep, argv=True),
-            "reproduce": Command(ReproduceConfig, reproduce_main, argv=True),
-            "report": Command(ReportConfig, report_main, argv=True),
-            "pilot": {"": "how a setting was chosen on pilot seeds, never the trials that use it",
-                      "maze": Command(MazePilotConfig, maze_pilot), "taxi": Command(TaxiPilotConfig, taxi_pilot),
-                      "console": Command(ConsolePilotConfig, console_pilot),
-                      "alpha": Command(AlphaPilotConfig, alpha_pilot)},
-            "minigrid": Command(MinigridConfig, minigrid), "machines": Command(MachinesConfig, machines),
-            "bench": Command(BenchConfig, bench_main), "sweep-bench": Command(SweepBenchConfig, sweep_bench),
-            "bench-compare": Command(BenchCompareConfig, bench_compare),
-            "delay-check": Command(DelayCheckConfig, delay_check), "power": Command(PowerConfig, power)}
+    return {
+        "run": Command(RunConfig, run_main),
+        "sweep": Command(SweepConfig, sweep, argv=True),
+        "reproduce": Command(ReproduceConfig, reproduce_main, argv=True),
+        "report": Command(ReportConfig, report_main, argv=True),
+        "pilot": {
+            "": "how a setting was chosen on pilot seeds, never the trials that use it",
+            "maze": Command(MazePilotConfig, maze_pilot),
+            "taxi": Command(TaxiPilotConfig, taxi_pilot),
+            "console": Command(ConsolePilotConfig, console_pilot),
+            "alpha": Command(AlphaPilotConfig, alpha_pilot),
+        },
+        "minigrid": Command(MinigridConfig, minigrid),
+        "machines": Command(MachinesConfig, machines),
+        "bench": Command(BenchConfig, bench_main),
+        "sweep-bench": Command(SweepBenchConfig, sweep_bench),
+        "bench-compare": Command(BenchCompareConfig, bench_compare),
+        "delay-check": Command(DelayCheckConfig, delay_check),
+        "power": Command(PowerConfig, power),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,6 +15,7 @@ run's layout: those are 60-119) on seeds `seed0 + k + 100 r` for repetition r, n
     python -m experiments pilot alpha --episodes 100 --reps 2 \\
         --variants "trust:alpha_h_trust=0.01,alpha_h_trust_after=2000,alpha_h_trust_ref=0.5"
 """
+
 from __future__ import annotations
 
 import json
@@ -31,7 +32,7 @@ BASE_ARMS = ("dqn", "dqn-tamer", "dqn-tamer/adaptive")
 
 
 def parse_variants(text: str) -> dict[str, dict]:
-    """"name:field=v,field=v;name2:..." -> {name: {field: value}} (values as float, int where integral)."""
+    """ "name:field=v,field=v;name2:..." -> {name: {field: value}} (values as float, int where integral)."""
     out: dict[str, dict] = {}
     for part in filter(None, (p.strip() for p in text.split(";"))):
         name, _, body = part.partition(":")
@@ -47,9 +48,12 @@ def parse_variants(text: str) -> dict[str, dict]:
 def summarise(steps: np.ndarray, returns: np.ndarray, alpha: np.ndarray, layouts: np.ndarray) -> dict:
     out: dict = {}
     for kind, mask in (("honest", layouts % 2 == 0), ("misleading", layouts % 2 == 1)):
-        out[kind] = {"ln_steps": float(np.log(np.maximum(steps[mask], 1)).mean()),
-                     "return": float(returns[mask].mean()), "alpha_h_mean": float(alpha[mask].mean()),
-                     "alpha_h_end": float(alpha[mask][:, -1].mean())}
+        out[kind] = {
+            "ln_steps": float(np.log(np.maximum(steps[mask], 1)).mean()),
+            "return": float(returns[mask].mean()),
+            "alpha_h_mean": float(alpha[mask].mean()),
+            "alpha_h_end": float(alpha[mask][:, -1].mean()),
+        }
     out["alpha_h_mean"] = float(alpha.mean())
     return out
 
@@ -80,10 +84,15 @@ def main(cfg: AlphaPilotConfig) -> int:
     arms = {a: agent_for(a, cond.env, cond.true_delay) for a in BASE_ARMS}
     for name, fields in parse_variants(cfg.variants).items():
         arms[name] = replace(agent_for("dqn-tamer", cond.env), **fields)
-    plan = [(arm, L, cfg.seed0 + k + 100 * r) for arm in arms for r in range(cfg.reps)
-            for k, L in enumerate(PILOT_LAYOUTS)]
-    specs = [TrialSpec(cond.env, arms[arm], cond.observer, seed=s, layout=L, episodes=cfg.episodes,
-                       teacher_rule=cond.teacher_rule) for arm, L, s in plan]
+    plan = [
+        (arm, L, cfg.seed0 + k + 100 * r) for arm in arms for r in range(cfg.reps) for k, L in enumerate(PILOT_LAYOUTS)
+    ]
+    specs = [
+        TrialSpec(
+            cond.env, arms[arm], cond.observer, seed=s, layout=L, episodes=cfg.episodes, teacher_rule=cond.teacher_rule
+        )
+        for arm, L, s in plan
+    ]
     results = run_trials(specs)
     summary = {}
     for arm in arms:
@@ -93,10 +102,13 @@ def main(cfg: AlphaPilotConfig) -> int:
         alpha = np.array([[e["alpha_h"] for e in r.episodes] for r, _ in rs], np.float64)
         summary[arm] = summarise(steps, rets, alpha, np.array([L for _, L in rs]))
         s = summary[arm]
-        print(f"{arm}: honest ln steps {s['honest']['ln_steps']:.3f} return {s['honest']['return']:+.3f}; "
-              f"misleading ln steps {s['misleading']['ln_steps']:.3f} return {s['misleading']['return']:+.3f}; "
-              f"alpha_h mean {s['alpha_h_mean']:.3f} (end honest {s['honest']['alpha_h_end']:.2f}, "
-              f"misleading {s['misleading']['alpha_h_end']:.2f})", flush=True)
+        print(
+            f"{arm}: honest ln steps {s['honest']['ln_steps']:.3f} return {s['honest']['return']:+.3f}; "
+            f"misleading ln steps {s['misleading']['ln_steps']:.3f} return {s['misleading']['return']:+.3f}; "
+            f"alpha_h mean {s['alpha_h_mean']:.3f} (end honest {s['honest']['alpha_h_end']:.2f}, "
+            f"misleading {s['misleading']['alpha_h_end']:.2f})",
+            flush=True,
+        )
     k = summary["dqn-tamer/adaptive"]["alpha_h_mean"] / summary["dqn-tamer"]["alpha_h_mean"]
     print(f"A1 match: k = {k:.4f} (mean alpha_h adaptive / paper)")
     if cfg.out:

@@ -8,6 +8,7 @@ The same subset of trials is run three ways in one invocation:
 Every way must give the same returns for every trial (checked; the run fails otherwise), so the ratios
 are pure speed.
 """
+
 from __future__ import annotations
 
 import json
@@ -54,18 +55,29 @@ def bench(conditions: list[str], trials: int, episodes: int, workers: int = 2, o
     run_local(jobs, workers, on_message)
     t_parallel = time.perf_counter() - t0
 
-    mismatches = [i for i, s in enumerate(specs)
-                  if not np.array_equal(plain[i].returns, batched[id(s)].returns)
-                  or plain[i].total_steps != steps_par[trial_key(s)]]
+    mismatches = [
+        i
+        for i, s in enumerate(specs)
+        if not np.array_equal(plain[i].returns, batched[id(s)].returns)
+        or plain[i].total_steps != steps_par[trial_key(s)]
+    ]
     if mismatches:
         raise RuntimeError(f"{len(mismatches)} trials differ between the plain loop and the batched runs")
     total_steps = int(sum(r.total_steps for r in plain))
     report = {
-        "conditions": [c.name for c in conds], "trials_per_agent": trials, "episodes": episodes,
-        "trials": len(specs), "env_steps": total_steps, "workers": workers,
-        "plain_s": t_plain, "batched_s": t_batched, "parallel_s": t_parallel,
-        "speedup_batched": t_plain / t_batched, "speedup_parallel": t_plain / t_parallel,
-        "plain_steps_per_s": total_steps / t_plain, "parallel_steps_per_s": total_steps / t_parallel,
+        "conditions": [c.name for c in conds],
+        "trials_per_agent": trials,
+        "episodes": episodes,
+        "trials": len(specs),
+        "env_steps": total_steps,
+        "workers": workers,
+        "plain_s": t_plain,
+        "batched_s": t_batched,
+        "parallel_s": t_parallel,
+        "speedup_batched": t_plain / t_batched,
+        "speedup_parallel": t_plain / t_parallel,
+        "plain_steps_per_s": total_steps / t_plain,
+        "parallel_steps_per_s": total_steps / t_parallel,
     }
     if out:
         with open(out, "w") as fh:
@@ -74,13 +86,15 @@ def bench(conditions: list[str], trials: int, episodes: int, workers: int = 2, o
 
 
 def format_report(r: dict) -> str:
-    return "\n".join([
-        f"bench: {r['trials']} trials ({', '.join(r['conditions'])}; {r['trials_per_agent']} per agent, "
-        f"{r['episodes']} episodes), {r['env_steps']} environment steps; identical returns in every mode",
-        f"  plain loop (each trial alone, one after another): {r['plain_s']:8.1f} s  "
-        f"({r['plain_steps_per_s']:.0f} steps/s)",
-        f"  batched, 1 process:                               {r['batched_s']:8.1f} s  "
-        f"speed-up x{r['speedup_batched']:.1f}",
-        f"  batched, {r['workers']} processes:                       {r['parallel_s']:8.1f} s  "
-        f"speed-up x{r['speedup_parallel']:.1f}",
-    ])
+    return "\n".join(
+        [
+            f"bench: {r['trials']} trials ({', '.join(r['conditions'])}; {r['trials_per_agent']} per agent, "
+            f"{r['episodes']} episodes), {r['env_steps']} environment steps; identical returns in every mode",
+            f"  plain loop (each trial alone, one after another): {r['plain_s']:8.1f} s  "
+            f"({r['plain_steps_per_s']:.0f} steps/s)",
+            f"  batched, 1 process:                               {r['batched_s']:8.1f} s  "
+            f"speed-up x{r['speedup_batched']:.1f}",
+            f"  batched, {r['workers']} processes:                       {r['parallel_s']:8.1f} s  "
+            f"speed-up x{r['speedup_parallel']:.1f}",
+        ]
+    )

@@ -16,6 +16,7 @@ the ratio, and the ratio of steps per CPU second of the run's process (others' l
 more than CPU time); last, the median ratios per mode and the load average at the start and the end (on a
 shared, noisy machine only ratios taken within one run mean anything).
 """
+
 from __future__ import annotations
 
 import json
@@ -59,8 +60,13 @@ print(json.dumps({"trials": len(specs), "env_steps": int(sum(r.total_steps for r
 def timed_run(checkout: Path, envs: list[str], trials: int, episodes: int) -> dict:
     """The trials run plain and batched with `checkout`'s own code: its times and environment steps."""
     arg = json.dumps([envs, trials, episodes])
-    done = subprocess.run([sys.executable, "-c", _TIMED_RUN, arg], cwd=checkout,
-                          env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-c", _TIMED_RUN, arg],
+        cwd=checkout,
+        env={**os.environ, "PYTHONPATH": str(checkout)},
+        capture_output=True,
+        text=True,
+    )
     if done.returncode != 0:
         raise RuntimeError(f"{checkout}: the timed run failed (exit {done.returncode}): {done.stderr[-600:]}")
     return json.loads(done.stdout.strip().splitlines()[-1])
@@ -75,10 +81,16 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
     other = Path(against).resolve()
     if not (other / "experiments" / "runner.py").is_file():
         raise ValueError(f"--against {against!r}: not a checkout of this project")
-    print(f"in-process runner: this checkout ({ROOT}) against {other}; environments {' '.join(envs)}, the four "
-          f"agents, {trials} trial(s) each, {episodes} episodes; load average at start {load()}", flush=True)
-    print(f"{'round':<6}{'mode':<10}{'other s':>10}{'this s':>10}{'other steps/s':>15}{'this steps/s':>14}"
-          f"{'ratio this/other':>18}{'CPU ratio':>12}", flush=True)
+    print(
+        f"in-process runner: this checkout ({ROOT}) against {other}; environments {' '.join(envs)}, the four "
+        f"agents, {trials} trial(s) each, {episodes} episodes; load average at start {load()}",
+        flush=True,
+    )
+    print(
+        f"{'round':<6}{'mode':<10}{'other s':>10}{'this s':>10}{'other steps/s':>15}{'this steps/s':>14}"
+        f"{'ratio this/other':>18}{'CPU ratio':>12}",
+        flush=True,
+    )
     ratios: dict[str, list[float]] = {m: [] for m in MODES}
     cpu_ratios: dict[str, list[float]] = {m: [] for m in MODES}  # steps per CPU second: less hurt by others' load
     runs = []
@@ -91,24 +103,46 @@ def bench_compare(against: str, rounds: int, envs: list[str], trials: int, episo
             ratios[m].append(speed["this"] / speed["other"])
             cpu = {k: got[k]["env_steps"] / got[k][m[:-2] + "_cpu_s"] for k in got}
             cpu_ratios[m].append(cpu["this"] / cpu["other"])
-            print(f"{r + 1:<6}{m[:-2]:<10}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{speed['other']:>15.0f}"
-                  f"{speed['this']:>14.0f}{ratios[m][-1]:>18.3f}{cpu_ratios[m][-1]:>12.3f}", flush=True)
-    tick_ratios = [(g["this"]["ticks"] / g["this"]["batched_s"]) / (g["other"]["ticks"] / g["other"]["batched_s"])
-                   for g in runs]
+            print(
+                f"{r + 1:<6}{m[:-2]:<10}{got['other'][m]:>10.2f}{got['this'][m]:>10.2f}{speed['other']:>15.0f}"
+                f"{speed['this']:>14.0f}{ratios[m][-1]:>18.3f}{cpu_ratios[m][-1]:>12.3f}",
+                flush=True,
+            )
+    tick_ratios = [
+        (g["this"]["ticks"] / g["this"]["batched_s"]) / (g["other"]["ticks"] / g["other"]["batched_s"]) for g in runs
+    ]
     medians = {m: statistics.median(v) for m, v in ratios.items()}
     cpu_medians = {m: statistics.median(v) for m, v in cpu_ratios.items()}
-    print(f"{runs[0]['this']['trials']} trials a run; environment steps: other {runs[0]['other']['env_steps']}, "
-          f"this {runs[0]['this']['env_steps']}")
-    print("median ratio this/other, steps/s (above 1: this checkout is faster): "
-          + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in medians.items()) + f"; load average at end {load()}")
-    print("median ratio this/other, steps per CPU second of the run's process: "
-          + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in cpu_medians.items()))
-    print(f"batched, lockstep ticks per second (a batch's time follows its longest trial, not its steps; ticks: "
-          f"other {runs[0]['other']['ticks']}, this {runs[0]['this']['ticks']}): median ratio this/other "
-          f"{statistics.median(tick_ratios):.3f} (per round {', '.join(f'{x:.3f}' for x in tick_ratios)})")
-    return {"tick_ratios": tick_ratios, "against": str(other), "envs": envs, "trials": trials, "episodes": episodes,
-            "runs": runs,
-            "ratios": ratios, "medians": medians, "cpu_ratios": cpu_ratios, "cpu_medians": cpu_medians}
+    print(
+        f"{runs[0]['this']['trials']} trials a run; environment steps: other {runs[0]['other']['env_steps']}, "
+        f"this {runs[0]['this']['env_steps']}"
+    )
+    print(
+        "median ratio this/other, steps/s (above 1: this checkout is faster): "
+        + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in medians.items())
+        + f"; load average at end {load()}"
+    )
+    print(
+        "median ratio this/other, steps per CPU second of the run's process: "
+        + ", ".join(f"{m[:-2]} {v:.3f}" for m, v in cpu_medians.items())
+    )
+    print(
+        f"batched, lockstep ticks per second (a batch's time follows its longest trial, not its steps; ticks: "
+        f"other {runs[0]['other']['ticks']}, this {runs[0]['this']['ticks']}): median ratio this/other "
+        f"{statistics.median(tick_ratios):.3f} (per round {', '.join(f'{x:.3f}' for x in tick_ratios)})"
+    )
+    return {
+        "tick_ratios": tick_ratios,
+        "against": str(other),
+        "envs": envs,
+        "trials": trials,
+        "episodes": episodes,
+        "runs": runs,
+        "ratios": ratios,
+        "medians": medians,
+        "cpu_ratios": cpu_ratios,
+        "cpu_medians": cpu_medians,
+    }
 
 
 @dataclass(frozen=True)
@@ -127,8 +161,11 @@ class BenchCompareConfig:
     # (`services bench`'s own default: at 3000 steps an `ingest` phase lasts about 1.5 s, and separate
     # invocations of the same code differed by more than their rounds' spread)
     steps: int = option(8000, "live: actor steps per phase")
-    out: str | None = option(None, "inprocess: also write every run's figures and the ratios to this JSON file; "
-                                   "live: directory of the runs and compare.json (default: runs/bench-compare)")
+    out: str | None = option(
+        None,
+        "inprocess: also write every run's figures and the ratios to this JSON file; "
+        "live: directory of the runs and compare.json (default: runs/bench-compare)",
+    )
 
     def __post_init__(self):
         if min(self.rounds or 1, self.trials, self.episodes, self.steps) < 1:
@@ -142,8 +179,9 @@ def main(cfg: BenchCompareConfig) -> int:
         if cfg.what == "live":
             from services.bench_compare import LiveCompareConfig, bench_compare as live_compare
 
-            return live_compare(LiveCompareConfig(cfg.against, cfg.phases, cfg.steps, cfg.rounds or 2,
-                                                  cfg.out or "runs/bench-compare"))
+            return live_compare(
+                LiveCompareConfig(cfg.against, cfg.phases, cfg.steps, cfg.rounds or 2, cfg.out or "runs/bench-compare")
+            )
         result = bench_compare(cfg.against, cfg.rounds or 3, list(cfg.envs), cfg.trials, cfg.episodes)
     except (ValueError, RuntimeError) as exc:
         fail(str(exc))

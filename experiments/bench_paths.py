@@ -1,6 +1,7 @@
 """The two network paths side by side: the paper's MLP as the fast numpy code (`networks.StackedMLP`) and
 as a torch module trained with autograd and torch.optim (`torch_net.TorchValueNetworks`, what any other
 network uses), on the same trials in one invocation (`python -m experiments bench`)."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -32,11 +33,13 @@ def bench_paths(specs: list[TrialSpec]) -> dict:
 
 
 def format_paths(r: dict) -> str:
-    return "\n".join([
-        f"network paths on the same {r['trials']} trials (the paper's MLP; one lockstep batch per env):",
-        f"  numpy MLP (fast path):        {r['mlp']['s']:8.1f} s  ({r['mlp']['steps_per_s']:.0f} steps/s)",
-        f"  torch MLP (autograd + optim): {r['torch-mlp']['s']:8.1f} s  ({r['torch-mlp']['steps_per_s']:.0f} "
-        f"steps/s)",
-        f"  numpy / torch: x{r['numpy_over_torch']:.1f}; trials with the same returns on both paths: "
-        f"{r['same_returns']} of {r['trials']}",
-    ])
+    return "\n".join(
+        [
+            f"network paths on the same {r['trials']} trials (the paper's MLP; one lockstep batch per env):",
+            f"  numpy MLP (fast path):        {r['mlp']['s']:8.1f} s  ({r['mlp']['steps_per_s']:.0f} steps/s)",
+            f"  torch MLP (autograd + optim): {r['torch-mlp']['s']:8.1f} s  ({r['torch-mlp']['steps_per_s']:.0f} "
+            f"steps/s)",
+            f"  numpy / torch: x{r['numpy_over_torch']:.1f}; trials with the same returns on both paths: "
+            f"{r['same_returns']} of {r['trials']}",
+        ]
+    )

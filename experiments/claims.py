@@ -60,6 +60,7 @@ before the last commits of the credit fix and took 2,489 s; this declaration cha
 again), drops the fixed-task Taxi from the full run for time (conditions.FULL_RUN_NOTE) and nothing else:
 the tests, metrics, margins, populations and multiplicity rule are those of ae50572.
 """
+
 from __future__ import annotations
 
 import math
@@ -71,13 +72,21 @@ RETURN_MARGIN = {"maze": 0.05, "taxi": 1.0}
 """The return's margin per episode: Maze five -0.01 steps, Taxi one -1 step."""
 METRICS = ("ln steps", "return")
 """The co-primary metrics."""
-AGENT_NAMES = {"dqn": "DQN", "dqn-rs": "DQN+RS", "deep-tamer": "Deep TAMER", "dqn-tamer": "DQN-TAMER",
-               "dqn-tamer/adaptive": "DQN-TAMER (adaptive alpha_h)",
-               "dqn-tamer/matched": "DQN-TAMER (fixed alpha_h matched on the adaptive mean)",
-               "dqn-tamer/trusted": "DQN-TAMER (teacher's reliability)",
-               "deep-tamer/uniform": "Deep TAMER (uniform lags)", "deep-tamer/true": "Deep TAMER (true lags)",
-               "deep-tamer/learned": "Deep TAMER (learned lags)", "dqn-tamer/uniform": "DQN-TAMER (uniform lags)",
-               "dqn-tamer/true": "DQN-TAMER (true lags)", "dqn-tamer/learned": "DQN-TAMER (learned lags)"}
+AGENT_NAMES = {
+    "dqn": "DQN",
+    "dqn-rs": "DQN+RS",
+    "deep-tamer": "Deep TAMER",
+    "dqn-tamer": "DQN-TAMER",
+    "dqn-tamer/adaptive": "DQN-TAMER (adaptive alpha_h)",
+    "dqn-tamer/matched": "DQN-TAMER (fixed alpha_h matched on the adaptive mean)",
+    "dqn-tamer/trusted": "DQN-TAMER (teacher's reliability)",
+    "deep-tamer/uniform": "Deep TAMER (uniform lags)",
+    "deep-tamer/true": "Deep TAMER (true lags)",
+    "deep-tamer/learned": "Deep TAMER (learned lags)",
+    "dqn-tamer/uniform": "DQN-TAMER (uniform lags)",
+    "dqn-tamer/true": "DQN-TAMER (true lags)",
+    "dqn-tamer/learned": "DQN-TAMER (learned lags)",
+}
 Term = tuple[float, str, str]  # (coefficient, condition, arm) of the metric
 
 
@@ -91,14 +100,18 @@ def better(cond: str, good: str, other: str, cond_other: str | None = None) -> E
     """`good` does better than `other` (fewer steps, more return): metric(other) - metric(good), the metric
     oriented so that lower is better."""
     co = cond_other or cond
-    return Effect(f"{AGENT_NAMES.get(other, other)} ({co}) - {AGENT_NAMES.get(good, good)} ({cond})",
-                  ((1.0, co, other), (-1.0, cond, good)))
+    return Effect(
+        f"{AGENT_NAMES.get(other, other)} ({co}) - {AGENT_NAMES.get(good, good)} ({cond})",
+        ((1.0, co, other), (-1.0, cond, good)),
+    )
 
 
 def degradation_gap(low: str, high: str, robust: str, other: str) -> Effect:
     """`robust` loses less than `other` from `high` to `low`: [m(low,o)-m(high,o)] - [m(low,r)-m(high,r)]."""
-    return Effect(f"loss {high}->{low}: {AGENT_NAMES[other]} - {AGENT_NAMES[robust]}",
-                  ((1.0, low, other), (-1.0, high, other), (-1.0, low, robust), (1.0, high, robust)))
+    return Effect(
+        f"loss {high}->{low}: {AGENT_NAMES[other]} - {AGENT_NAMES[robust]}",
+        ((1.0, low, other), (-1.0, high, other), (-1.0, low, robust), (1.0, high, robust)),
+    )
 
 
 def averaged(label: str, effects: list[Effect]) -> Effect:
@@ -134,50 +147,138 @@ def _paper_claims() -> list[Claim]:
     fb = ("dqn-rs", "deep-tamer", "dqn-tamer")
     others = ("dqn", "dqn-rs", "deep-tamer")
     out = [
-        Claim("C1", "paper", "Without delay, DQN+RS learns faster than DQN (Maze).",
-              Test("C1", "high frequency, no delay: DQN+RS does better than DQN", (better(hnd, "dqn-rs", "dqn"),)),
-              (Test("C1", "low frequency, no delay: DQN+RS better than DQN", (better(lnd, "dqn-rs", "dqn"),)),)),
-        Claim("C2", "paper", "With delay, DQN+RS degrades and falls back to about DQN.",
-              Test("C2", "high frequency: DQN+RS does worse with delay than without",
-                   (better(hnd, "dqn-rs", "dqn-rs", hd),)),
-              (Test("C2", "low frequency: DQN+RS worse with delay than without",
-                    (better(lnd, "dqn-rs", "dqn-rs", ld),)),
-               Test("C2", "high frequency, with delay: DQN+RS not worse than DQN by more than the margin",
-                    (better(hd, "dqn-rs", "dqn"),), kind="noninferior"))),
-        Claim("C3", "paper", "More frequent feedback speeds every feedback-using method up.",
-              Test("C3", "with delay: each of DQN+RS, Deep TAMER, DQN-TAMER does better at p=0.5 than at p=0.1",
-                   tuple(better(hd, a, a, ld) for a in fb)),
-              (Test("C3", "no delay: each feedback method better at p=0.5 than at p=0.1",
-                    tuple(better(hnd, a, a, lnd) for a in fb)),)),
-        Claim("C4", "paper", "At low feedback frequency Deep TAMER is particularly poor; DQN-TAMER is the most robust.",
-              Test("C4", "with delay: DQN-TAMER loses less than DQN+RS and than Deep TAMER from p=0.5 to p=0.1",
-                   (degradation_gap(ld, hd, "dqn-tamer", "dqn-rs"),
-                    degradation_gap(ld, hd, "dqn-tamer", "deep-tamer"))),
-              (Test("C4", "p=0.1 with delay: Deep TAMER does worse than each other agent",
-                    tuple(better(ld, a, "deep-tamer") for a in ("dqn", "dqn-rs", "dqn-tamer"))),
-               Test("C4", "p=0.1 with delay: DQN-TAMER does better than each other agent",
-                    tuple(better(ld, "dqn-tamer", a) for a in others)),
-               Test("C4", "p=0.1 no delay: DQN-TAMER better than each other agent",
-                    tuple(better(lnd, "dqn-tamer", a) for a in others)))),
+        Claim(
+            "C1",
+            "paper",
+            "Without delay, DQN+RS learns faster than DQN (Maze).",
+            Test("C1", "high frequency, no delay: DQN+RS does better than DQN", (better(hnd, "dqn-rs", "dqn"),)),
+            (Test("C1", "low frequency, no delay: DQN+RS better than DQN", (better(lnd, "dqn-rs", "dqn"),)),),
+        ),
+        Claim(
+            "C2",
+            "paper",
+            "With delay, DQN+RS degrades and falls back to about DQN.",
+            Test(
+                "C2",
+                "high frequency: DQN+RS does worse with delay than without",
+                (better(hnd, "dqn-rs", "dqn-rs", hd),),
+            ),
+            (
+                Test(
+                    "C2", "low frequency: DQN+RS worse with delay than without", (better(lnd, "dqn-rs", "dqn-rs", ld),)
+                ),
+                Test(
+                    "C2",
+                    "high frequency, with delay: DQN+RS not worse than DQN by more than the margin",
+                    (better(hd, "dqn-rs", "dqn"),),
+                    kind="noninferior",
+                ),
+            ),
+        ),
+        Claim(
+            "C3",
+            "paper",
+            "More frequent feedback speeds every feedback-using method up.",
+            Test(
+                "C3",
+                "with delay: each of DQN+RS, Deep TAMER, DQN-TAMER does better at p=0.5 than at p=0.1",
+                tuple(better(hd, a, a, ld) for a in fb),
+            ),
+            (
+                Test(
+                    "C3",
+                    "no delay: each feedback method better at p=0.5 than at p=0.1",
+                    tuple(better(hnd, a, a, lnd) for a in fb),
+                ),
+            ),
+        ),
+        Claim(
+            "C4",
+            "paper",
+            "At low feedback frequency Deep TAMER is particularly poor; DQN-TAMER is the most robust.",
+            Test(
+                "C4",
+                "with delay: DQN-TAMER loses less than DQN+RS and than Deep TAMER from p=0.5 to p=0.1",
+                (degradation_gap(ld, hd, "dqn-tamer", "dqn-rs"), degradation_gap(ld, hd, "dqn-tamer", "deep-tamer")),
+            ),
+            (
+                Test(
+                    "C4",
+                    "p=0.1 with delay: Deep TAMER does worse than each other agent",
+                    tuple(better(ld, a, "deep-tamer") for a in ("dqn", "dqn-rs", "dqn-tamer")),
+                ),
+                Test(
+                    "C4",
+                    "p=0.1 with delay: DQN-TAMER does better than each other agent",
+                    tuple(better(ld, "dqn-tamer", a) for a in others),
+                ),
+                Test(
+                    "C4",
+                    "p=0.1 no delay: DQN-TAMER better than each other agent",
+                    tuple(better(lnd, "dqn-tamer", a) for a in others),
+                ),
+            ),
+        ),
     ]
     stop = tuple(better(cond, "dqn-tamer", a) for cond in ("maze-stop", "pomdp-stop", "taxi-stop") for a in others)
-    out.append(Claim("C5", "paper", "When feedback stops after 30 episodes, DQN-TAMER beats all others (Maze MDP, "
-                     "Maze POMDP, Taxi); Deep TAMER stagnates.",
-                     Test("C5", "after the stop, on the Maze MDP, the Maze POMDP and Gymnasium's Taxi: DQN-TAMER does "
-                          "better than each other agent (9 comparisons)", stop, window="after-stop"),
-                     (Test("C5", "Taxi with a fixed task, after the stop: DQN-TAMER better than each other agent",
-                           tuple(better("taxi-fixed-stop", "dqn-tamer", a) for a in others), window="after-stop"),
-                      Test("C5", "Maze MDP: Deep TAMER stagnates: after the stop not better than before by more "
-                           "than the margin", (Effect("Deep TAMER after - before the stop",
-                                                      ((1.0, "maze-stop", "deep-tamer@after"),
-                                                       (-1.0, "maze-stop", "deep-tamer@before"))),),
-                           kind="noninferior"))))
-    out.append(Claim("C6", "paper", "With about 15% misread (flipped) feedback, DQN-TAMER still learns.",
-                     Test("C6", "15% flips: DQN-TAMER does better than DQN (misread feedback still helps)",
-                          (better("maze-flip", "dqn-tamer", "dqn"),)),
-                     (Test("C6", "15% flips: DQN-TAMER's last 10 episodes better than its first 10",
-                           (Effect("first 10 - last 10", ((1.0, "maze-flip", "dqn-tamer@first"),
-                                                          (-1.0, "maze-flip", "dqn-tamer@last"))),)),)))
+    out.append(
+        Claim(
+            "C5",
+            "paper",
+            "When feedback stops after 30 episodes, DQN-TAMER beats all others (Maze MDP, "
+            "Maze POMDP, Taxi); Deep TAMER stagnates.",
+            Test(
+                "C5",
+                "after the stop, on the Maze MDP, the Maze POMDP and Gymnasium's Taxi: DQN-TAMER does "
+                "better than each other agent (9 comparisons)",
+                stop,
+                window="after-stop",
+            ),
+            (
+                Test(
+                    "C5",
+                    "Taxi with a fixed task, after the stop: DQN-TAMER better than each other agent",
+                    tuple(better("taxi-fixed-stop", "dqn-tamer", a) for a in others),
+                    window="after-stop",
+                ),
+                Test(
+                    "C5",
+                    "Maze MDP: Deep TAMER stagnates: after the stop not better than before by more than the margin",
+                    (
+                        Effect(
+                            "Deep TAMER after - before the stop",
+                            ((1.0, "maze-stop", "deep-tamer@after"), (-1.0, "maze-stop", "deep-tamer@before")),
+                        ),
+                    ),
+                    kind="noninferior",
+                ),
+            ),
+        )
+    )
+    out.append(
+        Claim(
+            "C6",
+            "paper",
+            "With about 15% misread (flipped) feedback, DQN-TAMER still learns.",
+            Test(
+                "C6",
+                "15% flips: DQN-TAMER does better than DQN (misread feedback still helps)",
+                (better("maze-flip", "dqn-tamer", "dqn"),),
+            ),
+            (
+                Test(
+                    "C6",
+                    "15% flips: DQN-TAMER's last 10 episodes better than its first 10",
+                    (
+                        Effect(
+                            "first 10 - last 10",
+                            ((1.0, "maze-flip", "dqn-tamer@first"), (-1.0, "maze-flip", "dqn-tamer@last")),
+                        ),
+                    ),
+                ),
+            ),
+        )
+    )
     return out
 
 
@@ -185,51 +286,125 @@ def _beyond_claims() -> list[Claim]:
     from experiments.conditions import DELAY_CONDITIONS as D
 
     def pooled(algo: str, good: str, other: str) -> Effect:
-        return averaged(f"{other} - {good} ({algo}), mean over the 4 observers",
-                        [better(c, f"{algo}/{good}", f"{algo}/{other}") for c in D])
+        return averaged(
+            f"{other} - {good} ({algo}), mean over the 4 observers",
+            [better(c, f"{algo}/{good}", f"{algo}/{other}") for c in D],
+        )
 
     def per_observer(algo: str, good: str, other: str, kind: str = "greater") -> tuple[Test, ...]:
-        return tuple(Test("", f"{c}: {AGENT_NAMES[f'{algo}/{good}']} vs {AGENT_NAMES[f'{algo}/{other}']}",
-                          (better(c, f"{algo}/{good}", f"{algo}/{other}"),), kind=kind) for c in D)
+        return tuple(
+            Test(
+                "",
+                f"{c}: {AGENT_NAMES[f'{algo}/{good}']} vs {AGENT_NAMES[f'{algo}/{other}']}",
+                (better(c, f"{algo}/{good}", f"{algo}/{other}"),),
+                kind=kind,
+            )
+            for c in D
+        )
 
     hd = "maze-high-delay"
     return [
-        Claim("D1", "beyond", "Deep TAMER with the delay model learned online (per teacher, in seconds on the virtual "
-              "clock) does better than with lags assumed uniform (honest layouts, 4 observers).",
-              Test("D1", "Deep TAMER: learned minus uniform lags, averaged over the 4 observers",
-                   (pooled("deep-tamer", "learned", "uniform"),)),
-              per_observer("deep-tamer", "learned", "uniform")),
-        Claim("D2", "beyond", "DQN-TAMER with the delay model learned online does better than with uniform lags.",
-              Test("D2", "DQN-TAMER: learned minus uniform lags, averaged over the 4 observers",
-                   (pooled("dqn-tamer", "learned", "uniform"),)),
-              per_observer("dqn-tamer", "learned", "uniform")),
-        Claim("D3", "beyond", "Learning the delay online is not worse than knowing the true distribution "
-              "(Deep TAMER; by more than the margin).",
-              Test("D3", "Deep TAMER: learned vs true lags, averaged over the 4 observers (non-inferiority)",
-                   (pooled("deep-tamer", "learned", "true"),), kind="noninferior"),
-              per_observer("deep-tamer", "learned", "true", "noninferior")
-              + per_observer("dqn-tamer", "learned", "true", "noninferior")
-              + per_observer("deep-tamer", "true", "uniform")),
-        Claim("A1", "beyond", "An alpha_h that follows H/Q agreement rescues DQN-TAMER from the misleading observer "
-              "better than a fixed schedule with the same mean alpha_h.",
-              Test("A1", "misleading layouts, high frequency with delay: adaptive alpha_h does better than the fixed "
-                   "schedule matched on its mean", (better(hd, "dqn-tamer/adaptive", "dqn-tamer/matched"),),
-                   "misleading"),
-              (Test("A1", "adaptive alpha_h does better than the paper's schedule",
-                    (better(hd, "dqn-tamer/adaptive", "dqn-tamer"),), "misleading"),
-               Test("A1", "adaptive alpha_h not worse than the paper's schedule",
-                    (better(hd, "dqn-tamer/adaptive", "dqn-tamer"),), kind="noninferior"))),
-        Claim("M1", "beyond", "A teacher who is systematically wrong (misleading layouts) does not sink DQN-TAMER "
-              "with the teacher's reliability below DQN.",
-              Test("M1", "misleading layouts, high frequency with delay: DQN-TAMER with the teacher's reliability "
-                   "not worse than DQN by more than the margin", (better(hd, "dqn-tamer/trusted", "dqn"),),
-                   "misleading", kind="noninferior"),
-              (Test("M1", "the paper's DQN-TAMER not worse than DQN by more than the margin",
-                    (better(hd, "dqn-tamer", "dqn"),), "misleading", kind="noninferior"),
-               Test("M1", "the teacher's reliability does not cost the honest teacher's help: not worse than the "
-                    "paper's DQN-TAMER", (better(hd, "dqn-tamer/trusted", "dqn-tamer"),), kind="noninferior"),
-               Test("M1", "DQN-TAMER with the teacher's reliability does better than the paper's",
-                    (better(hd, "dqn-tamer/trusted", "dqn-tamer"),), "misleading"))),
+        Claim(
+            "D1",
+            "beyond",
+            "Deep TAMER with the delay model learned online (per teacher, in seconds on the virtual "
+            "clock) does better than with lags assumed uniform (honest layouts, 4 observers).",
+            Test(
+                "D1",
+                "Deep TAMER: learned minus uniform lags, averaged over the 4 observers",
+                (pooled("deep-tamer", "learned", "uniform"),),
+            ),
+            per_observer("deep-tamer", "learned", "uniform"),
+        ),
+        Claim(
+            "D2",
+            "beyond",
+            "DQN-TAMER with the delay model learned online does better than with uniform lags.",
+            Test(
+                "D2",
+                "DQN-TAMER: learned minus uniform lags, averaged over the 4 observers",
+                (pooled("dqn-tamer", "learned", "uniform"),),
+            ),
+            per_observer("dqn-tamer", "learned", "uniform"),
+        ),
+        Claim(
+            "D3",
+            "beyond",
+            "Learning the delay online is not worse than knowing the true distribution "
+            "(Deep TAMER; by more than the margin).",
+            Test(
+                "D3",
+                "Deep TAMER: learned vs true lags, averaged over the 4 observers (non-inferiority)",
+                (pooled("deep-tamer", "learned", "true"),),
+                kind="noninferior",
+            ),
+            per_observer("deep-tamer", "learned", "true", "noninferior")
+            + per_observer("dqn-tamer", "learned", "true", "noninferior")
+            + per_observer("deep-tamer", "true", "uniform"),
+        ),
+        Claim(
+            "A1",
+            "beyond",
+            "An alpha_h that follows H/Q agreement rescues DQN-TAMER from the misleading observer "
+            "better than a fixed schedule with the same mean alpha_h.",
+            Test(
+                "A1",
+                "misleading layouts, high frequency with delay: adaptive alpha_h does better than the fixed "
+                "schedule matched on its mean",
+                (better(hd, "dqn-tamer/adaptive", "dqn-tamer/matched"),),
+                "misleading",
+            ),
+            (
+                Test(
+                    "A1",
+                    "adaptive alpha_h does better than the paper's schedule",
+                    (better(hd, "dqn-tamer/adaptive", "dqn-tamer"),),
+                    "misleading",
+                ),
+                Test(
+                    "A1",
+                    "adaptive alpha_h not worse than the paper's schedule",
+                    (better(hd, "dqn-tamer/adaptive", "dqn-tamer"),),
+                    kind="noninferior",
+                ),
+            ),
+        ),
+        Claim(
+            "M1",
+            "beyond",
+            "A teacher who is systematically wrong (misleading layouts) does not sink DQN-TAMER "
+            "with the teacher's reliability below DQN.",
+            Test(
+                "M1",
+                "misleading layouts, high frequency with delay: DQN-TAMER with the teacher's reliability "
+                "not worse than DQN by more than the margin",
+                (better(hd, "dqn-tamer/trusted", "dqn"),),
+                "misleading",
+                kind="noninferior",
+            ),
+            (
+                Test(
+                    "M1",
+                    "the paper's DQN-TAMER not worse than DQN by more than the margin",
+                    (better(hd, "dqn-tamer", "dqn"),),
+                    "misleading",
+                    kind="noninferior",
+                ),
+                Test(
+                    "M1",
+                    "the teacher's reliability does not cost the honest teacher's help: not worse than the "
+                    "paper's DQN-TAMER",
+                    (better(hd, "dqn-tamer/trusted", "dqn-tamer"),),
+                    kind="noninferior",
+                ),
+                Test(
+                    "M1",
+                    "DQN-TAMER with the teacher's reliability does better than the paper's",
+                    (better(hd, "dqn-tamer/trusted", "dqn-tamer"),),
+                    "misleading",
+                ),
+            ),
+        ),
     ]
 
 

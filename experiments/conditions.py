@@ -24,6 +24,7 @@ runner's clock of 0.5 s per step), `dqn-tamer/adaptive` (alpha_h also follows H/
 Layouts and seeds of the deciding runs (`FULL`) are fresh: layouts 120-179 and seed block 3 (`Scale`);
 `QUICK` runs the old layouts 0-59 and seed block 1, so developing never touches a deciding trial.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -118,8 +119,17 @@ class Scale:
 
 
 FULL = Scale()
-QUICK = Scale(layouts=8, reps=1, maze_episodes=40, taxi_episodes=40, taxi_random_episodes=40, taxi_trials=4,
-              delay_layouts=4, first_layout=0, seed_block=1)
+QUICK = Scale(
+    layouts=8,
+    reps=1,
+    maze_episodes=40,
+    taxi_episodes=40,
+    taxi_random_episodes=40,
+    taxi_trials=4,
+    delay_layouts=4,
+    first_layout=0,
+    seed_block=1,
+)
 """The quick form runs the old layouts and seeds: developing with it never touches a deciding trial."""
 
 
@@ -162,7 +172,7 @@ def _obs(p, delay, **kw) -> ObserverConfig:
 def _mix(a, b) -> tuple[float, ...]:
     n = max(len(a), len(b))
     pa, pb = np.zeros(n), np.zeros(n)
-    pa[:len(a)], pb[:len(b)] = a, b
+    pa[: len(a)], pb[: len(b)] = a, b
     return tuple(float(x) for x in (pa + pb) / 2)
 
 
@@ -170,37 +180,119 @@ _DELAY_ARMS = tuple(f"{algo}/{how}" for algo in ("deep-tamer", "dqn-tamer") for 
 _STOP = dict(stop_episode=STOP_EPISODE)
 
 CONDITIONS: tuple[Condition, ...] = (
-    Condition("maze-high-nodelay", "Maze MDP, high frequency (p=0.5), no delay", "maze",
-              _obs(HIGH, NO_DELAY), "Fig. maze results, upper left"),
-    Condition("maze-high-delay", "Maze MDP, high frequency (p=0.5), with delay", "maze",
-              _obs(HIGH, PAPER_DELAY), "Fig. maze results, upper right",
-              arms=ALGOS + ("dqn-tamer/adaptive", "dqn-tamer/matched", "dqn-tamer/trusted")),
-    Condition("maze-low-nodelay", "Maze MDP, low frequency (p=0.1), no delay", "maze",
-              _obs(LOW, NO_DELAY), "Fig. maze results, lower left"),
-    Condition("maze-low-delay", "Maze MDP, low frequency (p=0.1), with delay", "maze",
-              _obs(LOW, PAPER_DELAY), "Fig. maze results, lower right"),
-    Condition("maze-stop", "Maze MDP, feedback stops after 30 episodes", "maze",
-              _obs(HIGH, PAPER_DELAY, **_STOP), "Fig. feedback stop, left"),
-    Condition("pomdp-stop", "Maze POMDP, feedback stops after 30 episodes", "maze-pomdp",
-              _obs(HIGH, PAPER_DELAY, **_STOP), "Fig. feedback stop, right"),
-    Condition("taxi-stop", "Taxi (random passenger and destination), feedback stops after 30 episodes", "taxi-s",
-              _obs(HIGH, PAPER_DELAY, **_STOP), "Fig. taxi"),
-    Condition("taxi-fixed-stop", "Taxi (passenger and destination fixed per initial condition), feedback stops "
-              "after 30 episodes", "taxi-fixed-s", _obs(HIGH, PAPER_DELAY, **_STOP), "Fig. taxi (fixed task)",
-              full_run=False),  # a secondary test of C5, outside the 20-minute budget (FULL_RUN_NOTE)
-    Condition("maze-flip", "Maze MDP, delayed feedback with 15% polarity flips", "maze",
-              _obs(HIGH, PAPER_DELAY, p_flip=FLIP), "natural reaction (Sec. V-C)"),
-    Condition("maze-sp-high-delay", "Maze MDP, shortest-path observer, high frequency, with delay", "maze",
-              _obs(HIGH, PAPER_DELAY), "beyond the paper: a teacher who knows the maze", teacher_rule="shortest-path"),
-    Condition("delay-paper", "Learned delay: the paper's observer (lags 0.3/0.6/0.1)", "maze",
-              _obs(HIGH, PAPER_DELAY), "beyond the paper: learned delay", _DELAY_ARMS, "honest", PAPER_DELAY),
-    Condition("delay-late", "Learned delay: observer skewed late (mode 3 steps)", "maze",
-              _obs(HIGH, LATE_DELAY), "beyond the paper: learned delay", _DELAY_ARMS, "honest", LATE_DELAY),
-    Condition("delay-long", "Learned delay: observer with long lags (0-6 steps)", "maze",
-              _obs(HIGH, LONG_DELAY), "beyond the paper: learned delay", _DELAY_ARMS, "honest", LONG_DELAY),
-    Condition("delay-drift", "Learned delay: observer drifting from the paper's lags to late ones", "maze",
-              _obs(HIGH, PAPER_DELAY, late_delay_probs=LATE_DELAY, drift_episodes=REPRO_MAZE_EPISODES),
-              "beyond the paper: learned delay", _DELAY_ARMS, "honest", _mix(PAPER_DELAY, LATE_DELAY)),
+    Condition(
+        "maze-high-nodelay",
+        "Maze MDP, high frequency (p=0.5), no delay",
+        "maze",
+        _obs(HIGH, NO_DELAY),
+        "Fig. maze results, upper left",
+    ),
+    Condition(
+        "maze-high-delay",
+        "Maze MDP, high frequency (p=0.5), with delay",
+        "maze",
+        _obs(HIGH, PAPER_DELAY),
+        "Fig. maze results, upper right",
+        arms=ALGOS + ("dqn-tamer/adaptive", "dqn-tamer/matched", "dqn-tamer/trusted"),
+    ),
+    Condition(
+        "maze-low-nodelay",
+        "Maze MDP, low frequency (p=0.1), no delay",
+        "maze",
+        _obs(LOW, NO_DELAY),
+        "Fig. maze results, lower left",
+    ),
+    Condition(
+        "maze-low-delay",
+        "Maze MDP, low frequency (p=0.1), with delay",
+        "maze",
+        _obs(LOW, PAPER_DELAY),
+        "Fig. maze results, lower right",
+    ),
+    Condition(
+        "maze-stop",
+        "Maze MDP, feedback stops after 30 episodes",
+        "maze",
+        _obs(HIGH, PAPER_DELAY, **_STOP),
+        "Fig. feedback stop, left",
+    ),
+    Condition(
+        "pomdp-stop",
+        "Maze POMDP, feedback stops after 30 episodes",
+        "maze-pomdp",
+        _obs(HIGH, PAPER_DELAY, **_STOP),
+        "Fig. feedback stop, right",
+    ),
+    Condition(
+        "taxi-stop",
+        "Taxi (random passenger and destination), feedback stops after 30 episodes",
+        "taxi-s",
+        _obs(HIGH, PAPER_DELAY, **_STOP),
+        "Fig. taxi",
+    ),
+    Condition(
+        "taxi-fixed-stop",
+        "Taxi (passenger and destination fixed per initial condition), feedback stops after 30 episodes",
+        "taxi-fixed-s",
+        _obs(HIGH, PAPER_DELAY, **_STOP),
+        "Fig. taxi (fixed task)",
+        full_run=False,
+    ),  # a secondary test of C5, outside the 20-minute budget (FULL_RUN_NOTE)
+    Condition(
+        "maze-flip",
+        "Maze MDP, delayed feedback with 15% polarity flips",
+        "maze",
+        _obs(HIGH, PAPER_DELAY, p_flip=FLIP),
+        "natural reaction (Sec. V-C)",
+    ),
+    Condition(
+        "maze-sp-high-delay",
+        "Maze MDP, shortest-path observer, high frequency, with delay",
+        "maze",
+        _obs(HIGH, PAPER_DELAY),
+        "beyond the paper: a teacher who knows the maze",
+        teacher_rule="shortest-path",
+    ),
+    Condition(
+        "delay-paper",
+        "Learned delay: the paper's observer (lags 0.3/0.6/0.1)",
+        "maze",
+        _obs(HIGH, PAPER_DELAY),
+        "beyond the paper: learned delay",
+        _DELAY_ARMS,
+        "honest",
+        PAPER_DELAY,
+    ),
+    Condition(
+        "delay-late",
+        "Learned delay: observer skewed late (mode 3 steps)",
+        "maze",
+        _obs(HIGH, LATE_DELAY),
+        "beyond the paper: learned delay",
+        _DELAY_ARMS,
+        "honest",
+        LATE_DELAY,
+    ),
+    Condition(
+        "delay-long",
+        "Learned delay: observer with long lags (0-6 steps)",
+        "maze",
+        _obs(HIGH, LONG_DELAY),
+        "beyond the paper: learned delay",
+        _DELAY_ARMS,
+        "honest",
+        LONG_DELAY,
+    ),
+    Condition(
+        "delay-drift",
+        "Learned delay: observer drifting from the paper's lags to late ones",
+        "maze",
+        _obs(HIGH, PAPER_DELAY, late_delay_probs=LATE_DELAY, drift_episodes=REPRO_MAZE_EPISODES),
+        "beyond the paper: learned delay",
+        _DELAY_ARMS,
+        "honest",
+        _mix(PAPER_DELAY, LATE_DELAY),
+    ),
 )
 BY_NAME = {c.name: c for c in CONDITIONS}
 RANDOM_TAXI = ("taxi", "taxi-s")
@@ -211,8 +303,12 @@ DELAY_CONDITIONS = ("delay-paper", "delay-late", "delay-long", "delay-drift")
 # (ours; why: docs/notes/2026-11-23-reproduction-pilots-and-speed.md, "Taxi"). The reproduction's Taxi observes
 # the state one-hot beside the 19 factored values (`taxi-s`, `taxi-fixed-s`) and updates every step (b = 1), as
 # on the Maze.
-AGENT_OVERRIDES: dict[str, dict] = {"taxi": {"update_interval": 4}, "taxi-fixed": {"update_interval": 4},
-                                    "taxi-s": {"update_interval": 1}, "taxi-fixed-s": {"update_interval": 1}}
+AGENT_OVERRIDES: dict[str, dict] = {
+    "taxi": {"update_interval": 4},
+    "taxi-fixed": {"update_interval": 4},
+    "taxi-s": {"update_interval": 1},
+    "taxi-fixed-s": {"update_interval": 1},
+}
 
 
 def _padded(probs: tuple[float, ...]) -> tuple[float, ...]:
@@ -248,7 +344,7 @@ def layout_set(cond: Condition, scale: Scale) -> list[int]:
         return list(range(len(FIXED_TASKS)))
     first = scale.first_layout
     if cond.layouts == "honest":
-        return [L for L in range(first, LAYOUT_COUNT) if layout_kind(L) == "honest"][:scale.delay_layouts]
+        return [L for L in range(first, LAYOUT_COUNT) if layout_kind(L) == "honest"][: scale.delay_layouts]
     return list(range(first, min(first + scale.layouts, LAYOUT_COUNT)))
 
 
@@ -272,9 +368,15 @@ def trial_layout(cond: Condition, scale: Scale, k: int) -> tuple[int, int]:
 
 def trial_spec(cond: Condition, arm: str, k: int, scale: Scale = FULL) -> TrialSpec:
     layout, rep = trial_layout(cond, scale, k)
-    return TrialSpec(cond.env, agent_for(arm, cond.env, cond.true_delay), cond.observer,
-                     seed=trial_seed(layout, rep, scale.seed_block),
-                     layout=layout, episodes=cond.episodes(scale), teacher_rule=cond.teacher_rule)
+    return TrialSpec(
+        cond.env,
+        agent_for(arm, cond.env, cond.true_delay),
+        cond.observer,
+        seed=trial_seed(layout, rep, scale.seed_block),
+        layout=layout,
+        episodes=cond.episodes(scale),
+        teacher_rule=cond.teacher_rule,
+    )
 
 
 def cluster_of(cond: Condition, scale: Scale, k: int) -> int:
@@ -300,5 +402,20 @@ def select(names: list[str] | None) -> list[Condition]:
     return [BY_NAME[n] for n in names]
 
 
-__all__ = ["ALGOS", "CONDITIONS", "BY_NAME", "Condition", "Scale", "FULL", "QUICK", "agent_for", "trial_spec",
-           "select", "layout_set", "n_trials", "trial_layout", "cluster_of", "trial_seed"]
+__all__ = [
+    "ALGOS",
+    "CONDITIONS",
+    "BY_NAME",
+    "Condition",
+    "Scale",
+    "FULL",
+    "QUICK",
+    "agent_for",
+    "trial_spec",
+    "select",
+    "layout_set",
+    "n_trials",
+    "trial_layout",
+    "cluster_of",
+    "trial_seed",
+]

@@ -22,6 +22,7 @@ misleading): the unknown-teacher design's pilot (docs/notes/2026-11-25-unknown-t
 
     python -m experiments pilot console --trials 48 --arms dqn-tamer/learned --person drift:0.5,2,0.2
 """
+
 from __future__ import annotations
 
 import time
@@ -51,16 +52,18 @@ ARMS = {
     "dqn-tamer/matched": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3),
     "dqn-tamer/interval": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=INTERVAL_KERNEL),
     "dqn-tamer/0.2-4s": lambda: agent_for("dqn-tamer/uniform"),
-    "dqn-tamer/adaptive": lambda: replace(agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3,
-                                                  alpha_h_adapt=ADAPT_RATE),
+    "dqn-tamer/adaptive": lambda: replace(
+        agent_for("dqn-tamer"), assumed_delay_probs=(1 / 3,) * 3, alpha_h_adapt=ADAPT_RATE
+    ),
     "dqn-tamer/learned": lambda: agent_for("dqn-tamer/learned"),
 }
 
 
 def _register_cut_maze() -> str:
     name = "maze-cut200"
-    ENVS[name] = replace(ENVS["maze"], name=name,
-                         factory=lambda layout=0: MazeEnv(layout, "mdp", max_steps=EPISODE_STEPS))
+    ENVS[name] = replace(
+        ENVS["maze"], name=name, factory=lambda layout=0: MazeEnv(layout, "mdp", max_steps=EPISODE_STEPS)
+    )
     return name
 
 
@@ -74,6 +77,7 @@ def _with_idle_updates(idle: int):
         plain(self, active)
         for _ in range(idle):
             self.idle_update()
+
     TrialBatchAgent.update = update
 
 
@@ -96,21 +100,28 @@ def observer_for(person: str | None) -> ObserverConfig:
     name, _, args = person.partition(":")
     if name == "drift":
         start, end, sigma = args.split(",")
-        return ObserverConfig(p_feedback=0.5, delay_s=f"lognorm:{sigma},0,{start}",
-                              late_delay_s=f"lognorm:{sigma},0,{end}",
-                              drift_episodes=EPISODES - 1)
+        return ObserverConfig(
+            p_feedback=0.5,
+            delay_s=f"lognorm:{sigma},0,{start}",
+            late_delay_s=f"lognorm:{sigma},0,{end}",
+            drift_episodes=EPISODES - 1,
+        )
     return ObserverConfig(p_feedback=0.5, delay_s=person)
 
 
-def run(arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS, person: str | None = None
-        ) -> dict[str, list[dict]]:
+def run(
+    arms: list[str], trials: int, layouts: tuple[int, ...] = PILOT_LAYOUTS, person: str | None = None
+) -> dict[str, list[dict]]:
     from experiments.runner import TrialSpec, run_trials
 
     env = _register_cut_maze()
     observer = observer_for(person)
     pairs = [(layouts[k % len(layouts)], PILOT_SEED0 + k) for k in range(trials)]
-    specs = [(arm, L, TrialSpec(env, ARMS[arm](), observer, seed=s, layout=L, episodes=EPISODES))
-             for arm in arms for L, s in pairs]
+    specs = [
+        (arm, L, TrialSpec(env, ARMS[arm](), observer, seed=s, layout=L, episodes=EPISODES))
+        for arm in arms
+        for L, s in pairs
+    ]
     results = run_trials([s for _, _, s in specs])
     out: dict[str, list[dict]] = {arm: [] for arm in arms}
     for (arm, L, _), res in zip(specs, results):
@@ -127,8 +138,10 @@ def summary(out: dict[str, list[dict]]) -> None:
     print(f"{'arm':<20} {'10th goal':>9} {'first good':>10} {'steps':>7}   vs DQN (10th goal): mean, W/T/L, p")
     for arm, rows in out.items():
         g = np.array([r["goals"] for r in rows])
-        line = (f"{arm:<20} {g.mean():9.2f} {np.mean([r['first_good'] for r in rows]):10.2f} "
-                f"{np.mean([r['steps'] for r in rows]):7.0f}")
+        line = (
+            f"{arm:<20} {g.mean():9.2f} {np.mean([r['first_good'] for r in rows]):10.2f} "
+            f"{np.mean([r['steps'] for r in rows]):7.0f}"
+        )
         if arm != "dqn":
             d = np.array([b["goals"] for b in base]) - g
             nz = d[d != 0]
@@ -143,15 +156,22 @@ class ConsolePilotConfig:
 
     trials: int = option(48, "(layout, seed) pairs per arm")
     idle_updates: int = option(IDLE_UPDATES, "idle-time minibatch steps after each step (the console's learner: 8)")
-    layouts: tuple[int, ...] = option(PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one; odd "
-                                                     "ones are misleading)")
-    person: str | None = option(None, "the person's lag shape in seconds (services/console/lags.py, e.g. "
-                                      "drift:0.5,2,0.2; the runner's virtual clock is 2 steps/s); none: uniform "
-                                      "0.3-1.5 s on the step clock")
-    arms: tuple[str, ...] = option(tuple(ARMS), "arms besides dqn (always run): dqn-tamer/matched (credit on the "
-                                                "true candidates: onset credit), /interval (the interval reading's "
-                                                "kernel), /0.2-4s (lags uniform 0-6), /adaptive (adaptive alpha_h, "
-                                                "matched), /learned (delay learned online)")
+    layouts: tuple[int, ...] = option(
+        PILOT_LAYOUTS, "maze layouts, cycled over the pairs (every honest one; odd ones are misleading)"
+    )
+    person: str | None = option(
+        None,
+        "the person's lag shape in seconds (services/console/lags.py, e.g. "
+        "drift:0.5,2,0.2; the runner's virtual clock is 2 steps/s); none: uniform "
+        "0.3-1.5 s on the step clock",
+    )
+    arms: tuple[str, ...] = option(
+        tuple(ARMS),
+        "arms besides dqn (always run): dqn-tamer/matched (credit on the "
+        "true candidates: onset credit), /interval (the interval reading's "
+        "kernel), /0.2-4s (lags uniform 0-6), /adaptive (adaptive alpha_h, "
+        "matched), /learned (delay learned online)",
+    )
 
     def __post_init__(self):
         unknown = [a for a in self.arms if a not in ARMS]

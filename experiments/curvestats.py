@@ -11,6 +11,7 @@ Curve metric:
             curve reaches 90% of the way from the start level to the best level (length + 1 when never)
 Aggregation: 10%-trimmed mean across trials. Intervals: 95% percentile bootstrap over trials.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -26,8 +27,12 @@ EQUIVALENCE = 0.05
 BOOT_SEED = 20190128
 SMOOTH = 5
 
-REPRODUCED, NOT_REPRODUCED, INCONCLUSIVE, NOT_EVALUATED = ("reproduced", "not reproduced", "inconclusive",
-                                                           "not evaluated")
+REPRODUCED, NOT_REPRODUCED, INCONCLUSIVE, NOT_EVALUATED = (
+    "reproduced",
+    "not reproduced",
+    "inconclusive",
+    "not evaluated",
+)
 AGENT_NAMES = {"dqn": "DQN", "dqn-rs": "DQN+RS", "deep-tamer": "Deep TAMER", "dqn-tamer": "DQN-TAMER"}
 
 Returns = dict[str, dict[str, np.ndarray]]  # condition -> agent -> [trials, episodes]
@@ -40,7 +45,7 @@ def tmean(x: np.ndarray, axis: int = 0) -> np.ndarray:
     x = np.ascontiguousarray(np.moveaxis(np.asarray(x, np.float64), axis, -1))
     n = x.shape[-1]
     cut = int(TRIM * n)
-    return np.sort(x, axis=-1)[..., cut:n - cut].mean(axis=-1)
+    return np.sort(x, axis=-1)[..., cut : n - cut].mean(axis=-1)
 
 
 # ------------------------------------------------------------------------------------- metrics
@@ -60,7 +65,7 @@ def initial(R: np.ndarray, stop: int | None = None) -> np.ndarray:
 def post_stop(R: np.ndarray, stop: int | None) -> np.ndarray:
     if stop is None:
         raise ValueError("post_stop needs a feedback stop")
-    return R[:, -10:].mean(axis=1) - R[:, max(0, stop - 10):stop].mean(axis=1)
+    return R[:, -10:].mean(axis=1) - R[:, max(0, stop - 10) : stop].mean(axis=1)
 
 
 METRICS: dict[str, Callable] = {"auc": auc, "final": final, "initial": initial}

@@ -12,6 +12,7 @@ environment's own generator. Gymnasium's Taxi draws one uniform from that genera
 (its `categorical_sample`, even though its transitions are deterministic); the Taxi adapter replays
 those draws before each reset so the start states are those a real stepped Taxi would give.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -25,11 +26,11 @@ from common.envs.maze import SIZE
 
 @dataclass
 class EnvTable:
-    obs: np.ndarray          # [S, obs_dim] float32
-    next_state: np.ndarray   # [S, A] int64
-    reward: np.ndarray       # [S, A] float64
-    terminated: np.ndarray   # [S, A] bool
-    feedback: np.ndarray     # [S, A] int64: the teacher rule's +1/-1 for that step
+    obs: np.ndarray  # [S, obs_dim] float32
+    next_state: np.ndarray  # [S, A] int64
+    reward: np.ndarray  # [S, A] float64
+    terminated: np.ndarray  # [S, A] bool
+    feedback: np.ndarray  # [S, A] int64: the teacher rule's +1/-1 for that step
     max_steps: int
 
 

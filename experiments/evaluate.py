@@ -5,6 +5,7 @@ conditions of one layout set: trial k is the same layout and seed everywhere). E
 both co-primary metrics (ln steps, return) on its primary population, then on the other layout classes
 (the declared extension) with the layout-class x method interaction.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -21,13 +22,18 @@ SUBSETS = ("pooled", "honest", "misleading")
 METRIC_VARIANT = {"ln steps": "mean_log", "return": "return"}
 ROBUSTNESS = {"wilcoxon": ("mean_log", "wilcoxon"), "median ln steps": ("median_log", "t")}
 """Other reasonable rules for the ln-steps decision (shown as "fragile" where they flip it; never deciding)."""
-REPRODUCED, NOT_REPRODUCED, INCONCLUSIVE, NOT_EVALUATED, MIXED = ("reproduced", "not reproduced", "inconclusive",
-                                                                  "not evaluated", "mixed")
+REPRODUCED, NOT_REPRODUCED, INCONCLUSIVE, NOT_EVALUATED, MIXED = (
+    "reproduced",
+    "not reproduced",
+    "inconclusive",
+    "not evaluated",
+    "mixed",
+)
 
 
 @dataclass
 class ArmData:
-    steps: np.ndarray    # [n, E] steps per episode
+    steps: np.ndarray  # [n, E] steps per episode
     returns: np.ndarray  # [n, E]
     layouts: np.ndarray  # [n] layout (maze) or task / seed (taxi)
     clusters: np.ndarray  # [n] resampling cluster
@@ -105,9 +111,15 @@ def _component(v: np.ndarray, cl: np.ndarray, kind: str, margin: float, how: str
     ids, cm, counts = stats.cluster_means(v, cl)
     shift = margin if kind == "noninferior" else 0.0
     b = stats.cluster_bootstrap(v, cl, n_boot)
-    return {"estimate": float(v.mean()), "ci": b["ci"], "se": b["se"], "margin": margin,
-            "p": stats.one_sided_p(cm + shift, how) if len(cm) >= 2 else 1.0,
-            "clusters": int(len(ids)), "trials": int(len(v))}
+    return {
+        "estimate": float(v.mean()),
+        "ci": b["ci"],
+        "se": b["se"],
+        "margin": margin,
+        "p": stats.one_sided_p(cm + shift, how) if len(cm) >= 2 else 1.0,
+        "clusters": int(len(ids)),
+        "trials": int(len(v)),
+    }
 
 
 def _population(ref: ArmData, subset: str) -> np.ndarray | None:
@@ -126,8 +138,14 @@ def effect_on(data: Data, e: Effect, t: Test, subset: str, variant: str) -> tupl
     return v[mask], cl[mask], margin_of(ref, variant)
 
 
-def run_test(data: Data, t: Test, subset: str | None = None, metric: str = "ln steps",
-             n_boot: int = N_BOOT, rule: tuple[str, str] | None = None) -> dict | None:
+def run_test(
+    data: Data,
+    t: Test,
+    subset: str | None = None,
+    metric: str = "ln steps",
+    n_boot: int = N_BOOT,
+    rule: tuple[str, str] | None = None,
+) -> dict | None:
     """A test on one population and metric: every component, and the weakest (largest p) as the test's
     estimate, interval and p (intersection-union). Components without trials there are left out (Taxi on
     misleading layouts); None when none is left."""
@@ -142,7 +160,9 @@ def run_test(data: Data, t: Test, subset: str | None = None, metric: str = "ln s
         return None
     weakest = max(comps, key=lambda c: c["p"])
     return {k: weakest[k] for k in ("estimate", "ci", "se", "p", "margin", "clusters", "trials")} | {
-        "components": comps, "left_out": len(t.effects) - len(comps)}
+        "components": comps,
+        "left_out": len(t.effects) - len(comps),
+    }
 
 
 def interaction(data: Data, t: Test, metric: str, n_boot: int) -> list[dict]:
@@ -160,9 +180,16 @@ def interaction(data: Data, t: Test, metric: str, n_boot: int) -> list[dict]:
         bm = stats.cluster_bootstrap(m[0], m[1], n_boot, seed=stats.BOOT_SEED + 1)["boot"]
         lo, hi = np.quantile(bh - bm, [0.025, 0.975])
         p = float(sps.ttest_ind(hm, mm, equal_var=False).pvalue) if len(hm) > 1 and len(mm) > 1 else 1.0
-        out.append({"label": e.label, "honest": float(h[0].mean()), "misleading": float(m[0].mean()),
-                    "difference": float(h[0].mean() - m[0].mean()), "ci": [float(lo), float(hi)],
-                    "p_two_sided": p if np.isfinite(p) else 1.0})
+        out.append(
+            {
+                "label": e.label,
+                "honest": float(h[0].mean()),
+                "misleading": float(m[0].mean()),
+                "difference": float(h[0].mean() - m[0].mean()),
+                "ci": [float(lo), float(hi)],
+                "p_two_sided": p if np.isfinite(p) else 1.0,
+            }
+        )
     return out
 
 
@@ -182,23 +209,30 @@ def combine(verdicts: dict[str, str]) -> str:
 
 
 def _metric_record(data: Data, c, metric: str, r: dict, p_adj: float, factor: int, m: int, n_boot: int) -> dict:
-    rec = dict(r, p_holm=p_adj, holm_factor=factor, verdict=decide(c.primary.kind, r, p_adj),
-               mde=stats.mde(r["se"], ALPHA / m))
+    rec = dict(
+        r, p_holm=p_adj, holm_factor=factor, verdict=decide(c.primary.kind, r, p_adj), mde=stats.mde(r["se"], ALPHA / m)
+    )
     if metric == "ln steps":
         rec["robustness"] = {}
         for name, rule in ROBUSTNESS.items():
             alt = run_test(data, c.primary, metric=metric, n_boot=n_boot, rule=rule)
             if alt is not None:
-                rec["robustness"][name] = {"estimate": alt["estimate"], "p_adj": min(1.0, factor * alt["p"]),
-                                           "reproduced": min(1.0, factor * alt["p"]) < ALPHA}
+                rec["robustness"][name] = {
+                    "estimate": alt["estimate"],
+                    "p_adj": min(1.0, factor * alt["p"]),
+                    "reproduced": min(1.0, factor * alt["p"]) < ALPHA,
+                }
     return rec
 
 
 def _extension(data: Data, t: Test, n_boot: int) -> dict:
     """The other populations and the interaction, per metric (never deciding)."""
-    return {"populations": {s: {metric: run_test(data, t, s, metric, n_boot) for metric in METRICS}
-                            for s in SUBSETS if s != t.layouts},
-            "interaction": {metric: interaction(data, t, metric, n_boot) for metric in METRICS}}
+    return {
+        "populations": {
+            s: {metric: run_test(data, t, s, metric, n_boot) for metric in METRICS} for s in SUBSETS if s != t.layouts
+        },
+        "interaction": {metric: interaction(data, t, metric, n_boot) for metric in METRICS},
+    }
 
 
 def evaluate_claims(data: Data, n_boot: int = N_BOOT) -> dict:
@@ -207,11 +241,22 @@ def evaluate_claims(data: Data, n_boot: int = N_BOOT) -> dict:
     out: dict = {}
     for family in FAMILIES:
         claims = [c for c in CLAIMS if c.family == family]
-        results = {metric: {c.cid: run_test(data, c.primary, metric=metric, n_boot=n_boot)
-                            if available(data, c.primary) else None for c in claims} for metric in METRICS}
+        results = {
+            metric: {
+                c.cid: run_test(data, c.primary, metric=metric, n_boot=n_boot) if available(data, c.primary) else None
+                for c in claims
+            }
+            for metric in METRICS
+        }
         for c in claims:
-            rec = {"family": family, "text": c.text, "primary_test": c.primary.text, "kind": c.primary.kind,
-                   "layouts": c.primary.layouts, "window": c.primary.window}
+            rec = {
+                "family": family,
+                "text": c.text,
+                "primary_test": c.primary.text,
+                "kind": c.primary.kind,
+                "layouts": c.primary.layouts,
+                "window": c.primary.window,
+            }
             out[c.cid] = rec
             if results[METRICS[0]][c.cid] is None:
                 rec["verdict"] = NOT_EVALUATED
@@ -220,15 +265,31 @@ def evaluate_claims(data: Data, n_boot: int = N_BOOT) -> dict:
             for metric in METRICS:
                 pvals = {cid: r["p"] for cid, r in results[metric].items() if r is not None}
                 ranked = sorted(pvals, key=lambda k: pvals[k])
-                rec["metrics"][metric] = _metric_record(data, c, metric, results[metric][c.cid],
-                                                        stats.holm(pvals)[c.cid], len(ranked) - ranked.index(c.cid),
-                                                        len(ranked), n_boot)
+                rec["metrics"][metric] = _metric_record(
+                    data,
+                    c,
+                    metric,
+                    results[metric][c.cid],
+                    stats.holm(pvals)[c.cid],
+                    len(ranked) - ranked.index(c.cid),
+                    len(ranked),
+                    n_boot,
+                )
             rec["verdict"] = combine({m: r["verdict"] for m, r in rec["metrics"].items()})
             ln = rec["metrics"]["ln steps"]
             rec["fragile"] = any(a["reproduced"] != (ln["verdict"] == REPRODUCED) for a in ln["robustness"].values())
             rec["extension"] = _extension(data, c.primary, n_boot)
-            rec["secondary"] = [{"test": t.text, "kind": t.kind, "window": t.window, "layouts": t.layouts,
-                                 "by_layouts": {s: {metric: run_test(data, t, s, metric, n_boot) for metric in METRICS}
-                                                for s in SUBSETS}}
-                                for t in c.secondary if available(data, t)]
+            rec["secondary"] = [
+                {
+                    "test": t.text,
+                    "kind": t.kind,
+                    "window": t.window,
+                    "layouts": t.layouts,
+                    "by_layouts": {
+                        s: {metric: run_test(data, t, s, metric, n_boot) for metric in METRICS} for s in SUBSETS
+                    },
+                }
+                for t in c.secondary
+                if available(data, t)
+            ]
     return out

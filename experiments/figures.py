@@ -1,4 +1,5 @@
 """Figures of the reproduction: learning curves per layout subset, who decides (alpha_h, H vs Q), learned lags."""
+
 from __future__ import annotations
 
 import matplotlib
@@ -11,8 +12,15 @@ from experiments import stats  # noqa: E402
 from experiments.claims import AGENT_NAMES  # noqa: E402
 from experiments.evaluate import SUBSETS, ArmData, subset_mask  # noqa: E402
 
-COLORS = {"dqn": "#1f77b4", "dqn-rs": "#ff7f0e", "deep-tamer": "#2ca02c", "dqn-tamer": "#d62728",
-          "dqn-tamer/adaptive": "#9467bd", "dqn-tamer/matched": "#8c564b", "dqn-tamer/trusted": "#e377c2"}
+COLORS = {
+    "dqn": "#1f77b4",
+    "dqn-rs": "#ff7f0e",
+    "deep-tamer": "#2ca02c",
+    "dqn-tamer": "#d62728",
+    "dqn-tamer/adaptive": "#9467bd",
+    "dqn-tamer/matched": "#8c564b",
+    "dqn-tamer/trusted": "#e377c2",
+}
 STYLES = {"uniform": ":", "true": "--", "learned": "-"}
 
 
@@ -23,8 +31,12 @@ def _style(arm: str) -> dict:
 
 def plot_condition(title: str, arms: dict[str, ArmData], stop: int | None, path: str) -> None:
     """Geometric-mean steps per episode (exp of the trials' mean ln steps), one panel per layout subset."""
-    subsets = [s for s in SUBSETS if all(subset_mask(a, s) is not None for a in arms.values())
-               and (s == "pooled" or not subset_mask(next(iter(arms.values())), s).all())]
+    subsets = [
+        s
+        for s in SUBSETS
+        if all(subset_mask(a, s) is not None for a in arms.values())
+        and (s == "pooled" or not subset_mask(next(iter(arms.values())), s).all())
+    ]
     fig, axes = plt.subplots(1, len(subsets), figsize=(4.6 * len(subsets), 3.8), dpi=90, squeeze=False)
     for ax, subset in zip(axes[0], subsets):
         for arm, a in arms.items():
@@ -34,8 +46,9 @@ def plot_condition(title: str, arms: dict[str, ArmData], stop: int | None, path:
         if stop is not None:
             ax.axvline(stop + 0.5, color="black", ls="--", lw=0.8)
         ax.set_yscale("log")
-        ax.set_title(f"{subset} layouts ({int(subset_mask(next(iter(arms.values())), subset).sum())} trials)",
-                     fontsize=9)
+        ax.set_title(
+            f"{subset} layouts ({int(subset_mask(next(iter(arms.values())), subset).sum())} trials)", fontsize=9
+        )
         ax.set_xlabel("episode")
         ax.grid(alpha=0.3, which="both")
     axes[0][0].set_ylabel("steps per episode (geometric mean)")

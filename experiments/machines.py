@@ -8,6 +8,7 @@ For every trial of B's conditions: do its per-episode steps and returns equal A'
 claim is evaluated twice, on A's trials and on A's trials with B's conditions swapped in, and any verdict
 that changes is listed. Writes A/machines.json, which REPORT.md shows when A is re-plotted.
 """
+
 from __future__ import annotations
 
 import json
@@ -50,13 +51,30 @@ def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
     for c in conds_b:
         for arm in c.arms:
             keys = [k for (cn, a, k) in cached_b if cn == c.name and a == arm]
-            differ = [k for k in keys if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]
-                      or cached_a[(c.name, arm, k)]["return"] != cached_b[(c.name, arm, k)]["return"]]
-            first = [int(np.argmax(np.array(cached_a[(c.name, arm, k)]["steps"])
-                                   != np.array(cached_b[(c.name, arm, k)]["steps"])))
-                     for k in differ if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]]
-            rows.append({"cond": c.name, "arm": arm, "trials": len(keys), "differ": len(differ),
-                         "first_diverging_episode_median": float(np.median(first)) if first else None})
+            differ = [
+                k
+                for k in keys
+                if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]
+                or cached_a[(c.name, arm, k)]["return"] != cached_b[(c.name, arm, k)]["return"]
+            ]
+            first = [
+                int(
+                    np.argmax(
+                        np.array(cached_a[(c.name, arm, k)]["steps"]) != np.array(cached_b[(c.name, arm, k)]["steps"])
+                    )
+                )
+                for k in differ
+                if cached_a[(c.name, arm, k)]["steps"] != cached_b[(c.name, arm, k)]["steps"]
+            ]
+            rows.append(
+                {
+                    "cond": c.name,
+                    "arm": arm,
+                    "trials": len(keys),
+                    "differ": len(differ),
+                    "first_diverging_episode_median": float(np.median(first)) if first else None,
+                }
+            )
     data_a, _ = collect(conds_a, scale, cached_a)
     swapped = dict(cached_a)
     swapped.update(cached_b)
@@ -67,14 +85,28 @@ def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
     n_diff, n_all = sum(r["differ"] for r in rows), sum(r["trials"] for r in rows)
     env_b = json.load(open(os.path.join(dir_b, "timing.json"))).get("env", {})
     env_a = json.load(open(os.path.join(dir_a, "timing.json"))).get("env", {})
-    summary = (f"Run A: BLAS environment {env_a}; run B: {env_b} (the same CPU, another OpenBLAS kernel). Of the "
-               f"{n_all} trials of {', '.join(names_b)} run in both, {n_diff} differ in at least one episode "
-               "(rounding in the matrix products, amplified by training). Verdicts computed with B's trials in "
-               "place of A's: " + ("no verdict changes." if not changed else "changed: " + "; ".join(
-                   f"{k}: {a} -> {b}" for k, (a, b) in changed.items()) + "."))
+    summary = (
+        f"Run A: BLAS environment {env_a}; run B: {env_b} (the same CPU, another OpenBLAS kernel). Of the "
+        f"{n_all} trials of {', '.join(names_b)} run in both, {n_diff} differ in at least one episode "
+        "(rounding in the matrix products, amplified by training). Verdicts computed with B's trials in "
+        "place of A's: "
+        + (
+            "no verdict changes."
+            if not changed
+            else "changed: " + "; ".join(f"{k}: {a} -> {b}" for k, (a, b) in changed.items()) + "."
+        )
+    )
     timing_a = json.load(open(os.path.join(dir_a, "timing.json")))
-    return {"summary": summary, "rows": rows, "changed": changed, "estimates": est, "env_a": env_a, "env_b": env_b,
-            "commit": timing_a.get("commit"), "scale": timing_a.get("scale")}
+    return {
+        "summary": summary,
+        "rows": rows,
+        "changed": changed,
+        "estimates": est,
+        "env_a": env_a,
+        "env_b": env_b,
+        "commit": timing_a.get("commit"),
+        "scale": timing_a.get("scale"),
+    }
 
 
 @dataclass(frozen=True)

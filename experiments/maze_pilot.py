@@ -15,6 +15,7 @@ last checkpoint is the condition the reproduction would run at that horizon.
 
     python -m experiments pilot maze --episodes 150 --conditions maze-high-delay,maze-low-delay
 """
+
 from __future__ import annotations
 
 import json
@@ -30,8 +31,15 @@ from experiments.taxi_pilot import PILOT_SEED0
 PILOT_LAYOUTS = tuple(range(44, 60))
 """8 honest (even) and 8 misleading (odd) layouts; the learned-delay conditions use the honest ones."""
 CHECKPOINTS_FROM = 60
-DEFAULT_CONDITIONS = ("maze-high-delay", "maze-low-nodelay", "maze-low-delay", "maze-flip",
-                      "delay-late", "delay-long", "delay-drift")
+DEFAULT_CONDITIONS = (
+    "maze-high-delay",
+    "maze-low-nodelay",
+    "maze-low-delay",
+    "maze-flip",
+    "delay-late",
+    "delay-long",
+    "delay-drift",
+)
 
 
 def pilot_layouts(cond: Condition) -> list[int]:
@@ -48,9 +56,21 @@ def specs(cond: Condition, episodes: int, seed0: int = PILOT_SEED0):
     out = []
     for arm in cond.arms:
         agent = agent_for(arm, cond.env, cond.true_delay)
-        out += [(arm, TrialSpec(cond.env, agent, observer, seed=seed0 + k, layout=L, episodes=episodes,
-                                teacher_rule=cond.teacher_rule))
-                for k, L in enumerate(pilot_layouts(cond))]
+        out += [
+            (
+                arm,
+                TrialSpec(
+                    cond.env,
+                    agent,
+                    observer,
+                    seed=seed0 + k,
+                    layout=L,
+                    episodes=episodes,
+                    teacher_rule=cond.teacher_rule,
+                ),
+            )
+            for k, L in enumerate(pilot_layouts(cond))
+        ]
     return out
 
 
@@ -62,11 +82,14 @@ def flat_by_episodes(steps_by_arm: dict[str, np.ndarray], stop: int | None) -> l
     E = next(iter(steps_by_arm.values())).shape[1]
     rows = []
     for e in list(range(CHECKPOINTS_FROM, E, 10)) + [E]:
-        arms = {arm: ArmData(s[:, :e], -s[:, :e], np.zeros(len(s)), np.arange(len(s)), stop)
-                for arm, s in steps_by_arm.items()}
+        arms = {
+            arm: ArmData(s[:, :e], -s[:, :e], np.zeros(len(s)), np.arange(len(s)), stop)
+            for arm, s in steps_by_arm.items()
+        }
         h = horizon(arms, stop)
-        rows.append({"episodes": e, "best_arm": h["best_arm"], "change_last": round(h["change_last"], 4),
-                     "flat": h["flat"]})
+        rows.append(
+            {"episodes": e, "best_arm": h["best_arm"], "change_last": round(h["change_last"], 4), "flat": h["flat"]}
+        )
     return rows
 
 
@@ -92,20 +115,29 @@ def run_condition(cond: Condition, episodes: int, seed0: int) -> dict:
     all_steps = np.concatenate(list(arrays.values()))
     per_episode = all_steps.sum(axis=0)  # environment steps of the whole pilot per episode index
     rows = flat_by_episodes(arrays, cond.stop_episode)
-    return {"condition": cond.name, "trials": len(labelled), "arms": list(arrays), "cpu_s": cpu, "wall_s": wall,
-            "env_steps": int(all_steps.sum()), "cpu_per_env_step_us": 1e6 * cpu / max(1, all_steps.sum()),
-            "steps_first_60_share": float(per_episode[:60].sum() / per_episode.sum()),
-            "cumulative_steps": np.cumsum(per_episode).astype(int).tolist(),
-            "checkpoints": rows, "flat_from": flat_from(rows),
-            "curves": {arm: np.log(np.maximum(s, 1)).mean(axis=0).round(4).tolist() for arm, s in arrays.items()}}
+    return {
+        "condition": cond.name,
+        "trials": len(labelled),
+        "arms": list(arrays),
+        "cpu_s": cpu,
+        "wall_s": wall,
+        "env_steps": int(all_steps.sum()),
+        "cpu_per_env_step_us": 1e6 * cpu / max(1, all_steps.sum()),
+        "steps_first_60_share": float(per_episode[:60].sum() / per_episode.sum()),
+        "cumulative_steps": np.cumsum(per_episode).astype(int).tolist(),
+        "checkpoints": rows,
+        "flat_from": flat_from(rows),
+        "curves": {arm: np.log(np.maximum(s, 1)).mean(axis=0).round(4).tolist() for arm, s in arrays.items()},
+    }
 
 
 @dataclass(frozen=True)
 class MazePilotConfig:
     """Maze conditions on pilot layouts and seeds, long: the flatness rule at each checkpoint."""
 
-    conditions: tuple[str, ...] = option(DEFAULT_CONDITIONS, "maze MDP conditions of experiments/conditions.py "
-                                                             "(the 7 that were not flat at 60)")
+    conditions: tuple[str, ...] = option(
+        DEFAULT_CONDITIONS, "maze MDP conditions of experiments/conditions.py (the 7 that were not flat at 60)"
+    )
     episodes: int = option(150, "episodes per trial (checkpoints from 60, every 10)")
     seed0: int = option(PILOT_SEED0, f"first pilot seed (>= {PILOT_SEED0})")
     out: str | None = option(None, "write every condition's summary and mean curves as JSON here")
@@ -125,11 +157,15 @@ def main(cfg: MazePilotConfig) -> int:
     for name in cfg.conditions:
         res = run_condition(BY_NAME[name], cfg.episodes, cfg.seed0)
         out.append(res)
-        marks = " ".join(f"{r['episodes']}:{r['change_last']:+.3f}{'' if r['flat'] else '*'}"
-                         for r in res["checkpoints"])
-        print(f"{name}: {res['trials']} trials, {res['cpu_s']:.0f} CPU s, {res['env_steps']} steps "
-              f"({res['cpu_per_env_step_us']:.1f} us/step), first-60 share of steps {res['steps_first_60_share']:.2f}; "
-              f"flat from {res['flat_from']}; change by episodes (* not flat): {marks}", flush=True)
+        marks = " ".join(
+            f"{r['episodes']}:{r['change_last']:+.3f}{'' if r['flat'] else '*'}" for r in res["checkpoints"]
+        )
+        print(
+            f"{name}: {res['trials']} trials, {res['cpu_s']:.0f} CPU s, {res['env_steps']} steps "
+            f"({res['cpu_per_env_step_us']:.1f} us/step), first-60 share of steps {res['steps_first_60_share']:.2f}; "
+            f"flat from {res['flat_from']}; change by episodes (* not flat): {marks}",
+            flush=True,
+        )
     if cfg.out:
         with open(cfg.out, "w") as fh:
             json.dump(out, fh)

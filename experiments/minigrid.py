@@ -2,6 +2,7 @@
 the default CNN, on the in-process runner: steps per episode, mean over seeds with a 95% interval, as a PNG
 and a JSON (docs/minigrid.png). Feedback comes from the simulated observer with the grid-world progress
 rule (common/envs/gym_tasks.py: fewer turns-and-moves to the goal = +1)."""
+
 from __future__ import annotations
 
 import json
@@ -20,16 +21,20 @@ from experiments.runner import TrialSpec, run_trials
 ALGOS = ("dqn-tamer", "dqn")
 
 
-def compare(env: str, seeds: int, episodes: int, observer: ObserverConfig = ObserverConfig(),
-            **agent_overrides) -> dict:
+def compare(
+    env: str, seeds: int, episodes: int, observer: ObserverConfig = ObserverConfig(), **agent_overrides
+) -> dict:
     """Steps per episode [seeds, episodes] of each algorithm (trials of one algorithm run batched)."""
     out = {}
     for algo in ALGOS:
         specs = [TrialSpec(env, agent_config(algo, **agent_overrides), observer, s, 0, episodes) for s in range(seeds)]
         t0 = time.perf_counter()
         results = run_trials(specs)
-        out[algo] = {"steps": [[e["steps"] for e in r.episodes] for r in results],
-                     "returns": [r.returns.tolist() for r in results], "wall_s": time.perf_counter() - t0}
+        out[algo] = {
+            "steps": [[e["steps"] for e in r.episodes] for r in results],
+            "returns": [r.returns.tolist() for r in results],
+            "wall_s": time.perf_counter() - t0,
+        }
     return out
 
 
@@ -51,10 +56,17 @@ def main(args: MinigridConfig) -> int:
         mean, half = steps.mean(0), 1.96 * steps.std(0, ddof=1) / np.sqrt(len(steps))
         label = f"{algo} ({'with' if algo == 'dqn-tamer' else 'without'} feedback)"
         curves[label], bands[label] = mean, (mean - half, mean + half)
-        print(f"{label}: {steps.sum():.0f} steps in {d['wall_s']:.1f} s; mean steps per episode "
-              f"{steps.mean():.1f}, last 5 episodes {steps[:, -5:].mean():.1f}")
-    plot_curves(curves, f"{args.out}.png", f"{args.env}, CNN on the 7x7x3 view, {args.seeds} seeds (95% interval)",
-                ylabel="steps per episode (fewer is better)", bands=bands)
+        print(
+            f"{label}: {steps.sum():.0f} steps in {d['wall_s']:.1f} s; mean steps per episode "
+            f"{steps.mean():.1f}, last 5 episodes {steps[:, -5:].mean():.1f}"
+        )
+    plot_curves(
+        curves,
+        f"{args.out}.png",
+        f"{args.env}, CNN on the 7x7x3 view, {args.seeds} seeds (95% interval)",
+        ylabel="steps per episode (fewer is better)",
+        bands=bands,
+    )
     with open(f"{args.out}.json", "w") as fh:
         json.dump({"env": args.env, "seeds": args.seeds, "episodes": args.episodes, **data}, fh)
     print(f"wrote {args.out}.png, {args.out}.json")

@@ -1,4 +1,5 @@
 """Per-condition panels (honest, misleading, pooled layouts), horizons, and who decides (alpha_h, H vs Q)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -20,10 +21,12 @@ def arm_summary(a: ArmData, extras: dict, mask: np.ndarray, n_boot: int) -> dict
     st, ret, cl = a.steps[mask], a.returns[mask], a.clusters[mask]
     max_steps = 1000
     out = {"trials": int(mask.sum()), "layouts": int(len(np.unique(cl)))}
-    per_trial = {"ln_steps": stats.log_steps(st).mean(axis=1),
-                 "ln_steps_last10": stats.log_steps(st[:, -10:]).mean(axis=1),
-                 "success": (st < max_steps).mean(axis=1),
-                 "return": ret.mean(axis=1)}
+    per_trial = {
+        "ln_steps": stats.log_steps(st).mean(axis=1),
+        "ln_steps_last10": stats.log_steps(st[:, -10:]).mean(axis=1),
+        "success": (st < max_steps).mean(axis=1),
+        "return": ret.mean(axis=1),
+    }
     for name, v in per_trial.items():
         b = stats.cluster_bootstrap(v, cl, n_boot)
         out[name] = {"estimate": b["estimate"], "ci": b["ci"]}
@@ -64,8 +67,13 @@ def horizon(arms: dict[str, ArmData], stop: int | None) -> dict:
     best = min(curves, key=lambda k: curves[k][-10:].mean())
     w = min(FLAT_WINDOW, E)
     fit = sps.linregress(np.arange(w), curves[best][-w:])
-    out = {"episodes": E, "best_arm": best, "change_last": float(fit.slope * (w - 1)), "window": w,
-           "flat": bool(abs(fit.slope * (w - 1)) < MARGIN)}
+    out = {
+        "episodes": E,
+        "best_arm": best,
+        "change_last": float(fit.slope * (w - 1)),
+        "window": w,
+        "flat": bool(abs(fit.slope * (w - 1)) < MARGIN),
+    }
     if "dqn" in arms:
         c = curves["dqn"]
         ma = np.convolve(c, np.ones(5) / 5, mode="valid")
@@ -99,6 +107,8 @@ def who_decides_curves(arms: dict[str, ArmData], extras: dict[str, dict]) -> dic
                 continue
             g = ex["greedy"][mask].sum(axis=0)
             share = np.divide(ex["h_decided"][mask].sum(axis=0), g, out=np.full(len(g), np.nan), where=g > 0)
-            out.setdefault(arm, {})[subset] = {"alpha_h": ex["alpha_h"][mask].mean(axis=0).tolist(),
-                                               "h_decides": share.tolist()}
+            out.setdefault(arm, {})[subset] = {
+                "alpha_h": ex["alpha_h"][mask].mean(axis=0).tolist(),
+                "h_decides": share.tolist(),
+            }
     return out

@@ -7,6 +7,7 @@ Pipeline: plan (which (condition, arm, trial) results are cached) -> run the mis
 the declared claims (experiments/claims.py, experiments/evaluate.py) -> panels, figures, claims.json,
 REPORT.md, timing.json.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -43,8 +44,16 @@ class ReproduceStats:
 
 def git_commit() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=os.path.dirname(os.path.abspath(__file__)), timeout=10).stdout.strip() or "?"
+        return (
+            subprocess.run(
+                ["git", "rev-parse", "--short", "HEAD"],
+                capture_output=True,
+                text=True,
+                cwd=os.path.dirname(os.path.abspath(__file__)),
+                timeout=10,
+            ).stdout.strip()
+            or "?"
+        )
     except (OSError, subprocess.SubprocessError):
         return "?"
 
@@ -57,21 +66,31 @@ def collect(conds: list[Condition], scale: Scale, cached: dict) -> tuple[dict, d
         data[c.name], extras[c.name] = {}, {}
         for arm in c.arms:
             recs = [cached[(c.name, arm, k)] for k in range(n)]
-            data[c.name][arm] = ArmData(np.array([r["steps"] for r in recs], np.float64),
-                                        np.array([r["return"] for r in recs], np.float64),
-                                        np.array([r["spec"]["layout"] for r in recs]),
-                                        np.array([cluster_of(c, scale, k) for k in range(n)]),
-                                        c.stop_episode, c.is_taxi)
-            extras[c.name][arm] = {f: np.array([r[f] for r in recs], np.float64) for f in EXTRA_FIELDS
-                                   if all(f in r for r in recs)}
+            data[c.name][arm] = ArmData(
+                np.array([r["steps"] for r in recs], np.float64),
+                np.array([r["return"] for r in recs], np.float64),
+                np.array([r["spec"]["layout"] for r in recs]),
+                np.array([cluster_of(c, scale, k) for k in range(n)]),
+                c.stop_episode,
+                c.is_taxi,
+            )
+            extras[c.name][arm] = {
+                f: np.array([r[f] for r in recs], np.float64) for f in EXTRA_FIELDS if all(f in r for r in recs)
+            }
     return data, extras
 
 
 def analyse(conds: list[Condition], data: dict, extras: dict, out: str, n_boot: int) -> dict:
     """Claims, panels, horizons, who-decides curves, learned lags; writes the figures."""
     by_name = {c.name: c for c in conds}
-    result = {"n_boot": n_boot, "claims": evaluate_claims(data, n_boot), "panels": {}, "horizons": {},
-              "who_decides": {}, "learned_lags": {}}
+    result = {
+        "n_boot": n_boot,
+        "claims": evaluate_claims(data, n_boot),
+        "panels": {},
+        "horizons": {},
+        "who_decides": {},
+        "learned_lags": {},
+    }
     for c in conds:
         result["panels"][c.name] = panels.condition_panels(data[c.name], extras[c.name], n_boot)
         result["horizons"][c.name] = panels.horizon(data[c.name], c.stop_episode)
@@ -85,17 +104,26 @@ def analyse(conds: list[Condition], data: dict, extras: dict, out: str, n_boot: 
         c = by_name[name]
         E = data[name][c.arms[0]].steps.shape[1]
         true = [float((1.0 - c.observer.lag_cdf(e)).sum()) for e in range(E)]  # E[lag] = sum of 1 - CDF
-        learned = {arm: extras[name][arm]["mean_lag"].mean(axis=0).tolist()
-                   for arm in c.arms if arm.endswith("/learned")}
+        learned = {
+            arm: extras[name][arm]["mean_lag"].mean(axis=0).tolist() for arm in c.arms if arm.endswith("/learned")
+        }
         result["learned_lags"][name] = {"true": true, "learned": learned}
     figures.plot_who_decides(result["who_decides"], os.path.join(out, "who-decides.png"))
     figures.plot_learned_lags(result["learned_lags"], os.path.join(out, "learned-lags.png"))
     return result
 
 
-def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, progress: bool = True,
-              on_progress: Callable[[int, int], None] | None = None, argv: list[str] | None = None,
-              n_boot: int = N_BOOT, ray: str | None = None) -> ReproduceStats:
+def reproduce(
+    conds: list[Condition],
+    scale: Scale,
+    out: str,
+    workers: int = 2,
+    progress: bool = True,
+    on_progress: Callable[[int, int], None] | None = None,
+    argv: list[str] | None = None,
+    n_boot: int = N_BOOT,
+    ray: str | None = None,
+) -> ReproduceStats:
     """Run (or read from the cache) every trial, then write figures, claims.json, REPORT.md, timing.json.
 
     `on_progress(trials_done, trials_total)` is called in this process whenever a trial finishes (an
@@ -107,48 +135,72 @@ def reproduce(conds: list[Condition], scale: Scale, out: str, workers: int = 2, 
     load_start = list(os.getloadavg())
     started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     with LoadSampler() as load:
-        run_plan, run = run_slots(paper_slots(conds, scale), paper_paths(cache_dir), workers, ray,
-                                  progress, on_progress)
+        run_plan, run = run_slots(
+            paper_slots(conds, scale), paper_paths(cache_dir), workers, ray, progress, on_progress
+        )
     cached, infos, total, reused = run_plan.records, run.jobs, run.cell_trials, run.reused
     done0, slots_todo, todo = run.cached, run.filled, run_plan.todo
     run_wall = time.perf_counter() - t_start
     table_path = os.path.join(out, TABLE)
     write_table(table_path, conds, scale, cached)
-    timing = {"total_s": time.perf_counter() - t_start, "run_s": run_wall, "trials": total, "trials_run": slots_todo,
-              "trials_computed": len(todo), "trials_cached": done0 - reused,
-              "trials_shared": reused + (slots_todo - len(todo)), "workers": workers, "ray": ray,
-              "cpus": os.cpu_count(), "machine": machine(),
-              "python": platform.python_version(), "commit": git_commit(), "load_average_at_start": load_start,
-              "load_average_at_end": list(os.getloadavg()), "load_average_max": load.max, "started_utc": started,
-              "worker_end_spread_s": _end_spread(infos),
-              "cpu_s_per_worker": _cpu_per_worker(infos), "scale": scale.__dict__,
-              "env": {k: os.environ.get(k) for k in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
-              "trial_steps": int(sum(info["trial_steps"] for info in infos)),
-              "jobs": [{k: v for k, v in info.items() if k != "steps"} for info in infos]}
+    timing = {
+        "total_s": time.perf_counter() - t_start,
+        "run_s": run_wall,
+        "trials": total,
+        "trials_run": slots_todo,
+        "trials_computed": len(todo),
+        "trials_cached": done0 - reused,
+        "trials_shared": reused + (slots_todo - len(todo)),
+        "workers": workers,
+        "ray": ray,
+        "cpus": os.cpu_count(),
+        "machine": machine(),
+        "python": platform.python_version(),
+        "commit": git_commit(),
+        "load_average_at_start": load_start,
+        "load_average_at_end": list(os.getloadavg()),
+        "load_average_max": load.max,
+        "started_utc": started,
+        "worker_end_spread_s": _end_spread(infos),
+        "cpu_s_per_worker": _cpu_per_worker(infos),
+        "scale": scale.__dict__,
+        "env": {k: os.environ.get(k) for k in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
+        "trial_steps": int(sum(info["trial_steps"] for info in infos)),
+        "jobs": [{k: v for k, v in info.items() if k != "steps"} for info in infos],
+    }
     timing_path = os.path.join(out, "timing.json")
     previous_timing = read_json_or_none(timing_path) or {}
     # The last run that simulated every trial (a from-scratch timing) is kept beside this run's own figures,
     # so a cached re-run never passes off as the cost of the reproduction.
     timing["from_scratch"] = timing["trials_cached"] == 0 and timing["trials_computed"] > 0
-    timing["last_from_scratch"] = (_scratch_summary(timing) if timing["from_scratch"]
-                                   else previous_timing.get("last_from_scratch"))
+    timing["last_from_scratch"] = (
+        _scratch_summary(timing) if timing["from_scratch"] else previous_timing.get("last_from_scratch")
+    )
     with open(timing_path, "w") as fh:
         json.dump(timing, fh, indent=1)
     old = read_json_or_none(os.path.join(out, "claims.json")) or {}
-    report_from_table(table_path, out, timing, argv or ["reproduce"], n_boot,
-                      _previous_verdicts(old, computed=slots_todo > 0))
+    report_from_table(
+        table_path, out, timing, argv or ["reproduce"], n_boot, _previous_verdicts(old, computed=slots_todo > 0)
+    )
     # The analysis after total_s (REPORT.md states total_s; the whole command took total_s + analysis_s).
     timing["analysis_s"] = time.perf_counter() - t_start - timing["total_s"]
     with open(timing_path, "w") as fh:
         json.dump(timing, fh, indent=1)
     with open(os.path.join(out, ".gitignore"), "w") as fh:
         fh.write("cache/\n")
-    return ReproduceStats(total, slots_todo, done0 - reused, reused + (slots_todo - len(todo)),
-                          timing["total_s"] + timing["analysis_s"], infos)
+    return ReproduceStats(
+        total,
+        slots_todo,
+        done0 - reused,
+        reused + (slots_todo - len(todo)),
+        timing["total_s"] + timing["analysis_s"],
+        infos,
+    )
 
 
-def report_from_table(table_path: str, out: str, timing: dict, argv: list[str], n_boot: int = N_BOOT,
-                      previous: dict | None = None) -> dict:
+def report_from_table(
+    table_path: str, out: str, timing: dict, argv: list[str], n_boot: int = N_BOOT, previous: dict | None = None
+) -> dict:
     """Every verdict, interval and figure from the per-trial table alone (no trial is run): writes
     `out`/claims.json, REPORT.md and the figures; returns claims.json's content."""
     os.makedirs(out, exist_ok=True)
@@ -178,9 +230,25 @@ def machine() -> dict:
 
 def _scratch_summary(timing: dict) -> dict:
     """What the report header says about a run that computed every trial."""
-    keys = ("total_s", "run_s", "trials", "trials_computed", "trial_steps", "workers", "cpus", "machine", "commit",
-            "load_average_at_start", "load_average_at_end", "load_average_max", "worker_end_spread_s",
-            "cpu_s_per_worker", "scale", "env", "started_utc")
+    keys = (
+        "total_s",
+        "run_s",
+        "trials",
+        "trials_computed",
+        "trial_steps",
+        "workers",
+        "cpus",
+        "machine",
+        "commit",
+        "load_average_at_start",
+        "load_average_at_end",
+        "load_average_max",
+        "worker_end_spread_s",
+        "cpu_s_per_worker",
+        "scale",
+        "env",
+        "started_utc",
+    )
     return {k: timing.get(k) for k in keys}
 
 
@@ -231,8 +299,9 @@ def _cpu_per_worker(infos: list[dict]) -> dict[str, float]:
     return out
 
 
-def write_report(path: str, result: dict, conds: list[Condition], timing: dict, argv: list[str],
-                 drawn: dict, out: str) -> None:
+def write_report(
+    path: str, result: dict, conds: list[Condition], timing: dict, argv: list[str], drawn: dict, out: str
+) -> None:
     lines = report.body(result, conds, timing, argv, drawn, out)
     with open(path, "w") as fh:
         fh.write("\n".join(lines) + "\n")

@@ -1,5 +1,6 @@
 """The config of `python -m experiments run`: one documented dataclass tree, also the command line
 (`--env FrozenLake-v1 --algo dqn-tamer --agent.lr 5e-4 --observer.p-feedback 0.2 --config FILE`)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,13 +19,19 @@ class RunConfig:
     task: Task = option(Task(), "environment, layout, seed, teacher rule", flatten=True)
     algo: str = option("dqn-tamer", "agent", choices=ALGOS)
     episodes: int = option(100, "episodes to run")
-    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset)",
-                                       exclude=("algo",))
+    agent: AgentConfig | None = option(
+        None, "the agent's hyper-parameters (default: the algo's preset)", exclude=("algo",)
+    )
     observer: ObserverConfig = option(ObserverConfig(), "the simulated observer")
-    step_seconds: float = option(0.5, "seconds per step of the virtual clock (2 steps/s): the clock of a delay "
-                                      "learned in seconds (--agent.learn-delay) and of --observer.delay-s")
-    out: str = option("runs/experiment", "output directory for config.json, episodes.csv, summary.json (with the "
-                                         "teacher's delay) and curve.png")
+    step_seconds: float = option(
+        0.5,
+        "seconds per step of the virtual clock (2 steps/s): the clock of a delay "
+        "learned in seconds (--agent.learn-delay) and of --observer.delay-s",
+    )
+    out: str = option(
+        "runs/experiment",
+        "output directory for config.json, episodes.csv, summary.json (with the teacher's delay) and curve.png",
+    )
 
     def __post_init__(self):
         if self.algo not in ALGOS:

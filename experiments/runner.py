@@ -13,6 +13,7 @@ per-tick operation is vectorised over the running trials (the agent's row method
 batched observer), and finished trials are dropped from the batch (`TrialBatchAgent.select`), so a batch
 costs what its running trials cost.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -56,8 +57,20 @@ def hold_freed_heap() -> bool:
     return mallopt(M_TRIM_THRESHOLD, HEAP_KEPT_BYTES) == 1 and mallopt(M_TOP_PAD, HEAP_PAD_BYTES) == 1
 
 
-EPISODE_FIELDS = ("episode", "return", "steps", "feedback_given", "feedback_credited", "feedback_stale",
-                  "epsilon", "alpha_h", "h_decided", "greedy", "mean_lag", "delay_median_s")
+EPISODE_FIELDS = (
+    "episode",
+    "return",
+    "steps",
+    "feedback_given",
+    "feedback_credited",
+    "feedback_stale",
+    "epsilon",
+    "alpha_h",
+    "h_decided",
+    "greedy",
+    "mean_lag",
+    "delay_median_s",
+)
 
 
 @dataclass(frozen=True)
@@ -106,8 +119,11 @@ def fixed_delay_summary(spec: TrialSpec, feedbacks: int) -> dict:
     """The assumed step lags of a trial that does not learn its teacher's delay, in seconds on its clock, and
     the feedbacks credited with them."""
     probs = ",".join(repr(float(p)) for p in spec.agent.assumed_delay_probs)
-    return {**FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(), "feedbacks": int(feedbacks),
-            "learned": False}
+    return {
+        **FixedDelay(f"steps:{probs}", unit=spec.step_seconds).summary(),
+        "feedbacks": int(feedbacks),
+        "learned": False,
+    }
 
 
 def _bucket(n: int) -> str:
@@ -121,8 +137,16 @@ def _train_group(agent: AgentConfig) -> int:
 class _Batch:
     """The running batch: per-row state (rows are renumbered when finished trials are dropped)."""
 
-    def __init__(self, specs: list[TrialSpec], use_tables: bool, record_actions: bool, greedy_eval: bool,
-                 on_episode, on_trial_done, on_input):
+    def __init__(
+        self,
+        specs: list[TrialSpec],
+        use_tables: bool,
+        record_actions: bool,
+        greedy_eval: bool,
+        on_episode,
+        on_trial_done,
+        on_input,
+    ):
         B = len(specs)
         # Rows are ordered by what the agents train (Q only, Q and H, H only), so the trials due for a Q or
         # an H update are consecutive rows (updated in place, without copies). Results and callbacks use the
@@ -135,12 +159,15 @@ class _Batch:
             raise ValueError("trials batched together must share observation and action spaces")
         env_seeds = [derive_seed(s.seed, "env") % (2**31) for s in rows_specs]
         EnvBatch = TableEnvs if use_tables and TableEnvs.supports(envs) else LoopEnvs
-        self.world = EnvBatch(list(envs), list(rules),
-                              [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds)
-        self.observers = ObserverBatch([s.observer for s in rows_specs],
-                                       [derive_seed(s.seed, "observer") for s in rows_specs])
-        self.agent = make_agent([s.agent for s in rows_specs], obs_shape(envs[0]), n_actions,
-                                [s.seed for s in rows_specs])
+        self.world = EnvBatch(
+            list(envs), list(rules), [(s.env, s.layout, s.teacher_rule) for s in rows_specs], env_seeds
+        )
+        self.observers = ObserverBatch(
+            [s.observer for s in rows_specs], [derive_seed(s.seed, "observer") for s in rows_specs]
+        )
+        self.agent = make_agent(
+            [s.agent for s in rows_specs], obs_shape(envs[0]), n_actions, [s.seed for s in rows_specs]
+        )
         self.loop = StepLoop(self.agent)
         self.specs, self.results = specs, [TrialResult(s) for s in specs]
         self.n_episodes = np.array([s.episodes for s in specs], np.int64)
@@ -195,8 +222,9 @@ class _Batch:
             for row, t, n, v in zip(rows[k], t_f, counts[k], values):
                 for value in v[:n]:
                     self.on_input(int(st["orig"][row]), "feedback", {"t": float(t), "value": int(value)})
-        out = self.loop.credit(rows[k], t_f, values, counts[k], t_f * st["step_s"][rows[k]] if self.learns_delay
-                               else None)
+        out = self.loop.credit(
+            rows[k], t_f, values, counts[k], t_f * st["step_s"][rows[k]] if self.learns_delay else None
+        )
         self.count_outcomes(rows[k], counts[k], out)
 
     def deliver_stamped(self, rk, due, stamps, counts) -> None:
@@ -268,10 +296,21 @@ class _Batch:
     def trace_steps(self, rows, step, a, rew, nxt, term, trunc, intended) -> None:
         st = self.st
         for k, row in enumerate(rows):
-            self.on_input(int(st["orig"][row]), "step", {
-                "t": float(step[k]), "episode": int(st["episode"][row]), "obs": st["obs"][row].copy(),
-                "action": int(a[k]), "reward": float(rew[k]), "next_obs": np.array(nxt[k]),
-                "terminated": bool(term[k]), "truncated": bool(trunc[k]), "polarity": int(intended[k])})
+            self.on_input(
+                int(st["orig"][row]),
+                "step",
+                {
+                    "t": float(step[k]),
+                    "episode": int(st["episode"][row]),
+                    "obs": st["obs"][row].copy(),
+                    "action": int(a[k]),
+                    "reward": float(rew[k]),
+                    "next_obs": np.array(nxt[k]),
+                    "terminated": bool(term[k]),
+                    "truncated": bool(trunc[k]),
+                    "polarity": int(intended[k]),
+                },
+            )
 
     def end_episodes(self, ended: np.ndarray) -> None:
         st, agent = self.st, self.agent
@@ -283,15 +322,22 @@ class _Batch:
         lag_now = np.where(np.isnan(learned_lag), agent.mean_lag(ended), learned_lag)
         for j, row in enumerate(ended):
             i = int(st["orig"][row])
-            record = {"episode": int(st["episode"][row]), "return": float(st["ep_return"][row]),
-                      "steps": int(st["ep_steps"][row]), "feedback_given": int(st["ep_given"][row]),
-                      "feedback_credited": int(st["ep_credited"][row]), "feedback_stale": int(st["ep_stale"][row]),
-                      "epsilon": float(eps_now[j]), "alpha_h": float(alpha_now[j]),
-                      # who decides: greedy actions this episode, and those where H overruled argmax Q
-                      "h_decided": int(agent.h_decided_count[row]), "greedy": int(agent.greedy_count[row]),
-                      "mean_lag": float(lag_now[j]),  # mean of the lag distribution credit uses now (steps)
-                      # the learned delay's median in seconds (None: not learned)
-                      "delay_median_s": None if np.isnan(delay_now[j]) else float(delay_now[j])}
+            record = {
+                "episode": int(st["episode"][row]),
+                "return": float(st["ep_return"][row]),
+                "steps": int(st["ep_steps"][row]),
+                "feedback_given": int(st["ep_given"][row]),
+                "feedback_credited": int(st["ep_credited"][row]),
+                "feedback_stale": int(st["ep_stale"][row]),
+                "epsilon": float(eps_now[j]),
+                "alpha_h": float(alpha_now[j]),
+                # who decides: greedy actions this episode, and those where H overruled argmax Q
+                "h_decided": int(agent.h_decided_count[row]),
+                "greedy": int(agent.greedy_count[row]),
+                "mean_lag": float(lag_now[j]),  # mean of the lag distribution credit uses now (steps)
+                # the learned delay's median in seconds (None: not learned)
+                "delay_median_s": None if np.isnan(delay_now[j]) else float(delay_now[j]),
+            }
             agent.h_decided_count[row] = agent.greedy_count[row] = 0
             if self.greedy_eval:
                 record["greedy_steps"] = greedy_steps(agent, int(row), self.specs[i])
@@ -326,11 +372,16 @@ class _Batch:
             self.on_trial_done(i, self.results[i])
 
 
-def run_trials(specs: list[TrialSpec], on_episode: Callable[[int, dict], None] | None = None,
-               record_actions: bool = False, greedy_eval: bool = False,
-               on_trial_done: Callable[[int, TrialResult], None] | None = None,
-               use_tables: bool = True, profile: dict | None = None,
-               on_input: Callable[[int, str, dict], None] | None = None) -> list[TrialResult]:
+def run_trials(
+    specs: list[TrialSpec],
+    on_episode: Callable[[int, dict], None] | None = None,
+    record_actions: bool = False,
+    greedy_eval: bool = False,
+    on_trial_done: Callable[[int, TrialResult], None] | None = None,
+    use_tables: bool = True,
+    profile: dict | None = None,
+    on_input: Callable[[int, str, dict], None] | None = None,
+) -> list[TrialResult]:
     """Run every trial to its episode count; trials must share observation and action spaces.
 
     `on_episode(i, record)` is called after each episode of trial i (the index into `specs`),

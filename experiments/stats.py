@@ -10,6 +10,7 @@ interval resamples whole clusters and every test treats the cluster, not the tri
   holm              Holm's step-down adjustment of a family of p-values
   mde               the smallest true effect the design detects with 80% power at the adjusted level
 """
+
 from __future__ import annotations
 
 import math
@@ -41,8 +42,9 @@ def cluster_boot_weights(n_clusters: int, n_boot: int, seed: int = BOOT_SEED) ->
     return w
 
 
-def cluster_bootstrap(values: np.ndarray, clusters: np.ndarray, n_boot: int = 2000, level: float = 0.95,
-                      seed: int = BOOT_SEED) -> dict:
+def cluster_bootstrap(
+    values: np.ndarray, clusters: np.ndarray, n_boot: int = 2000, level: float = 0.95, seed: int = BOOT_SEED
+) -> dict:
     """Mean of per-trial `values` [n] with a percentile interval resampling whole clusters.
 
     Returns estimate, ci, se (the resamples' standard deviation) and the resampled means."""

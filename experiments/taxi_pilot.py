@@ -15,6 +15,7 @@ median stays below 100 steps.
 
     python -m experiments pilot taxi --env taxi-s --episodes 300 --trials 3 --set replay_size=50000
 """
+
 from __future__ import annotations
 
 import json
@@ -50,8 +51,10 @@ def specs(env: str, episodes: int, trials: int, changes: dict, seed0: int = PILO
     agent = agent_config("dqn", **{**AGENT_OVERRIDES.get(env, {}), **changes})
     # fixed task: pilot k runs task (k * 5 + 3) % 12, a different order from the reproduction's 0, 1, 2, ...
     layouts = [(k * 5 + 3) % 12 if env.startswith("taxi-fixed") else 0 for k in range(trials)]
-    return [TrialSpec(env, agent, ObserverConfig(), seed=seed0 + k, layout=layouts[k], episodes=episodes)
-            for k in range(trials)]
+    return [
+        TrialSpec(env, agent, ObserverConfig(), seed=seed0 + k, layout=layouts[k], episodes=episodes)
+        for k in range(trials)
+    ]
 
 
 def convergence(steps: np.ndarray) -> dict:
@@ -65,29 +68,41 @@ def convergence(steps: np.ndarray) -> dict:
     h = horizon({"dqn": ArmData(steps, -steps, np.zeros(n), np.arange(n), None, taxi=True)}, None)
     per_trial = []
     for row in steps:
-        med = np.array([np.median(row[max(0, e - 9):e + 1]) for e in range(E)])
+        med = np.array([np.median(row[max(0, e - 9) : e + 1]) for e in range(E)])
         bad = np.nonzero(med >= CONVERGED_STEPS)[0]
         first = 0 if not len(bad) else int(bad[-1] + 1)
         per_trial.append(first + 1 if first < E else None)
-    return {"episodes": E, "change_last": h["dqn_change_last"], "flat": h["dqn_flat"],
-            "final_steps_geomean": h["dqn_final_steps_geomean"], "converged": h["dqn_converged"],
-            "within_margin_episode": h["dqn_within_margin_episode"],
-            "steps_to_level_mean": h["dqn_steps_to_level_mean"], "steps_total_mean": h["dqn_steps_total_mean"],
-            "trial_median_below_100_from_episode": per_trial}
+    return {
+        "episodes": E,
+        "change_last": h["dqn_change_last"],
+        "flat": h["dqn_flat"],
+        "final_steps_geomean": h["dqn_final_steps_geomean"],
+        "converged": h["dqn_converged"],
+        "within_margin_episode": h["dqn_within_margin_episode"],
+        "steps_to_level_mean": h["dqn_steps_to_level_mean"],
+        "steps_total_mean": h["dqn_steps_total_mean"],
+        "trial_median_below_100_from_episode": per_trial,
+    }
 
 
 @dataclass(frozen=True)
 class TaxiPilotConfig:
     """DQN alone on Taxi, on pilot seeds: the report's convergence rule, to choose the Taxi horizon."""
 
-    env: str = option("taxi-s", "taxi-s (Gymnasium's, one-hot), taxi-fixed-s, taxi, taxi-fixed",
-                      choices=("taxi-s", "taxi-fixed-s", "taxi", "taxi-fixed"))
+    env: str = option(
+        "taxi-s",
+        "taxi-s (Gymnasium's, one-hot), taxi-fixed-s, taxi, taxi-fixed",
+        choices=("taxi-s", "taxi-fixed-s", "taxi", "taxi-fixed"),
+    )
     episodes: int = option(300, "episodes per trial")
     trials: int = option(3, "DQN trials (seeds seed0, seed0 + 1, ...)")
     seed0: int = option(PILOT_SEED0, f"first pilot seed (>= {PILOT_SEED0})")
-    set: tuple[str, ...] = option((), "AgentConfig fields changed from the reproduction's Taxi settings, "
-                                      "FIELD=VALUE,FIELD=VALUE (a value may hold commas: "
-                                      "assumed_delay_probs=0.3,0.6,0.1)")
+    set: tuple[str, ...] = option(
+        (),
+        "AgentConfig fields changed from the reproduction's Taxi settings, "
+        "FIELD=VALUE,FIELD=VALUE (a value may hold commas: "
+        "assumed_delay_probs=0.3,0.6,0.1)",
+    )
     out: str | None = option(None, "write the per-episode steps and the summary as JSON here")
 
     def __post_init__(self):
@@ -126,26 +141,34 @@ def main(cfg: TaxiPilotConfig) -> int:
     def on_episode(i: int, rec: dict) -> None:  # progress on stderr: a long pilot can be read as it goes
         seen.setdefault(i, []).append(rec["steps"])
         if len(seen[i]) % 10 == 0:
-            print(f"trial {i} episodes {len(seen[i])}: median steps of the last 10 {int(np.median(seen[i][-10:]))}, "
-                  f"{sum(seen[i])} steps, {time.process_time() - c0:.0f} CPU s", file=sys.stderr, flush=True)
+            print(
+                f"trial {i} episodes {len(seen[i])}: median steps of the last 10 {int(np.median(seen[i][-10:]))}, "
+                f"{sum(seen[i])} steps, {time.process_time() - c0:.0f} CPU s",
+                file=sys.stderr,
+                flush=True,
+            )
 
     with threadpool_limits(1, user_api="blas"):
         results = run_trials(trial_specs, on_episode=on_episode)
     steps = np.array([[e["steps"] for e in r.episodes] for r in results], np.float64)
-    summary = {"env": cfg.env, "changes": changes, "seeds": [s.seed for s in trial_specs],
-               "layouts": [s.layout for s in trial_specs], **convergence(steps),
-               "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
-               "env_steps": int(steps.sum())}
+    summary = {
+        "env": cfg.env,
+        "changes": changes,
+        "seeds": [s.seed for s in trial_specs],
+        "layouts": [s.layout for s in trial_specs],
+        **convergence(steps),
+        "wall_s": time.perf_counter() - t0,
+        "cpu_s": time.process_time() - c0,
+        "env_steps": int(steps.sum()),
+    }
     print(json.dumps(summary))
     for k, row in enumerate(steps):
-        med = [int(np.median(row[i:i + 10])) for i in range(0, len(row), 10)]
+        med = [int(np.median(row[i : i + 10])) for i in range(0, len(row), 10)]
         print(f"trial {k} (seed {trial_specs[k].seed}): median steps per 10 episodes {med}", file=sys.stderr)
     if cfg.out:
         with open(cfg.out, "w") as fh:
             json.dump({**summary, "steps": steps.tolist()}, fh)
     return 0
-
-
 
 
 def cli(argv: list[str] | None = None) -> int:

@@ -12,6 +12,7 @@ their condition and arm, go into the same lockstep batches, split over the worke
 of one condition share ticks with those of others. Results do not depend on the batching
 (tests/experiments/test_batching.py).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -28,8 +29,14 @@ RESULTS_VERSION = 3
 """Bump when a change to the core changes results, so cached trials are recomputed."""
 
 # Environments that can share a lockstep batch (same observation and action spaces).
-FAMILY = {"maze": "maze", "maze-pomdp": "maze-pomdp", "taxi": "taxi", "taxi-fixed": "taxi", "taxi-s": "taxi-s",
-          "taxi-fixed-s": "taxi-s"}
+FAMILY = {
+    "maze": "maze",
+    "maze-pomdp": "maze-pomdp",
+    "taxi": "taxi",
+    "taxi-fixed": "taxi",
+    "taxi-s": "taxi-s",
+    "taxi-fixed-s": "taxi-s",
+}
 
 
 def _record(obj) -> dict:
@@ -39,10 +46,16 @@ def _record(obj) -> dict:
 def trial_key(spec: TrialSpec) -> str:
     agent = spec.agent
     uses_feedback = agent.train_h or agent.reward_shaping
-    payload = {"version": RESULTS_VERSION, "env": spec.env, "layout": spec.layout, "seed": spec.seed,
-               "episodes": spec.episodes, "agent": _record(agent),
-               "observer": _record(spec.observer) if uses_feedback else None,
-               "teacher_rule": spec.teacher_rule if uses_feedback else None}
+    payload = {
+        "version": RESULTS_VERSION,
+        "env": spec.env,
+        "layout": spec.layout,
+        "seed": spec.seed,
+        "episodes": spec.episodes,
+        "agent": _record(agent),
+        "observer": _record(spec.observer) if uses_feedback else None,
+        "teacher_rule": spec.teacher_rule if uses_feedback else None,
+    }
     return hashlib.sha1(json.dumps(payload, sort_keys=True, default=list).encode()).hexdigest()[:16]
 
 
@@ -63,13 +76,22 @@ class Task:
 
 def result_record(key: str, result: TrialResult) -> dict:
     eps = result.episodes
-    return {"key": key, "version": RESULTS_VERSION, "spec": {
-                "env": result.spec.env, "layout": result.spec.layout, "seed": result.spec.seed,
-                "episodes": result.spec.episodes, "agent": _record(result.spec.agent),
-                "observer": _record(result.spec.observer)},
-            "total_steps": result.total_steps,
-            "return": [e["return"] for e in eps], "steps": [e["steps"] for e in eps],
-            **{name: [e[name] for e in eps] for name in EXTRA_FIELDS}}
+    return {
+        "key": key,
+        "version": RESULTS_VERSION,
+        "spec": {
+            "env": result.spec.env,
+            "layout": result.spec.layout,
+            "seed": result.spec.seed,
+            "episodes": result.spec.episodes,
+            "agent": _record(result.spec.agent),
+            "observer": _record(result.spec.observer),
+        },
+        "total_steps": result.total_steps,
+        "return": [e["return"] for e in eps],
+        "steps": [e["steps"] for e in eps],
+        **{name: [e[name] for e in eps] for name in EXTRA_FIELDS},
+    }
 
 
 EXTRA_FIELDS = ("feedback_given", "feedback_credited", "alpha_h", "h_decided", "greedy", "mean_lag")
@@ -135,12 +157,18 @@ def plan(conds: list[Condition], scale: Scale, cache_dir: str) -> tuple[dict, li
 # Rough CPU cost of an episode (arbitrary units), by environment: environment steps per episode averaged
 # over a run times the relative cost of a step, to balance jobs between workers. Checked against the jobs
 # of full runs (timing.json: each job's env, trials and cpu_s).
-EPISODE_COST = {"maze": 150.0, "maze-pomdp": 80.0, "taxi": 1000.0 * 0.6, "taxi-fixed": 300.0,
-                # the reproduction's Taxi: 519 inputs and b = 1 cost about ten times a Maze step (commit 5d2c95e:
-                # its 48 trials x 100 episodes took about 1080 CPU s, the Maze's 1764 x 60 and the POMDP's 240
-                # about 500). Steps per episode: DQN's pilot and 5d2c95e's trials (Gymnasium's Taxi over 200
-                # episodes: about 85 000 steps per learning trial, 1000 per episode for a collapsed Deep TAMER).
-                "taxi-s": 560.0 * 10, "taxi-fixed-s": 450.0 * 10}
+EPISODE_COST = {
+    "maze": 150.0,
+    "maze-pomdp": 80.0,
+    "taxi": 1000.0 * 0.6,
+    "taxi-fixed": 300.0,
+    # the reproduction's Taxi: 519 inputs and b = 1 cost about ten times a Maze step (commit 5d2c95e:
+    # its 48 trials x 100 episodes took about 1080 CPU s, the Maze's 1764 x 60 and the POMDP's 240
+    # about 500). Steps per episode: DQN's pilot and 5d2c95e's trials (Gymnasium's Taxi over 200
+    # episodes: about 85 000 steps per learning trial, 1000 per episode for a collapsed Deep TAMER).
+    "taxi-s": 560.0 * 10,
+    "taxi-fixed-s": 450.0 * 10,
+}
 ALGO_COST = {"dqn-tamer": 1.5}
 """DQN-TAMER trains Q and H every step; the other agents one network."""
 JOBS_PER_WORKER = 4
@@ -184,10 +212,15 @@ def make_jobs(tasks: list[Task], workers: int, per_worker: int = JOBS_PER_WORKER
     target = total / max(workers * per_worker, 1) if workers > 1 else float("inf")
     jobs = []
     for ts in groups.values():
-        ts = sorted(ts,
-                    key=lambda t: (t.spec.agent.algo, t.slots[0].cond if t.slots else "",
-                                   t.slots[0].trial if t.slots else 0,
-                                       t.key))
+        ts = sorted(
+            ts,
+            key=lambda t: (
+                t.spec.agent.algo,
+                t.slots[0].cond if t.slots else "",
+                t.slots[0].trial if t.slots else 0,
+                t.key,
+            ),
+        )
         # up to one part per worker always (so a lone group still uses every worker), more only while each
         # part keeps MIN_PART_TRIALS
         most = max(min(workers, len(ts)), len(ts) // MIN_PART_TRIALS.get(FAMILY.get(ts[0].spec.env, ts[0].spec.env), 1))

@@ -13,6 +13,7 @@ greedy actions and those H decided against Q, the mean of the lag distribution c
 does not have is empty. Floats are written with Python's shortest round-trip repr: reading gives the
 same bits. xz's stream carries no time stamp, so the same trials give the same file.
 """
+
 from __future__ import annotations
 
 import csv
@@ -63,12 +64,22 @@ def table_rows(conds: list[Condition], scale: Scale, records: dict) -> list[list
             for k in range(n_trials(c, scale)):
                 r = records[(c.name, arm, k)]
                 layout, seed = int(r["spec"]["layout"]), int(r["spec"]["seed"])
-                head = [c.name, arm, str(k), str(layout), layout_class(c, layout), str(seed),
-                        str(cluster_of(c, scale, k))]
+                head = [
+                    c.name,
+                    arm,
+                    str(k),
+                    str(layout),
+                    layout_class(c, layout),
+                    str(seed),
+                    str(cluster_of(c, scale, k)),
+                ]
                 extras = [r.get(f) for f in EXTRA_FIELDS]
                 for e in range(len(r["steps"])):
-                    rows.append(head + [str(e + 1), str(int(r["steps"][e])), repr(float(r["return"][e]))]
-                                + ["" if x is None else _cell(f, x[e]) for f, x in zip(EXTRA_FIELDS, extras)])
+                    rows.append(
+                        head
+                        + [str(e + 1), str(int(r["steps"][e])), repr(float(r["return"][e]))]
+                        + ["" if x is None else _cell(f, x[e]) for f, x in zip(EXTRA_FIELDS, extras)]
+                    )
     return rows
 
 
@@ -119,11 +130,17 @@ def read_table(path: str) -> Table:
             raise ValueError(f"{path}: {name}/{arm} has {len(rows)} rows, not {n} trials x {E} episodes")
         first = {int(r["trial"]): r for r in rows if r["episode"] == "1"}
         per_trial = [first[k] for k in range(n)]
-        data[name][arm] = ArmData(_arrays(rows, "steps", n, E), _arrays(rows, "return", n, E),
-                                  np.array([int(r["layout"]) for r in per_trial]),
-                                  np.array([int(r["cluster"]) for r in per_trial]), c.stop_episode, c.is_taxi)
-        extras[name][arm] = {f: _arrays(rows, f, n, E) for f in EXTRA_FIELDS
-                             if f in rows[0] and all(r[f] != "" for r in rows)}
+        data[name][arm] = ArmData(
+            _arrays(rows, "steps", n, E),
+            _arrays(rows, "return", n, E),
+            np.array([int(r["layout"]) for r in per_trial]),
+            np.array([int(r["cluster"]) for r in per_trial]),
+            c.stop_episode,
+            c.is_taxi,
+        )
+        extras[name][arm] = {
+            f: _arrays(rows, f, n, E) for f in EXTRA_FIELDS if f in rows[0] and all(r[f] != "" for r in rows)
+        }
         seeds[f"{name}/{arm}"] = np.array([int(r["seed"]) for r in per_trial])
     # A condition's arms in their declared order (the figures' and the panels' order).
     for name in names:

@@ -4,6 +4,7 @@ Each service also runs on its own: python -m services.{actor,teacher,learner,rec
 foxglove} --help, and python -m services.replay --help for logs. Comparisons of two checkouts:
 python -m experiments bench-compare --what live.
 """
+
 from __future__ import annotations
 
 import sys
@@ -24,20 +25,35 @@ def commands() -> dict:
     from services.launcher import UpConfig, up
     from services.launcher.compose import ComposeConfig, compose
 
-    return {"up": Command(UpConfig, up), "bench": Command(BenchConfig, bench), "chaos": Command(ChaosConfig, chaos),
-            "flood": Command(FloodConfig, flood), "credentials": Command(CredentialsConfig, credentials),
-            "security": {"": "TLS + user/password + access control for runs across machines (docs/security.md)",
-                         "init": Command(SecurityInitConfig, security_init),
-                         "router": Command(SecuredRouterConfig, secured_router),
-                         "zenohd-config": Command(SecuredRouterConfig, zenohd_config,
-                                                  "print the secured router's config as JSON (for zenohd -c)")},
-            "router": Command(RouterConfig, router_main), "protocol": Command(ProtocolConfig, protocol_main),
-            "auth-bench": Command(AuthBenchConfig, bench_main), "compose": Command(ComposeConfig, compose)}
+    return {
+        "up": Command(UpConfig, up),
+        "bench": Command(BenchConfig, bench),
+        "chaos": Command(ChaosConfig, chaos),
+        "flood": Command(FloodConfig, flood),
+        "credentials": Command(CredentialsConfig, credentials),
+        "security": {
+            "": "TLS + user/password + access control for runs across machines (docs/security.md)",
+            "init": Command(SecurityInitConfig, security_init),
+            "router": Command(SecuredRouterConfig, secured_router),
+            "zenohd-config": Command(
+                SecuredRouterConfig, zenohd_config, "print the secured router's config as JSON (for zenohd -c)"
+            ),
+        },
+        "router": Command(RouterConfig, router_main),
+        "protocol": Command(ProtocolConfig, protocol_main),
+        "auth-bench": Command(AuthBenchConfig, bench_main),
+        "compose": Command(ComposeConfig, compose),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run_commands("python -m services", __doc__, commands(), argv,
-                        moved={"bench-compare": "python -m experiments bench-compare --what live"})
+    return run_commands(
+        "python -m services",
+        __doc__,
+        commands(),
+        argv,
+        moved={"bench-compare": "python -m experiments bench-compare --what live"},
+    )
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ Phases (default: all):
 
 Zero loss is checked in every phase: the actor's count, the log's Step seqs and the learner's ingest agree.
 """
+
 from __future__ import annotations
 
 import json
@@ -58,8 +59,11 @@ class BenchConfig:
     paced_seconds: float = option(60.0, "paced phase: seconds measured (after paced-warmup)")
     paced_warmup: float = option(15.0, "paced phase: seconds of start-up left out once the page is in")
     paced_rate: float = option(2.0, "paced phase: actor steps per second (a person's pace)")
-    paced_checkouts: tuple[str, ...] = option((), "paced phase: other checkouts of the project to measure the "
-                                                  "same way after this one (e.g. the base commit's), comma-separated")
+    paced_checkouts: tuple[str, ...] = option(
+        (),
+        "paced phase: other checkouts of the project to measure the "
+        "same way after this one (e.g. the base commit's), comma-separated",
+    )
 
     def __post_init__(self):
         Task(env=self.env)  # a bad env is a one-line error here
@@ -74,8 +78,12 @@ def pct(values, scale: float = 1e3) -> dict[str, float] | None:
     if values is None or len(values) == 0:
         return None
     a = np.asarray(values, float) * scale
-    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 3),
-            "p99": round(float(np.percentile(a, 99)), 3), "max": round(float(a.max()), 3)}
+    return {
+        "n": int(a.size),
+        "p50": round(float(np.percentile(a, 50)), 3),
+        "p99": round(float(np.percentile(a, 99)), 3),
+        "max": round(float(a.max()), 3),
+    }
 
 
 class Pinger:
@@ -103,13 +111,19 @@ class Pinger:
             with open_session(client_config(self.endpoint, connect_timeout=60)) as session:
                 from services.launcher import ROOT, child_env
 
-                self.echo = subprocess.Popen([sys.executable, "-c", ECHO, self.endpoint, self.run],
-                                             cwd=str(ROOT), env=child_env(), stdout=subprocess.DEVNULL,
-                                             stderr=subprocess.DEVNULL, start_new_session=True)
+                self.echo = subprocess.Popen(
+                    [sys.executable, "-c", ECHO, self.endpoint, self.run],
+                    cwd=str(ROOT),
+                    env=child_env(),
+                    stdout=subprocess.DEVNULL,
+                    stderr=subprocess.DEVNULL,
+                    start_new_session=True,
+                )
                 q: queue.Queue = queue.Queue()
                 sub = session.declare_subscriber(PONG_KEY.format(run=self.run), lambda s: q.put(time.perf_counter()))
-                pub = session.declare_publisher(PING_KEY.format(run=self.run), express=True,
-                                                congestion_control=zenoh.CongestionControl.BLOCK)
+                pub = session.declare_publisher(
+                    PING_KEY.format(run=self.run), express=True, congestion_control=zenoh.CongestionControl.BLOCK
+                )
                 wait_for_matching(pub, 60)
                 payload = bytes(64)
                 while not self.stop.is_set():
@@ -155,8 +169,9 @@ def echo_main(endpoint: str, run: str) -> int:
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: set_from_handler(stop))
     with open_session(client_config(endpoint, connect_timeout=30)) as session:
-        pub = session.declare_publisher(PONG_KEY.format(run=run), express=True,
-                                        congestion_control=zenoh.CongestionControl.BLOCK)
+        pub = session.declare_publisher(
+            PONG_KEY.format(run=run), express=True, congestion_control=zenoh.CongestionControl.BLOCK
+        )
         sub = session.declare_subscriber(PING_KEY.format(run=run), lambda s: pub.put(s.payload))
         while not stop.wait(0.2):
             pass
@@ -192,31 +207,42 @@ def analyse(rundir: Path) -> dict[str, Any]:
     for p in (rundir / "stats").glob("*.json"):
         stats[p.stem] = json.loads(p.read_text())
     n = summary.get("steps_sent") or 0
-    zero_loss = (summary.get("steps_logged") == n and summary.get("steps_learned") == n
-                 and summary.get("steps_seq_contiguous_in_log")
-                 and summary.get("learner_step_entries") == {"learned": n}
-                 and summary.get("feedback_logged") == summary.get("feedback_sent")
-                 and "unresolved" not in summary.get("feedback_rejected", {}))
+    zero_loss = (
+        summary.get("steps_logged") == n
+        and summary.get("steps_learned") == n
+        and summary.get("steps_seq_contiguous_in_log")
+        and summary.get("learner_step_entries") == {"learned": n}
+        and summary.get("feedback_logged") == summary.get("feedback_sent")
+        and "unresolved" not in summary.get("feedback_rejected", {})
+    )
     span = (max(learned_t) - min(t_action)) if t_action and learned_t else float("nan")
     actor_span = (t_action[-1] - t_action[0]) if len(t_action) > 1 else float("nan")
-    lag = (np.asarray(learned_t[:len(t_action)]) - np.asarray(t_action[:len(learned_t)])) if learned_t else []
+    lag = (np.asarray(learned_t[: len(t_action)]) - np.asarray(t_action[: len(learned_t)])) if learned_t else []
     learner = stats.get("learner", {}).get("samples", {})
     actor = stats.get("actor", {}).get("samples", {})
     return {
-        "steps": n, "zero_loss": bool(zero_loss), "outcome": summary.get("outcome"),
+        "steps": n,
+        "zero_loss": bool(zero_loss),
+        "outcome": summary.get("outcome"),
         "steps_per_s": round(n / span, 1) if span == span and span > 0 else None,
         "actor_steps_per_s": round(n / actor_span, 1) if actor_span == actor_span and actor_span > 0 else None,
         "step_to_learned_ms": pct(lag),
         "feedback_to_h_update_ms": pct(learner.get("feedback_to_h_s")),
-        "feedback_to_h_update_after_hold_ms": pct(np.asarray(learner.get("feedback_to_h_s", []))
-                                                  - np.asarray(learner.get("feedback_hold_s", []))),
+        "feedback_to_h_update_after_hold_ms": pct(
+            np.asarray(learner.get("feedback_to_h_s", [])) - np.asarray(learner.get("feedback_hold_s", []))
+        ),
         "weights_publish_to_adoption_ms": pct(actor.get("adopt_latency_s")),
         "weights_publish_cost_ms": pct(learner.get("weights_publish_cost_s")),
-        "cpu_ms_per_step": {name: round(1e3 * st.get("cpu_since_ready_s", 0.0) / max(n, 1), 3)
-                            for name, st in sorted(stats.items())},
-        "feedback": {"sent": summary.get("feedback_sent"), "credited": summary.get("feedback_credited"),
-                     "rejected": summary.get("feedback_rejected")},
-        "t_first_step": t_action[0] if t_action else None, "t_last_step": t_action[-1] if t_action else None,
+        "cpu_ms_per_step": {
+            name: round(1e3 * st.get("cpu_since_ready_s", 0.0) / max(n, 1), 3) for name, st in sorted(stats.items())
+        },
+        "feedback": {
+            "sent": summary.get("feedback_sent"),
+            "credited": summary.get("feedback_credited"),
+            "rejected": summary.get("feedback_rejected"),
+        },
+        "t_first_step": t_action[0] if t_action else None,
+        "t_last_step": t_action[-1] if t_action else None,
     }
 
 
@@ -226,10 +252,16 @@ def bench(cfg: BenchConfig) -> int:
 
     out = Path(cfg.out)
     stamp = time.strftime("%Y%m%d-%H%M%S")
-    results: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
-                                           "python": platform.python_version(),
-                                           "load_avg_before": [round(x, 2) for x in os.getloadavg()]},
-                               "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__}, "phases": {}}
+    results: dict[str, Any] = {
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "load_avg_before": [round(x, 2) for x in os.getloadavg()],
+        },
+        "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
+        "phases": {},
+    }
     for name in cfg.phases:
         if name == "paced":
             results["paced"] = run_paced(cfg, out, stamp)
@@ -269,8 +301,14 @@ def run_paced(cfg: BenchConfig, out: Path, stamp: str) -> dict[str, Any]:
     from services.bench_paced import PacedSettings, format_paced, paced_phase
 
     print(f"\n== phase paced ({cfg.paced_rate:g} steps/s, {cfg.paced_seconds:g} s) ==", file=sys.stderr, flush=True)
-    settings = PacedSettings(seconds=cfg.paced_seconds, warmup=cfg.paced_warmup, rate=cfg.paced_rate, env=cfg.env,
-                             algo=cfg.algo, out=out.resolve())
+    settings = PacedSettings(
+        seconds=cfg.paced_seconds,
+        warmup=cfg.paced_warmup,
+        rate=cfg.paced_rate,
+        env=cfg.env,
+        algo=cfg.algo,
+        out=out.resolve(),
+    )
     res = paced_phase(settings, cfg.paced_checkouts, stamp)
     print(format_paced(res), file=sys.stderr, flush=True)
     return res
@@ -282,22 +320,26 @@ def _fmt(p: dict | None) -> str:
 
 def format_phase(name: str, r: dict) -> str:
     rtt = r["zenoh_rtt_64B_ms"]
-    return "\n".join([
-        f"{name}: {r['steps']} steps, zero loss: {'yes' if r['zero_loss'] else 'NO'}, "
-        f"sustained {r['steps_per_s']} steps/s (actor {r['actor_steps_per_s']} steps/s)",
-        f"  step -> learned            {_fmt(r['step_to_learned_ms'])}",
-        f"  feedback -> H update       {_fmt(r['feedback_to_h_update_ms'])}",
-        f"    less the wait for a newer step {_fmt(r['feedback_to_h_update_after_hold_ms'])}",
-        f"  weights -> actor adoption  {_fmt(r['weights_publish_to_adoption_ms'])}",
-        f"  zenoh RTT 64 B             idle {_fmt(rtt['idle'])}; during run {_fmt(rtt['during_run'])}",
-        "  CPU ms per step (after start-up): " + ", ".join(f"{k} {v:.2f}" for k, v in r["cpu_ms_per_step"].items()),
-    ])
+    return "\n".join(
+        [
+            f"{name}: {r['steps']} steps, zero loss: {'yes' if r['zero_loss'] else 'NO'}, "
+            f"sustained {r['steps_per_s']} steps/s (actor {r['actor_steps_per_s']} steps/s)",
+            f"  step -> learned            {_fmt(r['step_to_learned_ms'])}",
+            f"  feedback -> H update       {_fmt(r['feedback_to_h_update_ms'])}",
+            f"    less the wait for a newer step {_fmt(r['feedback_to_h_update_after_hold_ms'])}",
+            f"  weights -> actor adoption  {_fmt(r['weights_publish_to_adoption_ms'])}",
+            f"  zenoh RTT 64 B             idle {_fmt(rtt['idle'])}; during run {_fmt(rtt['during_run'])}",
+            "  CPU ms per step (after start-up): " + ", ".join(f"{k} {v:.2f}" for k, v in r["cpu_ms_per_step"].items()),
+        ]
+    )
 
 
 def report(results: dict) -> str:
     m = results["machine"]
-    lines = [f"bench on {m['cpus']} CPUs, {m['platform']}, load average before {m['load_avg_before']} "
-             f"after {m['load_avg_after']}"]
+    lines = [
+        f"bench on {m['cpus']} CPUs, {m['platform']}, load average before {m['load_avg_before']} "
+        f"after {m['load_avg_after']}"
+    ]
     for name, r in results["phases"].items():
         lines.append(format_phase(name, r))
     if results.get("paced"):
@@ -305,4 +347,3 @@ def report(results: dict) -> str:
 
         lines.append(format_paced(results["paced"]))
     return "\n".join(lines)
-

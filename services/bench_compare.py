@@ -2,6 +2,7 @@
 another one (e.g. a worktree of an earlier commit), interleaved phase by phase and repeated, printed side by side
 with ratios (of the means, of each round, and their median): on a shared, noisy machine only a comparison within
 one run means anything."""
+
 from __future__ import annotations
 
 import json
@@ -40,16 +41,20 @@ def one(checkout: Path, phase: str, cfg: LiveCompareConfig, out: Path) -> tuple[
     """Run one phase with `checkout`'s own code: its steps/s (None if it did not run), whether it lost nothing, and
     the CPU ms per step of all its services together (after start-up; less hurt by others' load than steps/s)."""
     cmd = [sys.executable, "-m", "services", "bench", "--phases", phase, "--steps", str(cfg.steps), "--out", str(out)]
-    done = subprocess.run(cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True,
-                          text=True)
+    done = subprocess.run(
+        cmd, cwd=checkout, env={**os.environ, "PYTHONPATH": str(checkout)}, capture_output=True, text=True
+    )
     files = sorted(out.glob("bench-*.json"))
     if not files:
         print(f"  {checkout}: {phase} did not run (exit {done.returncode}): {done.stderr[-400:]}", file=sys.stderr)
         return None, False, None
     res = json.loads(files[-1].read_text())["phases"][phase]
     cpu = res.get("cpu_ms_per_step") or {}
-    return (res["steps_per_s"], bool(res["zero_loss"] and res["exit_code"] == 0),
-            round(sum(cpu.values()), 3) if cpu else None)
+    return (
+        res["steps_per_s"],
+        bool(res["zero_loss"] and res["exit_code"] == 0),
+        round(sum(cpu.values()), 3) if cpu else None,
+    )
 
 
 def print_rounds(title: str, runs: dict[str, dict[str, list]], ratio) -> None:
@@ -61,8 +66,10 @@ def print_rounds(title: str, runs: dict[str, dict[str, list]], ratio) -> None:
         ratios = []
         for k, (o, t) in enumerate(zip(r["other"], r["this"])):
             ratios += [ratio(o, t)] if o and t else []
-            print(f"{k + 1:<7}{phase:<9}{o if o else 'n/a':>10}{t if t else 'n/a':>10}"
-                  f"{f'{ratio(o, t):.3f}' if o and t else 'n/a':>8}")
+            print(
+                f"{k + 1:<7}{phase:<9}{o if o else 'n/a':>10}{t if t else 'n/a':>10}"
+                f"{f'{ratio(o, t):.3f}' if o and t else 'n/a':>8}"
+            )
         median = f"{statistics.median(ratios):.3f}" if ratios else "n/a"
         print(f"{phase}: median ratio {median} over {len(ratios)} rounds")
 
@@ -79,18 +86,30 @@ def bench_compare(cfg: LiveCompareConfig) -> int:
                 sps, clean, cpu_ms = one(checkout, phase, cfg, out / f"{label}-{phase}-{r}")
                 rows[phase][label].append(sps)
                 cpu[phase][label].append(cpu_ms)
-                print(f"round {r + 1} {phase:<8} {label:<5} {sps} steps/s, {cpu_ms} CPU ms/step"
-                      f"{'' if clean else ' (NOT zero loss / exit != 0)'}", file=sys.stderr, flush=True)
+                print(
+                    f"round {r + 1} {phase:<8} {label:<5} {sps} steps/s, {cpu_ms} CPU ms/step"
+                    f"{'' if clean else ' (NOT zero loss / exit != 0)'}",
+                    file=sys.stderr,
+                    flush=True,
+                )
     out.mkdir(parents=True, exist_ok=True)
-    (out / "compare.json").write_text(json.dumps({"against": str(other), "rows": rows, "cpu_ms_per_step": cpu},
-                                                 indent=2))
-    print(f"this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved "
-          f"(load average now {' '.join(f'{x:.2f}' for x in os.getloadavg())}):")
+    (out / "compare.json").write_text(
+        json.dumps({"against": str(other), "rows": rows, "cpu_ms_per_step": cpu}, indent=2)
+    )
+    print(
+        f"this checkout ({ROOT}) against {other}, {cfg.steps} steps, interleaved "
+        f"(load average now {' '.join(f'{x:.2f}' for x in os.getloadavg())}):"
+    )
     print_rounds("steps/s; ratio this/other (above 1: this checkout is faster)", rows, lambda o, t: t / o)
-    print_rounds("CPU ms per step of all services together; ratio other/this (above 1: this checkout needs less)",
-                 cpu, lambda o, t: o / t)
+    print_rounds(
+        "CPU ms per step of all services together; ratio other/this (above 1: this checkout needs less)",
+        cpu,
+        lambda o, t: o / t,
+    )
     missing = [f"{label} {phase}" for phase, r in rows.items() for label, runs in r.items() if None in runs]
     if missing:
-        print(f"some runs did not run or left no result ({', '.join(missing)}): the ratios above leave them out",
-              file=sys.stderr)
+        print(
+            f"some runs did not run or left no result ({', '.join(missing)}): the ratios above leave them out",
+            file=sys.stderr,
+        )
     return 1 if missing else 0

@@ -9,6 +9,7 @@ service took to come back (SIGKILL -> its liveliness token again) and what the l
 inputs rejected by reason, how the log (all segments) reads back, whether `replay retrain` reproduces the
 final weights from the whole record, and the final returns of both runs.
 """
+
 from __future__ import annotations
 
 import json
@@ -43,8 +44,10 @@ class ChaosConfig:
     first_kill: float = option(5.0, "seconds after the learner's first learned step before the first kill")
     gap: float = option(3.0, "seconds after a killed service is back before the next kill")
     baseline: bool = option(True, "also run the undisturbed run (for the return comparison)")
-    alongside: bool = option(False, "run the undisturbed run at the same time as the chaos run, not before it "
-                                    "(quicker; the two share the machine)")
+    alongside: bool = option(
+        False,
+        "run the undisturbed run at the same time as the chaos run, not before it (quicker; the two share the machine)",
+    )
     timeout: float = option(240.0, "seconds each run may take")
 
     def __post_init__(self):
@@ -60,11 +63,32 @@ def _env() -> dict[str, str]:
 
 
 def start_run(cfg: ChaosConfig, run: str, *extra: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "services", "up", "--out", cfg.out, "--run", run, "--progress", "false",
-           "--seed", str(cfg.seed), "--algo", cfg.algo, "--rate", str(cfg.rate), "--max-steps", str(cfg.max_steps),
-           "--episodes", "100000", *extra]
-    return subprocess.Popen(cmd, cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+    cmd = [
+        sys.executable,
+        "-m",
+        "services",
+        "up",
+        "--out",
+        cfg.out,
+        "--run",
+        run,
+        "--progress",
+        "false",
+        "--seed",
+        str(cfg.seed),
+        "--algo",
+        cfg.algo,
+        "--rate",
+        str(cfg.rate),
+        "--max-steps",
+        str(cfg.max_steps),
+        "--episodes",
+        "100000",
+        *extra,
+    ]
+    return subprocess.Popen(
+        cmd, cwd=ROOT, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    )
 
 
 def service_pids(rundir: Path, name: str) -> list[int]:
@@ -151,8 +175,14 @@ def kill_in_turn(cfg: ChaosConfig, rundir: Path, proc: subprocess.Popen) -> list
                 os.kill(pid, signal.SIGKILL)
             back = wait_for(lambda name=name, t_kill=t_kill: any(t > t_kill for t in puts.get(name, [])), 60)
             t_back = min((t for t in puts.get(name, []) if t > t_kill), default=None)
-            kills.append({"service": name, "pid": pids[0], "t_kill": t_kill,
-                          "back_after_s": round(t_back - t_kill, 3) if back and t_back else None})
+            kills.append(
+                {
+                    "service": name,
+                    "pid": pids[0],
+                    "t_kill": t_kill,
+                    "back_after_s": round(t_back - t_kill, 3) if back and t_back else None,
+                }
+            )
             time.sleep(cfg.gap)
     finally:
         for sub in subs:
@@ -188,8 +218,11 @@ def report(cfg: ChaosConfig, chaos_dir: Path, base_dir: Path | None, kills: list
         warnings.simplefilter("ignore", LogRecoveryWarning)
         reader = read_log(chaos_dir / "session.mcap")
         n = sum(1 for _ in reader)
-        learner_restart = [e for e in _learner_events(chaos_dir) if e.startswith("learner: restored")
-                           or e.startswith("learner: started without")]
+        learner_restart = [
+            e
+            for e in _learner_events(chaos_dir)
+            if e.startswith("learner: restored") or e.startswith("learner: started without")
+        ]
         rt = retrain(chaos_dir / "session.mcap")
     k = 10
     out = {
@@ -197,32 +230,52 @@ def report(cfg: ChaosConfig, chaos_dir: Path, base_dir: Path | None, kills: list
         "kills": kills,
         "restarts": s.get("restarts", []),
         "learner_restore": learner_restart,
-        "steps": {"sent": s["steps_sent"], "logged": s["steps_logged"], "learned": s["steps_learned"],
-                  "lost_sent_not_ingested": (s["steps_sent"] or 0) - (s["steps_logged"] or 0) + s["steps_not_ingested"],
-                  "not_logged": (s["steps_sent"] or 0) - s["steps_logged"],
-                  "logged_not_ingested": s["steps_not_ingested"],
-                  "learner_step_entries": s["learner_step_entries"],
-                  "learner_seq_contiguous": s["learner_seq_contiguous"],
-                  "actor_incarnations": s["actor_incarnations"]},
-        "feedback": {"sent": s["feedback_sent"], "logged": s["feedback_logged"],
-                     "not_logged": (s["feedback_sent"] or 0) - s["feedback_logged"],
-                     "logged_not_ingested": s["feedback_not_ingested"],
-                     "credited": s["feedback_credited"], "rejected": s["feedback_rejected"]},
+        "steps": {
+            "sent": s["steps_sent"],
+            "logged": s["steps_logged"],
+            "learned": s["steps_learned"],
+            "lost_sent_not_ingested": (s["steps_sent"] or 0) - (s["steps_logged"] or 0) + s["steps_not_ingested"],
+            "not_logged": (s["steps_sent"] or 0) - s["steps_logged"],
+            "logged_not_ingested": s["steps_not_ingested"],
+            "learner_step_entries": s["learner_step_entries"],
+            "learner_seq_contiguous": s["learner_seq_contiguous"],
+            "actor_incarnations": s["actor_incarnations"],
+        },
+        "feedback": {
+            "sent": s["feedback_sent"],
+            "logged": s["feedback_logged"],
+            "not_logged": (s["feedback_sent"] or 0) - s["feedback_logged"],
+            "logged_not_ingested": s["feedback_not_ingested"],
+            "credited": s["feedback_credited"],
+            "rejected": s["feedback_rejected"],
+        },
         "rejected_inputs": s["rejected_inputs"],
         "duplicates_dropped": s["duplicates_dropped"],
-        "log": {"segments": len(reader.status.files), "messages": n, "truncated": reader.status.truncated,
-                "steps_contiguous_per_incarnation": s["steps_seq_contiguous_in_log"],
-                "duplicates_skipped": dict(reader.status.duplicates_skipped)},
-        "retrain": {"learners": s["learner_chain"], "identical": rt.identical, "compared": rt.compared,
-                    "outcomes_match": rt.outcomes_match, "mismatch": rt.entry_mismatch},
-        "returns": {"chaos_last10_mean": float(np.mean(finished_returns(s)[-k:])),
-                    "chaos_episodes": len(finished_returns(s))},
+        "log": {
+            "segments": len(reader.status.files),
+            "messages": n,
+            "truncated": reader.status.truncated,
+            "steps_contiguous_per_incarnation": s["steps_seq_contiguous_in_log"],
+            "duplicates_skipped": dict(reader.status.duplicates_skipped),
+        },
+        "retrain": {
+            "learners": s["learner_chain"],
+            "identical": rt.identical,
+            "compared": rt.compared,
+            "outcomes_match": rt.outcomes_match,
+            "mismatch": rt.entry_mismatch,
+        },
+        "returns": {
+            "chaos_last10_mean": float(np.mean(finished_returns(s)[-k:])),
+            "chaos_episodes": len(finished_returns(s)),
+        },
     }
     if b is not None:
-        out["returns"].update(baseline_last10_mean=float(np.mean(finished_returns(b)[-k:])),
-                              baseline_episodes=len(finished_returns(b)),
-                              baseline_range_last10=[float(min(finished_returns(b)[-k:])),
-                                                     float(max(finished_returns(b)[-k:]))])
+        out["returns"].update(
+            baseline_last10_mean=float(np.mean(finished_returns(b)[-k:])),
+            baseline_episodes=len(finished_returns(b)),
+            baseline_range_last10=[float(min(finished_returns(b)[-k:])), float(max(finished_returns(b)[-k:]))],
+        )
     return out
 
 
@@ -233,28 +286,44 @@ def format_report(r: dict[str, Any]) -> str:
         if "skipped" in kx:
             lines.append(f"  {kx['service']:15s} not killed ({kx['skipped']})")
             continue
-        lines.append(f"  {kx['service']:15s} SIGKILL -> ready again after {kx['back_after_s']} s "
-                     f"(launcher: {rest.get(kx['service'], {}).get('how', '?')})")
+        lines.append(
+            f"  {kx['service']:15s} SIGKILL -> ready again after {kx['back_after_s']} s "
+            f"(launcher: {rest.get(kx['service'], {}).get('how', '?')})"
+        )
     for e in r["learner_restore"]:
         lines.append(f"  {e}")
     st, fb = r["steps"], r["feedback"]
-    lines.append(f"  steps: sent {st['sent']}, logged {st['logged']}, learned {st['learned']}; lost (sent, never "
-                 f"ingested) {st['lost_sent_not_ingested']}; learner entries {st['learner_step_entries']}, seqs "
-                 f"contiguous {st['learner_seq_contiguous']}, actor incarnations {st['actor_incarnations']}")
-    lines.append(f"  feedback: sent {fb['sent']}, logged {fb['logged']} (not logged {fb['not_logged']}), logged "
-                 f"but not ingested {fb['logged_not_ingested']}, credited {fb['credited']}, rejected {fb['rejected']}")
+    lines.append(
+        f"  steps: sent {st['sent']}, logged {st['logged']}, learned {st['learned']}; lost (sent, never "
+        f"ingested) {st['lost_sent_not_ingested']}; learner entries {st['learner_step_entries']}, seqs "
+        f"contiguous {st['learner_seq_contiguous']}, actor incarnations {st['actor_incarnations']}"
+    )
+    lines.append(
+        f"  feedback: sent {fb['sent']}, logged {fb['logged']} (not logged {fb['not_logged']}), logged "
+        f"but not ingested {fb['logged_not_ingested']}, credited {fb['credited']}, rejected {fb['rejected']}"
+    )
     lines.append(f"  rejected inputs: {r['rejected_inputs'] or 'none'}; duplicates dropped: {r['duplicates_dropped']}")
     lg = r["log"]
-    lines.append(f"  log: {lg['segments']} segments, {lg['messages']} messages, truncated {len(lg['truncated'])} "
-                 f"(recovered), duplicates skipped {lg['duplicates_skipped']}, steps contiguous "
-                 f"{lg['steps_contiguous_per_incarnation']}")
+    lines.append(
+        f"  log: {lg['segments']} segments, {lg['messages']} messages, truncated {len(lg['truncated'])} "
+        f"(recovered), duplicates skipped {lg['duplicates_skipped']}, steps contiguous "
+        f"{lg['steps_contiguous_per_incarnation']}"
+    )
     rt = r["retrain"]
-    lines.append(f"  retrain over learners {len(rt['learners'])}: outcomes match {rt['outcomes_match']}, final weights "
-                 f"{'IDENTICAL' if rt['identical'] else 'different' if rt['compared'] else 'not compared'}")
+    lines.append(
+        f"  retrain over learners {len(rt['learners'])}: outcomes match {rt['outcomes_match']}, final weights "
+        f"{'IDENTICAL' if rt['identical'] else 'different' if rt['compared'] else 'not compared'}"
+    )
     ret = r["returns"]
-    lines.append(f"  returns: chaos last-10 mean {ret['chaos_last10_mean']:.3f} ({ret['chaos_episodes']} episodes)"
-                 + (f"; undisturbed {ret['baseline_last10_mean']:.3f} ({ret['baseline_episodes']} episodes, last-10 "
-                    f"range {ret['baseline_range_last10']})" if "baseline_last10_mean" in ret else ""))
+    lines.append(
+        f"  returns: chaos last-10 mean {ret['chaos_last10_mean']:.3f} ({ret['chaos_episodes']} episodes)"
+        + (
+            f"; undisturbed {ret['baseline_last10_mean']:.3f} ({ret['baseline_episodes']} episodes, last-10 "
+            f"range {ret['baseline_range_last10']})"
+            if "baseline_last10_mean" in ret
+            else ""
+        )
+    )
     return "\n".join(lines)
 
 

@@ -6,6 +6,7 @@ credentials for each teacher id (their own key only). With `--teacher` and an ex
 credential to a run whose secret is there (what the console, or a person's teacher, gets). Then start each
 service with `--run RUN --credentials OUT/<identity>.json`.
 """
+
 from __future__ import annotations
 
 import sys
@@ -24,8 +25,11 @@ class CredentialsConfig:
     run: str = option("live", "run name the credentials are for")
     out: str = option("credentials", "folder to write (0700): run.secret and <identity>.json files (0600)")
     teachers: tuple[str, ...] = option(("oracle",), "teacher ids to make teacher credentials for")
-    teacher: str | None = option(None, "only add a credential for this teacher id, to the run whose secret is in "
-                                       "--out (what the console or a person's teacher process gets)")
+    teacher: str | None = option(
+        None,
+        "only add a credential for this teacher id, to the run whose secret is in "
+        "--out (what the console or a person's teacher process gets)",
+    )
 
     def __post_init__(self):
         validate_name(self.run, "run")
@@ -46,8 +50,10 @@ def credentials(cfg: CredentialsConfig) -> int:
     except (AuthError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {out / SECRET_FILE} and credentials for run {cfg.run!r}; start each service with "
-          f"--run {cfg.run} --credentials {out}/<identity>.json:")
+    print(
+        f"wrote {out / SECRET_FILE} and credentials for run {cfg.run!r}; start each service with "
+        f"--run {cfg.run} --credentials {out}/<identity>.json:"
+    )
     for identity, path in paths.items():
         print(f"  {identity:<20} {path}")
     return 0

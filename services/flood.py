@@ -7,6 +7,7 @@ unknown actor incarnations and teachers, seq jumps, observations of the wrong le
 weights of the wrong shape, with NaN, or from a learner nobody announced. Nothing here is a well-formed input
 from a known sender: those only access control can keep out (docs/security.md).
 """
+
 from __future__ import annotations
 
 import json
@@ -21,32 +22,73 @@ import numpy as np
 
 from common.config import option
 
-KINDS = ("malformed", "oversized", "wrong_type", "missing_field", "extra_field", "nan", "wrong_run",
-         "future_step", "stale_step", "unknown_incarnation", "obs_shape", "action_range",
-         "feedback_value", "feedback_seq_jump", "feedback_future", "unknown_teacher", "teacher_mismatch",
-         "feedback_nan", "weights_garbage", "weights_shape", "weights_nan", "weights_unknown_learner")
+KINDS = (
+    "malformed",
+    "oversized",
+    "wrong_type",
+    "missing_field",
+    "extra_field",
+    "nan",
+    "wrong_run",
+    "future_step",
+    "stale_step",
+    "unknown_incarnation",
+    "obs_shape",
+    "action_range",
+    "feedback_value",
+    "feedback_seq_jump",
+    "feedback_future",
+    "unknown_teacher",
+    "teacher_mismatch",
+    "feedback_nan",
+    "weights_garbage",
+    "weights_shape",
+    "weights_nan",
+    "weights_unknown_learner",
+)
 
 
-def _step_obj(run: str, now: float, *, inc: str | None = None, obs_len: int = 2, action: int = 1,
-              t: float | None = None) -> dict:
-    return {"run": run, "incarnation": inc or f"actor-{uuid.uuid4().hex[:12]}", "seq": 0,
-            "t_action": now if t is None else t, "episode": 0, "t_in_episode": 0, "obs": [0.0] * obs_len,
-            "action": action, "reward": 0.0, "next_obs": [0.0] * obs_len, "terminated": False, "truncated": False,
-            "weights_version": 0, "info": {}}
+def _step_obj(
+    run: str, now: float, *, inc: str | None = None, obs_len: int = 2, action: int = 1, t: float | None = None
+) -> dict:
+    return {
+        "run": run,
+        "incarnation": inc or f"actor-{uuid.uuid4().hex[:12]}",
+        "seq": 0,
+        "t_action": now if t is None else t,
+        "episode": 0,
+        "t_in_episode": 0,
+        "obs": [0.0] * obs_len,
+        "action": action,
+        "reward": 0.0,
+        "next_obs": [0.0] * obs_len,
+        "terminated": False,
+        "truncated": False,
+        "weights_version": 0,
+        "info": {},
+    }
 
 
-def _fb_obj(run: str, now: float, *, teacher: str = "oracle", seq: int = 0, value: int = 1,
-            t: float | None = None) -> dict:
-    return {"run": run, "teacher_id": teacher, "seq": seq, "t_reaction": now if t is None else t, "value": value,
-            "source": "oracle"}
+def _fb_obj(
+    run: str, now: float, *, teacher: str = "oracle", seq: int = 0, value: int = 1, t: float | None = None
+) -> dict:
+    return {
+        "run": run,
+        "teacher_id": teacher,
+        "seq": seq,
+        "t_reaction": now if t is None else t,
+        "value": value,
+        "source": "oracle",
+    }
 
 
 def _js(obj: Any) -> bytes:
     return json.dumps(obj, allow_nan=True).encode()
 
 
-def makers(run: str, obs_dim: int, spec: dict[str, tuple[int, ...]], rng: np.random.Generator
-           ) -> dict[str, Callable[[float], tuple[str, bytes]]]:
+def makers(
+    run: str, obs_dim: int, spec: dict[str, tuple[int, ...]], rng: np.random.Generator
+) -> dict[str, Callable[[float], tuple[str, bytes]]]:
     """kind -> (now -> (key, payload))."""
     from common.protocol import Weights
 
@@ -55,13 +97,24 @@ def makers(run: str, obs_dim: int, spec: dict[str, tuple[int, ...]], rng: np.ran
     def weights_bytes(tensors, inc=None) -> bytes:
         import safetensors.numpy
 
-        w = Weights(run=run, incarnation=inc or f"learner-{uuid.uuid4().hex[:12]}", version=10**6,
-                    t_published=time.time(), tensors=tensors)
+        w = Weights(
+            run=run,
+            incarnation=inc or f"learner-{uuid.uuid4().hex[:12]}",
+            version=10**6,
+            t_published=time.time(),
+            tensors=tensors,
+        )
         try:
             return w.encode()
         except Exception:  # NaN: encode refuses, build the file by hand
-            meta = {"format": "hitl.Weights", "protocol": "1", "run": run, "incarnation": w.incarnation,
-                    "version": "1000000", "t_published": f"{time.time():.3f}"}
+            meta = {
+                "format": "hitl.Weights",
+                "protocol": "1",
+                "run": run,
+                "incarnation": w.incarnation,
+                "version": "1000000",
+                "t_published": f"{time.time():.3f}",
+            }
             return safetensors.numpy.save(tensors, metadata=meta)
 
     def good_shapes(fill: float = 0.1):
@@ -125,8 +178,10 @@ def main(args: FloodConfig) -> int:
 
     env, _ = make_env(args.env, 0)
     obs_dim, n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
-    spec = {k: tuple(v.shape) for k, v in
-            TrialBatchAgent([agent_config("dqn")], obs_dim, n_actions, [0]).policy_weights(0).items()}
+    spec = {
+        k: tuple(v.shape)
+        for k, v in TrialBatchAgent([agent_config("dqn")], obs_dim, n_actions, [0]).policy_weights(0).items()
+    }
     make = makers(args.run, obs_dim, spec, np.random.default_rng(args.seed))
     stop = {"now": False}
     signal.signal(signal.SIGTERM, lambda *_: stop.update(now=True))

@@ -20,10 +20,14 @@ def project_sources() -> list[Path]:
     """The tracked (and untracked, not ignored) .py and .js files outside tests/."""
     listed = subprocess.run(
         ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
-        cwd=ROOT, capture_output=True, text=True, check=True,
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
     ).stdout.split()
     return sorted(
-        ROOT / name for name in listed
+        ROOT / name
+        for name in listed
         if name.endswith(_SOURCE_SUFFIXES) and not name.startswith("tests/") and (ROOT / name).is_file()
     )
 

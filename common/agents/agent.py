@@ -23,14 +23,21 @@ How it stays fast and batch-independent:
   * `select(rows)` drops finished trials, so a batch costs what its running trials cost.
 A trial run alone (B = 1) and the same trial run among others give the same actions.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from common.agents.build import SHARED_FIELDS, AgentParts, build_parts
 from common.agents.config import AgentConfig
-from common.agents.feedback import (CREDITED, IGNORED, STALE, STATUS_NAMES, FeedbackDoor,  # noqa: F401
-                                     FeedbackOutcome)
+from common.agents.feedback import (
+    CREDITED,
+    IGNORED,
+    STALE,
+    STATUS_NAMES,
+    FeedbackDoor,  # noqa: F401
+    FeedbackOutcome,
+)
 from common.agents.history import BatchCredit
 from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, FitJob, fit_together, row_max, with_ones
 from common.agents.streams import to_integers
@@ -43,11 +50,26 @@ MERGE_ROWS = 16
 
 class TrialBatchAgent(FeedbackDoor):
     # Per-trial arrays that `select` slices (the parts slice their own).
-    _ROW_ARRAYS = ("train_q", "train_h", "shaping", "steps", "q_updates", "h_updates", "greedy_count",
-                   "h_decided_count")
+    _ROW_ARRAYS = (
+        "train_q",
+        "train_h",
+        "shaping",
+        "steps",
+        "q_updates",
+        "h_updates",
+        "greedy_count",
+        "h_decided_count",
+    )
 
-    def __init__(self, configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
-                 step_unit: float = 1.0, parts: AgentParts | None = None):
+    def __init__(
+        self,
+        configs: list[AgentConfig],
+        obs_dim: int,
+        n_actions: int,
+        seeds: list[int],
+        step_unit: float = 1.0,
+        parts: AgentParts | None = None,
+    ):
         if len(configs) != len(seeds) or not configs:
             raise ValueError("need one config per seed, at least one")
         base = configs[0]
@@ -81,8 +103,12 @@ class TrialBatchAgent(FeedbackDoor):
         self.last_credit: tuple[np.ndarray, BatchCredit] | None = None  # its step-clock trials: (indices, credit)
         self.last_timed: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # its trials in seconds: index -> positions, w
         # Rows that train both Q and H (whose choices `act` compares), and whether there is one, per row set.
-        self._learns_both = RowConstants(lambda rows: (self.train_q[rows] & self.train_h[rows],
-                                                       bool((self.train_q[rows] & self.train_h[rows]).any())))
+        self._learns_both = RowConstants(
+            lambda rows: (
+                self.train_q[rows] & self.train_h[rows],
+                bool((self.train_q[rows] & self.train_h[rows]).any()),
+            )
+        )
 
     @property
     def B(self) -> int:
@@ -151,29 +177,59 @@ class TrialBatchAgent(FeedbackDoor):
         return actions
 
     # ---------------------------------------------------------------------------------- observing
-    def record_steps(self, rows: np.ndarray, obs: np.ndarray, actions: np.ndarray, rewards: np.ndarray,
-                     next_obs: np.ndarray, terminated: np.ndarray, t_actions: np.ndarray,
-                     episodes: np.ndarray, seconds: np.ndarray | None = None,
-                     polarity: np.ndarray | None = None) -> None:
+    def record_steps(
+        self,
+        rows: np.ndarray,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_obs: np.ndarray,
+        terminated: np.ndarray,
+        t_actions: np.ndarray,
+        episodes: np.ndarray,
+        seconds: np.ndarray | None = None,
+        polarity: np.ndarray | None = None,
+    ) -> None:
         """Trials `rows` (distinct) took `actions` at times `t_actions` in episodes `episodes`: store transitions,
         remember steps. Where a delay is learned in seconds the driver also gives `seconds` (the teacher's clock)
         and the task rule's `polarity` of each (+-1, 0 unknown: the model of the rated event it is fitted on)."""
         rows = np.asarray(rows, np.int64)
         obs = np.asarray(obs, np.float32).reshape(len(rows), self.obs_dim)
         actions = np.asarray(actions, np.int64)
-        slots = self.replay.add_rows(rows, obs=obs, action=actions,
-                                     reward=np.asarray(rewards, np.float32),
-                                     next_obs=np.asarray(next_obs, np.float32).reshape(len(rows), self.obs_dim),
-                                     terminated=np.asarray(terminated, np.float32))
-        self.history.push(rows, np.asarray(t_actions, np.float64), obs, actions, slots, np.asarray(episodes, np.int64),
-                          seconds, polarity)
+        slots = self.replay.add_rows(
+            rows,
+            obs=obs,
+            action=actions,
+            reward=np.asarray(rewards, np.float32),
+            next_obs=np.asarray(next_obs, np.float32).reshape(len(rows), self.obs_dim),
+            terminated=np.asarray(terminated, np.float32),
+        )
+        self.history.push(
+            rows,
+            np.asarray(t_actions, np.float64),
+            obs,
+            actions,
+            slots,
+            np.asarray(episodes, np.int64),
+            seconds,
+            polarity,
+        )
         self.steps[rows] += 1
 
-    def record_step(self, i: int, obs, action: int, reward: float, next_obs, terminated: bool,
-                    t_action: float, episode: int = 0) -> None:
+    def record_step(
+        self, i: int, obs, action: int, reward: float, next_obs, terminated: bool, t_action: float, episode: int = 0
+    ) -> None:
         """Trial i took `action` at time t_action: store the transition and remember the step."""
-        self.record_steps(np.array([i]), obs, np.array([action]), np.array([reward]), next_obs,
-                          np.array([float(terminated)]), np.array([t_action]), np.array([episode]))
+        self.record_steps(
+            np.array([i]),
+            obs,
+            np.array([action]),
+            np.array([reward]),
+            next_obs,
+            np.array([float(terminated)]),
+            np.array([t_action]),
+            np.array([episode]),
+        )
 
     def forget_history(self, i: int) -> None:
         """Drop trial i's held steps (e.g. the actor restarted: nothing before may be credited)."""
@@ -227,8 +283,16 @@ class TrialBatchAgent(FeedbackDoor):
         q_next = row_max(self.q_target.values(rows, b[:, :, col["next_obs"]], b[:, :, ones["next_obs"]]))
         gamma, done = np.float32(self.base.gamma), b[:, :, at["terminated"]]
         target = b[:, :, at["reward"]] + gamma * (np.float32(1) - done) * q_next
-        return FitJob(self.q, rows, b[:, :, col["obs"]], b[:, :, at["action"]].astype(np.int64), target, None,
-                      HUBER_MEAN, b[:, :, ones["obs"]])
+        return FitJob(
+            self.q,
+            rows,
+            b[:, :, col["obs"]],
+            b[:, :, at["action"]].astype(np.int64),
+            target,
+            None,
+            HUBER_MEAN,
+            b[:, :, ones["obs"]],
+        )
 
     def _h_job(self, rows: np.ndarray) -> FitJob:
         """H's weighted squared-error step on a D_global minibatch."""
@@ -236,8 +300,16 @@ class TrialBatchAgent(FeedbackDoor):
         u = self.parts.h_draws.get(rows, self.h_updates[rows])
         b = m.gather_records(rows, to_integers(u, m.size[rows][:, None]))
         col, at = m.columns, m.at
-        return FitJob(self.h, rows, b[:, :, col["obs"]], b[:, :, at["action"]].astype(np.int64),
-                      b[:, :, at["feedback"]], b[:, :, at["weight"]], SQUARED_MEAN, b[:, :, m.with_ones["obs"]])
+        return FitJob(
+            self.h,
+            rows,
+            b[:, :, col["obs"]],
+            b[:, :, at["action"]].astype(np.int64),
+            b[:, :, at["feedback"]],
+            b[:, :, at["weight"]],
+            SQUARED_MEAN,
+            b[:, :, m.with_ones["obs"]],
+        )
 
     # -------------------------------------------------------------------------- batch bookkeeping
     def select(self, rows: np.ndarray) -> None:
@@ -254,8 +326,12 @@ class TrialBatchAgent(FeedbackDoor):
 
     def state_dict(self) -> dict:
         """Everything that changes while learning (configs and seeds are given at construction)."""
-        return {**self.parts.state_dict(),
-                "steps": self.steps.copy(), "q_updates": self.q_updates.copy(), "h_updates": self.h_updates.copy()}
+        return {
+            **self.parts.state_dict(),
+            "steps": self.steps.copy(),
+            "q_updates": self.q_updates.copy(),
+            "h_updates": self.h_updates.copy(),
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.parts.load_state_dict(state)

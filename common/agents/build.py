@@ -4,6 +4,7 @@
 (another network, replay or explorer) and hand it to the agent. Every part keeps one row per trial and
 can drop rows (`select`), so the agent can shrink its batch.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -21,10 +22,23 @@ from common.core.delay_learning import TeacherDelays
 from common.core.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
-SHARED_FIELDS = ("network", "device", "hidden", "lr", "rmsprop_alpha", "rmsprop_eps", "gamma", "batch_size",
-                 "replay_size",
-                 "replay_start", "target_update_interval", "update_interval", "h_batch_size",
-                 "feedback_memory_size", "history_steps")
+SHARED_FIELDS = (
+    "network",
+    "device",
+    "hidden",
+    "lr",
+    "rmsprop_alpha",
+    "rmsprop_eps",
+    "gamma",
+    "batch_size",
+    "replay_size",
+    "replay_start",
+    "target_update_interval",
+    "update_interval",
+    "h_batch_size",
+    "feedback_memory_size",
+    "history_steps",
+)
 
 
 @dataclass
@@ -41,8 +55,7 @@ class AgentParts:
     q_draws: UniformBlocks  # Q's replay minibatch draws (counter-based, per trial)
     h_draws: UniformBlocks  # H's D_global minibatch draws
 
-    _ROWS = ("q", "q_target", "h", "replay", "feedback_memory", "history", "explorer", "mixture", "q_draws",
-             "h_draws")
+    _ROWS = ("q", "q_target", "h", "replay", "feedback_memory", "history", "explorer", "mixture", "q_draws", "h_draws")
     _STATE = ("q", "q_target", "h", "replay", "feedback_memory", "history", "mixture", "delays")
 
     def select(self, rows: np.ndarray) -> None:
@@ -64,23 +77,27 @@ def _keys(seeds: list[int], purpose: str) -> np.ndarray:
     return np.array([derive_seed(s, purpose) for s in seeds], dtype=np.uint64)
 
 
-def mlp(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int], purpose: str,
-        trained: bool = True) -> StackedMLP:
+def mlp(
+    configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int], purpose: str, trained: bool = True
+) -> StackedMLP:
     """The paper's network (one hidden layer of `hidden` tanh units) per trial, with RMSProp if trained."""
     c = configs[0]
     opt = FlatRMSProp(c.lr, c.rmsprop_alpha, c.rmsprop_eps) if trained else None
     return StackedMLP(obs_dim, c.hidden, n_actions, [derive_seed(s, purpose) for s in seeds], opt)
 
 
-def build_parts(configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int],
-                step_unit: float = 1.0, make_network=mlp) -> AgentParts:
+def build_parts(
+    configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int], step_unit: float = 1.0, make_network=mlp
+) -> AgentParts:
     """The parts of an agent for these configs. `make_network(configs, obs_dim, n_actions, seeds, purpose,
     trained)` builds each value network (Q, its target, H; the purpose names its initialisation stream)."""
     c, B = configs[0], len(configs)
     q = make_network(configs, obs_dim, n_actions, seeds, "q-init")
     q_target = make_network(configs, obs_dim, n_actions, seeds, "q-init", trained=False)  # starts as q
     return AgentParts(
-        q=q, q_target=q_target, h=make_network(configs, obs_dim, n_actions, seeds, "h-init"),
+        q=q,
+        q_target=q_target,
+        h=make_network(configs, obs_dim, n_actions, seeds, "h-init"),
         replay=TransitionReplay(B, c.replay_size, obs_dim),
         feedback_memory=FeedbackMemory(B, c.feedback_memory_size, obs_dim),
         history=BatchStepHistory(B, c.history_steps, obs_dim),

@@ -1,5 +1,6 @@
 """One documented config dataclass per agent. Paper values where the paper gives them; the rest (ours)
 are chosen for the paper's small tasks and explained in docs/hyperparameters.md."""
+
 from __future__ import annotations
 
 import math
@@ -22,12 +23,18 @@ def resolve_network(name: str, obs_shape: tuple[int, ...]) -> str:
 class AgentConfig:
     """Everything an agent of this project is made of. The four algorithms are presets of it."""
 
-    algo: str = option("dqn-tamer", "which of the four agents (dqn, dqn-rs, deep-tamer, dqn-tamer); a preset of "
-                                    "the fields below", cli=False)
+    algo: str = option(
+        "dqn-tamer",
+        "which of the four agents (dqn, dqn-rs, deep-tamer, dqn-tamer); a preset of the fields below",
+        cli=False,
+    )
     # Networks and optimiser (paper): one hidden layer of 100 tanh units, RMSProp, lr 1e-3.
-    network: str = option("auto", "Q and H networks: mlp (the paper's, fast numpy path), cnn (images), "
-                                  "module:factory (any torch nn.Module), or auto (cnn for image observations, "
-                                  "else mlp)")
+    network: str = option(
+        "auto",
+        "Q and H networks: mlp (the paper's, fast numpy path), cnn (images), "
+        "module:factory (any torch nn.Module), or auto (cnn for image observations, "
+        "else mlp)",
+    )
     device: str = option("cpu", "torch device of a non-mlp network (cpu, cuda, cuda:1, ...)")
     hidden: int = option(100, "hidden units of the mlp (and of the cnn's dense layer)")
     lr: float = option(1e-3, "RMSProp learning rate of Q and H")
@@ -43,8 +50,9 @@ class AgentConfig:
     alpha_h_decay: float = option(0.9999, "alpha_h is multiplied by this every step (deep-tamer: 1)")
     train_q: bool = option(True, "learn Q from the environment's reward (DQN part; deep-tamer: false)")
     train_h: bool = option(True, "learn H from feedback (Deep TAMER part; dqn, dqn-rs: false)")
-    reward_shaping: bool = option(False, "naive shaping: add a feedback to the reward of the newest step at its "
-                                         "arrival (dqn-rs: true)")
+    reward_shaping: bool = option(
+        False, "naive shaping: add a feedback to the reward of the newest step at its arrival (dqn-rs: true)"
+    )
     # DQN (ours).
     gamma: float = option(0.9, "discount of the Q target")
     batch_size: int = option(32, "Q minibatch size")
@@ -55,32 +63,48 @@ class AgentConfig:
     # Deep TAMER (ours).
     h_batch_size: int = option(32, "H minibatch size (from D_global)")
     feedback_memory_size: int = option(20_000, "credited (step, feedback, weight) rows kept in D_global")
-    assumed_delay_probs: tuple[float, ...] = option((1 / 3, 1 / 3, 1 / 3),
-                                                    "the learner's assumption about the observer's lag over 0, 1, "
-                                                    "2, ... steps (for credit)")
+    assumed_delay_probs: tuple[float, ...] = option(
+        (1 / 3, 1 / 3, 1 / 3), "the learner's assumption about the observer's lag over 0, 1, 2, ... steps (for credit)"
+    )
     history_steps: int = option(32, "recent steps a feedback may still be credited to; older targets are stale")
     # Beyond the paper (ours; docs/results/REPORT.md: learned delay, adaptive alpha_h).
-    learn_delay: bool = option(False, "learn the teacher's delay in seconds online (common.core.delay_model: a "
-                                      "density over 0-6 s, from delay_prior), instead of assumed_delay_probs")
+    learn_delay: bool = option(
+        False,
+        "learn the teacher's delay in seconds online (common.core.delay_model: a "
+        "density over 0-6 s, from delay_prior), instead of assumed_delay_probs",
+    )
     delay_prior: str = option("uniform:0.2,4", "the learned delay's prior in seconds (Deep TAMER's uniform 0.2-4 s)")
-    alpha_h_adapt: float = option(0.0, "if > 0, alpha_h is also multiplied by a running rate (this step size, "
-                                       "from 1) of argmax H agreeing with argmax Q; 0 = the paper's schedule")
-    alpha_h_trust: float = option(0.0, "if > 0, the teacher's reliability: a running rate (this step size, from 1) "
-                                       "of argmax H agreeing with argmax Q from step alpha-h-trust-after on; "
-                                       "alpha_h is multiplied by min(1, reliability / alpha-h-trust-ref)")
+    alpha_h_adapt: float = option(
+        0.0,
+        "if > 0, alpha_h is also multiplied by a running rate (this step size, "
+        "from 1) of argmax H agreeing with argmax Q; 0 = the paper's schedule",
+    )
+    alpha_h_trust: float = option(
+        0.0,
+        "if > 0, the teacher's reliability: a running rate (this step size, from 1) "
+        "of argmax H agreeing with argmax Q from step alpha-h-trust-after on; "
+        "alpha_h is multiplied by min(1, reliability / alpha-h-trust-ref)",
+    )
     alpha_h_trust_after: int = option(0, "steps before the reliability counts (Q learns from the return first)")
     alpha_h_trust_ref: float = option(1.0, "reliability at or above which the teacher keeps the whole alpha_h")
 
     def __post_init__(self):
-        object.__setattr__(self, "assumed_delay_probs",
-                           parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
+        object.__setattr__(self, "assumed_delay_probs", parse_probs(self.assumed_delay_probs, "assumed-delay-probs"))
         check_delay_spec(self.delay_prior)
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, float) and not math.isfinite(v):
                 raise ValueError(f"{f.name} must be finite, got {v}")
-        positive = ("hidden", "batch_size", "replay_size", "target_update_interval", "update_interval",
-                    "h_batch_size", "feedback_memory_size", "history_steps")
+        positive = (
+            "hidden",
+            "batch_size",
+            "replay_size",
+            "target_update_interval",
+            "update_interval",
+            "h_batch_size",
+            "feedback_memory_size",
+            "history_steps",
+        )
         for name in ("alpha_h_adapt", "alpha_h_trust"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)}")
@@ -141,7 +165,11 @@ class DQNTamerConfig(AgentConfig):
 
 
 AGENT_CONFIGS: dict[str, type[AgentConfig]] = {
-    "dqn": DQNConfig, "dqn-rs": DQNRSConfig, "deep-tamer": DeepTamerConfig, "dqn-tamer": DQNTamerConfig}
+    "dqn": DQNConfig,
+    "dqn-rs": DQNRSConfig,
+    "deep-tamer": DeepTamerConfig,
+    "dqn-tamer": DQNTamerConfig,
+}
 ALGOS = tuple(AGENT_CONFIGS)
 
 

@@ -5,6 +5,7 @@ restarted process, agree on their value at any step without sharing state. Explo
 counter-based (`streams`): step t of trial i explores when u(i, 2t) < epsilon(t), with action
 floor(u(i, 2t + 1) * n_actions), whatever else runs in the batch.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -27,8 +28,17 @@ class Mixture:
     the say, one it confirms keeps the paper's schedule. One trial has one teacher, so the rate is per
     teacher (one row each)."""
 
-    _ROWS = ("alpha_q", "alpha_h0", "alpha_h_decay", "adapt", "agree", "trust", "trust_after", "trust_ref",
-             "reliability")
+    _ROWS = (
+        "alpha_q",
+        "alpha_h0",
+        "alpha_h_decay",
+        "adapt",
+        "agree",
+        "trust",
+        "trust_after",
+        "trust_ref",
+        "reliability",
+    )
 
     def __init__(self, configs):
         self.alpha_q = np.array([c.alpha_q for c in configs], np.float64)
@@ -41,8 +51,13 @@ class Mixture:
         self.trust_ref = np.array([getattr(c, "alpha_h_trust_ref", 1.0) for c in configs], np.float64)
         self.reliability = np.ones(len(configs), np.float64)
         self._flags()
-        self._constants = RowConstants(lambda rows: (self.alpha_h0[rows], self.alpha_h_decay[rows],
-                                                     self.alpha_q[rows].astype(np.float32).reshape(-1, 1, 1)))
+        self._constants = RowConstants(
+            lambda rows: (
+                self.alpha_h0[rows],
+                self.alpha_h_decay[rows],
+                self.alpha_q[rows].astype(np.float32).reshape(-1, 1, 1),
+            )
+        )
 
     def alpha_h(self, rows: np.ndarray, steps: np.ndarray, constants: tuple | None = None) -> np.ndarray:
         alpha_h0, decay, _ = self._constants(rows) if constants is None else constants

@@ -6,6 +6,7 @@ Step k is shown from its time to the next step's. The weights of a fixed delay c
 the held steps by time (`held`, `find`) and weighs them itself. Either way a feedback's candidates are the
 held steps shown before it, whatever their episode (a reaction to the goal-reaching move lands after the reset).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -15,14 +16,15 @@ import numpy as np
 from common.core.credit import credit_weights
 from common.core.util import nz
 
+
 @dataclass
 class BatchCredit:
     """Credit of one feedback per trial (rows = the trials asked about, in order)."""
 
-    counts: np.ndarray     # [n] held steps credited (weight > 0)
-    lost: np.ndarray       # [n] assumed-delay mass that fell before the oldest held step
+    counts: np.ndarray  # [n] held steps credited (weight > 0)
+    lost: np.ndarray  # [n] assumed-delay mass that fell before the oldest held step
     positions: np.ndarray  # [n, L] ring positions of the credited steps, oldest first (valid: j < counts)
-    weights: np.ndarray    # [n, L] their weights (0 beyond counts)
+    weights: np.ndarray  # [n, L] their weights (0 beyond counts)
 
 
 class BatchStepHistory:
@@ -40,9 +42,17 @@ class BatchStepHistory:
         self.count = np.zeros(trials, np.int64)
         self.head = np.zeros(trials, np.int64)  # next write position
 
-    def push(self, trials: np.ndarray, t: np.ndarray, obs: np.ndarray, action: np.ndarray,
-             slot: np.ndarray, episode: np.ndarray, seconds: np.ndarray | None = None,
-             polarity: np.ndarray | None = None) -> None:
+    def push(
+        self,
+        trials: np.ndarray,
+        t: np.ndarray,
+        obs: np.ndarray,
+        action: np.ndarray,
+        slot: np.ndarray,
+        episode: np.ndarray,
+        seconds: np.ndarray | None = None,
+        polarity: np.ndarray | None = None,
+    ) -> None:
         """Trial trials[k] took action[k] at time t[k] in its episode episode[k] (trials distinct); where a delay
         is learned in seconds, the driver also gives `seconds[k]` (when it was shown) and the task rule's
         polarity[k] of it (+-1, 0 unknown)."""

@@ -22,6 +22,7 @@ is several times lower than torch's, which matters most for the last, slow trial
 operation is a per-trial matrix product or elementwise, never a reduction across trials, so a trial's
 numbers do not depend on which or how many trials share its batch (tests/experiments/test_batching.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -54,7 +55,7 @@ def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, np.
     for name in PARAM_NAMES:
         size = shapes[name][0] * shapes[name][1]
         bound = np.float32(1.0 / math.sqrt(in_dim if name in ("w1", "b1") else hidden))  # 1/sqrt(fan_in)
-        out[name] = (draws[at:at + size].reshape(shapes[name]) * np.float32(2) - np.float32(1)) * bound
+        out[name] = (draws[at : at + size].reshape(shapes[name]) * np.float32(2) - np.float32(1)) * bound
         at += size
     return out
 
@@ -70,11 +71,14 @@ def views(flat: np.ndarray, shapes: dict[str, tuple[int, int]], names: bool = Fa
     n = flat.shape[0]
     (i, h), (_, k) = shapes["w1"], shapes["w2"]
     o = (i + 1) * h
-    out = {"a1": flat[:, :o].reshape(n, i + 1, h), "w2": flat[:, o:o + h * k].reshape(n, h, k),
-           "b2": flat[:, o + h * k:].reshape(n, 1, k)}
+    out = {
+        "a1": flat[:, :o].reshape(n, i + 1, h),
+        "w2": flat[:, o : o + h * k].reshape(n, h, k),
+        "b2": flat[:, o + h * k :].reshape(n, 1, k),
+    }
     if names:
-        out["w1"] = flat[:, :i * h].reshape(n, i, h)
-        out["b1"] = flat[:, i * h:o].reshape(n, 1, h)
+        out["w1"] = flat[:, : i * h].reshape(n, i, h)
+        out["b1"] = flat[:, i * h : o].reshape(n, 1, h)
     return out
 
 
@@ -86,8 +90,13 @@ def _constant(kind: str, *shape: int) -> np.ndarray:
     rows of A values, made once (they were made at every step)."""
     got = _CONSTANTS.get((kind, shape))
     if got is None:
-        got = (np.ones(shape, np.float32) if kind == "ones" else np.arange(shape[0]) * shape[1] if kind == "offsets"
-               else np.arange(*shape))
+        got = (
+            np.ones(shape, np.float32)
+            if kind == "ones"
+            else np.arange(shape[0]) * shape[1]
+            if kind == "offsets"
+            else np.arange(*shape)
+        )
         got.flags.writeable = False
         _CONSTANTS[(kind, shape)] = got
     return got
@@ -101,8 +110,9 @@ def with_ones(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def mlp_forward(p: dict[str, np.ndarray], x: np.ndarray, x1: np.ndarray | None = None,
-                nz: NonzeroInputs | None = None) -> tuple[np.ndarray, np.ndarray]:
+def mlp_forward(
+    p: dict[str, np.ndarray], x: np.ndarray, x1: np.ndarray | None = None, nz: NonzeroInputs | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """(hidden activations, outputs) for x: [n, N, in] -> [n, N, hidden], [n, N, out]. x1: `with_ones(x)`
     if the caller has it already; nz: its nonzero entries, for a wide first layer (`sparse.takes_rows`)."""
     x1 = with_ones(x) if x1 is None else x1
@@ -124,15 +134,26 @@ def row_max(q: np.ndarray) -> np.ndarray:
     return m
 
 
-def mlp_backward(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: np.ndarray,
-                 x1: np.ndarray | None = None, nz: NonzeroInputs | None = None) -> np.ndarray:
+def mlp_backward(
+    p: dict[str, np.ndarray],
+    x: np.ndarray,
+    h: np.ndarray,
+    d_out: np.ndarray,
+    x1: np.ndarray | None = None,
+    nz: NonzeroInputs | None = None,
+) -> np.ndarray:
     """`mlp_backward_rows`' gradient alone."""
     return mlp_backward_rows(p, x, h, d_out, x1, nz)[0]
 
 
-def mlp_backward_rows(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_out: np.ndarray,
-                      x1: np.ndarray | None = None, nz: NonzeroInputs | None = None
-                      ) -> tuple[np.ndarray, np.ndarray | None]:
+def mlp_backward_rows(
+    p: dict[str, np.ndarray],
+    x: np.ndarray,
+    h: np.ndarray,
+    d_out: np.ndarray,
+    x1: np.ndarray | None = None,
+    nz: NonzeroInputs | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
     """(grad, touched): gradient of sum(d_out * out) with respect to each trial's weights, flat [n, P] (w1, b1, w2, b2).
 
     h is `mlp_forward`'s first output (x1: `with_ones(x)` if the caller has it). Bias gradients are sums over
@@ -142,22 +163,22 @@ def mlp_backward_rows(p: dict[str, np.ndarray], x: np.ndarray, h: np.ndarray, d_
     then `touched` are the first-layer rows it touched (flat keys trial * (in + 1) + input; every other row's
     gradient is zero), else None."""
     n, N = x.shape[:2]
-    g_w2 = h.transpose(0, 2, 1) @ d_out                              # [n, hidden, out]
-    g_b2 = _constant("ones", n, 1, N) @ d_out                        # [n, 1, out]
-    d_pre = d_out @ p["w2"].transpose(0, 2, 1)                       # [n, N, hidden]
+    g_w2 = h.transpose(0, 2, 1) @ d_out  # [n, hidden, out]
+    g_b2 = _constant("ones", n, 1, N) @ d_out  # [n, 1, out]
+    d_pre = d_out @ p["w2"].transpose(0, 2, 1)  # [n, N, hidden]
     slope = h * h
-    np.subtract(np.float32(1), slope, out=slope)                     # tanh' = 1 - tanh^2
+    np.subtract(np.float32(1), slope, out=slope)  # tanh' = 1 - tanh^2
     d_pre *= slope
     x1 = with_ones(x) if x1 is None else x1
     if not takes_rows(p["a1"]):
-        g1 = x1.transpose(0, 2, 1) @ d_pre                           # [n, in + 1, hidden] = (w1; b1)
+        g1 = x1.transpose(0, 2, 1) @ d_pre  # [n, in + 1, hidden] = (w1; b1)
         return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1), None
     in1, hidden = p["a1"].shape[1:]
     grad = np.zeros((n, in1 * hidden + g_w2[0].size + g_b2[0].size), np.float32)
     keys, sums = rows_backward(d_pre, NonzeroInputs.of(x1) if nz is None else nz, in1)
-    grad[:, :in1 * hidden].reshape(n, in1, hidden)[keys // in1, keys % in1] = sums  # (a view: splits one axis)
-    grad[:, in1 * hidden:-g_b2[0].size] = g_w2.reshape(n, -1)
-    grad[:, -g_b2[0].size:] = g_b2.reshape(n, -1)
+    grad[:, : in1 * hidden].reshape(n, in1, hidden)[keys // in1, keys % in1] = sums  # (a view: splits one axis)
+    grad[:, in1 * hidden : -g_b2[0].size] = g_w2.reshape(n, -1)
+    grad[:, -g_b2[0].size :] = g_b2.reshape(n, -1)
     return grad, keys
 
 
@@ -286,8 +307,11 @@ class StackedMLP:
 
     def values(self, rows: np.ndarray | None, x: np.ndarray, x1: np.ndarray | None = None) -> np.ndarray:
         """(`ValueNetworks.values`; x1: `with_ones(x)` where the caller has it.)"""
-        params = self.params if rows is None or len(rows) == self.flat.shape[0] else \
-            self.rows(row_index(rows, self.flat.shape[0]))
+        params = (
+            self.params
+            if rows is None or len(rows) == self.flat.shape[0]
+            else self.rows(row_index(rows, self.flat.shape[0]))
+        )
         return mlp_forward(params, np.asarray(x, np.float32), x1)[1]
 
     def fit(self, job: FitJob) -> None:
@@ -330,8 +354,10 @@ class StackedMLP:
 
 def _stackable(jobs: list[FitJob]) -> bool:
     first = jobs[0]
-    return all(isinstance(j.net, StackedMLP) and j.net.shapes == first.net.shapes
-               and j.x.shape[1:] == first.x.shape[1:] for j in jobs)
+    return all(
+        isinstance(j.net, StackedMLP) and j.net.shapes == first.net.shapes and j.x.shape[1:] == first.x.shape[1:]
+        for j in jobs
+    )
 
 
 def fit_together(jobs: list[FitJob]) -> None:
@@ -351,8 +377,9 @@ def fit_together(jobs: list[FitJob]) -> None:
         params, x, x1 = j.net.rows(r), j.x, j.x1
     else:
         idx = [row_index(j.rows, j.net.flat.shape[0]) for j in jobs]
-        params = views(np.concatenate([j.net.flat if r is None else j.net.flat[r] for j, r in zip(jobs, idx)]),
-                       jobs[0].net.shapes)
+        params = views(
+            np.concatenate([j.net.flat if r is None else j.net.flat[r] for j, r in zip(jobs, idx)]), jobs[0].net.shapes
+        )
         if all(j.x1 is not None for j in jobs):
             x1 = np.concatenate([j.x1 for j in jobs])
             x = x1[..., :-1]
@@ -369,8 +396,8 @@ def fit_together(jobs: list[FitJob]) -> None:
     for j in jobs:
         n = len(j.rows)
         at = _constant("offsets", out.shape[1] * n, out.shape[2]) + j.actions.reshape(-1)
-        pred = out[start:start + n].reshape(-1)[at].reshape(n, -1)
-        d_out[start:start + n].reshape(-1)[at] = j.loss.grad(pred, j.targets, j.weights).reshape(-1)
+        pred = out[start : start + n].reshape(-1)[at].reshape(n, -1)
+        d_out[start : start + n].reshape(-1)[at] = j.loss.grad(pred, j.targets, j.weights).reshape(-1)
         start += n
     grad, touched = mlp_backward_rows(params, x, hidden, d_out, x1, nz)
     if len(jobs) == 1:
@@ -379,7 +406,7 @@ def fit_together(jobs: list[FitJob]) -> None:
     start = 0
     for j, r in zip(jobs, idx):
         n = len(j.rows)
-        j.net.opt.step_rows(j.net.flat, r, grad[start:start + n], _blocks(params, touched, start, n))
+        j.net.opt.step_rows(j.net.flat, r, grad[start : start + n], _blocks(params, touched, start, n))
         start += n
 
 

@@ -4,6 +4,7 @@ The update of torch.optim.RMSprop (alpha 0.99, eps 1e-8, no momentum, the same o
 tests/core/test_agents.py checks it against torch): a trial that is not selected keeps both its weights and
 its running average untouched, exactly as if it had not been asked to step.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,7 +47,7 @@ class FlatRMSProp:
             self._update(p_b, sq_b, g3[at])
             p3[at], sq3[at] = p_b, sq_b
         else:
-            sq *= self.alpha                              # sq = alpha sq + (1 - alpha) g^2
+            sq *= self.alpha  # sq = alpha sq + (1 - alpha) g^2
             self._update(p, sq, grad)
         if not inplace:
             self.square_avg[sel] = sq
@@ -57,7 +58,7 @@ class FlatRMSProp:
         tmp = grad * grad
         tmp *= np.float32(1) - self.alpha
         sq += tmp
-        np.sqrt(sq, out=tmp)                              # p = p - g / (sqrt(sq) + eps) lr
+        np.sqrt(sq, out=tmp)  # p = p - g / (sqrt(sq) + eps) lr
         tmp += self.eps
         np.divide(grad, tmp, out=tmp)
         tmp *= self.lr

@@ -9,10 +9,10 @@ index of a trial's u-th minibatch is a pure function of (trial key, u, j) and th
 its draws are the same alone or batched. `TransitionReplay` is DQN's experience replay; `FeedbackMemory` is Deep TAMER's
 D_global.
 """
+
 from __future__ import annotations
 
 import numpy as np
-
 
 
 class _Ring:
@@ -38,8 +38,10 @@ class _Ring:
         self._make_views()
 
     def _make_views(self) -> None:
-        self.data = {name: (self.rec[:, :, self.columns[name]] if w else self.rec[:, :, self.columns[name].start])
-                     for name, w in self.fields.items()}
+        self.data = {
+            name: (self.rec[:, :, self.columns[name]] if w else self.rec[:, :, self.columns[name].start])
+            for name, w in self.fields.items()
+        }
 
     def _record(self, n: int, values: dict) -> np.ndarray:
         if values.keys() == self.fields.keys():  # every field: one concatenation in column order
@@ -95,8 +97,12 @@ class _Ring:
 
 class TransitionReplay(_Ring):
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "reward": 0, "next_obs": obs_dim,
-                                            "terminated": 0}, ones_after=("obs", "next_obs"))
+        super().__init__(
+            trials,
+            capacity,
+            {"obs": obs_dim, "action": 0, "reward": 0, "next_obs": obs_dim, "terminated": 0},
+            ones_after=("obs", "next_obs"),
+        )
 
     def add_reward(self, trial, slot, amount) -> None:
         """Naive reward shaping: feedback added to already stored transitions (arrays allowed)."""
@@ -107,5 +113,6 @@ class FeedbackMemory(_Ring):
     """D_global: every credited (state, action, feedback, weight) so far (FIFO beyond capacity)."""
 
     def __init__(self, trials: int, capacity: int, obs_dim: int):
-        super().__init__(trials, capacity, {"obs": obs_dim, "action": 0, "feedback": 0, "weight": 0},
-                         ones_after=("obs",))
+        super().__init__(
+            trials, capacity, {"obs": obs_dim, "action": 0, "feedback": 0, "weight": 0}, ones_after=("obs",)
+        )

@@ -9,6 +9,7 @@ the same sequence from its counters alone (nothing to save but the counters).
 The mixing function is SplitMix64's finaliser (Steele, Lea and Flood 2014) applied to
 key + counter * golden-gamma; the 53 high bits give a double in [0, 1).
 """
+
 from __future__ import annotations
 
 import numpy as np

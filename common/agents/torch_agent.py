@@ -3,6 +3,7 @@ torch modules (`torch_net.TorchValueNetworks`) behind the same `ValueNetworks` i
 (replay, D_global, credit, exploration streams, schedules, minibatch draws) is the same on either path. On the
 paper's MLP (`--agent.network torch-mlp`) the two paths give the same updates (tests/core/test_torch_path.py).
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
@@ -18,17 +19,23 @@ if TYPE_CHECKING:  # torch is imported only for a torch network (its import cost
     from common.agents.torch_net import TorchValueNetworks
 
 
-def torch_networks(configs: list[AgentConfig], obs_shape: tuple[int, ...], n_actions: int, seeds: list[int],
-                   purpose: str, trained: bool = True) -> TorchValueNetworks:
+def torch_networks(
+    configs: list[AgentConfig],
+    obs_shape: tuple[int, ...],
+    n_actions: int,
+    seeds: list[int],
+    purpose: str,
+    trained: bool = True,
+) -> TorchValueNetworks:
     """One module per trial of `configs[0].network` (seeded by `purpose`), with RMSprop if trained."""
     from common.agents.torch_net import TorchValueNetworks, build_modules
 
     c = configs[0]
     check_device(c.device)
-    modules = build_modules(resolve_network(c.network, obs_shape), obs_shape, n_actions, c.hidden,
-                            [derive_seed(s, purpose) for s in seeds])
-    return TorchValueNetworks(modules, n_actions, c.lr if trained else None, c.rmsprop_alpha, c.rmsprop_eps,
-                              c.device)
+    modules = build_modules(
+        resolve_network(c.network, obs_shape), obs_shape, n_actions, c.hidden, [derive_seed(s, purpose) for s in seeds]
+    )
+    return TorchValueNetworks(modules, n_actions, c.lr if trained else None, c.rmsprop_alpha, c.rmsprop_eps, c.device)
 
 
 def check_device(device: str) -> None:
@@ -43,8 +50,13 @@ def check_device(device: str) -> None:
         raise ValueError(f"device {device!r}: CUDA is not available on this machine")
 
 
-def make_agent(configs: list[AgentConfig], obs_shape: tuple[int, ...] | int, n_actions: int,
-               seeds: list[int], step_unit: float = 1.0) -> TrialBatchAgent:
+def make_agent(
+    configs: list[AgentConfig],
+    obs_shape: tuple[int, ...] | int,
+    n_actions: int,
+    seeds: list[int],
+    step_unit: float = 1.0,
+) -> TrialBatchAgent:
     """The agent for `configs` (one per trial; they share their network): numpy MLP for `mlp` (and `auto`
     on flat observations), torch modules for anything else (`cnn`, `torch-mlp`, `module:factory`)."""
     shape = (int(obs_shape),) if isinstance(obs_shape, (int, np.integer)) else tuple(int(s) for s in obs_shape)

@@ -15,6 +15,7 @@ Each trial has its own module, target copy and `torch.optim.RMSprop` on `--agent
 a gradient step on some trials sums their losses (each trial's gradient is its own) and steps their
 optimisers only, so a trial learns the same alone or among others.
 """
+
 from __future__ import annotations
 
 import math
@@ -53,8 +54,9 @@ class GridCNN(nn.Module):
         self.shape = tuple(int(s) for s in obs_shape)
         h, w, c = self.shape
         pad = 1 if min(h, w) < 5 else 0
-        self.conv = nn.Sequential(nn.Conv2d(c, 16, 3, padding=pad), nn.ReLU(),
-                                  nn.Conv2d(16, 32, 3, padding=pad), nn.ReLU(), nn.Flatten())
+        self.conv = nn.Sequential(
+            nn.Conv2d(c, 16, 3, padding=pad), nn.ReLU(), nn.Conv2d(16, 32, 3, padding=pad), nn.ReLU(), nn.Flatten()
+        )
         with torch.no_grad():
             n_flat = self.conv(torch.zeros(1, c, h, w)).shape[1]
         self.head = nn.Sequential(nn.Linear(n_flat, hidden), nn.ReLU(), nn.Linear(hidden, n_actions))
@@ -77,8 +79,9 @@ def network_factory(name: str) -> Callable[[tuple[int, ...], int, int], nn.Modul
     return load_object(name, "network factory")
 
 
-def build_modules(name: str, obs_shape: tuple[int, ...], n_actions: int, hidden: int,
-                  seeds: list[int]) -> list[nn.Module]:
+def build_modules(
+    name: str, obs_shape: tuple[int, ...], n_actions: int, hidden: int, seeds: list[int]
+) -> list[nn.Module]:
     """One module per trial, each initialised from its own seed; a bad factory is a one-line error."""
     factory = network_factory(name)
     modules = []
@@ -97,8 +100,9 @@ def build_modules(name: str, obs_shape: tuple[int, ...], n_actions: int, hidden:
         modules.append(module.float())
     probe = modules[0](torch.zeros(2, int(np.prod(obs_shape))))
     if tuple(probe.shape) != (2, n_actions):
-        raise ValueError(f"network {name!r} maps [N, {int(np.prod(obs_shape))}] to {tuple(probe.shape)}, "
-                         f"not [N, {n_actions}]")
+        raise ValueError(
+            f"network {name!r} maps [N, {int(np.prod(obs_shape))}] to {tuple(probe.shape)}, not [N, {n_actions}]"
+        )
     return modules
 
 
@@ -109,13 +113,23 @@ class TorchValueNetworks:
     A list, not one stacked module: each trial's module is called as it is (any nn.Module works, buffers
     and all), and at the paper's sizes a plain call costs far less than a vmapped functional one."""
 
-    def __init__(self, modules: list[nn.Module], n_actions: int, lr: float | None = None, alpha: float = 0.99,
-                 eps: float = 1e-8, device: str = "cpu"):
+    def __init__(
+        self,
+        modules: list[nn.Module],
+        n_actions: int,
+        lr: float | None = None,
+        alpha: float = 0.99,
+        eps: float = 1e-8,
+        device: str = "cpu",
+    ):
         self.device = torch.device(device)
         self.n_actions = int(n_actions)
         self.modules = [m.to(self.device) for m in modules]
-        self.opts = ([torch.optim.RMSprop(m.parameters(), lr=lr, alpha=alpha, eps=eps) for m in self.modules]
-                     if lr is not None else None)
+        self.opts = (
+            [torch.optim.RMSprop(m.parameters(), lr=lr, alpha=alpha, eps=eps) for m in self.modules]
+            if lr is not None
+            else None
+        )
         if self.opts is None:
             for m in self.modules:
                 m.requires_grad_(False)
@@ -195,8 +209,9 @@ class TorchValueNetworks:
             if self.opts is not None:
                 states = [self.opts[k].state.get(p, {}) for p in m.parameters()]
                 trial["sq"] = {str(i): st["square_avg"].detach().cpu().clone() for i, st in enumerate(states) if st}
-                trial["step"] = {str(i): torch.as_tensor(st["step"]).detach().cpu().clone()
-                                 for i, st in enumerate(states) if st}
+                trial["step"] = {
+                    str(i): torch.as_tensor(st["step"]).detach().cpu().clone() for i, st in enumerate(states) if st
+                }
             out[f"t{k}"] = trial
         return out
 
@@ -208,8 +223,10 @@ class TorchValueNetworks:
                 continue
             for i, p in enumerate(m.parameters()):
                 if str(i) in trial.get("sq", {}):
-                    self.opts[k].state[p] = {"step": torch.as_tensor(trial["step"][str(i)]).clone(),
-                                             "square_avg": torch.as_tensor(trial["sq"][str(i)]).to(self.device)}
+                    self.opts[k].state[p] = {
+                        "step": torch.as_tensor(trial["step"][str(i)]).clone(),
+                        "square_avg": torch.as_tensor(trial["sq"][str(i)]).to(self.device),
+                    }
 
 
 def param_count(module: nn.Module) -> int:

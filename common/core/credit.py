@@ -23,6 +23,7 @@ reached the goal often lands after the reset, and it refers to that move (the te
 creditable). Nothing shown after the stamp gets credit. The mass that falls before the oldest step still held
 or between intervals is lost (returned, so the caller can count it). Weights and lost mass sum to 1.
 """
+
 from __future__ import annotations
 
 from typing import Protocol, overload
@@ -114,8 +115,7 @@ def onset_weights(t_feedback: float, starts, delay) -> tuple[np.ndarray, float]:
     if np.any(starts[1:] < starts[:-1]):
         raise ValueError("step start times must be ascending")
     shown_before = starts <= t_feedback
-    density = np.where(shown_before, np.asarray(pdf(np.where(shown_before, t_feedback - starts, 0.0)),
-                                                 np.float64), 0.0)
+    density = np.where(shown_before, np.asarray(pdf(np.where(shown_before, t_feedback - starts, 0.0)), np.float64), 0.0)
     total = float(density.sum())
     if not total > 0:
         return np.zeros(len(starts)), 1.0

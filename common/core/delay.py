@@ -5,6 +5,7 @@ model (unit one step on the step clock). `delay_from_spec` also builds continuou
 (seconds on a person's screen: Deep TAMER's uniform 0.2-4 s is `uniform:0.2,4`). The credit function
 (`common.core.credit`) needs only a distribution's CDF, so either kind serves.
 """
+
 from __future__ import annotations
 
 import math

@@ -7,6 +7,7 @@ a duration in seconds (`step_seconds`), so a trial whose config says `learn_dela
 own teacher's learned density in seconds. The live learner has one trial and many teachers (an oracle, people at
 consoles), each with its own entry in the same registry: one place, whichever driver.
 """
+
 from __future__ import annotations
 
 import json

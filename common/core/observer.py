@@ -8,6 +8,7 @@ global step `stop_step` on), natural reaction (polarity flipped with probability
 It is deterministic for a seed and draws the same three numbers for every step, so two observers with the
 same seed but different settings make the same underlying choices (common random numbers).
 """
+
 from __future__ import annotations
 
 import math
@@ -43,29 +44,40 @@ class ObserverConfig:
     p_feedback: float = option(0.5, "probability that a step gets any feedback (stochasticity)")
     delay_probs: tuple[float, ...] = option((0.3, 0.6, 0.1), "true lag distribution over 0, 1, 2, ... steps (delay)")
     p_flip: float = option(0.0, "probability that the polarity is flipped (natural reaction, a misread face)")
-    stop_episode: int | None = option(None, "no feedback for steps of this episode (0-based) and later "
-                                            "(unsustainability); none = never")
+    stop_episode: int | None = option(
+        None, "no feedback for steps of this episode (0-based) and later (unsustainability); none = never"
+    )
     stop_step: int | None = option(None, "no feedback for this global step (0-based) and later; none = never")
-    late_delay_probs: tuple[float, ...] = option((), "if given, the lag distribution drifts: at episode e it is "
-                                                 "(1 - w) delay_probs + w late_delay_probs, "
-                                                 "w = min(1, e / drift_episodes)")
+    late_delay_probs: tuple[float, ...] = option(
+        (),
+        "if given, the lag distribution drifts: at episode e it is "
+        "(1 - w) delay_probs + w late_delay_probs, "
+        "w = min(1, e / drift_episodes)",
+    )
     drift_episodes: int = option(1, "episodes over which a drifting lag distribution moves to late_delay_probs")
-    delay_s: str = option("", "if given, the delay in seconds instead of delay_probs: a distribution NAME:ARGS "
-                              "(common.core.delay, e.g. gamma:4,0,0.25), from the step's onset to the feedback")
-    late_delay_s: str = option("", "if given with delay_s, the delay drifts: at episode e each reaction's quantile of "
-                                   "delay_s and of this one are mixed (1 - w, w), w = min(1, e / drift_episodes)")
-    drift_steps: int = option(0, "if > 0, a delay in seconds drifts over this many steps instead (w = min(1, "
-                                 "global step / drift_steps))")
+    delay_s: str = option(
+        "",
+        "if given, the delay in seconds instead of delay_probs: a distribution NAME:ARGS "
+        "(common.core.delay, e.g. gamma:4,0,0.25), from the step's onset to the feedback",
+    )
+    late_delay_s: str = option(
+        "",
+        "if given with delay_s, the delay drifts: at episode e each reaction's quantile of "
+        "delay_s and of this one are mixed (1 - w, w), w = min(1, e / drift_episodes)",
+    )
+    drift_steps: int = option(
+        0, "if > 0, a delay in seconds drifts over this many steps instead (w = min(1, global step / drift_steps))"
+    )
 
     def lag_cdf(self, episode: int) -> np.ndarray:
         """Cumulative lag distribution at `episode` over 0..max lag (drift included)."""
         n = max(len(self.delay_probs), len(self.late_delay_probs))
         start = np.zeros(n)
-        start[:len(self.delay_probs)] = self.delay_probs
+        start[: len(self.delay_probs)] = self.delay_probs
         if not self.late_delay_probs:
             return np.cumsum(start)
         late = np.zeros(n)
-        late[:len(self.late_delay_probs)] = self.late_delay_probs
+        late[: len(self.late_delay_probs)] = self.late_delay_probs
         w = min(1.0, episode / self.drift_episodes)
         return np.cumsum((1 - w) * start + w * late)
 
@@ -130,12 +142,13 @@ class ObserverBatch:
         self.cum_late = np.zeros_like(self.cum)
         for k, c in enumerate(configs):
             for target, cdf in ((self.cum, c.lag_cdf(0)), (self.cum_late, c.lag_cdf(c.drift_episodes))):
-                target[k, :len(cdf)] = cdf
-                target[k, len(cdf):] = cdf[-1]
+                target[k, : len(cdf)] = cdf
+                target[k, len(cdf) :] = cdf[-1]
         self.drift_episodes = np.array([c.drift_episodes for c in configs], np.float64)
         # Delays in seconds (rows whose config has delay_s): distributions at the start and end of a drift.
-        self.seconds = [(_quantiles(c.delay_s), _quantiles(c.late_delay_s or c.delay_s)) if c.delay_s else None
-                        for c in configs]
+        self.seconds = [
+            (_quantiles(c.delay_s), _quantiles(c.late_delay_s or c.delay_s)) if c.delay_s else None for c in configs
+        ]
         self.in_seconds = any(d is not None for d in self.seconds)
         self.drift_steps = np.array([c.drift_steps for c in configs], np.float64)
         self.drifts = bool(np.any(self.cum != self.cum_late))
@@ -178,13 +191,32 @@ class ObserverBatch:
         return out
 
     def _pick_constants(self, rows: np.ndarray) -> tuple:
-        return (self.stop_episode[rows], self.stop_step[rows], self.p_feedback[rows], self.cum[rows],
-                self.n_lags[rows] - 1, self.p_flip[rows], self.cum_late[rows], self.drift_episodes[rows])
+        return (
+            self.stop_episode[rows],
+            self.stop_step[rows],
+            self.p_feedback[rows],
+            self.cum[rows],
+            self.n_lags[rows] - 1,
+            self.p_flip[rows],
+            self.cum_late[rows],
+            self.drift_episodes[rows],
+        )
 
     def select(self, rows: np.ndarray) -> None:
         """Keep only trials `rows` (in that order)."""
-        for name in ("p_feedback", "p_flip", "stop_episode", "stop_step", "n_lags", "cum", "cum_late",
-                     "drift_episodes", "u", "watched", "drawn"):
+        for name in (
+            "p_feedback",
+            "p_flip",
+            "stop_episode",
+            "stop_step",
+            "n_lags",
+            "cum",
+            "cum_late",
+            "drift_episodes",
+            "u",
+            "watched",
+            "drawn",
+        ):
             setattr(self, name, getattr(self, name)[rows])
         self.rngs = [self.rngs[k] for k in rows]
         self.seconds = [self.seconds[k] for k in rows]
@@ -195,8 +227,9 @@ class ObserverBatch:
 class SimulatedObserver:
     """One observer watching steps one at a time (the live teachers): an `ObserverBatch` of one."""
 
-    def __init__(self, config: ObserverConfig, rule: Callable[[Mapping[str, float]], int], seed: int,
-                 step_unit: float = 1.0):
+    def __init__(
+        self, config: ObserverConfig, rule: Callable[[Mapping[str, float]], int], seed: int, step_unit: float = 1.0
+    ):
         self.config = config
         self.rule = rule
         self.delay = DelayModel(config.delay_probs, step_unit)
@@ -206,12 +239,14 @@ class SimulatedObserver:
         self.emitted = 0
         self.flipped = 0
 
-    def react(self, t_action: float, info: Mapping[str, float], episode: int, global_step: int,
-              step_ref: int | None = None) -> FeedbackEvent | None:
+    def react(
+        self, t_action: float, info: Mapping[str, float], episode: int, global_step: int, step_ref: int | None = None
+    ) -> FeedbackEvent | None:
         """The observer watches the step whose action was taken at t_action; maybe reacts later."""
         intended = int(self.rule(info))
-        give, value, lag = self._batch.react(self._row, np.array([intended]), np.array([episode]),
-                                             np.array([global_step]))
+        give, value, lag = self._batch.react(
+            self._row, np.array([intended]), np.array([episode]), np.array([global_step])
+        )
         if not give[0]:
             return None
         value, lag = int(value[0]), int(lag[0])

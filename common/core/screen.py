@@ -5,6 +5,7 @@ from the console's `Shown` messages. A feedback stamped t lists the steps that w
 window the assumed delay can reach back to, `[t - span, t]` (and the step already showing when it began), so
 the learner can credit it in seconds over each step's on-screen interval.
 """
+
 from __future__ import annotations
 
 import collections

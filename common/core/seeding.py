@@ -3,6 +3,7 @@
 Separate streams keep parts from disturbing each other: training H does not change which exploratory
 actions a trial takes, so DQN-TAMER with alpha_h = 0 acts exactly as DQN.
 """
+
 from __future__ import annotations
 
 import zlib

@@ -17,6 +17,7 @@ placed between two actions), so this is the order in which both drivers can see 
 ordered inputs they therefore end with the same weights (tests/experiments/test_one_loop.py). Acting is not
 part of it: it changes no learning state (exploration draws are counter-based).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -40,9 +41,16 @@ class StepLoop:
     def __init__(self, agent: TrialBatchAgent):
         self.agent = agent
 
-    def credit(self, rows: np.ndarray, t_feedback: np.ndarray, values: np.ndarray,
-               counts: np.ndarray | None = None, seconds: np.ndarray | None = None,
-               teachers: list[str] | None = None, screens: list[Screen | None] | None = None) -> FeedbackRound:
+    def credit(
+        self,
+        rows: np.ndarray,
+        t_feedback: np.ndarray,
+        values: np.ndarray,
+        counts: np.ndarray | None = None,
+        seconds: np.ndarray | None = None,
+        teachers: list[str] | None = None,
+        screens: list[Screen | None] | None = None,
+    ) -> FeedbackRound:
         """Feedback that arrived before the next action: values[k, r] (+-1) for trial rows[k], stamped
         t_feedback[k] on the step clock (`seconds[k]` on the teacher's clock, for a delay in seconds), for
         r < counts[k] (rounds in arrival order; values may be 1-d for one round each), from `teachers[k]` (default:
@@ -52,13 +60,31 @@ class StepLoop:
             values = values[:, None]
         if counts is None:
             counts = np.ones(len(rows), np.int64)
-        return FeedbackRound(*self.agent.feedback_rounds(np.asarray(rows, np.int64),
-                                                         np.asarray(t_feedback, np.float64), values, counts,
-                                                         None if seconds is None else np.asarray(seconds, np.float64),
-                                                         teachers, screens))
+        return FeedbackRound(
+            *self.agent.feedback_rounds(
+                np.asarray(rows, np.int64),
+                np.asarray(t_feedback, np.float64),
+                values,
+                counts,
+                None if seconds is None else np.asarray(seconds, np.float64),
+                teachers,
+                screens,
+            )
+        )
 
-    def step(self, rows: np.ndarray, obs, actions, rewards, next_obs, terminated, t_action,
-             episodes, seconds=None, polarity=None) -> None:
+    def step(
+        self,
+        rows: np.ndarray,
+        obs,
+        actions,
+        rewards,
+        next_obs,
+        terminated,
+        t_action,
+        episodes,
+        seconds=None,
+        polarity=None,
+    ) -> None:
         """Trials `rows` (distinct) took a step at t_action (`seconds` on the teacher's clock; the task rule says
         `polarity` of it): record it, then the every-b-steps updates."""
         agent = self.agent

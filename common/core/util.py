@@ -1,4 +1,5 @@
 """Small numpy helpers shared by the core."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -15,6 +15,7 @@ converts what the environment gives:
 where a distance function is known for the environment, `target_distance_before/after` and
 `subgoal_reached` (the teacher-rule contract in `common.envs.rules`). Episodes are cut at `max_steps`.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -37,7 +38,7 @@ def _numbers(info: dict) -> dict[str, float]:
     for k, v in info.items():
         if isinstance(v, (bool, int, float, np.integer, np.floating)) and np.isfinite(float(v)):
             out[str(k)] = float(v)
-    return dict(list(out.items())[:MAX_INFO - 4])  # room for reward and the rule's inputs
+    return dict(list(out.items())[: MAX_INFO - 4])  # room for reward and the rule's inputs
 
 
 class TaskEnv(gym.Wrapper):
@@ -45,8 +46,14 @@ class TaskEnv(gym.Wrapper):
 
     `actions`, if given, are the env's actions the agent may take (action k is `actions[k]`)."""
 
-    def __init__(self, env: gym.Env, distance: Distance | None = None, max_steps: int | None = None,
-                 actions: tuple[int, ...] | None = None, name: str = "env"):
+    def __init__(
+        self,
+        env: gym.Env,
+        distance: Distance | None = None,
+        max_steps: int | None = None,
+        actions: tuple[int, ...] | None = None,
+        name: str = "env",
+    ):
         super().__init__(env)
         if not isinstance(env.action_space, gym.spaces.Discrete):
             raise ValueError(f"env {name!r}: actions must be Discrete, got {env.action_space}")
@@ -92,17 +99,22 @@ def _converter(space: gym.Space, name: str):
             v = np.zeros(n, np.float32)
             v[int(obs) - start] = 1.0
             return v
+
         return one_hot, (n,)
     if isinstance(space, gym.spaces.Dict) and "image" in space.spaces:
         image = space.spaces["image"]
-        scale = MINIGRID_SCALE if image.shape[-1] == 3 and image.dtype == np.uint8 and image.high.max() == 255 \
-            and _is_minigrid(space) else _box_scale(image)
+        scale = (
+            MINIGRID_SCALE
+            if image.shape[-1] == 3 and image.dtype == np.uint8 and image.high.max() == 255 and _is_minigrid(space)
+            else _box_scale(image)
+        )
         return (lambda obs: (np.asarray(obs["image"], np.float32) / scale).reshape(-1)), tuple(image.shape)
     if isinstance(space, gym.spaces.Box):
         scale = _box_scale(space)
         return (lambda obs: (np.asarray(obs, np.float32) / scale).reshape(-1)), tuple(space.shape)
-    raise ValueError(f"env {name!r}: observation space {space} is not supported (Discrete, Box, or Dict with "
-                     "an 'image' entry)")
+    raise ValueError(
+        f"env {name!r}: observation space {space} is not supported (Discrete, Box, or Dict with an 'image' entry)"
+    )
 
 
 def _is_minigrid(space: gym.spaces.Dict) -> bool:
@@ -114,6 +126,7 @@ def _box_scale(space: gym.spaces.Box):
 
 
 # -- distances for grid worlds ----------------------------------------------------------------------------------
+
 
 def bfs(start, neighbours: Callable, is_target: Callable, limit: int = 100_000) -> float:
     """Fewest moves from `start` to a state where `is_target` holds (inf when none is reachable)."""

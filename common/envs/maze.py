@@ -13,6 +13,7 @@ layouts is balanced. LAYOUT_COUNT = 180: 90 of each kind. Layout 0 is the stream
 (the next 30 of each kind, the same stream continued) were fresh for the run declared that day (ae50572);
 layouts 120-179 (the stream continued again) are fresh for the run re-declared late on 25 November 2026.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -213,8 +214,9 @@ class MazeEnv(gym.Env):
         r, c = self.pos
         if self.observation == "mdp":
             return np.array([r / (SIZE - 1), c / (SIZE - 1)], dtype=np.float32)
-        return np.array([1.0 if self.layout.is_wall(r + dr, c + dc) else 0.0 for dr, dc in NEIGHBOURS],
-                        dtype=np.float32)
+        return np.array(
+            [1.0 if self.layout.is_wall(r + dr, c + dc) else 0.0 for dr, dc in NEIGHBOURS], dtype=np.float32
+        )
 
     def reset(self, *, seed: int | None = None, options=None):
         super().reset(seed=seed)
@@ -236,10 +238,16 @@ class MazeEnv(gym.Env):
         reward = GOAL_REWARD if terminated else STEP_REWARD
         truncated = not terminated and self.steps >= self.max_steps
         after = manhattan(self.pos, self.layout.goal)
-        info = {"target_distance_before": float(before), "target_distance_after": float(after),
-                "path_distance_before": float(path_before), "path_distance_after": float(self._path[self.pos]),
-                "subgoal_reached": 1.0 if terminated else 0.0, "reward": float(reward),
-                "row": float(self.pos[0]), "col": float(self.pos[1])}  # where the agent is (for pictures)
+        info = {
+            "target_distance_before": float(before),
+            "target_distance_after": float(after),
+            "path_distance_before": float(path_before),
+            "path_distance_after": float(self._path[self.pos]),
+            "subgoal_reached": 1.0 if terminated else 0.0,
+            "reward": float(reward),
+            "row": float(self.pos[0]),
+            "col": float(self.pos[1]),
+        }  # where the agent is (for pictures)
         return self._obs(), reward, terminated, truncated, info
 
     def render(self):

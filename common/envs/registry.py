@@ -11,6 +11,7 @@ Discrete ones, numeric info with the reward) and, for FrozenLake, CliffWalking a
 paper's rule inputs (target distances). The teacher rule is the env's own unless `--teacher-rule` names
 one (`common.envs.rules`).
 """
+
 from __future__ import annotations
 
 import inspect
@@ -21,8 +22,7 @@ import gymnasium as gym
 
 from common.envs.gym_tasks import TaskEnv, minigrid_distance, toy_text_distance
 from common.envs.maze import MazeEnv
-from common.envs.rules import (TeacherRule, auto_rule, checked_rule, load_object, progress_rule,
-                               resolve_rule)
+from common.envs.rules import TeacherRule, auto_rule, checked_rule, load_object, progress_rule, resolve_rule
 from common.envs.taxi import TaxiEnv
 
 # Packages whose import registers Gymnasium ids (imported on demand, when an id is not known yet).
@@ -42,6 +42,7 @@ def _gym(env_id: str, actions: tuple[int, ...] | None = None) -> Callable[..., g
     def make(layout: int = 0) -> gym.Env:
         _known_gym_id(env_id)  # imports the package that registers it
         return wrap_gym(gym.make(env_id), env_id, actions)
+
     return make
 
 
@@ -52,10 +53,12 @@ ENVS: dict[str, EnvSpec] = {
     "taxi-fixed": EnvSpec("taxi-fixed", lambda layout=0: TaxiEnv(fixed_task=layout), progress_rule, True),
     # The same with the state one-hot appended to the observation (common/envs/taxi.py; the reproduction's).
     "taxi-s": EnvSpec("taxi-s", lambda layout=0: TaxiEnv(state_onehot=True), progress_rule, False),
-    "taxi-fixed-s": EnvSpec("taxi-fixed-s", lambda layout=0: TaxiEnv(fixed_task=layout, state_onehot=True),
-                            progress_rule, True),
-    "minigrid-empty": EnvSpec("minigrid-empty", _gym("MiniGrid-Empty-5x5-v0", MINIGRID_TURN_FORWARD),
-                              progress_rule, False),
+    "taxi-fixed-s": EnvSpec(
+        "taxi-fixed-s", lambda layout=0: TaxiEnv(fixed_task=layout, state_onehot=True), progress_rule, True
+    ),
+    "minigrid-empty": EnvSpec(
+        "minigrid-empty", _gym("MiniGrid-Empty-5x5-v0", MINIGRID_TURN_FORWARD), progress_rule, False
+    ),
 }
 ENV_NAMES = tuple(ENVS)
 
@@ -95,12 +98,14 @@ def resolve_env(name: str) -> EnvSpec:
             return EnvSpec(name, _gym(attr), auto_rule, False)
         factory = load_object(name, "env factory")
         takes_layout = "layout" in _parameters(factory)
-        return EnvSpec(name, lambda layout=0: _from_factory(factory, name, layout, takes_layout), auto_rule,
-                       takes_layout)
+        return EnvSpec(
+            name, lambda layout=0: _from_factory(factory, name, layout, takes_layout), auto_rule, takes_layout
+        )
     if _known_gym_id(name):
         return EnvSpec(name, _gym(name), auto_rule, False)
-    raise ValueError(f"unknown env {name!r}: not a project env ({', '.join(ENV_NAMES)}), a Gymnasium id, "
-                     "or module:factory")
+    raise ValueError(
+        f"unknown env {name!r}: not a project env ({', '.join(ENV_NAMES)}), a Gymnasium id, or module:factory"
+    )
 
 
 def _parameters(fn) -> set[str]:

@@ -14,6 +14,7 @@ The contract of a rule (documented in docs/envs.md): a function `rule(info) -> i
 
 Rules are named here (`RULES`) or given as `module:function`, so a user's rule needs no package edit.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -55,8 +56,12 @@ def shortest_path_rule(info: Mapping[str, float]) -> int:
     return 1 if info["path_distance_after"] < info["path_distance_before"] else -1
 
 
-RULES: dict[str, TeacherRule] = {"progress": progress_rule, "reward": reward_rule, "auto": auto_rule,
-                                 "shortest-path": shortest_path_rule}
+RULES: dict[str, TeacherRule] = {
+    "progress": progress_rule,
+    "reward": reward_rule,
+    "auto": auto_rule,
+    "shortest-path": shortest_path_rule,
+}
 
 
 def load_object(spec: str, what: str):
@@ -94,8 +99,9 @@ def checked_rule(rule: TeacherRule, name: str) -> TeacherRule:
         try:
             value = rule(info)
         except Exception as exc:
-            raise RuleError(f"teacher rule {name!r} failed on info {sorted(info)}: "
-                             f"{type(exc).__name__}: {exc}") from None
+            raise RuleError(
+                f"teacher rule {name!r} failed on info {sorted(info)}: {type(exc).__name__}: {exc}"
+            ) from None
         if value not in (1, -1):
             raise RuleError(f"teacher rule {name!r} must return +1 or -1, got {value!r}")
         return int(value)

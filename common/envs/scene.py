@@ -6,6 +6,7 @@ cell (the maze is deterministic, so this works for the POMDP observation too, wh
 the taxi's one-hot observation names its state directly. Other environments get no scene (`None`): the page
 then shows the observation numbers.
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -34,11 +35,23 @@ def _taxi_walls() -> list[list[int]]:
 def static_scene(env: str, layout: int = 0) -> dict[str, Any] | None:
     if env.startswith("maze"):
         lay = make_layout(layout)
-        return {"kind": "maze", "size": SIZE, "walls": [[int(w) for w in row] for row in lay.walls],
-                "goal": list(lay.goal), "start": list(lay.start), "actions": list(MAZE_ACTIONS)}
+        return {
+            "kind": "maze",
+            "size": SIZE,
+            "walls": [[int(w) for w in row] for row in lay.walls],
+            "goal": list(lay.goal),
+            "start": list(lay.start),
+            "actions": list(MAZE_ACTIONS),
+        }
     if env.startswith("taxi"):
-        return {"kind": "taxi", "size": 5, "stands": [list(s) for s in TAXI_STANDS], "stand_names": "RGYB",
-                "walls_east": _taxi_walls(), "actions": list(TAXI_ACTIONS)}
+        return {
+            "kind": "taxi",
+            "size": 5,
+            "stands": [list(s) for s in TAXI_STANDS],
+            "stand_names": "RGYB",
+            "walls_east": _taxi_walls(),
+            "actions": list(TAXI_ACTIONS),
+        }
     return None
 
 

@@ -16,6 +16,7 @@ Taxi uses it: with the 19 factored values alone DQN did not learn Gymnasium's Ta
 (docs/notes/2026-11-23-reproduction-pilots-and-speed.md "Taxi"), as Q must combine taxi position, passenger and
 destination.
 """
+
 from __future__ import annotations
 
 import gymnasium as gym
@@ -92,8 +93,12 @@ class TaxiEnv(gym.Env):
         # Distance after the move, to the target that was current before it (a pick-up changes the target).
         after = self._target_distance(self.state, target_from=before_state)
         picked_up = self._decode(before_state)[2] != 4 and self._decode(self.state)[2] == 4
-        info = {"target_distance_before": float(before), "target_distance_after": float(after),
-                "subgoal_reached": 1.0 if (picked_up or terminated) else 0.0, "reward": float(reward)}
+        info = {
+            "target_distance_before": float(before),
+            "target_distance_after": float(after),
+            "subgoal_reached": 1.0 if (picked_up or terminated) else 0.0,
+            "reward": float(reward),
+        }
         return self._obs(), float(reward), bool(terminated), truncated, info
 
     def render(self):

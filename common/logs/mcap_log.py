@@ -32,8 +32,18 @@ from typing import Any
 from mcap.writer import CompressionType, Writer
 
 from common.logs.mcap_read import (  # noqa: F401  (re-exported: the log's one import for readers and writers)
-    CHANNEL_METADATA, METADATA_NAME, FileStatus, LogReader, LogRecord, LogRecoveryWarning, NotMcapError, ReadStatus,
-    identity, load_log, read_log)
+    CHANNEL_METADATA,
+    METADATA_NAME,
+    FileStatus,
+    LogReader,
+    LogRecord,
+    LogRecoveryWarning,
+    NotMcapError,
+    ReadStatus,
+    identity,
+    load_log,
+    read_log,
+)
 from common.protocol import PROTOCOL_VERSION, RunConfig, config_key, log_topic, parse_key
 
 PROFILE = "hitl"
@@ -41,6 +51,7 @@ _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none"
 
 
 # -- segment files -----------------------------------------------------------------------------------------------
+
 
 def segment_path(base: str | os.PathLike, index: int) -> Path:
     """``session.mcap`` -> index 0: ``session.mcap``, 1: ``session.1.mcap``, 2: ``session.2.mcap`` ..."""
@@ -60,8 +71,9 @@ def _segment_index(base: Path, path: Path) -> int | None:
 def segment_paths(base: str | os.PathLike) -> list[Path]:
     """The existing segments of ``base`` in order (``session.mcap`` first, then ``.1``, ``.2`` ... numerically)."""
     base = Path(base)
-    found = [(i, p) for p in base.parent.glob(f"{base.stem}*{base.suffix}")
-             if (i := _segment_index(base, p)) is not None]
+    found = [
+        (i, p) for p in base.parent.glob(f"{base.stem}*{base.suffix}") if (i := _segment_index(base, p)) is not None
+    ]
     return [p for _, p in sorted(found)]
 
 
@@ -83,6 +95,7 @@ def schema_record(cls: type) -> tuple[str, bytes]:
 
 # -- writer ------------------------------------------------------------------------------------------------------------
 
+
 class LogWriter:
     """Writes one run's log: an MCAP file (or several segments), chunked, zstd.
 
@@ -91,9 +104,17 @@ class LogWriter:
     ``ProtocolError('unknown_key')``. Thread-safe. Use as a context manager or call ``finish()`` in finally.
     """
 
-    def __init__(self, path: str | os.PathLike, run_config: RunConfig, *, chunk_size: int = 1 << 20,
-                 flush_interval: float = 1.0, compression: str = "zstd", max_segment_bytes: int | None = None,
-                 background_flush: bool = True):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        run_config: RunConfig,
+        *,
+        chunk_size: int = 1 << 20,
+        flush_interval: float = 1.0,
+        compression: str = "zstd",
+        max_segment_bytes: int | None = None,
+        background_flush: bool = True,
+    ):
         self.base = Path(path)
         self.run_config = run_config
         self._config_bytes = run_config.encode()  # validates
@@ -125,10 +146,15 @@ class LogWriter:
         self._writer.start(profile=PROFILE, library=f"hitl-tamer protocol {PROTOCOL_VERSION}")
         self._schemas: dict[type, int] = {}
         self._channels: dict[str, int] = {}
-        self._writer.add_metadata(METADATA_NAME, {
-            "run": self.run_config.run, "protocol": str(PROTOCOL_VERSION), "segment": str(index),
-            "run_config": self._config_bytes.decode("utf-8"),
-        })
+        self._writer.add_metadata(
+            METADATA_NAME,
+            {
+                "run": self.run_config.run,
+                "protocol": str(PROTOCOL_VERSION),
+                "segment": str(index),
+                "run_config": self._config_bytes.decode("utf-8"),
+            },
+        )
         self._write_locked(config_key(self.run_config.run), self._config_bytes, time.time_ns(), None)
         self._flush_locked()
         self.counters["segments"] += 1
@@ -147,12 +173,15 @@ class LogWriter:
                 sid = self._writer.register_schema(cls.TYPE_NAME, *schema_record(cls))
                 self._schemas[cls] = sid
             topic = log_topic(key)
-            cid = self._writer.register_channel(topic, cls.MESSAGE_ENCODING, sid,
-                                                {"message_type": cls.__name__, "content_type": cls.CONTENT_TYPE})
+            cid = self._writer.register_channel(
+                topic, cls.MESSAGE_ENCODING, sid, {"message_type": cls.__name__, "content_type": cls.CONTENT_TYPE}
+            )
             # Also outside the chunks: a reader of a crashed file whose chunk with this definition is damaged
             # still knows the channel's topic.
-            self._writer.add_metadata(CHANNEL_METADATA, {"id": str(cid), "topic": topic, "schema": cls.TYPE_NAME,
-                                                         "message_encoding": cls.MESSAGE_ENCODING})
+            self._writer.add_metadata(
+                CHANNEL_METADATA,
+                {"id": str(cid), "topic": topic, "schema": cls.TYPE_NAME, "message_encoding": cls.MESSAGE_ENCODING},
+            )
             self._channels[key] = cid
         return cid
 
@@ -174,9 +203,13 @@ class LogWriter:
 
     def _write_locked(self, key: str, data: bytes, log_time: int, publish_time: int | None) -> None:
         cid = self._channel(key)
-        self._writer.add_message(cid, log_time=log_time, data=data,
-                                 publish_time=log_time if publish_time is None else publish_time,
-                                 sequence=self.counters["messages"] & 0xFFFFFFFF)
+        self._writer.add_message(
+            cid,
+            log_time=log_time,
+            data=data,
+            publish_time=log_time if publish_time is None else publish_time,
+            sequence=self.counters["messages"] & 0xFFFFFFFF,
+        )
         self.counters["messages"] += 1
         self.counters["bytes"] += len(data)
         if not self._dirty:
@@ -237,4 +270,3 @@ class LogWriter:
 
     def __exit__(self, *exc: Any) -> None:
         self.finish()
-

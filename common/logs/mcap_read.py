@@ -29,8 +29,17 @@ from common.protocol import ProtocolError, RunConfig, decode, key_from_topic
 METADATA_NAME = "hitl.run"
 CHANNEL_METADATA = "hitl.channel"  # a channel's id and topic, repeated outside the chunks
 
-__all__ = ["LogRecord", "FileStatus", "ReadStatus", "LogReader", "LogRecoveryWarning", "NotMcapError", "identity",
-           "read_log", "load_log"]
+__all__ = [
+    "LogRecord",
+    "FileStatus",
+    "ReadStatus",
+    "LogReader",
+    "LogRecoveryWarning",
+    "NotMcapError",
+    "identity",
+    "read_log",
+    "load_log",
+]
 
 
 class LogRecoveryWarning(UserWarning):
@@ -96,12 +105,16 @@ class ReadStatus:
         out = []
         for f in self.files:
             if not f.data_complete:
-                out.append(f"{f.path}: truncated: {f.size - f.bytes_read} bytes after the last complete record "
-                           f"(offset {f.bytes_read} of {f.size}) not read ({f.error})")
+                out.append(
+                    f"{f.path}: truncated: {f.size - f.bytes_read} bytes after the last complete record "
+                    f"(offset {f.bytes_read} of {f.size}) not read ({f.error})"
+                )
             if f.chunks_lost:
-                out.append(f"{f.path}: skipped {f.chunks_lost} damaged chunk(s), {f.bytes_lost} bytes, "
-                           f"{f.messages_lost} messages by their index ({'; '.join(f.lost[:3])}"
-                           f"{'; ...' if len(f.lost) > 3 else ''})")
+                out.append(
+                    f"{f.path}: skipped {f.chunks_lost} damaged chunk(s), {f.bytes_lost} bytes, "
+                    f"{f.messages_lost} messages by their index ({'; '.join(f.lost[:3])}"
+                    f"{'; ...' if len(f.lost) > 3 else ''})"
+                )
             if f.unknown_channel:
                 out.append(f"{f.path}: skipped {f.unknown_channel} messages on channels defined in a lost chunk")
         if self.undecodable:
@@ -112,13 +125,17 @@ class ReadStatus:
         parts = [f"{self.messages} messages from {len(self.files)} file(s)"]
         for f in self.files:
             if not f.data_complete:
-                parts.append(f"{f.path}: truncated, recovered {f.messages} messages in {f.chunks} complete chunks "
-                             f"({f.bytes_read} of {f.size} bytes; {f.error})")
+                parts.append(
+                    f"{f.path}: truncated, recovered {f.messages} messages in {f.chunks} complete chunks "
+                    f"({f.bytes_read} of {f.size} bytes; {f.error})"
+                )
             elif not f.complete:
                 parts.append(f"{f.path}: all data read, summary missing ({f.error})")
             if f.chunks_lost:
-                parts.append(f"{f.path}: skipped {f.chunks_lost} damaged chunk(s), {f.bytes_lost} bytes, "
-                             f"{f.messages_lost} messages lost by their index ({'; '.join(f.lost[:3])})")
+                parts.append(
+                    f"{f.path}: skipped {f.chunks_lost} damaged chunk(s), {f.bytes_lost} bytes, "
+                    f"{f.messages_lost} messages lost by their index ({'; '.join(f.lost[:3])})"
+                )
             if f.unknown_channel:
                 parts.append(f"{f.path}: {f.unknown_channel} messages on channels defined in a lost chunk")
         if self.undecodable:
@@ -170,9 +187,16 @@ class LogReader:
                     run[0] = r.metadata["run"]
                 elif r.name == CHANNEL_METADATA and r.metadata.get("id", "").isdigit():
                     cid = int(r.metadata["id"])
-                    channels.setdefault(cid, Channel(id=cid, schema_id=0, topic=r.metadata.get("topic", ""),
-                                                     message_encoding=r.metadata.get("message_encoding", ""),
-                                                     metadata={}))
+                    channels.setdefault(
+                        cid,
+                        Channel(
+                            id=cid,
+                            schema_id=0,
+                            topic=r.metadata.get("topic", ""),
+                            message_encoding=r.metadata.get("message_encoding", ""),
+                            metadata={},
+                        ),
+                    )
                     continue  # not one of the metadata records readers look at
                 self.metadata.append((r.name, dict(r.metadata)))
             elif isinstance(r, McapMessage):
@@ -188,19 +212,28 @@ class LogReader:
         fs.data_complete, fs.complete = scanned.data_complete, scanned.complete
         fs.chunks_lost, fs.messages_lost = len(scanned.lost), scanned.messages_lost
         fs.bytes_lost = sum(c.length for c in scanned.lost)
-        fs.lost = [f"offset {c.offset}, {c.length} bytes, "
-                   f"{'?' if c.messages is None else c.messages} messages: {c.reason}" for c in scanned.lost]
+        fs.lost = [
+            f"offset {c.offset}, {c.length} bytes, {'?' if c.messages is None else c.messages} messages: {c.reason}"
+            for c in scanned.lost
+        ]
         if not fs.data_complete:
-            warnings.warn(f"{path}: incomplete log, recovered {fs.messages} messages in {fs.chunks} complete "
-                          f"chunks ({fs.bytes_read} of {fs.size} bytes); the rest is lost ({fs.error})",
-                          LogRecoveryWarning, stacklevel=3)
+            warnings.warn(
+                f"{path}: incomplete log, recovered {fs.messages} messages in {fs.chunks} complete "
+                f"chunks ({fs.bytes_read} of {fs.size} bytes); the rest is lost ({fs.error})",
+                LogRecoveryWarning,
+                stacklevel=3,
+            )
         if fs.chunks_lost:
-            warnings.warn(f"{path}: skipped {fs.chunks_lost} damaged chunk(s) ({fs.bytes_lost} bytes, "
-                          f"{fs.messages_lost} messages by their index) and read on: {'; '.join(fs.lost[:3])}",
-                          LogRecoveryWarning, stacklevel=3)
+            warnings.warn(
+                f"{path}: skipped {fs.chunks_lost} damaged chunk(s) ({fs.bytes_lost} bytes, "
+                f"{fs.messages_lost} messages by their index) and read on: {'; '.join(fs.lost[:3])}",
+                LogRecoveryWarning,
+                stacklevel=3,
+            )
 
-    def _record(self, segment: int, m: McapMessage, channels: dict[int, Channel],
-                run: list[str | None]) -> LogRecord | None:
+    def _record(
+        self, segment: int, m: McapMessage, channels: dict[int, Channel], run: list[str | None]
+    ) -> LogRecord | None:
         topic = channels[m.channel_id].topic
         if run[0] is None and topic == "/config":  # no metadata: the run config names the run
             try:
@@ -262,8 +295,13 @@ def identity(message: Any) -> tuple | None:
     return None
 
 
-def read_log(path: str | os.PathLike | Iterable[str | os.PathLike], *, decode: bool = True,
-             segments: bool = True, dedup: bool = True) -> LogReader:
+def read_log(
+    path: str | os.PathLike | Iterable[str | os.PathLike],
+    *,
+    decode: bool = True,
+    segments: bool = True,
+    dedup: bool = True,
+) -> LogReader:
     """Records of a log in file order.
 
     ``path``: a file (with ``segments=True``, also its later segments ``<stem>.1<suffix>``, ... as one log),

@@ -25,14 +25,21 @@ from collections.abc import Iterator
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import (Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, MessageIndex, Metadata,
-                          Schema)
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Footer, Header, Message, MessageIndex, Metadata, Schema
 
 MAGIC = b"\x89MCAP0\r\n"
 MAX_CHUNK_BYTES = 1 << 30  # a length field above this is damage, not data
-_PARSERS = {Opcode.HEADER: Header.read, Opcode.FOOTER: Footer.read, Opcode.SCHEMA: Schema.read,
-            Opcode.CHANNEL: Channel.read, Opcode.CHUNK: Chunk.read, Opcode.MESSAGE_INDEX: MessageIndex.read,
-            Opcode.ATTACHMENT: Attachment.read, Opcode.METADATA: Metadata.read, Opcode.DATA_END: DataEnd.read}
+_PARSERS = {
+    Opcode.HEADER: Header.read,
+    Opcode.FOOTER: Footer.read,
+    Opcode.SCHEMA: Schema.read,
+    Opcode.CHANNEL: Channel.read,
+    Opcode.CHUNK: Chunk.read,
+    Opcode.MESSAGE_INDEX: MessageIndex.read,
+    Opcode.ATTACHMENT: Attachment.read,
+    Opcode.METADATA: Metadata.read,
+    Opcode.DATA_END: DataEnd.read,
+}
 _KNOWN = {int(op) for op in Opcode}
 
 
@@ -108,7 +115,7 @@ def chunk_records(chunk: Chunk) -> list:
         if pos + length > len(data):
             raise ValueError("record runs past the end of its chunk")
         if opcode in (Opcode.SCHEMA, Opcode.CHANNEL, Opcode.MESSAGE):
-            out.append(_parse(opcode, bytes(data[pos:pos + length]), length))
+            out.append(_parse(opcode, bytes(data[pos : pos + length]), length))
         pos += length
     return out
 
@@ -116,12 +123,12 @@ def chunk_records(chunk: Chunk) -> list:
 def _summary_records(buf, size: int) -> list:
     """Schemas and channels of a finished file's summary section ([] if there is none or it is damaged)."""
     try:
-        if size < 2 * len(MAGIC) + 29 or bytes(buf[size - 8:]) != MAGIC:
+        if size < 2 * len(MAGIC) + 29 or bytes(buf[size - 8 :]) != MAGIC:
             return []
         opcode, length = struct.unpack_from("<BQ", buf, size - 8 - 29)
         if opcode != Opcode.FOOTER or length != 20:
             return []
-        footer = _parse(opcode, bytes(buf[size - 8 - 20:size - 8]), 20)
+        footer = _parse(opcode, bytes(buf[size - 8 - 20 : size - 8]), 20)
         pos, end, out = footer.summary_start, size - 8 - 29, []
         if not 0 < pos < end:
             return []
@@ -130,7 +137,7 @@ def _summary_records(buf, size: int) -> list:
             if pos + 9 + length > end:
                 return out
             if opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
-                out.append(_parse(opcode, bytes(buf[pos + 9:pos + 9 + length]), length))
+                out.append(_parse(opcode, bytes(buf[pos + 9 : pos + 9 + length]), length))
             pos += 9 + length
         return out
     except Exception:  # a damaged summary is no summary: the data section still has everything
@@ -144,7 +151,7 @@ def _good_chunk_at(buf, pos: int, size: int) -> bool:
     if length > MAX_CHUNK_BYTES or pos + 9 + length > size:
         return False
     try:
-        chunk_records(_parse(Opcode.CHUNK, bytes(buf[pos + 9:pos + 9 + length]), length))
+        chunk_records(_parse(Opcode.CHUNK, bytes(buf[pos + 9 : pos + 9 + length]), length))
     except Exception:
         return False
     return True
@@ -197,7 +204,7 @@ def _walk(buf, size: int, result: ScanResult) -> Iterator:
             result.resyncs += 1
             pos, pending = nxt, None
             continue
-        body = bytes(buf[pos + 9:end])
+        body = bytes(buf[pos + 9 : end])
         if opcode == Opcode.MESSAGE_INDEX and pending is not None:
             try:
                 pending.messages = (pending.messages or 0) + len(_parse(opcode, body, length).records)

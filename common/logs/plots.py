@@ -1,4 +1,5 @@
 """Learning-curve plots (matplotlib, headless)."""
+
 from __future__ import annotations
 
 import os
@@ -11,8 +12,14 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 
-def plot_curves(curves: dict[str, np.ndarray], path: str, title: str, ylabel: str = "return per episode",
-                stop_episode: int | None = None, bands: dict[str, tuple[np.ndarray, np.ndarray]] | None = None):
+def plot_curves(
+    curves: dict[str, np.ndarray],
+    path: str,
+    title: str,
+    ylabel: str = "return per episode",
+    stop_episode: int | None = None,
+    bands: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+):
     """One line per name (x = episode); optional shaded bands; a dashed line where feedback stops."""
     fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
     for name, y in curves.items():

@@ -29,8 +29,7 @@ PARTS = ("layout", "agent", "feedback")
 FRAME = "env"
 FEEDBACK_LIFETIME_S = 3.0
 _MOVES = {0: (0.0, 1.0), 1: (1.0, 0.0), 2: (0.0, -1.0), 3: (-1.0, 0.0)}  # action -> (dx, dy): N E S W
-_ACTIONS = {"maze": ("north", "east", "south", "west"),
-            "taxi": ("south", "north", "east", "west", "pickup", "dropoff")}
+_ACTIONS = {"maze": ("north", "east", "south", "west"), "taxi": ("south", "north", "east", "west", "pickup", "dropoff")}
 _TAXI_MOVES = {0: (0.0, -1.0), 1: (0.0, 1.0), 2: (1.0, 0.0), 3: (-1.0, 0.0)}  # gymnasium taxi: S N E W
 _STANDS = ("R", "G", "Y", "B")
 _STAND_COLOURS = ((0.9, 0.2, 0.2), (0.2, 0.8, 0.3), (0.95, 0.85, 0.2), (0.2, 0.4, 0.95))
@@ -57,20 +56,37 @@ def _cube(x: float, y: float, z: float, sx: float, sy: float, sz: float, colour:
 
 
 def _text(x: float, y: float, z: float, text: str, size: float = 14.0, colour: Any = None) -> Any:
-    return fm.TextPrimitive(pose=_pose(x, y, z), billboard=True, font_size=size, scale_invariant=True,
-                            color=colour or _colour(1, 1, 1), text=text)
+    return fm.TextPrimitive(
+        pose=_pose(x, y, z),
+        billboard=True,
+        font_size=size,
+        scale_invariant=True,
+        color=colour or _colour(1, 1, 1),
+        text=text,
+    )
 
 
 def _arrow(x: float, y: float, direction: tuple[float, float], colour: Any, z: float = 0.35) -> Any:
-    return fm.ArrowPrimitive(pose=_pose(x - 0.3 * direction[0], y - 0.3 * direction[1], z, direction),
-                             shaft_length=0.35, shaft_diameter=0.08, head_length=0.25, head_diameter=0.2,
-                             color=colour)
+    return fm.ArrowPrimitive(
+        pose=_pose(x - 0.3 * direction[0], y - 0.3 * direction[1], z, direction),
+        shaft_length=0.35,
+        shaft_diameter=0.08,
+        head_length=0.25,
+        head_diameter=0.2,
+        color=colour,
+    )
 
 
 def _entity(t: float, eid: str, lifetime: float = 0.0, meta: dict[str, str] | None = None, **prims: Any) -> Any:
-    return fm.SceneEntity(timestamp=fm.Timestamp.from_epoch_secs(t), frame_id=FRAME, id=eid,
-                          lifetime=fm.Duration.from_secs(lifetime) if lifetime else None, frame_locked=True,
-                          metadata=[fm.KeyValuePair(key=k, value=v) for k, v in (meta or {}).items()], **prims)
+    return fm.SceneEntity(
+        timestamp=fm.Timestamp.from_epoch_secs(t),
+        frame_id=FRAME,
+        id=eid,
+        lifetime=fm.Duration.from_secs(lifetime) if lifetime else None,
+        frame_locked=True,
+        metadata=[fm.KeyValuePair(key=k, value=v) for k, v in (meta or {}).items()],
+        **prims,
+    )
 
 
 class SceneBuilder:
@@ -98,8 +114,9 @@ class SceneBuilder:
             t = TaxiEnv()
             self.size = (5, 5)
             self.stands = [tuple(map(int, loc)) for loc in t.locs]
-            self.desc = [bytes(row).decode() if not isinstance(row, str) else row
-                         for row in (b"".join(r) for r in t._env.desc)]
+            self.desc = [
+                bytes(row).decode() if not isinstance(row, str) else row for row in (b"".join(r) for r in t._env.desc)
+            ]
 
     @classmethod
     def from_run_config(cls, config: dict) -> SceneBuilder | None:
@@ -131,8 +148,10 @@ class SceneBuilder:
             return _taxi_cell(step.obs), _taxi_cell(step.next_obs)
         n = self.size[0] - 1
         if len(step.obs) == 2:  # MDP: (row, col) / (SIZE - 1)
-            return ((round(step.obs[0] * n), round(step.obs[1] * n)),
-                    (round(step.next_obs[0] * n), round(step.next_obs[1] * n)))
+            return (
+                (round(step.obs[0] * n), round(step.obs[1] * n)),
+                (round(step.next_obs[0] * n), round(step.next_obs[1] * n)),
+            )
         after = (int(step.info.get("row", -1)), int(step.info.get("col", -1)))
         before = self.maze.start if step.t_in_episode == 0 else self._last_after.get(step.incarnation, after)
         return before, after
@@ -178,8 +197,9 @@ class SceneBuilder:
             self._layouts[key] = self._layout_primitives(key)
         cubes, texts = self._layouts[key]
         texts = texts + [_text(w / 2, h + 0.4, 0.5, title, 14)]
-        return fm.SceneUpdate(entities=[_entity(step.t_action, "layout", meta={"episode": str(step.episode)},
-                                                cubes=cubes, texts=texts)])
+        return fm.SceneUpdate(
+            entities=[_entity(step.t_action, "layout", meta={"episode": str(step.episode)}, cubes=cubes, texts=texts)]
+        )
 
     def _layout_primitives(self, dest: int | None) -> tuple[list, list]:
         """The layout's cubes and labels: the maze's walls, start and goal; taxi's walls and stands (`dest`: the
@@ -194,8 +214,10 @@ class SceneBuilder:
                     if m.walls[r][c]:
                         x, y = self._xy((r, c))
                         cubes.append(_cube(x, y, 0.25, 1.0, 1.0, 0.5, _colour(0.25, 0.27, 0.3)))
-            for cell, colour, label in ((m.goal, _colour(0.1, 0.75, 0.3), "goal"),
-                                        (m.start, _colour(0.3, 0.5, 0.95), "start")):
+            for cell, colour, label in (
+                (m.goal, _colour(0.1, 0.75, 0.3), "goal"),
+                (m.start, _colour(0.3, 0.5, 0.95), "start"),
+            ):
                 x, y = self._xy(cell)
                 cubes.append(_cube(x, y, 0.01, 0.9, 0.9, 0.02, colour))
                 texts.append(_text(x, y, 0.6, label, 12))
@@ -212,17 +234,26 @@ class SceneBuilder:
         bx, by = self._xy(before)
         names = _ACTIONS[self.kind]
         action = names[step.action] if 0 <= step.action < len(names) else str(step.action)
-        prims: dict[str, list] = {"spheres": [fm.SpherePrimitive(
-            pose=_pose(x, y, 0.35), size=fm.Vector3(x=0.6, y=0.6, z=0.6),
-            color=_colour(0.95, 0.55, 0.1) if self.kind == "maze" else _colour(0.95, 0.8, 0.1))]}
+        prims: dict[str, list] = {
+            "spheres": [
+                fm.SpherePrimitive(
+                    pose=_pose(x, y, 0.35),
+                    size=fm.Vector3(x=0.6, y=0.6, z=0.6),
+                    color=_colour(0.95, 0.55, 0.1) if self.kind == "maze" else _colour(0.95, 0.8, 0.1),
+                )
+            ]
+        }
         move = (_MOVES if self.kind == "maze" else _TAXI_MOVES).get(step.action)
         if move is not None:
             prims["arrows"] = [_arrow(bx, by, move, _colour(0.1, 0.1, 0.1, 0.8))]
         prims["texts"] = [_text(x, y, 0.9, f"step {step.seq} {action} r={step.reward:g}", 11)]
         if self.kind == "taxi" and _taxi_passenger(step.next_obs) < 4:
             px, py = self._xy(self.stands[_taxi_passenger(step.next_obs)])
-            prims["spheres"].append(fm.SpherePrimitive(pose=_pose(px, py, 0.3), size=fm.Vector3(x=0.3, y=0.3, z=0.3),
-                                                       color=_colour(0.6, 0.2, 0.8)))
+            prims["spheres"].append(
+                fm.SpherePrimitive(
+                    pose=_pose(px, py, 0.3), size=fm.Vector3(x=0.3, y=0.3, z=0.3), color=_colour(0.6, 0.2, 0.8)
+                )
+            )
         return fm.SceneUpdate(entities=[_entity(step.t_action, "agent", **prims)])
 
     def feedback_update(self, credit: Any) -> Any:
@@ -242,14 +273,30 @@ class SceneBuilder:
                 arrows.append(_arrow(x, y, move, _colour(*rgb, 0.9), z=0.1))
         if not cubes:
             h, w = self.size
-            texts.append(_text(w / 2, -0.4, 0.5, f"feedback {credit.value:+d} from {credit.teacher_id}: "
-                                                 f"{credit.status}", 12, _colour(*rgb)))
-        meta = {"teacher": credit.teacher_id, "seq": str(credit.seq), "value": str(credit.value),
-                "status": credit.status, "lost_mass": f"{credit.lost_mass:.3f}",
-                "steps": " ".join(f"{s.seq}:{s.weight:.3f}" for s in credit.steps)}
+            texts.append(
+                _text(
+                    w / 2,
+                    -0.4,
+                    0.5,
+                    f"feedback {credit.value:+d} from {credit.teacher_id}: {credit.status}",
+                    12,
+                    _colour(*rgb),
+                )
+            )
+        meta = {
+            "teacher": credit.teacher_id,
+            "seq": str(credit.seq),
+            "value": str(credit.value),
+            "status": credit.status,
+            "lost_mass": f"{credit.lost_mass:.3f}",
+            "steps": " ".join(f"{s.seq}:{s.weight:.3f}" for s in credit.steps),
+        }
         eid = f"feedback/{credit.teacher_id}/{credit.seq}"
-        return fm.SceneUpdate(entities=[_entity(credit.t_reaction, eid, FEEDBACK_LIFETIME_S, meta, cubes=cubes,
-                                                texts=texts, arrows=arrows)])
+        return fm.SceneUpdate(
+            entities=[
+                _entity(credit.t_reaction, eid, FEEDBACK_LIFETIME_S, meta, cubes=cubes, texts=texts, arrows=arrows)
+            ]
+        )
 
     def _taxi_walls(self) -> list:
         walls = []
@@ -262,8 +309,7 @@ class SceneBuilder:
         return walls
 
 
-def derived_records(run: str, message: Any, scene: SceneBuilder | None,
-                    dropped: Any = None) -> list[tuple[str, bytes]]:
+def derived_records(run: str, message: Any, scene: SceneBuilder | None, dropped: Any = None) -> list[tuple[str, bytes]]:
     """(key, bytes) a log or a live viewer adds for one decoded message of `run`: the Credits an Ingest carries,
     each as if it had come alone on its own key, and the scene drawn from the message and from those Credits.
     A carried message that cannot stand alone (e.g. over its own size limit) is left out and counted in
@@ -287,7 +333,7 @@ def derived_records(run: str, message: Any, scene: SceneBuilder | None,
 
 
 def _onehot(values: list, start: int, n: int) -> int:
-    part = list(values[start:start + n])
+    part = list(values[start : start + n])
     return int(max(range(n), key=lambda i: part[i])) if part else 0
 
 

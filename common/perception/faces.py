@@ -77,8 +77,7 @@ def _largest(rects, scale: float, dx: int = 0, dy: int = 0) -> FaceBox | None:
     if rects is None or len(rects) == 0:
         return None
     x, y, w, h = max((tuple(r) for r in rects), key=lambda r: (r[2] * r[3], -r[0], -r[1]))
-    return FaceBox(int(round(x * scale)) + dx, int(round(y * scale)) + dy,
-                   int(round(w * scale)), int(round(h * scale)))
+    return FaceBox(int(round(x * scale)) + dx, int(round(y * scale)) + dy, int(round(w * scale)), int(round(h * scale)))
 
 
 @dataclass(frozen=True)
@@ -108,13 +107,13 @@ class HaarFaceDetector:
         h, w = gray.shape[:2]
         if c.detect_width and w > c.detect_width:
             scale = w / c.detect_width
-            small = cv2.resize(gray, (c.detect_width, max(1, int(round(h / scale)))),
-                               interpolation=cv2.INTER_AREA)
+            small = cv2.resize(gray, (c.detect_width, max(1, int(round(h / scale)))), interpolation=cv2.INTER_AREA)
         else:
             scale, small = 1.0, gray
         min_px = max(c.min_face_px, int(c.min_face_frac * small.shape[1]))
-        rects = self.cascade.detectMultiScale(small, scaleFactor=c.scale_factor, minNeighbors=c.min_neighbors,
-                                              minSize=(min_px, min_px))
+        rects = self.cascade.detectMultiScale(
+            small, scaleFactor=c.scale_factor, minNeighbors=c.min_neighbors, minSize=(min_px, min_px)
+        )
         return _largest(rects, scale)
 
 
@@ -164,15 +163,19 @@ class TrackingFaceDetector:
         scale = side / target  # roi pixels per searched pixel
         roi = gray[y1:y2, x1:x2]
         if scale > 1.0:
-            roi = cv2.resize(roi, (max(1, int(round((x2 - x1) / scale))), max(1, int(round((y2 - y1) / scale)))),
-                             interpolation=cv2.INTER_AREA)
+            roi = cv2.resize(
+                roi,
+                (max(1, int(round((x2 - x1) / scale))), max(1, int(round((y2 - y1) / scale)))),
+                interpolation=cv2.INTER_AREA,
+            )
         else:
             scale = 1.0
         fp = side / scale
         lo = max(12, int(fp / c.roi_scale_range))
         hi = max(lo + 1, int(fp * c.roi_scale_range))
-        rects = self.cascade.detectMultiScale(roi, scaleFactor=c.scale_factor, minNeighbors=c.min_neighbors,
-                                              minSize=(lo, lo), maxSize=(hi, hi))
+        rects = self.cascade.detectMultiScale(
+            roi, scaleFactor=c.scale_factor, minNeighbors=c.min_neighbors, minSize=(lo, lo), maxSize=(hi, hi)
+        )
         return _largest(rects, scale, x1, y1)
 
     def detect(self, gray: np.ndarray) -> FaceBox | None:

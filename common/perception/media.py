@@ -134,5 +134,5 @@ def letterbox(image: np.ndarray, width: int, height: int, fill: int = 0) -> np.n
     resized = cv2.resize(image, (nw, nh), interpolation=interp)
     out = np.full((height, width) + image.shape[2:], fill, dtype=image.dtype)
     y, x = (height - nh) // 2, (width - nw) // 2
-    out[y:y + nh, x:x + nw] = resized
+    out[y : y + nh, x : x + nw] = resized
     return out

@@ -80,15 +80,15 @@ def square_crop(image: np.ndarray, box: FaceBox, margin: float) -> np.ndarray:
 class ModelConfig:
     """How to feed an ONNX expression model. Written as JSON or TOML next to the model, e.g.::
 
-        path = "microexpnet.onnx"          # relative paths are relative to the config file
-        labels = ["neutral", "anger", "contempt", "disgust", "fear", "happy", "sadness", "surprise"]
-        input_size = [84, 84]              # width, height
-        grey = true
-        layout = "NCHW"                    # or "NHWC"
-        scale = 0.00392156862745098        # input = pixel * scale + offset (per channel if lists)
-        offset = 0.0
-        output = "probs"                   # or "logits" (softmax applied here)
-        face_margin = 0.1
+    path = "microexpnet.onnx"          # relative paths are relative to the config file
+    labels = ["neutral", "anger", "contempt", "disgust", "fear", "happy", "sadness", "surprise"]
+    input_size = [84, 84]              # width, height
+    grey = true
+    layout = "NCHW"                    # or "NHWC"
+    scale = 0.00392156862745098        # input = pixel * scale + offset (per channel if lists)
+    offset = 0.0
+    output = "probs"                   # or "logits" (softmax applied here)
+    face_margin = 0.1
     """
 
     path: str
@@ -200,9 +200,18 @@ def default_model_config(onnx_path: str | Path | None = None) -> ModelConfig:
         from .convert import convert_cached
 
         onnx_path = convert_cached()
-    return ModelConfig(path=str(onnx_path), labels=assets.FER_LABELS, input_size=(64, 64), grey=True,
-                       layout="NCHW", scale=1.0 / 127.5, offset=-1.0, output="probs", face_margin=0.1,
-                       name="mini-xception")
+    return ModelConfig(
+        path=str(onnx_path),
+        labels=assets.FER_LABELS,
+        input_size=(64, 64),
+        grey=True,
+        layout="NCHW",
+        scale=1.0 / 127.5,
+        offset=-1.0,
+        output="probs",
+        face_margin=0.1,
+        name="mini-xception",
+    )
 
 
 def default_model(onnx_path: str | Path | None = None) -> OnnxExpressionModel:
@@ -231,9 +240,10 @@ class HaarSmileModel:
         c = self.config
         face = square_crop(gray, box, 0.0)
         face = cv2.resize(face, (c.face_px, c.face_px), interpolation=cv2.INTER_AREA)
-        lower = face[c.face_px // 2:, :]
-        found = self.cascade.detectMultiScale(lower, scaleFactor=c.scale_factor, minNeighbors=c.min_neighbors,
-                                              minSize=(c.face_px // 4, c.face_px // 8))
+        lower = face[c.face_px // 2 :, :]
+        found = self.cascade.detectMultiScale(
+            lower, scaleFactor=c.scale_factor, minNeighbors=c.min_neighbors, minSize=(c.face_px // 4, c.face_px // 8)
+        )
         p = c.happy_prob if len(found) else 1.0 - c.happy_prob
         return np.array([p, 1.0 - p])
 
@@ -253,6 +263,8 @@ def load_model(spec: str = "mini-xception") -> ExpressionModel:
             cfg = p.with_suffix(ext)
             if cfg.is_file():
                 return OnnxExpressionModel(ModelConfig.from_file(cfg))
-        raise FileNotFoundError(f"{p} needs a config {p.with_suffix('.json')} (or .toml) with its labels "
-                                "and input format; see docs/perception.md")
+        raise FileNotFoundError(
+            f"{p} needs a config {p.with_suffix('.json')} (or .toml) with its labels "
+            "and input format; see docs/perception.md"
+        )
     raise ValueError(f"unknown model {spec!r}: mini-xception, haar-smile, or a model config path")

@@ -30,21 +30,25 @@ class PipelineConfig:
 
 
 class PerceptionPipeline:
-    def __init__(self, detector: FaceDetector, model: ExpressionModel,
-                 reaction: ReactionDetector | None = None) -> None:
+    def __init__(
+        self, detector: FaceDetector, model: ExpressionModel, reaction: ReactionDetector | None = None
+    ) -> None:
         self.detector = detector
         self.model = model
         self.reaction = reaction or ReactionDetector()
         self.labels = tuple(model.labels)
 
     @classmethod
-    def from_config(cls, config: PipelineConfig = PipelineConfig(),
-                    model: ExpressionModel | None = None) -> PerceptionPipeline:
+    def from_config(
+        cls, config: PipelineConfig = PipelineConfig(), model: ExpressionModel | None = None
+    ) -> PerceptionPipeline:
         if config.opencv_threads:
             cv2.setNumThreads(config.opencv_threads)
-        return cls(make_detector(config.detector, config.detect_width),
-                   model if model is not None else load_model(config.model),
-                   ReactionDetector(config.reaction))
+        return cls(
+            make_detector(config.detector, config.detect_width),
+            model if model is not None else load_model(config.model),
+            ReactionDetector(config.reaction),
+        )
 
     def reset(self) -> None:
         """Forget tracking and smoothing state (start of a new clip, or between unrelated images)."""
@@ -65,7 +69,8 @@ class PerceptionPipeline:
         probs = self.model.predict(gray, box, bgr)
         return FramePrediction(index, t_capture, box, self.labels, tuple(float(p) for p in probs))
 
-    def process(self, image: np.ndarray, index: int = 0,
-                t_capture: float = 0.0) -> tuple[FramePrediction, FeedbackEvent | None]:
+    def process(
+        self, image: np.ndarray, index: int = 0, t_capture: float = 0.0
+    ) -> tuple[FramePrediction, FeedbackEvent | None]:
         pred = self.predict(image, index, t_capture)
         return pred, self.reaction.update(pred)

@@ -147,9 +147,13 @@ class ReactionDetector:
         return [e for e in (self.update(p) for p in preds) if e is not None]
 
 
-def synthetic_predictions(sequence: Sequence[str | None], fps: float = 30.0,
-                          labels: tuple[str, ...] = ("happy", "sad", "neutral"),
-                          confidence: float = 1.0, t0: float = 0.0) -> list[FramePrediction]:
+def synthetic_predictions(
+    sequence: Sequence[str | None],
+    fps: float = 30.0,
+    labels: tuple[str, ...] = ("happy", "sad", "neutral"),
+    confidence: float = 1.0,
+    t0: float = 0.0,
+) -> list[FramePrediction]:
     """Predictions for a label per frame (None = no face), for tests and examples."""
     out = []
     box = FaceBox(0, 0, 10, 10)

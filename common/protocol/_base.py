@@ -79,8 +79,10 @@ class Message:
     def wire_fields(cls) -> list[WireField]:
         cached = cls.__dict__.get("_wire_fields_cache")
         if cached is None:
-            cached = [WireField(f.name, f.metadata.get("wire") or f.name, f.metadata["spec"], f.metadata["optional"])
-                      for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+            cached = [
+                WireField(f.name, f.metadata.get("wire") or f.name, f.metadata["spec"], f.metadata["optional"])
+                for f in dataclasses.fields(cls)
+            ]  # type: ignore[arg-type]
             cls._wire_fields_cache = cached
         return cached
 
@@ -90,8 +92,11 @@ class Message:
         cached = cls.__dict__.get("_decode_tables_cache")
         if cached is None:
             fields = cls.wire_fields()
-            cached = ({wf.wire: wf.attr for wf in fields}, {wf.wire: wf.spec for wf in fields},
-                      {wf.wire for wf in fields if not wf.optional})
+            cached = (
+                {wf.wire: wf.attr for wf in fields},
+                {wf.wire: wf.spec for wf in fields},
+                {wf.wire for wf in fields if not wf.optional},
+            )
             cls._decode_tables_cache = cached
         return cached
 

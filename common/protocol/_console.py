@@ -61,8 +61,7 @@ class Control(Message):
     seq: int = fld(Count("Counter per console process."))
     t: float = fld(Seconds("System time (s) of the request."))
     command: str = fld(Str(enum=CONTROL_COMMANDS, description="pause, resume, pace or end."))
-    rate: float | None = fld(Nullable(Float(0.1, MAX_RATE, description="Steps per second (pace only).")),
-                             optional=True)
+    rate: float | None = fld(Nullable(Float(0.1, MAX_RATE, description="Steps per second (pace only).")), optional=True)
 
     def _cross_check(self) -> None:
         if (self.command == "pace") != (self.rate is not None):
@@ -75,9 +74,14 @@ class CreditedStep:
     weight: float
 
 
-CREDITED_STEP_SPEC = Obj({"seq": Int(0, description="Step.seq (of `actor`)."),
-                          "weight": Float(0.0, 1.0, description="Credit weight (assumed-delay mass).")},
-                         cls=CreditedStep, description="One step a feedback was credited to.")
+CREDITED_STEP_SPEC = Obj(
+    {
+        "seq": Int(0, description="Step.seq (of `actor`)."),
+        "weight": Float(0.0, 1.0, description="Credit weight (assumed-delay mass)."),
+    },
+    cls=CreditedStep,
+    description="One step a feedback was credited to.",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,15 +96,23 @@ class DelayEstimate:
 
 
 MAX_DELAY_BINS = 120
-DELAY_ESTIMATE_SPEC = Obj({
-    "median_s": Float(0.0, 60.0, description="Median delay (s)."),
-    "p10_s": Float(0.0, 60.0, description="10th percentile (s)."),
-    "p90_s": Float(0.0, 60.0, description="90th percentile (s)."),
-    "feedbacks": Int(0, description="Feedbacks the estimate has seen (0: the prior, or a returning person's last)."),
-    "bin_s": Float(0.001, 10.0, description="Width (s) of each density bin; bin i covers [i * bin_s, (i+1) * bin_s)."),
-    "probs": List(Float(0.0, 1.0), max_items=MAX_DELAY_BINS, description="Probability of each bin, from 0 s."),
-    "returning": Bool(description="The estimate started from this person's profile (their last session's).")},
-    cls=DelayEstimate, description="The learner's current estimate of this teacher's reaction delay, in seconds.")
+DELAY_ESTIMATE_SPEC = Obj(
+    {
+        "median_s": Float(0.0, 60.0, description="Median delay (s)."),
+        "p10_s": Float(0.0, 60.0, description="10th percentile (s)."),
+        "p90_s": Float(0.0, 60.0, description="90th percentile (s)."),
+        "feedbacks": Int(
+            0, description="Feedbacks the estimate has seen (0: the prior, or a returning person's last)."
+        ),
+        "bin_s": Float(
+            0.001, 10.0, description="Width (s) of each density bin; bin i covers [i * bin_s, (i+1) * bin_s)."
+        ),
+        "probs": List(Float(0.0, 1.0), max_items=MAX_DELAY_BINS, description="Probability of each bin, from 0 s."),
+        "returning": Bool(description="The estimate started from this person's profile (their last session's)."),
+    },
+    cls=DelayEstimate,
+    description="The learner's current estimate of this teacher's reaction delay, in seconds.",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,13 +131,30 @@ class Credit(Message):
     t_reaction: float = fld(Seconds("The feedback's t_reaction."))
     t_credited: float = fld(Seconds("System time (s) at which the learner updated H with it."))
     actor: str | None = fld(Nullable(Token("The actor incarnation of the steps.")))
-    steps: list = fld(List(CREDITED_STEP_SPEC, max_items=256, description=(
-        "Steps credited, oldest first (the learner lists at most 128: those of largest weight).")))
+    steps: list = fld(
+        List(
+            CREDITED_STEP_SPEC,
+            max_items=256,
+            description=("Steps credited, oldest first (the learner lists at most 128: those of largest weight)."),
+        )
+    )
     lost_mass: float = fld(Float(0.0, 1.0, description="Assumed-delay mass that fell on no step held."))
-    delay: DelayEstimate | None = fld(Nullable(DELAY_ESTIMATE_SPEC, description=(
-        "The delay the learner now assumes for this teacher (learned, or the fixed one), after this feedback: "
-        "the console draws it (absent: not sent).")), optional=True)
-    revision: int | None = fld(Nullable(Count(
-        "The weights revision that first includes this feedback's H update: a Step whose `weights_revision` is at "
-        "least this acted on it. Null when crediting it updated nothing at once (reward shaping, or not credited).")),
-        optional=True)
+    delay: DelayEstimate | None = fld(
+        Nullable(
+            DELAY_ESTIMATE_SPEC,
+            description=(
+                "The delay the learner now assumes for this teacher (learned, or the fixed one), after this feedback: "
+                "the console draws it (absent: not sent)."
+            ),
+        ),
+        optional=True,
+    )
+    revision: int | None = fld(
+        Nullable(
+            Count(
+                "The weights revision that first includes this feedback's H update: a Step whose `weights_revision` is at "
+                "least this acted on it. Null when crediting it updated nothing at once (reward shaping, or not credited)."
+            )
+        ),
+        optional=True,
+    )

@@ -51,8 +51,12 @@ class Map(Spec):
         self.description = description
 
     def schema(self) -> dict:
-        return {"type": "object", "additionalProperties": self.value.schema(),
-                "propertyNames": {"minLength": 1, "maxLength": self.key_max_len}, "maxProperties": self.max_items}
+        return {
+            "type": "object",
+            "additionalProperties": self.value.schema(),
+            "propertyNames": {"minLength": 1, "maxLength": self.key_max_len},
+            "maxProperties": self.max_items,
+        }
 
     def check(self, value: Any, path: str) -> dict:
         if not isinstance(value, dict):
@@ -73,8 +77,10 @@ class Map(Spec):
         return {k: self.value.to_json(v) for k, v in value.items()}
 
     def describe(self) -> str:
-        return (f"object of string (1..{self.key_max_len} chars) to ({self.value.describe()}), "
-                f"at most {self.max_items} entries")
+        return (
+            f"object of string (1..{self.key_max_len} chars) to ({self.value.describe()}), "
+            f"at most {self.max_items} entries"
+        )
 
 
 class Nullable(Spec):
@@ -109,8 +115,12 @@ class Obj(Spec):
         self.description = description
 
     def schema(self) -> dict:
-        return {"type": "object", "properties": {k: v.schema() for k, v in self.fields.items()},
-                "required": list(self.fields), "additionalProperties": False}
+        return {
+            "type": "object",
+            "properties": {k: v.schema() for k, v in self.fields.items()},
+            "required": list(self.fields),
+            "additionalProperties": False,
+        }
 
     def check(self, value: Any, path: str) -> dict:
         if not isinstance(value, dict):

@@ -42,9 +42,13 @@ class FoxgloveProto:
     @classmethod
     def json_schema(cls) -> dict:
         """What docs and tools that expect a JSON Schema get: where the real schema comes from."""
-        return {"title": cls.TYPE_NAME, "description": (
-            f"Foxglove's {cls.TYPE_NAME}, protobuf-encoded by foxglove-sdk; the MCAP schema is its "
-            "FileDescriptorSet (schema encoding `protobuf`).")}
+        return {
+            "title": cls.TYPE_NAME,
+            "description": (
+                f"Foxglove's {cls.TYPE_NAME}, protobuf-encoded by foxglove-sdk; the MCAP schema is its "
+                "FileDescriptorSet (schema encoding `protobuf`)."
+            ),
+        }
 
     @classmethod
     def decode(cls, data: bytes) -> Any:

@@ -11,9 +11,19 @@ import functools
 import re
 from typing import Any
 
-from ._messages import (NAME_PATTERN, CompressedImage, EpisodeSummary, ExpressionPrediction, Feedback, Ingest,
-                        ObserverReaction,
-                        Log, RunConfig, ServiceStatus, Step)
+from ._messages import (
+    NAME_PATTERN,
+    CompressedImage,
+    EpisodeSummary,
+    ExpressionPrediction,
+    Feedback,
+    Ingest,
+    ObserverReaction,
+    Log,
+    RunConfig,
+    ServiceStatus,
+    Step,
+)
 from ._console import Control, Credit, Shown
 from ._foxglove import SceneUpdate
 from ._observe import Request, WeightsSnapshot
@@ -57,36 +67,92 @@ class KeySpec:
         return f"{ROOT}/{run}/{self.kind}/*" if self.param else f"{ROOT}/{run}/{self.kind}"
 
 
-KEYS: dict[str, KeySpec] = {k.kind: k for k in [
-    KeySpec("config", RunConfig, None, "block", "block", "Run configuration; the first record of every log."),
-    KeySpec("step", Step, None, "block", "block", "Every environment step, from the actor."),
-    KeySpec("feedback", Feedback, "teacher_id", "block", "block", "Binary feedback, one key per teacher."),
-    KeySpec("weights", Weights, None, "block", "block",
+KEYS: dict[str, KeySpec] = {
+    k.kind: k
+    for k in [
+        KeySpec("config", RunConfig, None, "block", "block", "Run configuration; the first record of every log."),
+        KeySpec("step", Step, None, "block", "block", "Every environment step, from the actor."),
+        KeySpec("feedback", Feedback, "teacher_id", "block", "block", "Binary feedback, one key per teacher."),
+        KeySpec(
+            "weights",
+            Weights,
+            None,
+            "block",
+            "block",
             "Network weights for the actor, from the learner (after almost every step in lockstep). An actor wants "
-            "only the newest: receive with drop_oldest, maxsize 1. Not logged: the log has `snapshot`.", logged=False),
-    KeySpec("snapshot", WeightsSnapshot, None, "block", "block",
-            "The learner's weights at a bounded rate, for logs and viewers: per-tensor numbers and the raw weights."),
-    KeySpec("request", Request, None, "drop", "drop_oldest", "Ask a service for something now (a weights snapshot)."),
-    KeySpec("scene", SceneUpdate, "part", "block", "block",
+            "only the newest: receive with drop_oldest, maxsize 1. Not logged: the log has `snapshot`.",
+            logged=False,
+        ),
+        KeySpec(
+            "snapshot",
+            WeightsSnapshot,
+            None,
+            "block",
+            "block",
+            "The learner's weights at a bounded rate, for logs and viewers: per-tensor numbers and the raw weights.",
+        ),
+        KeySpec(
+            "request", Request, None, "drop", "drop_oldest", "Ask a service for something now (a weights snapshot)."
+        ),
+        KeySpec(
+            "scene",
+            SceneUpdate,
+            "part",
+            "block",
+            "block",
             "The environment drawn for Foxglove's 3D panel (foxglove.SceneUpdate, protobuf): `layout` once per "
             "episode, `agent` per step, `feedback` per resolved feedback. Made by the recorder and the Foxglove "
-            "bridge from steps and credits (common/logs/scene.py)."),
-    KeySpec("episode", EpisodeSummary, None, "block", "block", "End-of-episode summary, from the learner."),
-    KeySpec("ingest", Ingest, None, "block", "block",
-            "The learner's input order (what `replay retrain` feeds a fresh learner), from the learner."),
-    KeySpec("status", ServiceStatus, "service", "drop", "drop_oldest", "Service liveness and counters."),
-    KeySpec("log", Log, "name", "block", "block",
-            "Events for humans (foxglove.Log): supervision, restores, first rejection of each reason."),
-    KeySpec("camera", CompressedImage, "camera", "drop", "drop_oldest", "Camera frames (JPEG)."),
-    KeySpec("perception", ExpressionPrediction, "camera", "drop", "drop_oldest", "Expression read from each frame."),
-    KeySpec("reaction", ObserverReaction, "teacher_id", "block", "block",
-            "Diagnostics of a video-backed observer: each reaction it showed the camera (never learned from)."),
-    KeySpec("shown", Shown, "screen", "block", "block",
-            "A step painted on a person's console page, with its screen time (from the console)."),
-    KeySpec("control", Control, None, "block", "block", "Pause, resume, pace, end: a person's run controls."),
-    KeySpec("credit", Credit, "teacher_id", "block", "block",
-            "What the learner did with each feedback: the steps credited and their weights."),
-]}
+            "bridge from steps and credits (common/logs/scene.py).",
+        ),
+        KeySpec("episode", EpisodeSummary, None, "block", "block", "End-of-episode summary, from the learner."),
+        KeySpec(
+            "ingest",
+            Ingest,
+            None,
+            "block",
+            "block",
+            "The learner's input order (what `replay retrain` feeds a fresh learner), from the learner.",
+        ),
+        KeySpec("status", ServiceStatus, "service", "drop", "drop_oldest", "Service liveness and counters."),
+        KeySpec(
+            "log",
+            Log,
+            "name",
+            "block",
+            "block",
+            "Events for humans (foxglove.Log): supervision, restores, first rejection of each reason.",
+        ),
+        KeySpec("camera", CompressedImage, "camera", "drop", "drop_oldest", "Camera frames (JPEG)."),
+        KeySpec(
+            "perception", ExpressionPrediction, "camera", "drop", "drop_oldest", "Expression read from each frame."
+        ),
+        KeySpec(
+            "reaction",
+            ObserverReaction,
+            "teacher_id",
+            "block",
+            "block",
+            "Diagnostics of a video-backed observer: each reaction it showed the camera (never learned from).",
+        ),
+        KeySpec(
+            "shown",
+            Shown,
+            "screen",
+            "block",
+            "block",
+            "A step painted on a person's console page, with its screen time (from the console).",
+        ),
+        KeySpec("control", Control, None, "block", "block", "Pause, resume, pace, end: a person's run controls."),
+        KeySpec(
+            "credit",
+            Credit,
+            "teacher_id",
+            "block",
+            "block",
+            "What the learner did with each feedback: the steps credited and their weights.",
+        ),
+    ]
+}
 
 MESSAGE_TYPES: tuple[type, ...] = tuple(k.message for k in KEYS.values())
 

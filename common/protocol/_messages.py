@@ -55,8 +55,9 @@ class Step(Message):
     run: str = fld(Name(RUN))
     incarnation: str = fld(Token("The actor process's own id, new at every start."))
     seq: int = fld(Count("Message counter, 0, 1, 2, ... without gaps within one incarnation."))
-    t_action: float = fld(Seconds("Wall-clock time (s since the Unix epoch; virtual time in-process) when the "
-                                  "action was taken."))
+    t_action: float = fld(
+        Seconds("Wall-clock time (s since the Unix epoch; virtual time in-process) when the action was taken.")
+    )
     episode: int = fld(Count("Episode index within this incarnation."))
     t_in_episode: int = fld(Count("Step index within the episode (0 for the first action)."))
     obs: list = fld(List(Float(), min_items=1, max_items=MAX_OBS, description="Observation before the action."))
@@ -66,12 +67,26 @@ class Step(Message):
     terminated: bool = fld(Bool(description="The episode ended in a terminal state."))
     truncated: bool = fld(Bool(description="The episode was cut by the step limit."))
     weights_version: int = fld(Count("Version of the weights the actor acted with (0 before any Weights arrived)."))
-    info: dict = fld(Map(Float(), max_items=MAX_INFO_ITEMS, key_max_len=MAX_INFO_KEY, description=(
-        "The environment's `info` for this step, whole (finite numbers only), for the simulated teacher's rule: "
-        "e.g. `target_distance_before` / `target_distance_after`, `reward`, and any key the env adds.")))
-    weights_revision: int | None = fld(Nullable(Count(
-        "Revision of the weights the actor acted with (Weights' `revision`: moved by every Q or H update); null "
-        "before any revised Weights arrived.")), optional=True)
+    info: dict = fld(
+        Map(
+            Float(),
+            max_items=MAX_INFO_ITEMS,
+            key_max_len=MAX_INFO_KEY,
+            description=(
+                "The environment's `info` for this step, whole (finite numbers only), for the simulated teacher's rule: "
+                "e.g. `target_distance_before` / `target_distance_after`, `reward`, and any key the env adds."
+            ),
+        )
+    )
+    weights_revision: int | None = fld(
+        Nullable(
+            Count(
+                "Revision of the weights the actor acted with (Weights' `revision`: moved by every Q or H update); null "
+                "before any revised Weights arrived."
+            )
+        ),
+        optional=True,
+    )
 
     def _cross_check(self) -> None:
         if len(self.next_obs) != len(self.obs):
@@ -88,9 +103,14 @@ class ShownStep:
 
 MAX_SHOWN = 64  # steps a feedback may list: 4 s of assumed delay at 16 steps/s
 
-SHOWN_STEP_SPEC = Obj({"seq": Int(0, description="Step.seq of the step shown."),
-                       "t": Float(0.0, description="System time (s) at which it appeared on the screen.")},
-                      cls=ShownStep, description="A step on a person's screen.")
+SHOWN_STEP_SPEC = Obj(
+    {
+        "seq": Int(0, description="Step.seq of the step shown."),
+        "t": Float(0.0, description="System time (s) at which it appeared on the screen."),
+    },
+    cls=ShownStep,
+    description="A step on a person's screen.",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -105,7 +125,8 @@ class Feedback(Message):
     TYPE_NAME: ClassVar[str] = "hitl.Feedback"
     MAX_BYTES: ClassVar[int] = 8192
     CROSS_RULES: ClassVar[tuple[str, ...]] = (
-        "`shown` needs `actor`, and is ascending in `seq` (strictly) and `t`, else `bad_value`",)
+        "`shown` needs `actor`, and is ascending in `seq` (strictly) and `t`, else `bad_value`",
+    )
 
     run: str = fld(Name(RUN))
     teacher_id: str = fld(Name("Teacher name; also the last chunk of the key."))
@@ -113,18 +134,42 @@ class Feedback(Message):
     t_reaction: float = fld(Seconds("Wall-clock time (s) at which the teacher reacted."))
     value: int = fld(Int(enum=(-1, 1), description="The feedback: +1 good, -1 bad."))
     source: str = fld(Name("Where it came from, e.g. `oracle`, `face`."))
-    ref_seq: int | None = fld(Nullable(Count("Diagnostics: the Step.seq the simulated observer meant; null if "
-                                             "unknown.")), optional=True)
-    intended: int | None = fld(Nullable(Int(enum=(-1, 1), description=(
-        "Diagnostics: the value before a simulated misread; null if unknown."))), optional=True)
-    t_page: float | None = fld(Nullable(Float(0.0, description=(
-        "A person's action on the console page: its time on the page's clock (s); `t_reaction` is this time "
-        "mapped to the system clock with the page's estimated offset."))), optional=True)
+    ref_seq: int | None = fld(
+        Nullable(Count("Diagnostics: the Step.seq the simulated observer meant; null if unknown.")), optional=True
+    )
+    intended: int | None = fld(
+        Nullable(
+            Int(enum=(-1, 1), description=("Diagnostics: the value before a simulated misread; null if unknown."))
+        ),
+        optional=True,
+    )
+    t_page: float | None = fld(
+        Nullable(
+            Float(
+                0.0,
+                description=(
+                    "A person's action on the console page: its time on the page's clock (s); `t_reaction` is this time "
+                    "mapped to the system clock with the page's estimated offset."
+                ),
+            )
+        ),
+        optional=True,
+    )
     actor: str | None = fld(Nullable(Token("The actor incarnation whose steps `shown` lists.")), optional=True)
-    shown: list | None = fld(Nullable(List(SHOWN_STEP_SPEC, max_items=MAX_SHOWN, description=(
-        "The steps on the person's screen before `t_reaction`, oldest first, each with the system time it "
-        "appeared; the learner credits the feedback in seconds over these on-screen intervals. Null: credit "
-        "by the actor's step times (simulated teachers)."))), optional=True)
+    shown: list | None = fld(
+        Nullable(
+            List(
+                SHOWN_STEP_SPEC,
+                max_items=MAX_SHOWN,
+                description=(
+                    "The steps on the person's screen before `t_reaction`, oldest first, each with the system time it "
+                    "appeared; the learner credits the feedback in seconds over these on-screen intervals. Null: credit "
+                    "by the actor's step times (simulated teachers)."
+                ),
+            )
+        ),
+        optional=True,
+    )
 
     def _cross_check(self) -> None:
         if self.shown is not None:
@@ -149,8 +194,9 @@ class ObserverReaction(Message):
     CROSS_RULES: ClassVar[tuple[str, ...]] = ("`t_end >= t_start`, else `bad_value`",)
 
     run: str = fld(Name(RUN))
-    teacher_id: str = fld(Name("The teacher whose Feedback these frames should become; also the last chunk of "
-                               "the key."))
+    teacher_id: str = fld(
+        Name("The teacher whose Feedback these frames should become; also the last chunk of the key.")
+    )
     seq: int = fld(Count("Reaction counter per teacher, without gaps."))
     ref_seq: int = fld(Count("The Step.seq the observer reacted to."))
     lag_steps: int = fld(Count("The observer's true lag in steps (drawn from its delay distribution)."))
@@ -199,21 +245,39 @@ class IngestEntry:
     t: float
 
 
-INGEST_ENTRY_SPEC = Obj({
-    "kind": Str(enum=INGEST_KINDS, description=(
-        "`step` / `feedback`: an input consumed, in consumption order; `end`: the learner stopped taking inputs; "
-        "`outcome`: what became of a feedback (not an input; retrain checks it); `idle`: an extra Q and D_global "
-        "minibatch step the learner took between two steps of a paced run (retrain repeats it).")),
-    "source": Str(128, pattern=TOKEN_PATTERN, min_len=1, description=(
-        "The input's origin: the actor incarnation (step), the teacher id (feedback, outcome), the learner (end).")),
-    "seq": Int(0, description="The input's own `seq` (Step.seq, Feedback.seq); 0 for `end`."),
-    "status": Str(32, description=(
-        "For `outcome`: credited, stale, too_old (a person's press whose steps all left the history), ignored, "
-        "after_end, actor_restarted; for `step`: learned, gap, old, "
-        "after_end; "
-        "else empty.")),
-    "t": Float(0.0, description="Wall-clock time (s) of consumption: diagnostics only, never used by retrain."),
-}, cls=IngestEntry, description="One ingest entry.")
+INGEST_ENTRY_SPEC = Obj(
+    {
+        "kind": Str(
+            enum=INGEST_KINDS,
+            description=(
+                "`step` / `feedback`: an input consumed, in consumption order; `end`: the learner stopped taking inputs; "
+                "`outcome`: what became of a feedback (not an input; retrain checks it); `idle`: an extra Q and D_global "
+                "minibatch step the learner took between two steps of a paced run (retrain repeats it)."
+            ),
+        ),
+        "source": Str(
+            128,
+            pattern=TOKEN_PATTERN,
+            min_len=1,
+            description=(
+                "The input's origin: the actor incarnation (step), the teacher id (feedback, outcome), the learner (end)."
+            ),
+        ),
+        "seq": Int(0, description="The input's own `seq` (Step.seq, Feedback.seq); 0 for `end`."),
+        "status": Str(
+            32,
+            description=(
+                "For `outcome`: credited, stale, too_old (a person's press whose steps all left the history), ignored, "
+                "after_end, actor_restarted; for `step`: learned, gap, old, "
+                "after_end; "
+                "else empty."
+            ),
+        ),
+        "t": Float(0.0, description="Wall-clock time (s) of consumption: diagnostics only, never used by retrain."),
+    },
+    cls=IngestEntry,
+    description="One ingest entry.",
+)
 
 
 MAX_INGEST_CREDITS = 64  # Credits one Ingest message may carry
@@ -241,13 +305,29 @@ class Ingest(Message):
     seq: int = fld(Count("Batch counter, 0, 1, 2, ... without gaps within one learner incarnation."))
     index: int = fld(Count("Position of the first entry in this incarnation's record."))
     entries: list = fld(List(INGEST_ENTRY_SPEC, max_items=2048, description="Entries in consumption order."))
-    config: dict | None = fld(Nullable(AnyJSON(object_only=True, description=(
-        "The learner's config (first batch only): everything retrain needs to rebuild it."))), optional=True)
-    credits: list | None = fld(Nullable(List(Embedded(lambda: _credit_type()), max_items=MAX_INGEST_CREDITS,
-                                             description=(
-        "What became of feedback from the teachers whose Credits ride here rather than on their own key (the "
-        "learner's `credits-in-ingest`: a run's own teacher services, one message less per feedback). The "
-        "recorder logs each on `/credit/<teacher_id>` as if it had come alone."))), optional=True)
+    config: dict | None = fld(
+        Nullable(
+            AnyJSON(
+                object_only=True,
+                description=("The learner's config (first batch only): everything retrain needs to rebuild it."),
+            )
+        ),
+        optional=True,
+    )
+    credits: list | None = fld(
+        Nullable(
+            List(
+                Embedded(lambda: _credit_type()),
+                max_items=MAX_INGEST_CREDITS,
+                description=(
+                    "What became of feedback from the teachers whose Credits ride here rather than on their own key (the "
+                    "learner's `credits-in-ingest`: a run's own teacher services, one message less per feedback). The "
+                    "recorder logs each on `/credit/<teacher_id>` as if it had come alone."
+                ),
+            )
+        ),
+        optional=True,
+    )
 
     def _cross_check(self) -> None:
         if any(c.run != self.run for c in self.credits or ()):
@@ -278,11 +358,18 @@ class ServiceStatus(Message):
     pid: int = fld(Int(0, 2**32 - 1, description="Operating-system process id."))
     state: str = fld(Str(enum=SERVICE_STATES, description="Life-cycle state."))
     t: float = fld(Seconds("Wall-clock time (s) of this status."))
-    counters: dict = fld(Map(Count(""), max_items=256,
-                             description="Named counters, e.g. `steps_published`, `dropped_malformed`."))
-    incarnation: str | None = fld(Nullable(Token(
-        "The process's own id (as Step.incarnation, Weights.incarnation, Ingest.learner): a subscriber accepts "
-        "steps or weights from a new incarnation only once its status has announced it.")), optional=True)
+    counters: dict = fld(
+        Map(Count(""), max_items=256, description="Named counters, e.g. `steps_published`, `dropped_malformed`.")
+    )
+    incarnation: str | None = fld(
+        Nullable(
+            Token(
+                "The process's own id (as Step.incarnation, Weights.incarnation, Ingest.learner): a subscriber accepts "
+                "steps or weights from a new incarnation only once its status has announced it."
+            )
+        ),
+        optional=True,
+    )
 
 
 LOG_LEVELS = {0: "UNKNOWN", 1: "DEBUG", 2: "INFO", 3: "WARNING", 4: "ERROR", 5: "FATAL"}
@@ -304,8 +391,9 @@ class Time:
         return self.sec + self.nsec * 1e-9
 
 
-TIME_SPEC = Obj({"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)}, cls=Time,
-                description="Capture time (foxglove.Time).")
+TIME_SPEC = Obj(
+    {"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)}, cls=Time, description="Capture time (foxglove.Time)."
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -317,10 +405,19 @@ class Log(Message):
     TYPE_NAME: ClassVar[str] = "foxglove.Log"
     MAX_BYTES: ClassVar[int] = 16 * 1024
 
-    timestamp: Time = fld(Obj({"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)}, cls=Time,
-                              description="Time of the event (foxglove.Time)."))
-    level: int = fld(Int(enum=tuple(LOG_LEVELS), description=(
-        "0 unknown, 1 debug, 2 info, 3 warning, 4 error, 5 fatal (foxglove.LogLevel).")))
+    timestamp: Time = fld(
+        Obj(
+            {"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)},
+            cls=Time,
+            description="Time of the event (foxglove.Time).",
+        )
+    )
+    level: int = fld(
+        Int(
+            enum=tuple(LOG_LEVELS),
+            description=("0 unknown, 1 debug, 2 info, 3 warning, 4 error, 5 fatal (foxglove.LogLevel)."),
+        )
+    )
     message: str = fld(Str(8192, description="What happened."))
     name: str = fld(Str(64, description="Who says it: the service name (the key's last chunk)."))
     file: str = fld(Str(256, description="Source file (may be empty)."))
@@ -351,8 +448,11 @@ class Box:
     h: int
 
 
-BOX_SPEC = Obj({"x": Int(0, 65535), "y": Int(0, 65535), "w": Int(0, 65535), "h": Int(0, 65535)}, cls=Box,
-               description="Face box in pixels (x, y of the top-left corner, width, height).")
+BOX_SPEC = Obj(
+    {"x": Int(0, 65535), "y": Int(0, 65535), "w": Int(0, 65535), "h": Int(0, 65535)},
+    cls=Box,
+    description="Face box in pixels (x, y of the top-left corner, width, height).",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -367,8 +467,9 @@ class ExpressionPrediction(Message):
     box: Box | None = fld(Nullable(BOX_SPEC, description="Face box, or null when no face was found."))
     label: str = fld(Str(32, description="Most probable expression label (empty when no face)."))
     confidence: float = fld(Float(0.0, 1.0, description="Probability of `label`."))
-    probabilities: dict = fld(Map(Float(0.0, 1.0), max_items=16, key_max_len=32,
-                                  description="Probability of each label."))
+    probabilities: dict = fld(
+        Map(Float(0.0, 1.0), max_items=16, key_max_len=32, description="Probability of each label.")
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -388,5 +489,6 @@ class RunConfig(Message):
     def create(cls, run: str, config: dict[str, Any], t_created: float | None = None) -> RunConfig:
         import time
 
-        return cls(run=run, t_created=time.time() if t_created is None else t_created,
-                   protocol=PROTOCOL_VERSION, config=config)
+        return cls(
+            run=run, t_created=time.time() if t_created is None else t_created, protocol=PROTOCOL_VERSION, config=config
+        )

@@ -24,15 +24,19 @@ class TensorSummary:
     norm: float
 
 
-TENSOR_SUMMARY_SPEC = Obj({
-    "name": Str(128, description="Tensor name, e.g. `q.0.weight`."),
-    "shape": List(Int(0, 2**31 - 1), max_items=8, description="Shape."),
-    "mean": Float(description="Mean of the entries."),
-    "std": Float(0.0, description="Standard deviation of the entries."),
-    "min": Float(description="Smallest entry."),
-    "max": Float(description="Largest entry."),
-    "norm": Float(0.0, description="L2 norm."),
-}, cls=TensorSummary, description="Summary numbers of one tensor.")
+TENSOR_SUMMARY_SPEC = Obj(
+    {
+        "name": Str(128, description="Tensor name, e.g. `q.0.weight`."),
+        "shape": List(Int(0, 2**31 - 1), max_items=8, description="Shape."),
+        "mean": Float(description="Mean of the entries."),
+        "std": Float(0.0, description="Standard deviation of the entries."),
+        "min": Float(description="Smallest entry."),
+        "max": Float(description="Largest entry."),
+        "norm": Float(0.0, description="L2 norm."),
+    },
+    cls=TensorSummary,
+    description="Summary numbers of one tensor.",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,12 +52,26 @@ class WeightsSnapshot(Message):
     run: str = fld(Name(RUN))
     incarnation: str = fld(Token("The learner process's incarnation."))
     version: int = fld(Count("The weights version (steps learned; steps learned + 1 for the final weights)."))
-    reason: str = fld(Str(enum=SNAPSHOT_REASONS, description=(
-        "Why now: `start`, `every` (N steps learned), `episode` (an episode ended), `request`, `final`.")))
+    reason: str = fld(
+        Str(
+            enum=SNAPSHOT_REASONS,
+            description=(
+                "Why now: `start`, `every` (N steps learned), `episode` (an episode ended), `request`, `final`."
+            ),
+        )
+    )
     t_published: float = fld(Seconds("Wall-clock time (s) of publication."))
     tensors: list = fld(List(TENSOR_SUMMARY_SPEC, max_items=64, description="One summary per tensor."))
-    weights: bytes | None = fld(Nullable(Bytes64(32 * 1024 * 1024, description=(
-        "The raw weights: the bytes of a `hitl.Weights` message (safetensors); null at episode ends."))))
+    weights: bytes | None = fld(
+        Nullable(
+            Bytes64(
+                32 * 1024 * 1024,
+                description=(
+                    "The raw weights: the bytes of a `hitl.Weights` message (safetensors); null at episode ends."
+                ),
+            )
+        )
+    )
 
 
 @dataclasses.dataclass(frozen=True)

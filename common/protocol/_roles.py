@@ -7,6 +7,7 @@ feedback key is `feedback/<id>`), `observer.<id>` (the face-video observer showi
 :data:`PUBLISHES` is the one table of who may publish what. The authentication gate (`common.wire.auth`, checked
 by every receiver) and the secured router's access rules (`common.security`) are both built from it.
 """
+
 from __future__ import annotations
 
 import functools
@@ -57,7 +58,7 @@ def observer_service_name(teacher_id: str) -> str:
 
 def teacher_id_of(service: str) -> str | None:
     """`alice` for `teacher.alice`; None for any other service."""
-    return service[len(TEACHER_PREFIX):] if service.startswith(TEACHER_PREFIX) else None
+    return service[len(TEACHER_PREFIX) :] if service.startswith(TEACHER_PREFIX) else None
 
 
 def split_identity(identity: str) -> tuple[str, str | None]:
@@ -68,8 +69,9 @@ def split_identity(identity: str) -> tuple[str, str | None]:
         return role, name
     if role in SERVICE_ROLES and not name:
         return role, None
-    raise ProtocolError("bad_value", f"identity {identity[:64]!r}: one of {SERVICE_ROLES} or teacher.<id> / "
-                                     f"observer.<id>")
+    raise ProtocolError(
+        "bad_value", f"identity {identity[:64]!r}: one of {SERVICE_ROLES} or teacher.<id> / observer.<id>"
+    )
 
 
 def publish_patterns(identity: str) -> tuple[str, ...]:
@@ -103,9 +105,18 @@ def may_publish(identity: str, key: str) -> bool:
 
 
 #: Who publishes each kind in a run started by the launcher (for re-publishing a recorded run: `replay play`).
-_SENDER = {"step": "actor", "weights": "learner", "episode": "learner", "ingest": "learner", "credit": "learner",
-           "feedback": TEACHER_PREFIX, "shown": TEACHER_PREFIX, "perception": TEACHER_PREFIX,
-           "reaction": OBSERVER_PREFIX, "camera": OBSERVER_PREFIX}
+_SENDER = {
+    "step": "actor",
+    "weights": "learner",
+    "episode": "learner",
+    "ingest": "learner",
+    "credit": "learner",
+    "feedback": TEACHER_PREFIX,
+    "shown": TEACHER_PREFIX,
+    "perception": TEACHER_PREFIX,
+    "reaction": OBSERVER_PREFIX,
+    "camera": OBSERVER_PREFIX,
+}
 
 
 def sender_of(key: str) -> str | None:

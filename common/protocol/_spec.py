@@ -102,8 +102,15 @@ class Spec:
 
 
 class Str(Spec):
-    def __init__(self, max_len: int = 256, *, pattern: str | None = None, enum: tuple[str, ...] | None = None,
-                 min_len: int = 0, description: str = ""):
+    def __init__(
+        self,
+        max_len: int = 256,
+        *,
+        pattern: str | None = None,
+        enum: tuple[str, ...] | None = None,
+        min_len: int = 0,
+        description: str = "",
+    ):
         self.max_len, self.min_len, self.pattern, self.enum = max_len, min_len, pattern, enum
         # Patterns are written anchored with ^...$ (ECMA-262 style, as JSON Schema reads them). Python's `$`
         # also matches before a final newline, so the validator uses \Z in its place.
@@ -146,8 +153,14 @@ class Str(Spec):
 
 
 class Int(Spec):
-    def __init__(self, minimum: int = -SAFE_INT, maximum: int = SAFE_INT, *, enum: tuple[int, ...] | None = None,
-                 description: str = ""):
+    def __init__(
+        self,
+        minimum: int = -SAFE_INT,
+        maximum: int = SAFE_INT,
+        *,
+        enum: tuple[int, ...] | None = None,
+        description: str = "",
+    ):
         self.minimum, self.maximum, self.enum = minimum, maximum, enum
         self.description = description
 
@@ -260,8 +273,10 @@ class Bool(Spec):
 
 #: Canonical standard base64 (what `b64encode` writes: padded, unused bits zero), in the schema and the decoder
 #: alike. `(?![\s\S])` ends the string in every regex dialect (Python's `$` also matches before a newline).
-BASE64_PATTERN = (r"^(?:[A-Za-z0-9+/]{4})*(?:[A-Za-z0-9+/][AQgw]==|[A-Za-z0-9+/]{2}[AEIMQUYcgkosw048]=)?"
-                  r"(?![\s\S])")
+BASE64_PATTERN = (
+    r"^(?:[A-Za-z0-9+/]{4})*(?:[A-Za-z0-9+/][AQgw]==|[A-Za-z0-9+/]{2}[AEIMQUYcgkosw048]=)?"
+    r"(?![\s\S])"
+)
 _BASE64_RE = re.compile(BASE64_PATTERN)
 
 
@@ -273,8 +288,12 @@ class Bytes64(Spec):
         self.description = description
 
     def schema(self) -> dict:
-        return {"type": "string", "contentEncoding": "base64", "pattern": BASE64_PATTERN,
-                "maxLength": 4 * ((self.max_bytes + 2) // 3)}
+        return {
+            "type": "string",
+            "contentEncoding": "base64",
+            "pattern": BASE64_PATTERN,
+            "maxLength": 4 * ((self.max_bytes + 2) // 3),
+        }
 
     def check(self, value: Any, path: str) -> bytes:
         if not isinstance(value, str):

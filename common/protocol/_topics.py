@@ -36,6 +36,8 @@ def topics_table() -> list[str]:
         cls = spec.message
         tail = f"/<{spec.param}>" if spec.param else ""
         schema_encoding = getattr(cls, "SCHEMA_ENCODING", "jsonschema")
-        rows.append(f"| `/{spec.kind}{tail}` | `{spec.pattern()}` | `{cls.TYPE_NAME}` ({schema_encoding}) "
-                    f"| `{cls.MESSAGE_ENCODING}` |")
+        rows.append(
+            f"| `/{spec.kind}{tail}` | `{spec.pattern()}` | `{cls.TYPE_NAME}` ({schema_encoding}) "
+            f"| `{cls.MESSAGE_ENCODING}` |"
+        )
     return rows

@@ -42,9 +42,11 @@ METADATA_FIELDS = {
 }
 #: Metadata keys a Weights message may omit (older logs have none); same string rules as the others.
 OPTIONAL_METADATA_FIELDS = {
-    "revision": ("weights revision, decimal integer >= 0: the learner's count of Q and H updates, moved by every one "
-                 "(a credited press's H update too, between two steps); an actor takes weights newer in (version, "
-                 "revision)"),
+    "revision": (
+        "weights revision, decimal integer >= 0: the learner's count of Q and H updates, moved by every one "
+        "(a credited press's H update too, between two steps); an actor takes weights newer in (version, "
+        "revision)"
+    ),
 }
 
 Spec = Mapping[str, tuple[int, ...]]
@@ -105,8 +107,14 @@ class Weights:
             raise ProtocolError("non_finite", "t_published")
         if t < 0:
             raise ProtocolError("bad_value", f"t_published: {t}")
-        meta = {"format": FORMAT_TAG, "protocol": str(PROTOCOL_VERSION), "run": self.run,
-                "incarnation": self.incarnation, "version": str(int(self.version)), "t_published": repr(t)}
+        meta = {
+            "format": FORMAT_TAG,
+            "protocol": str(PROTOCOL_VERSION),
+            "run": self.run,
+            "incarnation": self.incarnation,
+            "version": str(int(self.version)),
+            "t_published": repr(t),
+        }
         if self.revision is not None:
             meta["revision"] = str(int(self.revision))
         return meta
@@ -131,7 +139,7 @@ class Weights:
         (n,) = struct.unpack("<Q", data[:8])
         if n > MAX_HEADER or 8 + n > len(data):
             raise ProtocolError("malformed", f"header length {n} out of bounds")
-        header = parse_json(data[8:8 + n], MAX_HEADER)
+        header = parse_json(data[8 : 8 + n], MAX_HEADER)
         if not isinstance(header, dict):
             raise ProtocolError("malformed", "header is not a JSON object")
         meta = header.pop("__metadata__", None)
@@ -181,8 +189,14 @@ class Weights:
             tensors[name] = a
         if expected is not None:
             check_spec(tensors, expected)
-        return cls(run=meta["run"], incarnation=meta["incarnation"], version=version,
-                   t_published=t_published, tensors=tensors, revision=revision)
+        return cls(
+            run=meta["run"],
+            incarnation=meta["incarnation"],
+            version=version,
+            t_published=t_published,
+            tensors=tensors,
+            revision=revision,
+        )
 
     # -- helpers ------------------------------------------------------------------------------------------
     @property
@@ -197,16 +211,19 @@ class Weights:
         return {k: tuple(np.shape(v)) for k, v in self.tensors.items()}
 
     def same_as(self, other: Weights) -> bool:
-        return (self.run, self.incarnation, self.version, self.revision, self.t_published) == (
-            other.run, other.incarnation, other.version, other.revision,
-            other.t_published) and self.tensors.keys() == other.tensors.keys() and all(
-            np.array_equal(np.asarray(self.tensors[k]), np.asarray(other.tensors[k])) for k in self.tensors)
+        return (
+            (self.run, self.incarnation, self.version, self.revision, self.t_published)
+            == (other.run, other.incarnation, other.version, other.revision, other.t_published)
+            and self.tensors.keys() == other.tensors.keys()
+            and all(np.array_equal(np.asarray(self.tensors[k]), np.asarray(other.tensors[k])) for k in self.tensors)
+        )
 
     @classmethod
     def json_schema(cls) -> dict:
         """A JSON Schema (draft 2020-12) of the safetensors *header* (the JSON after the 8-byte length)."""
-        meta_props = {k: {"type": "string", "description": d}
-                      for k, d in {**METADATA_FIELDS, **OPTIONAL_METADATA_FIELDS}.items()}
+        meta_props = {
+            k: {"type": "string", "description": d} for k, d in {**METADATA_FIELDS, **OPTIONAL_METADATA_FIELDS}.items()
+        }
         meta_props["format"]["const"] = FORMAT_TAG
         meta_props["protocol"]["const"] = str(PROTOCOL_VERSION)
         meta_props["version"]["pattern"] = meta_props["revision"]["pattern"] = f"^{VERSION_PATTERN}$"
@@ -214,23 +231,36 @@ class Weights:
             "$schema": "https://json-schema.org/draft/2020-12/schema",
             "$id": f"urn:hitl-tamer:protocol:{PROTOCOL_VERSION}:{cls.TYPE_NAME}",
             "title": cls.TYPE_NAME,
-            "description": ("Binary message in the safetensors format: u64 little-endian header length N, N bytes "
-                            "of UTF-8 JSON header (described by this schema), then the raw little-endian float32 "
-                            "tensor data. Never pickle."),
+            "description": (
+                "Binary message in the safetensors format: u64 little-endian header length N, N bytes "
+                "of UTF-8 JSON header (described by this schema), then the raw little-endian float32 "
+                "tensor data. Never pickle."
+            ),
             "x-message-encoding": "safetensors",
             "type": "object",
-            "properties": {"__metadata__": {"type": "object", "properties": meta_props,
-                                            "required": list(METADATA_FIELDS), "additionalProperties": False}},
+            "properties": {
+                "__metadata__": {
+                    "type": "object",
+                    "properties": meta_props,
+                    "required": list(METADATA_FIELDS),
+                    "additionalProperties": False,
+                }
+            },
             "required": ["__metadata__"],
             "propertyNames": {"pattern": "^(__metadata__|[A-Za-z0-9_.]{1,128})$"},
             "maxProperties": MAX_TENSORS + 1,
             "additionalProperties": {
                 "type": "object",
-                "properties": {"dtype": {"const": "F32"},
-                               "shape": {"type": "array", "items": {"type": "integer", "minimum": 0},
-                                         "maxItems": MAX_NDIM},
-                               "data_offsets": {"type": "array", "items": {"type": "integer", "minimum": 0},
-                                                "minItems": 2, "maxItems": 2}},
+                "properties": {
+                    "dtype": {"const": "F32"},
+                    "shape": {"type": "array", "items": {"type": "integer", "minimum": 0}, "maxItems": MAX_NDIM},
+                    "data_offsets": {
+                        "type": "array",
+                        "items": {"type": "integer", "minimum": 0},
+                        "minItems": 2,
+                        "maxItems": 2,
+                    },
+                },
                 "required": ["dtype", "shape", "data_offsets"],
                 "additionalProperties": False,
             },
@@ -311,4 +341,4 @@ def _parse_float(s: str, key: str) -> float:
 def header_json(data: bytes) -> dict:
     """The safetensors header of an encoded Weights message (for tools and tests)."""
     (n,) = struct.unpack("<Q", data[:8])
-    return json.loads(data[8:8 + n])
+    return json.loads(data[8 : 8 + n])

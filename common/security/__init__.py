@@ -50,19 +50,67 @@ Facts measured here with eclipse-zenoh 1.10 (tests/security/test_access_control.
   ``matching_status`` stays True); it shows only at TRACE level in the router's log
   (``RUST_LOG=zenoh::net::routing::interceptor::access_control=trace``).
 """
+
 from common.security.access import access_control, publish_keys, publish_kinds
 from common.security.certs import generate_certificates, init, new_password
-from common.security.config import (CA_CERT, CA_KEY, CREDENTIALS_FILE, DEFAULT_PORT, ROLES, ROUTER_CERT, ROUTER_KEY,
-                                    SECURITY_FILE, SERVICE_ROLES, USERNAME_PATTERN, SecurityConfig, SecurityError,
-                                    load_security, read_credentials, save_security, tls_endpoint, validate_username,
-                                    write_credentials)
+from common.security.config import (
+    CA_CERT,
+    CA_KEY,
+    CREDENTIALS_FILE,
+    DEFAULT_PORT,
+    ROLES,
+    ROUTER_CERT,
+    ROUTER_KEY,
+    SECURITY_FILE,
+    SERVICE_ROLES,
+    USERNAME_PATTERN,
+    SecurityConfig,
+    SecurityError,
+    load_security,
+    read_credentials,
+    save_security,
+    tls_endpoint,
+    validate_username,
+    write_credentials,
+)
 from common.security.router import run_secured_router
-from common.security.zenoh_config import (client_config_for, client_settings, router_config_dict, router_config_for,
-                                          router_settings)
+from common.security.zenoh_config import (
+    client_config_for,
+    client_settings,
+    router_config_dict,
+    router_config_for,
+    router_settings,
+)
 
-__all__ = ["access_control", "publish_keys", "publish_kinds", "generate_certificates", "init", "new_password",
-           "CA_CERT", "CA_KEY", "CREDENTIALS_FILE", "DEFAULT_PORT", "ROLES", "ROUTER_CERT", "ROUTER_KEY",
-           "SECURITY_FILE", "SERVICE_ROLES", "USERNAME_PATTERN", "SecurityConfig", "SecurityError", "load_security",
-           "read_credentials", "save_security", "tls_endpoint", "validate_username", "write_credentials",
-           "run_secured_router", "client_config_for", "client_settings", "router_config_dict", "router_config_for",
-           "router_settings"]
+__all__ = [
+    "access_control",
+    "publish_keys",
+    "publish_kinds",
+    "generate_certificates",
+    "init",
+    "new_password",
+    "CA_CERT",
+    "CA_KEY",
+    "CREDENTIALS_FILE",
+    "DEFAULT_PORT",
+    "ROLES",
+    "ROUTER_CERT",
+    "ROUTER_KEY",
+    "SECURITY_FILE",
+    "SERVICE_ROLES",
+    "USERNAME_PATTERN",
+    "SecurityConfig",
+    "SecurityError",
+    "load_security",
+    "read_credentials",
+    "save_security",
+    "tls_endpoint",
+    "validate_username",
+    "write_credentials",
+    "run_secured_router",
+    "client_config_for",
+    "client_settings",
+    "router_config_dict",
+    "router_config_for",
+    "router_settings",
+]

@@ -10,6 +10,7 @@ from common.security.config import SecurityConfig, SecurityError
 
 # -- access control --------------------------------------------------------------------------------------------
 
+
 def publish_kinds(service: str) -> list[str]:
     """The protocol's publish rights of `service` as key tails for the router (`NAME+`: `NAME` and `NAME-$*`)."""
     out: list[str] = []
@@ -42,33 +43,69 @@ def access_control(security: SecurityConfig) -> dict[str, Any]:
     read_scope = f"{ROOT}/**" if security.run == "*" else f"{ROOT}/{security.run}/**"
     alive_scope = f"{ROOT}/*/{ALIVE}/**" if security.run == "*" else f"{ROOT}/{security.run}/{ALIVE}/**"
     rules: list[dict[str, Any]] = [
-        {"id": "read-subscribe", "messages": ["declare_subscriber"], "flows": ["ingress", "egress"],
-         "permission": "allow", "key_exprs": [read_scope]},
-        {"id": "read-receive", "messages": ["put"], "flows": ["egress"], "permission": "allow",
-         "key_exprs": [read_scope]},
+        {
+            "id": "read-subscribe",
+            "messages": ["declare_subscriber"],
+            "flows": ["ingress", "egress"],
+            "permission": "allow",
+            "key_exprs": [read_scope],
+        },
+        {
+            "id": "read-receive",
+            "messages": ["put"],
+            "flows": ["egress"],
+            "permission": "allow",
+            "key_exprs": [read_scope],
+        },
         # Who is alive: anyone may watch the tokens (with history: a liveliness query and its replies).
-        {"id": "alive-watch", "messages": ["declare_liveliness_subscriber", "liveliness_query", "liveliness_token",
-                                           "reply"],
-         "flows": ["egress"], "permission": "allow", "key_exprs": [alive_scope]},
-        {"id": "alive-ask", "messages": ["declare_liveliness_subscriber", "liveliness_query"], "flows": ["ingress"],
-         "permission": "allow", "key_exprs": [alive_scope]},
+        {
+            "id": "alive-watch",
+            "messages": ["declare_liveliness_subscriber", "liveliness_query", "liveliness_token", "reply"],
+            "flows": ["egress"],
+            "permission": "allow",
+            "key_exprs": [alive_scope],
+        },
+        {
+            "id": "alive-ask",
+            "messages": ["declare_liveliness_subscriber", "liveliness_query"],
+            "flows": ["ingress"],
+            "permission": "allow",
+            "key_exprs": [alive_scope],
+        },
     ]
     subjects: list[dict[str, Any]] = [{"id": "everyone", "usernames": users, "link_protocols": ["tls"]}]
-    policies: list[dict[str, Any]] = [{"id": "everyone-reads",
-                                       "rules": ["read-subscribe", "read-receive", "alive-watch", "alive-ask"],
-                                       "subjects": ["everyone"]}]
+    policies: list[dict[str, Any]] = [
+        {
+            "id": "everyone-reads",
+            "rules": ["read-subscribe", "read-receive", "alive-watch", "alive-ask"],
+            "subjects": ["everyone"],
+        }
+    ]
     for user in users:
         service = security.service_of(user)
-        rules.append({"id": f"publish-{user}", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
-                      "key_exprs": _keys(security, publish_kinds(service))})
-        rules.append({"id": f"alive-{user}", "messages": ["liveliness_token"], "flows": ["ingress"],
-                      "permission": "allow",
-                      "key_exprs": _keys(security, [f"{ALIVE}/{service}", f"{ALIVE}/{service}/*"])})
+        rules.append(
+            {
+                "id": f"publish-{user}",
+                "messages": ["put"],
+                "flows": ["ingress"],
+                "permission": "allow",
+                "key_exprs": _keys(security, publish_kinds(service)),
+            }
+        )
+        rules.append(
+            {
+                "id": f"alive-{user}",
+                "messages": ["liveliness_token"],
+                "flows": ["ingress"],
+                "permission": "allow",
+                "key_exprs": _keys(security, [f"{ALIVE}/{service}", f"{ALIVE}/{service}/*"]),
+            }
+        )
         subjects.append({"id": f"user-{user}", "usernames": [user], "link_protocols": ["tls"]})
-        policies.append({"id": f"{user}-publishes", "rules": [f"publish-{user}", f"alive-{user}"],
-                         "subjects": [f"user-{user}"]})
-    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
-            "policies": policies}
+        policies.append(
+            {"id": f"{user}-publishes", "rules": [f"publish-{user}", f"alive-{user}"], "subjects": [f"user-{user}"]}
+        )
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
 def publish_keys(security: SecurityConfig, username: str) -> list[str]:

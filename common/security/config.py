@@ -29,6 +29,7 @@ _USERNAME_RE = re.compile(USERNAME_PATTERN[:-1] + r"\Z")
 SERVICE_ROLES = ("learner", "actor", "recorder", "perception")
 ROLES = SERVICE_ROLES + ("teacher",)
 
+
 class SecurityError(ValueError):
     """A security configuration that cannot be used (missing identity, file, password, bad name)."""
 
@@ -40,6 +41,7 @@ def validate_username(name: str, what: str = "username") -> str:
 
 
 # -- the configuration -----------------------------------------------------------------------------------------
+
 
 @dataclasses.dataclass(frozen=True)
 class SecurityConfig:
@@ -143,12 +145,14 @@ class SecurityConfig:
         d["teachers"] = list(self.teachers)
         return d
 
-    def for_client(self, username: str, credentials_file: str = CREDENTIALS_FILE,
-                   ca_cert: str = CA_CERT) -> SecurityConfig:
+    def for_client(
+        self, username: str, credentials_file: str = CREDENTIALS_FILE, ca_cert: str = CA_CERT
+    ) -> SecurityConfig:
         """The copy a client machine gets: no router files, its own credentials file."""
         self.role_of(username)
-        return dataclasses.replace(self, router_cert=None, router_key=None, ca_cert=ca_cert,
-                                   credentials_file=credentials_file)
+        return dataclasses.replace(
+            self, router_cert=None, router_key=None, ca_cert=ca_cert, credentials_file=credentials_file
+        )
 
 
 def load_security(path: str | os.PathLike) -> SecurityConfig:

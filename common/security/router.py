@@ -14,15 +14,23 @@ import zenoh
 
 from common.config import option
 from common.security.certs import init
-from common.security.config import (DEFAULT_PORT, SECURITY_FILE, SecurityConfig, SecurityError, load_security,
-                                    tls_endpoint)
+from common.security.config import (
+    DEFAULT_PORT,
+    SECURITY_FILE,
+    SecurityConfig,
+    SecurityError,
+    load_security,
+    tls_endpoint,
+)
 from common.security.zenoh_config import router_config_dict, router_config_for
 from common.wire.transport import LOOPBACK
 
 # -- a secured router process ----------------------------------------------------------------------------------
 
-def run_secured_router(security: SecurityConfig, port: int | None = None, *, host: str | None = None,
-                       stop: threading.Event | None = None) -> None:
+
+def run_secured_router(
+    security: SecurityConfig, port: int | None = None, *, host: str | None = None, stop: threading.Event | None = None
+) -> None:
     """Run the secured router until ``stop`` is set or SIGTERM/SIGINT (main thread); prints
     ``ready <endpoint> <zid>`` once listening."""
     stop = stop or threading.Event()
@@ -54,8 +62,11 @@ class SecurityInitConfig:
 
     dir: str = option("", "output directory", positional=True)
     teachers: str = option("", "comma-separated teacher usernames (= their teacher_id)")
-    hosts: str = option("", "comma-separated extra names/IPs of the router machine for its certificate "
-                            "(localhost and 127.0.0.1 are always in)")
+    hosts: str = option(
+        "",
+        "comma-separated extra names/IPs of the router machine for its certificate "
+        "(localhost and 127.0.0.1 are always in)",
+    )
     router_host: str = option(LOOPBACK, "the host clients dial")
     port: int = option(DEFAULT_PORT, "the router's port")
     run: str = option("*", "restrict all access to this run name (*: any run)")
@@ -79,13 +90,23 @@ class SecuredRouterConfig:
 
 def security_init(args: SecurityInitConfig) -> int:
     try:
-        sec = init(args.dir, _names(args.teachers), hosts=_names(args.hosts), router_host=args.router_host,
-                   port=args.port, run=args.run, perception="perception" if args.perception else None, days=args.days)
+        sec = init(
+            args.dir,
+            _names(args.teachers),
+            hosts=_names(args.hosts),
+            router_host=args.router_host,
+            port=args.port,
+            run=args.run,
+            perception="perception" if args.perception else None,
+            days=args.days,
+        )
     except SecurityError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    print(f"wrote {Path(args.dir) / SECURITY_FILE} (router machine) and {Path(args.dir) / 'clients'}/<user>/ "
-          f"for {', '.join(sec.usernames())}")
+    print(
+        f"wrote {Path(args.dir) / SECURITY_FILE} (router machine) and {Path(args.dir) / 'clients'}/<user>/ "
+        f"for {', '.join(sec.usernames())}"
+    )
     return 0
 
 

@@ -13,6 +13,7 @@ from common.wire.transport import DEFAULT_CONNECT_TIMEOUT, make_config
 
 # -- zenoh configs ---------------------------------------------------------------------------------------------
 
+
 def router_settings(security: SecurityConfig) -> dict[str, Any]:
     """The secured parts of the router's zenoh config, as ``{path: value}`` for ``Config.insert_json5``.
     Merged with ``mode``/``listen`` this is also a zenohd config (see :func:`router_config_dict`)."""
@@ -48,8 +49,9 @@ def _apply(config: zenoh.Config, settings: dict[str, Any]) -> zenoh.Config:
     return config
 
 
-def router_config_for(security: SecurityConfig, port: int | None = None, *, host: str | None = None,
-                      timestamping: bool = True) -> zenoh.Config:
+def router_config_for(
+    security: SecurityConfig, port: int | None = None, *, host: str | None = None, timestamping: bool = True
+) -> zenoh.Config:
     """A secured router (a Python session in router mode) listening on ``tls/<host>:<port>`` only.
 
     ``host`` defaults to ``security.router_host`` (127.0.0.1 unless configured); use ``"0.0.0.0"`` or the
@@ -58,15 +60,22 @@ def router_config_for(security: SecurityConfig, port: int | None = None, *, host
     return _apply(make_config("router", listen=[endpoint], timestamping=timestamping), router_settings(security))
 
 
-def client_config_for(security: SecurityConfig, role: str, endpoint: int | str | None = None, *,
-                      teacher: str | None = None, connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
-                      timestamping: bool = True) -> zenoh.Config:
+def client_config_for(
+    security: SecurityConfig,
+    role: str,
+    endpoint: int | str | None = None,
+    *,
+    teacher: str | None = None,
+    connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
+    timestamping: bool = True,
+) -> zenoh.Config:
     """A secured client of the router for the service ``role`` (learner, actor, recorder, perception, or
     teacher with ``teacher=<username>``). ``endpoint``: None (the configured router), a port on the
     configured router host, or a ``tls/host:port`` endpoint; a ``tcp/`` endpoint is refused."""
     username = security.username(role, teacher)
-    config = make_config("client", connect=[security.endpoint(endpoint)], connect_timeout=connect_timeout,
-                         timestamping=timestamping)
+    config = make_config(
+        "client", connect=[security.endpoint(endpoint)], connect_timeout=connect_timeout, timestamping=timestamping
+    )
     return _apply(config, client_settings(security, username))
 
 
@@ -74,8 +83,11 @@ def router_config_dict(security: SecurityConfig, port: int | None = None, *, hos
     """The router config as a nested dict (JSON): what ``zenohd -c FILE`` would take."""
     out: dict[str, Any] = {
         "mode": "router",
-        "listen": {"endpoints": [tls_endpoint(security.port if port is None else port,
-                                              security.router_host if host is None else host)]},
+        "listen": {
+            "endpoints": [
+                tls_endpoint(security.port if port is None else port, security.router_host if host is None else host)
+            ]
+        },
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "timestamping": {"enabled": True},
     }

@@ -22,6 +22,7 @@ must count up in its own incarnation. Incarnations are not ordered by time, so a
 key under a new incarnation and a later time cannot make a receiver drop the real teacher's next press (issue 33);
 an old sample replayed late is still refused by its signing time (`stale_signature`). No zenoh import.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -37,8 +38,15 @@ from typing import Any
 from collections.abc import Iterable
 
 from common.config import option
-from common.protocol import (SERVICE_ROLES, kind_of, may_publish, observer_service_name, sender_of, split_identity,
-                             teacher_service_name)
+from common.protocol import (
+    SERVICE_ROLES,
+    kind_of,
+    may_publish,
+    observer_service_name,
+    sender_of,
+    split_identity,
+    teacher_service_name,
+)
 
 VERSION = b"H1"
 TAG_BYTES = 32
@@ -99,8 +107,13 @@ class Credential:
     def from_json(cls, obj: Any, where: str = "credential") -> Credential:
         try:
             secret = bytes.fromhex(obj["secret"]) if "secret" in obj else None
-            cred = cls(identity=str(obj["identity"]), run=str(obj["run"]), key=bytes.fromhex(obj["key"]),
-                       secret=secret, verify={str(k): bytes.fromhex(v) for k, v in obj.get("verify", {}).items()})
+            cred = cls(
+                identity=str(obj["identity"]),
+                run=str(obj["run"]),
+                key=bytes.fromhex(obj["key"]),
+                secret=secret,
+                verify={str(k): bytes.fromhex(v) for k, v in obj.get("verify", {}).items()},
+            )
             split_identity(cred.identity)
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise AuthError(f"{where}: not a credential ({exc})") from None
@@ -173,12 +186,14 @@ def teacher_credential(secret: bytes, run: str, teacher_id: str) -> Credential:
     identity = teacher_service_name(teacher_id)
     # what a teacher hears: the services, and the face-video observer showing its reactions to the camera
     heard = TEACHER_VERIFIES + (observer_service_name(teacher_id),)
-    return Credential(identity, run, derive_key(secret, run, identity),
-                      verify={i: derive_key(secret, run, i) for i in heard})
+    return Credential(
+        identity, run, derive_key(secret, run, identity), verify={i: derive_key(secret, run, i) for i in heard}
+    )
 
 
-def make_run_credentials(folder: str | os.PathLike, run: str, services: Iterable[str] = SERVICE_ROLES,
-                         teachers: Iterable[str] = ()) -> dict[str, Path]:
+def make_run_credentials(
+    folder: str | os.PathLike, run: str, services: Iterable[str] = SERVICE_ROLES, teachers: Iterable[str] = ()
+) -> dict[str, Path]:
     """A new run secret in `folder` and one credential file per identity (`<identity>.json`): service
     credentials for `services` (identities), teacher credentials for `teachers` (teacher ids)."""
     folder = Path(folder)
@@ -190,8 +205,9 @@ def make_run_credentials(folder: str | os.PathLike, run: str, services: Iterable
     return paths
 
 
-def make_teacher_credential(folder: str | os.PathLike, run: str, teacher_id: str,
-                            out: str | os.PathLike | None = None) -> Path:
+def make_teacher_credential(
+    folder: str | os.PathLike, run: str, teacher_id: str, out: str | os.PathLike | None = None
+) -> Path:
     """Give teacher `teacher_id` (a console, a human's teacher process) a credential for the run whose secret
     is in `folder`; written to `out` (default `<folder>/teacher.<id>.json`). Returns its path."""
     cred = teacher_credential(read_run_secret(folder, run), run, teacher_id)
@@ -199,6 +215,7 @@ def make_teacher_credential(folder: str | os.PathLike, run: str, teacher_id: str
 
 
 # -- signing and checking -----------------------------------------------------------------------------------
+
 
 def _mac(key: bytes, key_expr: str, header: bytes, payload: bytes) -> bytes:
     return hmac.digest(key, b"".join((key_expr.encode(), b"\0", header, payload)), "sha256")
@@ -208,8 +225,9 @@ class Auth:
     """Signs what this process publishes and checks what it receives. Thread-safe: zenoh callbacks of
     several subscriptions may check at once, several threads may sign."""
 
-    def __init__(self, cred: Credential, incarnation: str | None = None, *, max_past: float = 600.0,
-                 max_future: float = 10.0):
+    def __init__(
+        self, cred: Credential, incarnation: str | None = None, *, max_past: float = 600.0, max_future: float = 10.0
+    ):
         self.cred = cred
         self.incarnation = (incarnation or secrets.token_hex(8))[:64]
         self.max_past, self.max_future = float(max_past), float(max_future)
@@ -238,8 +256,14 @@ class Auth:
             self._keys[identity] = self.cred.key_of(identity)
         return self._keys[identity]
 
-    def check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None = None,
-              window: dict | None = None) -> str | None:
+    def check(
+        self,
+        key_expr: str,
+        payload: bytes,
+        attachment: bytes | None,
+        t_recv: float | None = None,
+        window: dict | None = None,
+    ) -> str | None:
         """None if authentic and new, else the reason to drop it (:data:`AUTH_REASONS`), counted. `window`: the
         replay state of one subscription (a sample matching two subscriptions of a process arrives at each once;
         default: this object's own)."""
@@ -251,8 +275,9 @@ class Auth:
                 self.rejected[name] = self.rejected.get(name, 0) + 1
         return reason
 
-    def _check(self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None,
-               window: dict) -> str | None:
+    def _check(
+        self, key_expr: str, payload: bytes, attachment: bytes | None, t_recv: float | None, window: dict
+    ) -> str | None:
         parsed = _parse(attachment)
         if parsed is None:
             return "unauthenticated"
@@ -291,8 +316,10 @@ class SignAsSender:
 
     def __init__(self, cred: Credential):
         if cred.secret is None:
-            raise AuthError(f"re-publishing a run needs a service credential (with the run secret), not "
-                            f"{cred.identity!r}'s teacher credential")
+            raise AuthError(
+                f"re-publishing a run needs a service credential (with the run secret), not "
+                f"{cred.identity!r}'s teacher credential"
+            )
         self.cred, self.secret = cred, cred.secret
         self._auths: dict[str, Auth] = {}
 
@@ -317,7 +344,7 @@ def _parse(att: bytes | None) -> tuple[str, int, float, str, bytes, bytes] | Non
         identity = att[3:at].decode("ascii")
         n, t, n_inc = _HEAD.unpack_from(att, at)
         at += _HEAD.size
-        inc = att[at:at + n_inc].decode("ascii")
+        inc = att[at : at + n_inc].decode("ascii")
     except (UnicodeDecodeError, struct.error):
         return None
     at += n_inc
@@ -332,8 +359,6 @@ def signer_identity(attachment: bytes | None) -> str | None:
     return parsed[0] if parsed else None
 
 
-
-
 def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
     """Microseconds per message to sign (publisher) and to check (each receiver), for a Step, a Feedback and the
     DQN-TAMER maze Weights, as the services send them (`python -m services auth-bench`)."""
@@ -343,19 +368,33 @@ def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
 
     run = "bench"
     secret = secrets.token_bytes(32)
-    step = Step(run=run, incarnation="actor-1-abcdef01", seq=12345, t_action=time.time(), episode=3, t_in_episode=17,
-                obs=[0.0] * 8, action=2, reward=-0.01, next_obs=[1.0] * 8, terminated=False, truncated=False,
-                weights_version=12345, info={"target_distance_before": 3.0, "target_distance_after": 2.0})
+    step = Step(
+        run=run,
+        incarnation="actor-1-abcdef01",
+        seq=12345,
+        t_action=time.time(),
+        episode=3,
+        t_in_episode=17,
+        obs=[0.0] * 8,
+        action=2,
+        reward=-0.01,
+        next_obs=[1.0] * 8,
+        terminated=False,
+        truncated=False,
+        weights_version=12345,
+        info={"target_distance_before": 3.0, "target_distance_after": 2.0},
+    )
     fb = Feedback(run=run, teacher_id="oracle", seq=321, t_reaction=time.time(), value=1, source="oracle")
     rng = np.random.default_rng(0)
     shapes = {"q.0.weight": (100, 8), "q.0.bias": (100,), "q.2.weight": (4, 100), "q.2.bias": (4,)}
     tensors = {f"{net}{k[1:]}": rng.standard_normal(s).astype(np.float32) for net in "qh" for k, s in shapes.items()}
     w = Weights(run=run, incarnation="learner-1-abcdef01", version=12345, t_published=time.time(), tensors=tensors)
     out = []
-    for name, key, payload, sender, count in (("Step", step_key(run), step.encode(), "actor", n),
-                                              ("Feedback", feedback_key(run, "oracle"), fb.encode(),
-                                               "teacher.oracle", n),
-                                              ("Weights", weights_key(run), w.encode(), "learner", max(1, n // 20))):
+    for name, key, payload, sender, count in (
+        ("Step", step_key(run), step.encode(), "actor", n),
+        ("Feedback", feedback_key(run, "oracle"), fb.encode(), "teacher.oracle", n),
+        ("Weights", weights_key(run), w.encode(), "learner", max(1, n // 20)),
+    ):
         sign_s, check_s, bad = [], [], 0
         for _ in range(repeats):  # the best of several rounds: other processes only ever add time
             signer = Auth(service_credential(secret, run, sender))
@@ -367,10 +406,19 @@ def bench(n: int = 20000, repeats: int = 7) -> list[dict[str, Any]]:
             t2 = time.perf_counter()
             sign_s.append(t1 - t0)
             check_s.append(t2 - t1)
-        out.append({"message": name, "bytes": len(payload), "n": count, "repeats": repeats,
-                    "sign_us": min(sign_s) / count * 1e6, "check_us": min(check_s) / count * 1e6,
-                    "sign_us_median": sorted(sign_s)[len(sign_s) // 2] / count * 1e6,
-                    "check_us_median": sorted(check_s)[len(check_s) // 2] / count * 1e6, "rejected": bad})
+        out.append(
+            {
+                "message": name,
+                "bytes": len(payload),
+                "n": count,
+                "repeats": repeats,
+                "sign_us": min(sign_s) / count * 1e6,
+                "check_us": min(check_s) / count * 1e6,
+                "sign_us_median": sorted(sign_s)[len(sign_s) // 2] / count * 1e6,
+                "check_us_median": sorted(check_s)[len(check_s) // 2] / count * 1e6,
+                "rejected": bad,
+            }
+        )
     return out
 
 
@@ -384,12 +432,16 @@ class AuthBenchConfig:
 
 def bench_main(args: AuthBenchConfig) -> int:
     rows = bench(args.n, args.repeats)
-    print(f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; µs per message, best (median) of "
-          f"{args.repeats} rounds")
+    print(
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs; µs per message, best (median) of "
+        f"{args.repeats} rounds"
+    )
     print(f"{'message':<10}{'bytes':>8}{'sign µs':>18}{'check µs':>18}")
     for r in rows:
-        print(f"{r['message']:<10}{r['bytes']:>8}{r['sign_us']:>9.2f} ({r['sign_us_median']:>5.1f})"
-              f"{r['check_us']:>9.2f} ({r['check_us_median']:>5.1f})")
+        print(
+            f"{r['message']:<10}{r['bytes']:>8}{r['sign_us']:>9.2f} ({r['sign_us_median']:>5.1f})"
+            f"{r['check_us']:>9.2f} ({r['check_us_median']:>5.1f})"
+        )
     return 0 if all(r["rejected"] == 0 for r in rows) else 1
 
 

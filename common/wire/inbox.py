@@ -1,5 +1,6 @@
 """The bounded queue between a zenoh callback subscriber and a service's own thread, and the process's
 authentication default (common/wire/auth.py) that every publisher and inbox uses."""
+
 from __future__ import annotations
 
 import collections
@@ -99,8 +100,9 @@ class Inbox:
         item = Received(str(sample.key_expr), sample.payload.to_bytes(), time.time(), _zenoh_seconds(sample.timestamp))
         if self.auth is not None:
             att = sample.attachment
-            reason = self.auth.check(item.key, item.data, None if att is None else att.to_bytes(), item.t_recv,
-                                     self._window)
+            reason = self.auth.check(
+                item.key, item.data, None if att is None else att.to_bytes(), item.t_recv, self._window
+            )
             if reason is not None:
                 with self._cond:
                     self.counters["received"] += 1

@@ -32,8 +32,14 @@ from collections.abc import Callable, Iterator
 
 import zenoh
 
-from common.wire.inbox import (QUEUE_POLICIES, Inbox, Received, default_auth, default_policy,  # noqa: F401 (re-exported)
-                          set_default_auth)
+from common.wire.inbox import (
+    QUEUE_POLICIES,
+    Inbox,
+    Received,
+    default_auth,
+    default_policy,  # noqa: F401 (re-exported)
+    set_default_auth,
+)
 from common.config import option
 from common.protocol import parse_key
 
@@ -42,6 +48,7 @@ DEFAULT_CONNECT_TIMEOUT = 10.0  # seconds a client keeps trying to reach its rou
 
 
 # -- configs ---------------------------------------------------------------------------------------------------
+
 
 def free_port(host: str = LOOPBACK) -> int:
     """A TCP port that was free a moment ago (bind to port 0, read it, close). Racy but fine on loopback."""
@@ -62,8 +69,14 @@ BLOCK_WAIT_US = 20_000_000
 """How long (µs) a BLOCK message may wait for room before Zenoh closes the link (see `make_config`)."""
 
 
-def make_config(mode: str, *, listen: list[str] | tuple[str, ...] = (), connect: list[str] | tuple[str, ...] = (),
-                connect_timeout: float | None = None, timestamping: bool = True) -> zenoh.Config:
+def make_config(
+    mode: str,
+    *,
+    listen: list[str] | tuple[str, ...] = (),
+    connect: list[str] | tuple[str, ...] = (),
+    connect_timeout: float | None = None,
+    timestamping: bool = True,
+) -> zenoh.Config:
     """A closed-world config: no multicast scouting, no gossip, only the given endpoints.
 
     ``connect_timeout`` (s): how long ``open`` keeps retrying the connect endpoints (None: zenoh's default,
@@ -93,24 +106,40 @@ def router_config(port_or_endpoint: int | str, *, timestamping: bool = True) -> 
     return make_config("router", listen=[_as_endpoint(port_or_endpoint)], timestamping=timestamping)
 
 
-def client_config(*endpoints: int | str, connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
-                  timestamping: bool = True) -> zenoh.Config:
+def client_config(
+    *endpoints: int | str, connect_timeout: float = DEFAULT_CONNECT_TIMEOUT, timestamping: bool = True
+) -> zenoh.Config:
     """A client of the router(s) at ``endpoints`` (ports or ``tcp/host:port``); waits up to
     ``connect_timeout`` s in open() for one to be up."""
     if not endpoints:
         raise ValueError("client_config needs at least one router endpoint")
-    return make_config("client", connect=[_as_endpoint(e) for e in endpoints], connect_timeout=connect_timeout,
-                       timestamping=timestamping)
+    return make_config(
+        "client",
+        connect=[_as_endpoint(e) for e in endpoints],
+        connect_timeout=connect_timeout,
+        timestamping=timestamping,
+    )
 
 
-def peer_config(*, listen: list[int | str] | tuple = (), connect: list[int | str] | tuple = (),
-                connect_timeout: float | None = DEFAULT_CONNECT_TIMEOUT, timestamping: bool = True) -> zenoh.Config:
+def peer_config(
+    *,
+    listen: list[int | str] | tuple = (),
+    connect: list[int | str] | tuple = (),
+    connect_timeout: float | None = DEFAULT_CONNECT_TIMEOUT,
+    timestamping: bool = True,
+) -> zenoh.Config:
     """A peer that listens and/or connects to explicit endpoints (no router needed for two processes)."""
-    return make_config("peer", listen=[_as_endpoint(e) for e in listen], connect=[_as_endpoint(e) for e in connect],
-                       connect_timeout=connect_timeout if connect else None, timestamping=timestamping)
+    return make_config(
+        "peer",
+        listen=[_as_endpoint(e) for e in listen],
+        connect=[_as_endpoint(e) for e in connect],
+        connect_timeout=connect_timeout if connect else None,
+        timestamping=timestamping,
+    )
 
 
 # -- sessions ------------------------------------------------------------------------------------------------------
+
 
 @contextlib.contextmanager
 def open_session(config: zenoh.Config) -> Iterator[zenoh.Session]:
@@ -137,16 +166,21 @@ def _congestion(name: str) -> zenoh.CongestionControl:
     return zenoh.CongestionControl.BLOCK if name == "block" else zenoh.CongestionControl.DROP
 
 
-def declare_publisher(session: zenoh.Session, key: str, *, congestion: str | None = None,
-                      express: bool = False) -> zenoh.Publisher:
+def declare_publisher(
+    session: zenoh.Session, key: str, *, congestion: str | None = None, express: bool = False
+) -> zenoh.Publisher:
     """A publisher on a concrete protocol key, with congestion control from the key table (BLOCK for config,
     step, feedback, weights, episode; DROP for status, camera, perception) unless ``congestion`` says."""
     spec = parse_key(key).spec
     cls = spec.message
     json_encoded = cls.MESSAGE_ENCODING == "json"
     encoding = zenoh.Encoding.APPLICATION_JSON if json_encoded else zenoh.Encoding.APPLICATION_OCTET_STREAM
-    return session.declare_publisher(key, congestion_control=_congestion(congestion or spec.congestion),
-                                     encoding=encoding.with_schema(cls.TYPE_NAME), express=express)
+    return session.declare_publisher(
+        key,
+        congestion_control=_congestion(congestion or spec.congestion),
+        encoding=encoding.with_schema(cls.TYPE_NAME),
+        express=express,
+    )
 
 
 def wait_for_matching(publisher: zenoh.Publisher, timeout: float = 5.0) -> bool:
@@ -166,8 +200,15 @@ class MessagePublisher:
 
     ``put`` accepts a message object or already-encoded bytes."""
 
-    def __init__(self, session: zenoh.Session, key: str, *, congestion: str | None = None, express: bool = False,
-                 auth: Any = None):
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        *,
+        congestion: str | None = None,
+        express: bool = False,
+        auth: Any = None,
+    ):
         self.key = key
         self.message_type = parse_key(key).spec.message
         self.publisher = declare_publisher(session, key, congestion=congestion, express=express)
@@ -205,9 +246,17 @@ class MessagePublisher:
 
 # -- receiving -------------------------------------------------------------------------------------------------------
 
-def subscribe(session: zenoh.Session, key_expr: str, inbox: Inbox | None = None, *, maxsize: int = 1024,
-              policy: str | None = None, block_timeout: float = 5.0,
-              auth: Any = None) -> tuple[zenoh.Subscriber, Inbox]:
+
+def subscribe(
+    session: zenoh.Session,
+    key_expr: str,
+    inbox: Inbox | None = None,
+    *,
+    maxsize: int = 1024,
+    policy: str | None = None,
+    block_timeout: float = 5.0,
+    auth: Any = None,
+) -> tuple[zenoh.Subscriber, Inbox]:
     """Declare a callback subscriber feeding an :class:`Inbox` (a new one unless given), held open beyond a
     ``with`` block (else use :func:`subscription`).
 
@@ -238,15 +287,25 @@ class Forward(Inbox):
 
 
 @contextlib.contextmanager
-def subscriptions(session: zenoh.Session, key_exprs: list[str], *, maxsize: int = 1024, policy: str | None = None,
-                  block_timeout: float = 5.0, auth: Any = None,
-                  deliver: Callable[[Received], None] | None = None) -> Iterator[Inbox]:
+def subscriptions(
+    session: zenoh.Session,
+    key_exprs: list[str],
+    *,
+    maxsize: int = 1024,
+    policy: str | None = None,
+    block_timeout: float = 5.0,
+    auth: Any = None,
+    deliver: Callable[[Received], None] | None = None,
+) -> Iterator[Inbox]:
     """``with subscriptions(session, [key, ...]) as inbox: ...``: callback subscribers feeding one Inbox (in arrival
     order; policy by default the key table's for the first key); on exit the inbox is closed first (releasing a
     callback blocked on a full queue), then the subscribers are undeclared. With ``deliver``, the samples go to it
     instead of a queue (:class:`Forward`: the console's event loop)."""
-    inbox = Forward(deliver, auth=auth) if deliver is not None else \
-        Inbox(maxsize, policy or default_policy(key_exprs[0]), block_timeout=block_timeout, auth=auth)
+    inbox = (
+        Forward(deliver, auth=auth)
+        if deliver is not None
+        else Inbox(maxsize, policy or default_policy(key_exprs[0]), block_timeout=block_timeout, auth=auth)
+    )
     subs = []
     try:
         subs = [session.declare_subscriber(k, inbox.handler()) for k in key_exprs]
@@ -265,8 +324,10 @@ def subscription(session: zenoh.Session, key_expr: str, **kwargs: Any) -> contex
 
 # -- a router process -----------------------------------------------------------------------------------------------
 
-def run_router(endpoint: str, *, stop: threading.Event | None = None,
-               on_ready: Callable[[zenoh.Session], None] | None = None) -> None:
+
+def run_router(
+    endpoint: str, *, stop: threading.Event | None = None, on_ready: Callable[[zenoh.Session], None] | None = None
+) -> None:
     """Run a router session on ``endpoint`` until ``stop`` is set (or SIGTERM/SIGINT in the main thread)."""
     stop = stop or threading.Event()
     # The handler only records the signal: calling stop.set() from a handler that interrupted

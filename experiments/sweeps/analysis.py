@@ -15,6 +15,7 @@ for ln steps as in the claims, 0.05 for success, 2% of the group's return scale 
 `inconclusive`. Each also gets its minimum detectable effect (`stats.mde`, 80% power at the adjusted
 level) and the trials an effect of the size seen would need; a verdict resting on fewer is flagged.
 """
+
 from __future__ import annotations
 
 import math
@@ -33,10 +34,12 @@ MAX_STEPS = 1000  # an episode that reaches it did not reach the goal (the envs'
 # --------------------------------------------------------------------------------- metrics
 def trial_metrics(steps: np.ndarray, returns: np.ndarray) -> dict[str, np.ndarray]:
     """Per-trial values of every metric, from [trials, episodes] arrays."""
-    return {"ln_steps": stats.log_steps(steps).mean(axis=1),
-            "ln_steps_last10": stats.log_steps(steps[:, -10:]).mean(axis=1),
-            "success": (steps < MAX_STEPS).mean(axis=1),
-            "return": returns.mean(axis=1)}
+    return {
+        "ln_steps": stats.log_steps(steps).mean(axis=1),
+        "ln_steps_last10": stats.log_steps(steps[:, -10:]).mean(axis=1),
+        "success": (steps < MAX_STEPS).mean(axis=1),
+        "return": returns.mean(axis=1),
+    }
 
 
 def clusters_of(layouts: np.ndarray) -> np.ndarray:
@@ -88,8 +91,14 @@ def summarize(sweep: Sweep, data: dict[int, CellData], n_boot: int) -> dict:
     for fixed, cells in groups(sweep):
         for c in cells:
             d = data[c.index]
-            row = {"cell": c.label, "values": c.values, "group": group_title(fixed), "trials": int(d.steps.shape[0]),
-                   "episodes": int(d.steps.shape[1]), "clusters": int(len(np.unique(d.clusters)))}
+            row = {
+                "cell": c.label,
+                "values": c.values,
+                "group": group_title(fixed),
+                "trials": int(d.steps.shape[0]),
+                "episodes": int(d.steps.shape[1]),
+                "clusters": int(len(np.unique(d.clusters))),
+            }
             for name, v in d.metrics.items():
                 b = stats.cluster_bootstrap(v, d.clusters, n_boot)
                 row[name] = {"estimate": b["estimate"], "ci": b["ci"]}
@@ -138,6 +147,7 @@ def parse_contrast(text: str, sweep: Sweep) -> Contrast:
 
 def _assignments(side: str) -> list[str]:
     from experiments.sweeps.grid import split_top
+
     parts = [p.strip() for p in split_top(side.strip())]
     # "a=1,2" is not a side; a comma starts a new assignment only before 'FIELD='.
     merged: list[str] = []
@@ -170,10 +180,22 @@ def contrast_rows(con: Contrast, sweep: Sweep, data: dict[int, CellData], n_boot
         _, means, _ = stats.cluster_means(diff, da.clusters)
         p_two = min(1.0, 2 * min(stats.one_sided_p(means), stats.one_sided_p(-means)))
         rest = {path: v for path, v in a.values.items() if path not in named}
-        rows.append({"contrast": con.text, "metric": con.metric, "where": group_title(rest),
-                     "left": a.label, "right": b.label, "estimate": boot["estimate"], "ci": boot["ci"],
-                     "se": boot["se"], "p": p_two, "margin": _margin(con.metric, cells, data),
-                     "trials": int(len(diff)), "clusters": int(len(means))})
+        rows.append(
+            {
+                "contrast": con.text,
+                "metric": con.metric,
+                "where": group_title(rest),
+                "left": a.label,
+                "right": b.label,
+                "estimate": boot["estimate"],
+                "ci": boot["ci"],
+                "se": boot["se"],
+                "p": p_two,
+                "margin": _margin(con.metric, cells, data),
+                "trials": int(len(diff)),
+                "clusters": int(len(means)),
+            }
+        )
     return rows
 
 
@@ -212,7 +234,9 @@ def decide(ci: list[float], p_holm: float, margin: float, estimate: float) -> st
 
 def warning_line(row: dict) -> str:
     need = "any number of" if row["trials_needed"] is None else f"about {row['trials_needed']}"
-    return (f"warning: {row['metric']}: {row['contrast']} ({row['where']}): '{row['verdict']}' rests on "
-            f"{row['trials']} trials; "
-            f"the minimum detectable effect there is {row['mde']:.3f}, and an effect of the size seen needs "
-            f"{need} trials (80% power at the Holm-adjusted level)")
+    return (
+        f"warning: {row['metric']}: {row['contrast']} ({row['where']}): '{row['verdict']}' rests on "
+        f"{row['trials']} trials; "
+        f"the minimum detectable effect there is {row['mde']:.3f}, and an effect of the size seen needs "
+        f"{need} trials (80% power at the Holm-adjusted level)"
+    )

@@ -12,6 +12,7 @@ this process, which writes it to the cache at once. So a Ray cluster needs no sh
 Batching: missing trials are grouped into lockstep batches by environment, split over the workers
 (`experiments.trialcache.make_jobs`); results do not depend on the batching.
 """
+
 from __future__ import annotations
 
 import multiprocessing as mp
@@ -123,16 +124,26 @@ def run_job(job_id: int, items: list[tuple[str, TrialSpec, int]], emit: Emit) ->
     t0, c0, started_at = time.perf_counter(), time.process_time(), time.time()
     profile: dict = {}
     results = run_trials(specs, on_episode=on_episode, on_trial_done=on_trial_done, profile=profile)
-    return {"job": job_id, "pid": os.getpid(), "host": platform.node(), "env": specs[0].env, "trials": len(specs),
-            "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
-            "started_at": started_at, "ended_at": time.time(),  # epoch seconds: how the workers' ends spread
-            "trial_steps": int(sum(r.total_steps for r in results)),
-            "max_trial_steps": int(max(r.total_steps for r in results)), "by_running_trials": profile}
+    return {
+        "job": job_id,
+        "pid": os.getpid(),
+        "host": platform.node(),
+        "env": specs[0].env,
+        "trials": len(specs),
+        "wall_s": time.perf_counter() - t0,
+        "cpu_s": time.process_time() - c0,
+        "started_at": started_at,
+        "ended_at": time.time(),  # epoch seconds: how the workers' ends spread
+        "trial_steps": int(sum(r.total_steps for r in results)),
+        "max_trial_steps": int(max(r.total_steps for r in results)),
+        "by_running_trials": profile,
+    }
 
 
 # ------------------------------------------------------------------------------ local pool
 def _worker(jobs_q, msg_q, parent: int) -> None:
     import torch
+
     torch.set_num_threads(1)
 
     def emit(msg):
@@ -158,8 +169,10 @@ def run_local(jobs: list[list], workers: int, on_message: Emit) -> list[dict]:
         return infos
     ctx = mp.get_context("spawn")
     jobs_q, msg_q = ctx.Queue(), ctx.Queue()
-    procs = [ctx.Process(target=_worker, args=(jobs_q, msg_q, os.getpid()), daemon=True)
-             for _ in range(min(workers, len(jobs)))]
+    procs = [
+        ctx.Process(target=_worker, args=(jobs_q, msg_q, os.getpid()), daemon=True)
+        for _ in range(min(workers, len(jobs)))
+    ]
     main_thread = threading.current_thread() is threading.main_thread()
     old_term = signal.signal(signal.SIGTERM, _raise_exit) if main_thread else None
     for p in procs:
@@ -211,15 +224,26 @@ class RunStats:
     reused: int = 0  # of the cached: copied from another slot's file with the same trial
 
 
-def execute(sweep: Sweep, cache_dir: str, workers: int = 2, ray_address: str | None = None,
-            progress: bool = True, on_trial: Callable[[int, int], None] | None = None) -> tuple[Plan, RunStats]:
+def execute(
+    sweep: Sweep,
+    cache_dir: str,
+    workers: int = 2,
+    ray_address: str | None = None,
+    progress: bool = True,
+    on_trial: Callable[[int, int], None] | None = None,
+) -> tuple[Plan, RunStats]:
     """Compute every missing trial of the sweep; see `run_slots`."""
     return run_slots(sweep_slots(sweep), by_key(cache_dir), workers, ray_address, progress, on_trial)
 
 
-def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], path_of: PathOf, workers: int = 2,
-              ray_address: str | None = None, progress: bool = True,
-              on_trial: Callable[[int, int], None] | None = None) -> tuple[Plan, RunStats]:
+def run_slots(
+    slot_specs: list[tuple[Slot, TrialSpec]],
+    path_of: PathOf,
+    workers: int = 2,
+    ray_address: str | None = None,
+    progress: bool = True,
+    on_trial: Callable[[int, int], None] | None = None,
+) -> tuple[Plan, RunStats]:
     """Compute every missing trial (writing it to its slots' cache files as it arrives); return the
     full plan. `on_trial(done, total)` is called as trials arrive (an exception from it stops the run;
     what arrived stays cached)."""
@@ -229,6 +253,7 @@ def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], path_of: PathOf, workers
     items = {t.key: (t.key, t.spec, len(p.slots[t.key])) for t in p.todo}
     if ray_address and p.todo:
         from experiments.sweeps.ray_backend import cluster_cpus
+
         workers = cluster_cpus(ray_address)  # one batch per CPU of the cluster
     jobs = [[items[t.key] for t in job] for job in make_jobs(p.todo, workers)]
     bar = _bar(total, done0) if progress and jobs else None
@@ -257,6 +282,7 @@ def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], path_of: PathOf, workers
             infos = []
         elif ray_address:
             from experiments.sweeps.ray_backend import run_ray
+
             infos = run_ray(jobs, ray_address, on_message)
         else:
             infos = run_local(jobs, workers, on_message)
@@ -267,12 +293,27 @@ def run_slots(slot_specs: list[tuple[Slot, TrialSpec]], path_of: PathOf, workers
     missing = total - len(p.records)
     if missing:
         raise RuntimeError(f"{missing} trials missing after the run")
-    stats = RunStats(total, len(p.todo), p.missing, done0, run_s, infos,
-                     "ray" if ray_address and jobs else "local" if jobs else "cache", p.reused)
+    stats = RunStats(
+        total,
+        len(p.todo),
+        p.missing,
+        done0,
+        run_s,
+        infos,
+        "ray" if ray_address and jobs else "local" if jobs else "cache",
+        p.reused,
+    )
     return p, stats
 
 
 def _bar(total: int, initial: int):
     from tqdm import tqdm
-    return tqdm(total=float(total), initial=float(initial), desc="sweep", unit="trial", file=sys.stderr,
-                bar_format="{desc}: {n:.0f}/{total:.0f} trials |{bar}| {elapsed} elapsed, {remaining} left")
+
+    return tqdm(
+        total=float(total),
+        initial=float(initial),
+        desc="sweep",
+        unit="trial",
+        file=sys.stderr,
+        bar_format="{desc}: {n:.0f}/{total:.0f} trials |{bar}| {elapsed} elapsed, {remaining} left",
+    )

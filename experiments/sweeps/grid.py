@@ -11,6 +11,7 @@ Field paths (`FIELDS`) are those of `experiments run`'s config tree (`RunConfig`
 `teacher_rule`, `episodes`, `agent.<field>` (with `agent.algo`), `observer.<field>`; values are checked
 against the field's type and the config's own validation before anything runs.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -80,8 +81,14 @@ def _tree_fields(cls: type = RunConfig) -> dict[str, FieldInfo]:
 FIELDS: dict[str, FieldInfo] = _tree_fields()
 """Every field a sweep can set: the paths of `RunConfig`'s tree (the same names as `experiments run`'s flags)."""
 
-ALIASES = {"env.name": "env", "env.layout": "layout", "env.episodes": "episodes", "algo": "agent.algo",
-           "observer.flip": "observer.p_flip", "rule": "teacher_rule"}
+ALIASES = {
+    "env.name": "env",
+    "env.layout": "layout",
+    "env.episodes": "episodes",
+    "algo": "agent.algo",
+    "observer.flip": "observer.p_flip",
+    "rule": "teacher_rule",
+}
 DEFAULT_EPISODES = {"taxi": TAXI_EPISODES}
 
 
@@ -233,8 +240,10 @@ class Sweep:
 
     def cells(self) -> list[Cell]:
         paths = list(self.grid)
-        return [Cell(i, dict(zip(paths, combo)))
-                for i, combo in enumerate(itertools.product(*(self.grid[p] for p in paths)))]
+        return [
+            Cell(i, dict(zip(paths, combo)))
+            for i, combo in enumerate(itertools.product(*(self.grid[p] for p in paths)))
+        ]
 
     def settings(self, cell: Cell) -> dict[str, Any]:
         return {"env": "maze", **self.fixed, **cell.values}
@@ -266,17 +275,28 @@ class Sweep:
         episodes = DEFAULT_EPISODES.get(env, MAZE_EPISODES) if episodes is None else episodes
         if episodes < 1:
             raise ValueError(f"episodes must be positive, got {episodes}")
-        return TrialSpec(task.env, agent, observer, seed=task.seed, layout=task.layout, episodes=episodes,
-                         teacher_rule=task.teacher_rule)
+        return TrialSpec(
+            task.env,
+            agent,
+            observer,
+            seed=task.seed,
+            layout=task.layout,
+            episodes=episodes,
+            teacher_rule=task.teacher_rule,
+        )
 
     def record(self) -> dict:
         """The sweep as YAML/JSON-able data (what `from_mapping` reads back)."""
         plain = lambda v: list(v) if isinstance(v, tuple) else v  # noqa: E731
-        return {"name": self.name, "trials": self.trials,
-                "layouts": None if self.layouts is None else list(self.layouts),
-                "set": {p: plain(v) for p, v in self.fixed.items()},
-                "grid": {p: [plain(v) for v in vs] for p, vs in self.grid.items()},
-                "contrasts": list(self.contrasts), "legend": self.legend}
+        return {
+            "name": self.name,
+            "trials": self.trials,
+            "layouts": None if self.layouts is None else list(self.layouts),
+            "set": {p: plain(v) for p, v in self.fixed.items()},
+            "grid": {p: [plain(v) for v in vs] for p, vs in self.grid.items()},
+            "contrasts": list(self.contrasts),
+            "legend": self.legend,
+        }
 
     def digest(self) -> str:
         return hashlib.sha1(json.dumps(self.record(), sort_keys=True).encode()).hexdigest()[:12]
@@ -300,8 +320,9 @@ def from_mapping(data: dict, source: str = "sweep file") -> dict:
     kw["grid"] = {}
     for name, values in grid.items():
         path = field_path(name)
-        vals = (parse_values(path, values) if isinstance(values, str)
-                else [coerce(path, v) for v in _as_list(values, path)])
+        vals = (
+            parse_values(path, values) if isinstance(values, str) else [coerce(path, v) for v in _as_list(values, path)]
+        )
         kw["grid"][path] = vals
     kw["fixed"] = {field_path(name): coerce(field_path(name), v) for name, v in fixed.items()}
     kw["contrasts"] = [str(c) for c in _as_list(data.get("contrasts") or [], "contrasts")]

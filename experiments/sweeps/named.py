@@ -8,6 +8,7 @@ are evaluated by the pre-registered claims (`experiments/claims.py`, `experiment
 `cache/<condition>/<arm>/<trial>-<key>.json`, the layout `experiments/trialcache.py` and
 `experiments/machines.py` read.
 """
+
 from __future__ import annotations
 
 import os
@@ -19,14 +20,19 @@ from experiments.sweeps.execute import PathOf, Slot
 
 def paper_slots(conds: list[Condition], scale: Scale) -> list[tuple[Slot, TrialSpec]]:
     """Every (condition, arm, trial) of the reproduction with its trial."""
-    return [((c.name, arm, k), trial_spec(c, arm, k, scale))
-            for c in conds for arm in c.arms for k in range(n_trials(c, scale))]
+    return [
+        ((c.name, arm, k), trial_spec(c, arm, k, scale))
+        for c in conds
+        for arm in c.arms
+        for k in range(n_trials(c, scale))
+    ]
 
 
 def paper_paths(cache_dir: str) -> PathOf:
     def path(slot: Slot, key: str) -> str:
         cond, arm, k = slot
         return os.path.join(cache_dir, cond, arm.replace("/", "-"), f"{k:03d}-{key}.json")
+
     return path
 
 

@@ -5,6 +5,7 @@ batch's messages (progress, each finished trial's record, the job's timing) as t
 waits on all generators at once and hands every message to the same handler as the local pool, which
 writes each record to the sweep's cache. Ray is an optional extra (`pip install .[ray]`).
 """
+
 from __future__ import annotations
 
 import os
@@ -62,6 +63,7 @@ def connect(address: str):
 def cluster_cpus(address: str) -> int:
     """Connect (once) and return the cluster's CPUs: the sweep makes one batch per CPU."""
     import ray as _ray
+
     ray = _ray if _ray_ready() else connect(address)
     return max(1, int(ray.cluster_resources().get("CPU", 1)))
 
@@ -88,6 +90,7 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
 def run_ray(jobs: list[list], address: str, on_message: Callable[[tuple], None]) -> list[dict]:
     """Run every job as a Ray task (one CPU each); messages go to `on_message` as they arrive."""
     import ray as _ray
+
     ray = _ray if _ray_ready() else connect(address)
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(job_messages)

@@ -2,6 +2,7 @@
 started: for the Ray test and the sweep benchmark. `ray start --block` stops its processes on SIGTERM;
 what is still alive afterwards (found by parentage or by the private temp dir, never by name) is killed
 by pid and reported."""
+
 from __future__ import annotations
 
 import os
@@ -62,11 +63,28 @@ def local_head(num_cpus: int = 2, start_timeout: float = 180.0):
     env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
     with open(log_path, "w") as log:
         proc = subprocess.Popen(
-            [sys.executable, "-c", "from ray.scripts.scripts import main; main()", "start", "--head", "--block",
-             "--node-ip-address=127.0.0.1", f"--port={port}", f"--num-cpus={num_cpus}", "--include-dashboard=false",
-             f"--dashboard-port={dash}", f"--dashboard-agent-listen-port={agent}",
-             f"--metrics-export-port={metrics}", f"--temp-dir={temp}", "--disable-usage-stats"],
-            stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+            [
+                sys.executable,
+                "-c",
+                "from ray.scripts.scripts import main; main()",
+                "start",
+                "--head",
+                "--block",
+                "--node-ip-address=127.0.0.1",
+                f"--port={port}",
+                f"--num-cpus={num_cpus}",
+                "--include-dashboard=false",
+                f"--dashboard-port={dash}",
+                f"--dashboard-agent-listen-port={agent}",
+                f"--metrics-export-port={metrics}",
+                f"--temp-dir={temp}",
+                "--disable-usage-stats",
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=env,
+            start_new_session=True,
+        )
     head = Head(f"127.0.0.1:{port}", psutil.Process(proc.pid), temp)
     try:
         deadline = time.monotonic() + start_timeout

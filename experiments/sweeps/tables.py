@@ -7,6 +7,7 @@ cells that differ only in the observer, so the observer's counts would depend on
 Tuple values (delay distributions) are written as text
 ('[0.3,0.6,0.1]') so that every column has one type.
 """
+
 from __future__ import annotations
 
 import csv
@@ -83,8 +84,13 @@ def write_summary(summary: dict, sweep: Sweep, out: str) -> str:
         w = csv.writer(fh)
         w.writerow(head)
         for row in summary.values():
-            line = [row["cell"], *(_column_value(row["values"][p]) for p in sweep.grid), row["trials"],
-                    row["clusters"], row["episodes"]]
+            line = [
+                row["cell"],
+                *(_column_value(row["values"][p]) for p in sweep.grid),
+                row["trials"],
+                row["clusters"],
+                row["episodes"],
+            ]
             for m in SUMMARY_METRICS:
                 iv = row.get(m)
                 line += [iv["estimate"], iv["ci"][0], iv["ci"][1]] if iv else ["", "", ""]
@@ -96,6 +102,7 @@ def plot_groups(sweep: Sweep, data: dict[int, CellData], out: str) -> list[str]:
     """One figure per group, one line per legend value: steps per episode (geometric mean over trials, as
     the reproduction's figures) and mean return per episode."""
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 

@@ -1,5 +1,6 @@
 """A person's run controls as the actor obeys them (Control messages from the console on `hitl/<run>/control`):
 pause, resume, pace (steps per second) and end. Malformed ones are counted by reason and dropped."""
+
 from __future__ import annotations
 
 import time

@@ -1,6 +1,7 @@
 """The environment's own picture, for environments the console has no scene for (`common/envs/scene.py`):
 after each step the actor renders the env as RGB and publishes it as a JPEG `foxglove.CompressedImage` on
 `hitl/<run>/camera/env` (frame_id = the Step.seq it shows), so a person sees what the agent does."""
+
 from __future__ import annotations
 
 import time
@@ -37,15 +38,19 @@ class FramePublisher:
             rgb: np.ndarray = np.asarray(self.env.render(), np.uint8)
             scale = MAX_SIDE / max(rgb.shape[:2])
             if scale < 1:
-                rgb = cv2.resize(rgb, (int(rgb.shape[1] * scale), int(rgb.shape[0] * scale)),
-                                 interpolation=cv2.INTER_AREA)
+                rgb = cv2.resize(
+                    rgb, (int(rgb.shape[1] * scale), int(rgb.shape[0] * scale)), interpolation=cv2.INTER_AREA
+                )
             ok, jpeg = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 80])
         except Exception:  # a picture must never stop the actor
             self.counters["render_failed"] += 1
             return
         if ok:
-            self.pub.put(CompressedImage(timestamp=Time.from_seconds(time.time()), frame_id=str(seq),
-                                         data=jpeg.tobytes(), format="jpeg"))
+            self.pub.put(
+                CompressedImage(
+                    timestamp=Time.from_seconds(time.time()), frame_id=str(seq), data=jpeg.tobytes(), format="jpeg"
+                )
+            )
             self.counters["frames_rendered"] += 1
 
     def close(self) -> None:

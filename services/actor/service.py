@@ -25,6 +25,7 @@ carries the actor's incarnation, a contiguous seq, the wall time of the action (
 episode, the weights version it acted with, and the env's `info` whole (numbers; a key a Step cannot carry stops the
 run with an error naming it) for the simulated teacher's rule.
 """
+
 from __future__ import annotations
 
 import time
@@ -67,8 +68,9 @@ class Actor:
         self.slot = WeightsFollower(self.agent, spec, rt)
         self.seq = 0  # steps this incarnation published
         self.ring = ResendRing(config.resend_window)
-        rt.set_counters_source(lambda: {"steps_published": self.seq, "weights_version": self.slot.version,
-                                        "resent": self.ring.resent})
+        rt.set_counters_source(
+            lambda: {"steps_published": self.seq, "weights_version": self.slot.version, "resent": self.ring.resent}
+        )
         self.code = 0
         self.progress = ProgressFile(config.state_file) if config.state_file else None
         state = self.progress.read() if self.progress else None
@@ -81,16 +83,20 @@ class Actor:
         """Take the open inboxes and the step publisher; start the frames and the liveliness watches."""
         config = self.config
         self.weights_in, self.learner_status, self.control_in, self.pub = weights_in, learner_status, control_in, pub
-        self.frames = FramePublisher(session, config.run, self.env, self.rt.counters) \
-            if config.render_frames and enable_rgb(self.env) else None
+        self.frames = (
+            FramePublisher(session, config.run, self.env, self.rt.counters)
+            if config.render_frames and enable_rgb(self.env)
+            else None
+        )
         self.watch = AliveWatch(session, config.run, ("learner", "recorder"))
         self.learner_watch = IncarnationWatch(session, config.run, "learner")
         self.slot.watch = self.learner_watch
 
     def save_state(self, episodes: int) -> None:
         if self.progress:
-            self.progress.write({"episodes_done": episodes, "restarts": self.restarts,
-                                 "incarnation": self.rt.incarnation})
+            self.progress.write(
+                {"episodes_done": episodes, "restarts": self.restarts, "incarnation": self.rt.incarnation}
+            )
 
     def give_up(self, code: int, why: str) -> None:
         self.rt.log(why)
@@ -118,8 +124,11 @@ class Actor:
                 if time.monotonic() - waited > config.weights_timeout:
                     self.give_up(4, f"restarted, but no weights after {config.weights_timeout} s; stopping")
             self.base = slot.version
-            rt.event(f"actor restarted (restart {self.restarts}): continuing at episode {self.episode} with the "
-                     f"learner's weights version {self.base}", 3)
+            rt.event(
+                f"actor restarted (restart {self.restarts}): continuing at episode {self.episode} with the "
+                f"learner's weights version {self.base}",
+                3,
+            )
 
     def wait_for_version(self) -> None:
         """Lockstep: wait until the weights are at most `max_ahead` (capped by `max_lag`) steps behind."""
@@ -192,13 +201,27 @@ class Actor:
             raise TerminalError(f"{config.env}: {exc}") from None
         if terminated or truncated:
             self.save_state(self.episode + 1)  # before the last step goes out: a restart never repeats an episode
-        publish_kept(self.pub, Step(run=config.run, incarnation=self.rt.incarnation, seq=self.seq,
-                                    t_action=t_action, episode=self.episode, t_in_episode=t_in_episode,
-                                    obs=obs.tolist(), action=action, reward=float(reward),
-                                    next_obs=np.asarray(nxt).tolist(), terminated=bool(terminated),
-                                    truncated=bool(truncated), weights_version=self.slot.version,
-                                    weights_revision=self.slot.revision,
-                                    info=info), self.ring)
+        publish_kept(
+            self.pub,
+            Step(
+                run=config.run,
+                incarnation=self.rt.incarnation,
+                seq=self.seq,
+                t_action=t_action,
+                episode=self.episode,
+                t_in_episode=t_in_episode,
+                obs=obs.tolist(),
+                action=action,
+                reward=float(reward),
+                next_obs=np.asarray(nxt).tolist(),
+                terminated=bool(terminated),
+                truncated=bool(truncated),
+                weights_version=self.slot.version,
+                weights_revision=self.slot.revision,
+                info=info,
+            ),
+            self.ring,
+        )
         if self.frames is not None:
             self.frames.publish(self.seq)
         self.seq += 1
@@ -259,11 +282,14 @@ def main(config: ActorConfig) -> int:
     actor = Actor(config, rt)
     with rt.session() as session:
         # Not maxsize 1: garbage flooding the weights key must not evict the real weights before they are read.
-        with subscription(session, weights_key(config.run), maxsize=64, policy="drop_oldest") as weights_in, \
-                subscription(session, status_key(config.run, "learner"), maxsize=16,
-                             policy="drop_oldest") as learner_status, \
-                subscription(session, control_key(config.run), maxsize=64, policy="drop_oldest") as control_in, \
-                MessagePublisher(session, step_key(config.run)) as pub:
+        with (
+            subscription(session, weights_key(config.run), maxsize=64, policy="drop_oldest") as weights_in,
+            subscription(
+                session, status_key(config.run, "learner"), maxsize=16, policy="drop_oldest"
+            ) as learner_status,
+            subscription(session, control_key(config.run), maxsize=64, policy="drop_oldest") as control_in,
+            MessagePublisher(session, step_key(config.run)) as pub,
+        ):
             actor.connect(session, weights_in, learner_status, control_in, pub)
             actor.start(session)
             actor.run()
@@ -273,8 +299,9 @@ def main(config: ActorConfig) -> int:
     return actor.code
 
 
-def pace(control: RunControl, control_in, slot: WeightsFollower, weights_in, learner_status,
-         rt: ServiceRuntime) -> bool:
+def pace(
+    control: RunControl, control_in, slot: WeightsFollower, weights_in, learner_status, rt: ServiceRuntime
+) -> bool:
     """Apply the person's controls; while paused, wait here (adopting weights). True if anything changed."""
     changed = control.take(control_in)
     while control.paused and not control.end and not rt.stop.is_set():
@@ -286,4 +313,3 @@ def pace(control: RunControl, control_in, slot: WeightsFollower, weights_in, lea
 
 def cli(argv: list[str] | None = None) -> int:
     return service_main(ActorConfig, main, argv, "python -m services.actor")
-

@@ -6,6 +6,7 @@ Every service shares `ServiceConfig` (run name, router endpoint, launcher link, 
 observer (`ObserverConfig`, `--observer.*`) are the same dataclasses as the in-process runner's, so a live
 run and an in-process run with the same values are the same experiment.
 """
+
 from __future__ import annotations
 
 import math
@@ -41,12 +42,17 @@ class ServiceConfig:
     stats_out: str | None = option(None, "write final counters and latency samples to this JSON file at exit")
     status_period: float = option(1.0, "seconds between ServiceStatus messages")
     connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
-    security: str | None = option(None, "security.json of this machine (common/security.py: TLS, user/password, "
-                                        "access control); connect to the secured router as this service's identity")
-    credentials: str | None = option(None,
-                                     "this service's credential file (common/wire/auth.py): signs what it publishes, "
-                                           "checks what it receives; the launcher writes one per service, "
-                                           "`python -m services credentials` for services started by hand")
+    security: str | None = option(
+        None,
+        "security.json of this machine (common/security.py: TLS, user/password, "
+        "access control); connect to the secured router as this service's identity",
+    )
+    credentials: str | None = option(
+        None,
+        "this service's credential file (common/wire/auth.py): signs what it publishes, "
+        "checks what it receives; the launcher writes one per service, "
+        "`python -m services credentials` for services started by hand",
+    )
 
     def __post_init__(self):
         _check_name(self.run, "run")
@@ -65,8 +71,10 @@ class TaskConfig(ServiceConfig):
     task: Task = option(Task(), "environment, layout, seed, teacher rule", flatten=True)
     max_future: float = option(10.0, "reject inputs stamped more than this many seconds after they arrive")
     max_past: float = option(600.0, "reject inputs stamped more than this many seconds before they arrive")
-    resend_window: float = option(30.0, "re-send what was published in the last N s when a learner or recorder "
-                                        "(re)starts (receivers drop duplicates)")
+    resend_window: float = option(
+        30.0,
+        "re-send what was published in the last N s when a learner or recorder (re)starts (receivers drop duplicates)",
+    )
 
     def __post_init__(self):
         super().__post_init__()
@@ -90,19 +98,33 @@ class ActorSettings:
 
     episodes: int = option(50, "episodes to run, then stop")
     max_steps: int | None = option(None, "also stop after this many steps (none = no limit)")
-    episode_steps: int | None = option(None, "cut an episode (truncated) after this many steps (none = the env's own "
-                                             "limit: 1000 for the maze and Taxi)")
+    episode_steps: int | None = option(
+        None,
+        "cut an episode (truncated) after this many steps (none = the env's own limit: 1000 for the maze and Taxi)",
+    )
     rate: float = option(0.0, "steps per second; 0 = as fast as possible")
-    start_paused: bool = option(False, "wait paused, with no time limit, for a Control resume before the first step "
-                                       "(a run taught in the console starts when its first page opens; a restarted "
-                                       "actor does not wait)")
-    max_ahead: int | None = option(0, "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
-                                      "(0 = lockstep with the learner, as the in-process runner, learns best; more "
-                                      "trades fidelity for throughput; none = never wait)")
-    max_lag: int = option(2048, "whatever max-ahead says, never more than this many steps ahead of the learner's "
-                                "newest weights: bounds what is in flight and queued (back-pressure; docs/faults.md)")
-    render_frames: bool = option(False, "publish the env's RGB render after each step as JPEG on hitl/<run>/camera/env "
-                                        "(the console shows environments it has no scene for)")
+    start_paused: bool = option(
+        False,
+        "wait paused, with no time limit, for a Control resume before the first step "
+        "(a run taught in the console starts when its first page opens; a restarted "
+        "actor does not wait)",
+    )
+    max_ahead: int | None = option(
+        0,
+        "act at step k only with weights that learned from step k-1-MAX_AHEAD or later "
+        "(0 = lockstep with the learner, as the in-process runner, learns best; more "
+        "trades fidelity for throughput; none = never wait)",
+    )
+    max_lag: int = option(
+        2048,
+        "whatever max-ahead says, never more than this many steps ahead of the learner's "
+        "newest weights: bounds what is in flight and queued (back-pressure; docs/faults.md)",
+    )
+    render_frames: bool = option(
+        False,
+        "publish the env's RGB render after each step as JPEG on hitl/<run>/camera/env "
+        "(the console shows environments it has no scene for)",
+    )
 
     def __post_init__(self):
         if self.episodes < 0:
@@ -124,18 +146,27 @@ class ActorConfig(TaskConfig, ActorSettings):
     """The actor: steps the environment, acts with the newest weights it has, publishes every Step."""
 
     algo: str = option("dqn-tamer", "agent (sets the exploration and mixing schedules)", choices=ALGOS)
-    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset); the "
-                                             "actor uses its network and schedules", exclude=("algo",))
+    agent: AgentConfig | None = option(
+        None,
+        "the agent's hyper-parameters (default: the algo's preset); the actor uses its network and schedules",
+        exclude=("algo",),
+    )
     wait_for: tuple[str, ...] = option(("learner",), "services that must be alive before the first step")
     start_timeout: float = option(60.0, "seconds to wait for those services")
     weights_timeout: float = option(30.0, "seconds to wait for fresh enough weights before giving up")
-    stall_resend: float = option(2.0, "waiting this many seconds for fresh enough weights, re-send the steps the "
-                                      "learner has not learned (one dropped before the learner knew this actor "
-                                      "would otherwise stall the lockstep for good)")
-    state_file: str | None = option(None, "progress file (episodes done), rewritten in place "
-                                          "(services/common/progress.py) at each episode end; "
-                                          "an actor started on an existing one is a restart: it continues with the "
-                                          "next episode and waits for the learner's current weights first")
+    stall_resend: float = option(
+        2.0,
+        "waiting this many seconds for fresh enough weights, re-send the steps the "
+        "learner has not learned (one dropped before the learner knew this actor "
+        "would otherwise stall the lockstep for good)",
+    )
+    state_file: str | None = option(
+        None,
+        "progress file (episodes done), rewritten in place "
+        "(services/common/progress.py) at each episode end; "
+        "an actor started on an existing one is a restart: it continues with the "
+        "next episode and waits for the learner's current weights first",
+    )
 
     def __post_init__(self):
         super().__post_init__()
@@ -155,13 +186,20 @@ class TeacherConfig(TaskConfig):
 
     teacher_id: str = option("oracle", "teacher name (last chunk of its feedback key)")
     observer: ObserverConfig = option(ObserverConfig(), "the simulated observer")
-    clock: str = option("steps", "steps: a reaction to step k with lag d is sent once step k+d+1 is seen, stamped "
-                                 "half-way between steps k+d and k+d+1; wall: sent at t_action(k) + (d + 0.5) * "
-                                 "step-unit seconds (for a fixed actor rate)", choices=CLOCKS)
+    clock: str = option(
+        "steps",
+        "steps: a reaction to step k with lag d is sent once step k+d+1 is seen, stamped "
+        "half-way between steps k+d and k+d+1; wall: sent at t_action(k) + (d + 0.5) * "
+        "step-unit seconds (for a fixed actor rate)",
+        choices=CLOCKS,
+    )
     step_unit: float = option(0.1, "seconds per step for --clock wall (1 / the actor's rate)")
-    state_file: str | None = option(None, "the next feedback seq, rewritten in place (services/common/progress.py) "
-                                          "before each feedback is sent: a restarted teacher continues its seq "
-                                          "(never reuses one)")
+    state_file: str | None = option(
+        None,
+        "the next feedback seq, rewritten in place (services/common/progress.py) "
+        "before each feedback is sent: a restarted teacher continues its seq "
+        "(never reuses one)",
+    )
 
     def __post_init__(self):
         super().__post_init__()
@@ -177,50 +215,74 @@ class TeacherConfig(TaskConfig):
         return teacher_service_name(self.teacher_id)
 
 
-
-
 @dataclass(frozen=True)
 class LearnerSettings:
     """What a user sets of the learner: declared once, the learner's own (`LearnerConfig` is these plus its
     wiring) and nested by the launcher (`UpConfig.learner`), the console and the scripted person."""
 
-    idle_updates: int = option(0, "extra Q and D_global minibatch steps between two steps when no input came for "
-                                  "50 ms (a paced run's idle time; recorded in the Ingest order, so retrain repeats "
-                                  "them; 0 = the paper's schedule only)")
-    screen_delay: str = option("learned", "delay in seconds from a step on a person's screen (the console) to their "
-                                          "feedback: learned (per person, online, from Deep TAMER's uniform 0.2-4 s; "
-                                          "learned:PRIOR for another prior), or fixed: uniform:LOW,HIGH or any "
-                                          "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, loc, "
-                                          "scale); common.core.delay_model")
-    oracle_delay: str = option("auto", "delay of a teacher without a screen (the oracle: stamps on the wall clock): "
-                                       "steps (the agent's assumed-delay-probs on the step clock, the paper's), "
-                                       "learned (in seconds, per teacher, as screen-delay), a fixed NAME:ARGS in "
-                                       "seconds, or auto: learned when the actor is paced (a delay in seconds means "
-                                       "something), else steps (a learner started by hand: steps)")
-    screen_credit: str = option("onset", "how a step's time on a person's screen enters credit: interval (Deep "
-                                            "TAMER: the delay's probability over the time it was shown) or onset "
-                                            "(the person reacts to its appearance: the delay's density at the time "
-                                            "since it appeared, normalised over the steps shown)",
-                                choices=SCREEN_CREDIT)
-    profiles: str | None = option(None, "directory of returning people's delay estimates: a named person "
-                                        "(web-alice) starts from DIR/web-alice.json and it is rewritten as they "
-                                        "teach (services/learner/teacher_delays.py)")
-    history_s: float = option(60.0, "seconds of recent steps a feedback may still be credited to (a press that "
-                                    "comes later is counted as feedback_too_old): the credit rule's longest delay "
-                                    "(6 s) plus a console restart or a lagging learner; 0: the agent's "
-                                    "history-steps instead, a count (the in-process runner's)")
+    idle_updates: int = option(
+        0,
+        "extra Q and D_global minibatch steps between two steps when no input came for "
+        "50 ms (a paced run's idle time; recorded in the Ingest order, so retrain repeats "
+        "them; 0 = the paper's schedule only)",
+    )
+    screen_delay: str = option(
+        "learned",
+        "delay in seconds from a step on a person's screen (the console) to their "
+        "feedback: learned (per person, online, from Deep TAMER's uniform 0.2-4 s; "
+        "learned:PRIOR for another prior), or fixed: uniform:LOW,HIGH or any "
+        "scipy.stats distribution NAME:ARGS, e.g. gamma:2,0.2,0.4 (shape, loc, "
+        "scale); common.core.delay_model",
+    )
+    oracle_delay: str = option(
+        "auto",
+        "delay of a teacher without a screen (the oracle: stamps on the wall clock): "
+        "steps (the agent's assumed-delay-probs on the step clock, the paper's), "
+        "learned (in seconds, per teacher, as screen-delay), a fixed NAME:ARGS in "
+        "seconds, or auto: learned when the actor is paced (a delay in seconds means "
+        "something), else steps (a learner started by hand: steps)",
+    )
+    screen_credit: str = option(
+        "onset",
+        "how a step's time on a person's screen enters credit: interval (Deep "
+        "TAMER: the delay's probability over the time it was shown) or onset "
+        "(the person reacts to its appearance: the delay's density at the time "
+        "since it appeared, normalised over the steps shown)",
+        choices=SCREEN_CREDIT,
+    )
+    profiles: str | None = option(
+        None,
+        "directory of returning people's delay estimates: a named person "
+        "(web-alice) starts from DIR/web-alice.json and it is rewritten as they "
+        "teach (services/learner/teacher_delays.py)",
+    )
+    history_s: float = option(
+        60.0,
+        "seconds of recent steps a feedback may still be credited to (a press that "
+        "comes later is counted as feedback_too_old): the credit rule's longest delay "
+        "(6 s) plus a console restart or a lagging learner; 0: the agent's "
+        "history-steps instead, a count (the in-process runner's)",
+    )
     history_max_steps: int = option(4096, "but at most this many steps (memory: each holds its observation)")
-    weights_every: int = option(16, "publish weights whenever the learner has caught up, and at least every N "
-                                    "learned steps while it is behind")
+    weights_every: int = option(
+        16, "publish weights whenever the learner has caught up, and at least every N learned steps while it is behind"
+    )
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
     checkpoint_period: float = option(2.0, "seconds between checkpoints (when something was learned)")
-    inbox_size: int = option(1 << 16, "the learner's bounded input queue (steps + feedback); when full, Zenoh's BLOCK "
-                                      "congestion control slows the publishers down",
-                              was=("--learner-inbox",))
-    debug_update_sleep: float = option(0.0, "TEST ONLY: sleep this many seconds after each learned step "
-                                            "(a deliberately slow learner)")
-    debug_drop_steps: int = option(0, "TEST ONLY: drop the first N steps as if their actor were not announced yet "
-                                      "(what a late announcement does on a loaded machine)")
+    inbox_size: int = option(
+        1 << 16,
+        "the learner's bounded input queue (steps + feedback); when full, Zenoh's BLOCK "
+        "congestion control slows the publishers down",
+        was=("--learner-inbox",),
+    )
+    debug_update_sleep: float = option(
+        0.0, "TEST ONLY: sleep this many seconds after each learned step (a deliberately slow learner)"
+    )
+    debug_drop_steps: int = option(
+        0,
+        "TEST ONLY: drop the first N steps as if their actor were not announced yet "
+        "(what a late announcement does on a loaded machine)",
+    )
 
     def __post_init__(self):
         check_delay_estimate_spec(self.screen_delay)  # a one-line ValueError if malformed
@@ -243,8 +305,9 @@ class LearnerSettings:
         if not (math.isfinite(self.debug_update_sleep) and self.debug_update_sleep >= 0):
             raise ValueError(f"debug-update-sleep must be >= 0, got {self.debug_update_sleep}")
         if not (math.isfinite(self.history_s) and self.history_s >= 0) or self.history_max_steps < 1:
-            raise ValueError(f"history-s must be >= 0 and history-max-steps >= 1, got {self.history_s}, "
-                             f"{self.history_max_steps}")
+            raise ValueError(
+                f"history-s must be >= 0 and history-max-steps >= 1, got {self.history_s}, {self.history_max_steps}"
+            )
         if self.debug_drop_steps < 0:
             raise ValueError(f"debug-drop-steps must be >= 0, got {self.debug_drop_steps}")
 
@@ -260,22 +323,40 @@ class LearnerConfig(TaskConfig, LearnerSettings):
     """The learner: aligns feedback to steps by timestamp, trains Q and H, publishes weights and episodes."""
 
     algo: str = option("dqn-tamer", "agent", choices=ALGOS)
-    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset; "
-                                             "update-interval b > 1 trades learning per step for throughput)",
-                                       exclude=("algo",))
-    snapshot_every: int = option(500, "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
-                                      "each episode end (numbers only), on request and the final ones")
+    agent: AgentConfig | None = option(
+        None,
+        "the agent's hyper-parameters (default: the algo's preset; "
+        "update-interval b > 1 trades learning per step for throughput)",
+        exclude=("algo",),
+    )
+    snapshot_every: int = option(
+        500,
+        "log the weights (a WeightsSnapshot) every N learned steps, besides the first, "
+        "each episode end (numbers only), on request and the final ones",
+    )
     ingest_batch: int = option(64, "at most this many entries per Ingest message")
-    ingest_period: float = option(0.05, "seconds an entry may wait for its Ingest message (one message per period, "
-                                        "not one per step: each message costs every process on its way)")
+    ingest_period: float = option(
+        0.05,
+        "seconds an entry may wait for its Ingest message (one message per period, "
+        "not one per step: each message costs every process on its way)",
+    )
     wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")
-    credits_in_ingest: tuple[str, ...] = option((), "teacher ids whose Credits ride in the next Ingest message "
-                                                    "instead of one message each (the launcher: its own teachers; a "
-                                                    "person's console wants each at once, on its own key)")
-    checkpoint: str | None = option(None, "checkpoint file: restored at start if it exists, rewritten atomically "
-                                          "every checkpoint-period s while learning")
-    catchup_log: str | None = option(None, "the run's MCAP log (first segment): at start, consume the steps and "
-                                           "feedback it holds beyond the checkpoint (none: only what arrives live)")
+    credits_in_ingest: tuple[str, ...] = option(
+        (),
+        "teacher ids whose Credits ride in the next Ingest message "
+        "instead of one message each (the launcher: its own teachers; a "
+        "person's console wants each at once, on its own key)",
+    )
+    checkpoint: str | None = option(
+        None,
+        "checkpoint file: restored at start if it exists, rewritten atomically "
+        "every checkpoint-period s while learning",
+    )
+    catchup_log: str | None = option(
+        None,
+        "the run's MCAP log (first segment): at start, consume the steps and "
+        "feedback it holds beyond the checkpoint (none: only what arrives live)",
+    )
 
     def __post_init__(self):
         super().__post_init__()
@@ -298,14 +379,19 @@ class RecorderConfig(ServiceConfig):
     """The recorder: everything under hitl/<run>/** into one MCAP file."""
 
     out: str = option("runs/live/session.mcap", "MCAP file to write (later segments beside it)")
-    run_config: str | None = option(None, "JSON file whose object becomes the log's run config "
-                                          "(default: this recorder's own config)")
-    stop_when: tuple[str, ...] = option((), "finish once all these services have reported state 'stopped' "
-                                            "(empty: only on SIGTERM / Ctrl-C)")
+    run_config: str | None = option(
+        None, "JSON file whose object becomes the log's run config (default: this recorder's own config)"
+    )
+    stop_when: tuple[str, ...] = option(
+        (), "finish once all these services have reported state 'stopped' (empty: only on SIGTERM / Ctrl-C)"
+    )
     flush_interval: float = option(0.5, "seconds between MCAP chunk flushes while data is pending")
     linger: float = option(0.3, "seconds to keep recording after the last awaited service stopped")
-    max_sender_mb_s: float = option(32.0, "write at most this many MiB per second from any one sender (the rest is "
-                                          "counted as capped_<kind>): a flood cannot fill the disk")
+    max_sender_mb_s: float = option(
+        32.0,
+        "write at most this many MiB per second from any one sender (the rest is "
+        "counted as capped_<kind>): a flood cannot fill the disk",
+    )
     max_camera_mb_s: float = option(4.0, "and at most this many MiB per second of frames per camera")
     max_camera_fps: float = option(60.0, "and at most this many frames per second per camera")
 
@@ -328,8 +414,9 @@ class FoxgloveConfig(ServiceConfig):
     port: int = option(8765, "WebSocket port Foxglove connects to (ws://HOST:PORT)")
     host: str = option("127.0.0.1", "address to serve on (127.0.0.1: this machine only)")
     run_config: str | None = option(None, "the run's run.json (the environment to draw); none: no scene")
-    stop_when: tuple[str, ...] = option((), "stop once all these services have reported 'stopped' (empty: on "
-                                            "SIGTERM / Ctrl-C only)")
+    stop_when: tuple[str, ...] = option(
+        (), "stop once all these services have reported 'stopped' (empty: on SIGTERM / Ctrl-C only)"
+    )
     linger: float = option(1.0, "seconds to keep serving after the last awaited service stopped")
 
     def __post_init__(self):

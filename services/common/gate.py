@@ -1,5 +1,6 @@
 """What a subscriber checks on every decoded Step and Feedback before it reaches a model (docs/faults.md):
 validation beyond the wire format, dedup by (incarnation, seq) or (teacher, seq), and one warning per reason."""
+
 from __future__ import annotations
 
 import collections
@@ -18,8 +19,8 @@ GATE_REASONS: dict[str, str] = {
     "retired_incarnation": "a Step from an actor incarnation that a newer one has replaced",
     "unknown_teacher": "Feedback from a teacher that neither the config nor a ServiceStatus names",
     "bad_seq": "a seq too far ahead: a step more than `max_seq_jump` beyond the next expected one, a feedback more "
-               "than `max_feedback_jump` beyond its teacher's newest or one whose gap would leave more than "
-               "`feedback_window` of its teacher's seqs outstanding (it would hide later real inputs)",
+    "than `max_feedback_jump` beyond its teacher's newest or one whose gap would leave more than "
+    "`feedback_window` of its teacher's seqs outstanding (it would hide later real inputs)",
     "obs_shape": "Step.obs / next_obs length differs from the environment's observation size",
     "action_range": "Step.action outside the environment's action space",
 }
@@ -39,9 +40,18 @@ class InputGate:
     in the config or announced. All state is plain JSON (`state()` / `load()`) for the learner's checkpoint.
     """
 
-    def __init__(self, obs_dim: int, n_actions: int, *, teachers: Iterable[str] = (), max_future: float = 10.0,
-                 max_past: float = 600.0, max_seq_jump: int = 4096, max_feedback_jump: int = MAX_FEEDBACK_JUMP,
-                 feedback_window: int = FEEDBACK_WINDOW):
+    def __init__(
+        self,
+        obs_dim: int,
+        n_actions: int,
+        *,
+        teachers: Iterable[str] = (),
+        max_future: float = 10.0,
+        max_past: float = 600.0,
+        max_seq_jump: int = 4096,
+        max_feedback_jump: int = MAX_FEEDBACK_JUMP,
+        feedback_window: int = FEEDBACK_WINDOW,
+    ):
         self.obs_dim, self.n_actions = int(obs_dim), int(n_actions)
         self.max_future, self.max_past, self.max_seq_jump = float(max_future), float(max_past), int(max_seq_jump)
         self.max_feedback_jump, self.feedback_window = int(max_feedback_jump), int(feedback_window)
@@ -146,7 +156,8 @@ class InputGate:
             return None if fb.seq in self.missing_feedback.get(fb.teacher_id, ()) else DEDUP_REASON
         skipped = fb.seq - nxt
         if skipped > self.max_feedback_jump or (
-                skipped and len(self.missing_feedback.get(fb.teacher_id, ())) + skipped > self.feedback_window):
+            skipped and len(self.missing_feedback.get(fb.teacher_id, ())) + skipped > self.feedback_window
+        ):
             return "bad_seq"
         return None
 
@@ -172,10 +183,16 @@ class InputGate:
 
     # -- checkpoint ------------------------------------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
-        return {"announced": list(self.announced), "teachers": list(self.teachers), "retired": list(self.retired),
-                "actor": self.actor, "next_step": self.next_step, "next_feedback": dict(self.next_feedback),
-                "missing_feedback": {t: sorted(m) for t, m in self.missing_feedback.items()},
-                "counters": dict(self.counters)}
+        return {
+            "announced": list(self.announced),
+            "teachers": list(self.teachers),
+            "retired": list(self.retired),
+            "actor": self.actor,
+            "next_step": self.next_step,
+            "next_feedback": dict(self.next_feedback),
+            "missing_feedback": {t: sorted(m) for t, m in self.missing_feedback.items()},
+            "counters": dict(self.counters),
+        }
 
     def load(self, state: dict[str, Any]) -> None:
         self.announced = collections.OrderedDict((k, None) for k in state["announced"])

@@ -9,6 +9,7 @@ at about 1/100 of its cost (one system call instead of six, no directory update:
 220 us on an idle ext4, and the rename's cost grows with the machine's load). A record longer than the width
 goes through the atomic rename again, with a wider width.
 """
+
 from __future__ import annotations
 
 import json

@@ -2,11 +2,13 @@
 are published once, in order, on BLOCK keys; when a receiver that matters (learner, recorder) restarts, the
 publishers re-send what they published in the last `window` seconds, and every receiver drops what it already
 has (`duplicate`), so nobody double-counts."""
+
 from __future__ import annotations
 
 import collections
 import time
 from typing import Any
+
 
 class ResendRing:
     """What a publisher sent in the last `window` seconds (at most `max_items` messages), to publish again
@@ -35,7 +37,7 @@ class ResendRing:
         self._trim(time.monotonic())
         items = list(self._items)
         if last is not None:
-            items = items[len(items) - min(max(last, 0), len(items)):]
+            items = items[len(items) - min(max(last, 0), len(items)) :]
         for _, publisher, data in items:
             publisher.put(data)
         self.resent += len(items)

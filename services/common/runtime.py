@@ -3,6 +3,7 @@ open a Zenoh client session that always closes, announce itself (liveliness toke
 `hitl/<run>/alive/<service>` once ready, ServiceStatus on `hitl/<run>/status/<service>`), count things,
 and write its final counters to a JSON file.
 """
+
 from __future__ import annotations
 
 import collections
@@ -18,11 +19,11 @@ from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Iterator
 
 from services.common.statefiles import atomic_write
+
 if TYPE_CHECKING:
     from common.wire.inbox import Inbox
     from common.wire.transport import MessagePublisher
-from common.protocol import (ServiceStatus, alive_key, incarnation_alive_key, status_key, teacher_id_of,
-                             validate_name)
+from common.protocol import ServiceStatus, alive_key, incarnation_alive_key, status_key, teacher_id_of, validate_name
 
 HARD_EXIT_AFTER = 5.0  # s a service gets to stop cleanly once its launcher is gone
 MAX_SAMPLES = 200_000  # latency samples kept per kind
@@ -80,12 +81,12 @@ def new_incarnation(service: str) -> str:
 class ServiceRuntime:
     """Life cycle of one service process. Use::
 
-        rt = ServiceRuntime("learner", config)
-        with rt.session() as session:
-            ...declare subscribers...
-            rt.ready()                   # liveliness token + status "ready"
-            while not rt.stop.is_set(): ...; rt.tick()
-        rt.finish()                      # final status was sent in session(); stats file written
+    rt = ServiceRuntime("learner", config)
+    with rt.session() as session:
+        ...declare subscribers...
+        rt.ready()                   # liveliness token + status "ready"
+        while not rt.stop.is_set(): ...; rt.tick()
+    rt.finish()                      # final status was sent in session(); stats file written
     """
 
     def __init__(self, name: str, config: Any, *, install_signals: bool = True, process_default: bool = True):
@@ -96,7 +97,8 @@ class ServiceRuntime:
         self.counters: collections.Counter[str] = collections.Counter()
         # Latency samples: the newest MAX_SAMPLES of each (bounded, however long the run).
         self.samples: dict[str, collections.deque] = collections.defaultdict(
-            lambda: collections.deque(maxlen=MAX_SAMPLES))
+            lambda: collections.deque(maxlen=MAX_SAMPLES)
+        )
         self.state = "starting"
         self.incarnation = new_incarnation(name)
         self.failed = False  # set by a service that ends without finishing its part of the run
@@ -220,8 +222,9 @@ class ServiceRuntime:
         sec = load_security(security)
         endpoint = next((e for e in cfg.connect if e.startswith("tls/")), None)
         if teacher_id_of(self.name):
-            return client_config_for(sec, "teacher", endpoint, teacher=self.name.split(".", 1)[1],
-                                     connect_timeout=cfg.connect_timeout)
+            return client_config_for(
+                sec, "teacher", endpoint, teacher=self.name.split(".", 1)[1], connect_timeout=cfg.connect_timeout
+            )
         role = self.name.split(".", 1)[0]
         return client_config_for(sec, role, endpoint, connect_timeout=cfg.connect_timeout)
 
@@ -236,8 +239,16 @@ class ServiceRuntime:
         try:
             if self._log_pub is None:
                 self._log_pub = MessagePublisher(self._session, log_key(self.config.run, self.name))
-            self._log_pub.put(Log(timestamp=Time.from_seconds(time.time()), level=level, message=text[:8000],
-                                  name=self.name, file="", line=0))
+            self._log_pub.put(
+                Log(
+                    timestamp=Time.from_seconds(time.time()),
+                    level=level,
+                    message=text[:8000],
+                    name=self.name,
+                    file="",
+                    line=0,
+                )
+            )
         except Exception as exc:  # a log line must never take a service down
             self.log(f"(could not publish the log record: {exc})")
 
@@ -246,7 +257,8 @@ class ServiceRuntime:
         self._token = self._session.liveliness().declare_token(alive_key(self.config.run, self.name))
         # Announces this incarnation to receivers that accept inputs only from announced ones (services/common/gate.py).
         self._inc_token = self._session.liveliness().declare_token(
-            incarnation_alive_key(self.config.run, self.name, self.incarnation))
+            incarnation_alive_key(self.config.run, self.name, self.incarnation)
+        )
         self._cpu_at_ready = time.process_time()
         self.publish_status("ready")
 
@@ -267,9 +279,17 @@ class ServiceRuntime:
         if self._status_pub is None:
             return
         counters = dict(sorted(self.all_counters().items())[:256])
-        self._status_pub.put(ServiceStatus(run=self.config.run, service=self.name, pid=os.getpid(),
-                                           state=self.state, t=time.time(), counters=counters,
-                                           incarnation=self.incarnation))
+        self._status_pub.put(
+            ServiceStatus(
+                run=self.config.run,
+                service=self.name,
+                pid=os.getpid(),
+                state=self.state,
+                t=time.time(),
+                counters=counters,
+                incarnation=self.incarnation,
+            )
+        )
         self._last_status = time.monotonic()
 
     def status_due_in(self) -> float:
@@ -286,11 +306,16 @@ class ServiceRuntime:
         path = getattr(self.config, "stats_out", None)
         if not path:
             return
-        data = {"service": self.name, "incarnation": self.incarnation, "pid": os.getpid(),
-                "cpu_s": round(time.process_time(), 3),
-                "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3),
-                "counters": self.all_counters(), "samples": {k: list(v) for k, v in self.samples.items()},
-                **extra}
+        data = {
+            "service": self.name,
+            "incarnation": self.incarnation,
+            "pid": os.getpid(),
+            "cpu_s": round(time.process_time(), 3),
+            "cpu_since_ready_s": round(time.process_time() - (self._cpu_at_ready or 0.0), 3),
+            "counters": self.all_counters(),
+            "samples": {k: list(v) for k, v in self.samples.items()},
+            **extra,
+        }
         atomic_write(path, json.dumps(data).encode())  # whole or not at all: a full disk leaves no 0-byte file
 
 
@@ -306,18 +331,22 @@ def load_auth(name: str, config: Any, incarnation: str, process_default: bool = 
 
     path = getattr(config, "credentials", None)
     if not path:
-        raise AuthError(f"{name}: no --credentials file; the launcher makes them, or `python -m services credentials "
-                        f"--run {config.run} --out DIR` for services started by hand (docs/security.md)")
+        raise AuthError(
+            f"{name}: no --credentials file; the launcher makes them, or `python -m services credentials "
+            f"--run {config.run} --out DIR` for services started by hand (docs/security.md)"
+        )
     cred = load_credential(path, run=config.run, identity=name)
-    auth = Auth(cred, incarnation, max_past=getattr(config, "max_past", 600.0),
-                max_future=getattr(config, "max_future", 10.0))
+    auth = Auth(
+        cred, incarnation, max_past=getattr(config, "max_past", 600.0), max_future=getattr(config, "max_future", 10.0)
+    )
     if process_default:
         set_default_auth(auth)
     return auth
 
 
-def wait_alive(session: Any, run: str, names: tuple[str, ...] | list[str], timeout: float,
-               stop: threading.Event | None = None) -> set[str]:
+def wait_alive(
+    session: Any, run: str, names: tuple[str, ...] | list[str], timeout: float, stop: threading.Event | None = None
+) -> set[str]:
     """Wait until every service in `names` holds its liveliness token; returns those still missing."""
     missing = set(names)
     if not missing:

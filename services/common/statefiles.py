@@ -1,4 +1,5 @@
 """State files written whole or not at all: readers see the old or the new file, also after a SIGKILL."""
+
 from __future__ import annotations
 
 import json

@@ -9,6 +9,7 @@ step durations irrelevant, so a delay of d steps means d steps whatever the mach
 Only defined where both neighbouring actions are known: a time at or after the newest action is not yet
 placeable (the caller holds it until a newer step arrives).
 """
+
 from __future__ import annotations
 
 import bisect

@@ -1,5 +1,6 @@
 """Liveliness watches: which incarnations of a service have announced themselves, and which services came
 (back) alive; the statuses waiting in an inbox, decoded."""
+
 from __future__ import annotations
 
 import collections
@@ -29,8 +30,9 @@ class IncarnationWatch:
         self._lock = threading.Lock()
         self.seen: collections.OrderedDict[str, None] = collections.OrderedDict()
         self._new: list[str] = []
-        self._sub = session.liveliness().declare_subscriber(f"{alive_key(run, service)}/*", self._on_sample,
-                                                            history=True)
+        self._sub = session.liveliness().declare_subscriber(
+            f"{alive_key(run, service)}/*", self._on_sample, history=True
+        )
 
     def _on_sample(self, sample: Any) -> None:
         import zenoh

@@ -11,6 +11,7 @@ steps their screen showed), the paint time of each step (`Shown`), run controls 
 is a teacher: their ServiceStatus (`teacher.<id>`) announces them to the learner and carries their count of
 feedback at the end.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -27,11 +28,31 @@ import numpy as np
 
 from common.envs import make_env, n_actions, obs_shape
 from common.envs.scene import SceneTracker, static_scene
-from common.protocol import (TEACHER_PREFIX, KEYS, CompressedImage, Control, Credit, EpisodeSummary,
-                             ExpressionPrediction, Feedback,
-                             ProtocolError, ServiceStatus, Shown, Step, Time, camera_key, control_key,
-                             decode, episode_key, feedback_key, perception_key, shown_key, status_key,
-                             step_key, weights_key)
+from common.protocol import (
+    TEACHER_PREFIX,
+    KEYS,
+    CompressedImage,
+    Control,
+    Credit,
+    EpisodeSummary,
+    ExpressionPrediction,
+    Feedback,
+    ProtocolError,
+    ServiceStatus,
+    Shown,
+    Step,
+    Time,
+    camera_key,
+    control_key,
+    decode,
+    episode_key,
+    feedback_key,
+    perception_key,
+    shown_key,
+    status_key,
+    step_key,
+    weights_key,
+)
 from common.wire.inbox import Received
 from services.console.config import ConsoleConfig
 from services.console.ledger import Ledger
@@ -85,8 +106,15 @@ class Hub:
         from services.common.watches import IncarnationWatch
 
         run = self.config.run
-        keys = [step_key(run), episode_key(run), weights_key(run), KEYS["credit"].wildcard(run),
-                KEYS["status"].wildcard(run), KEYS["feedback"].wildcard(run), KEYS["control"].wildcard(run)]
+        keys = [
+            step_key(run),
+            episode_key(run),
+            weights_key(run),
+            KEYS["credit"].wildcard(run),
+            KEYS["status"].wildcard(run),
+            KEYS["feedback"].wildcard(run),
+            KEYS["control"].wildcard(run),
+        ]
         if self.config.camera:
             keys.append(perception_key(run, self.config.camera))
         if self.scene_static is None:  # the actor's picture of an env we cannot draw (services/actor/render.py)
@@ -109,12 +137,24 @@ class Hub:
             return
         if isinstance(msg, CompressedImage):
             if msg.frame_id.isdigit() and key.endswith("/camera/env"):
-                self.broadcast({"type": "frame", "seq": int(msg.frame_id), "format": msg.format,
-                                "data": base64.b64encode(msg.data).decode("ascii")})
+                self.broadcast(
+                    {
+                        "type": "frame",
+                        "seq": int(msg.frame_id),
+                        "format": msg.format,
+                        "data": base64.b64encode(msg.data).decode("ascii"),
+                    }
+                )
             return
         handlers: dict[type, Callable[[Any, float], None]] = {
-            Step: self._step, EpisodeSummary: self._episode, Credit: self._credit, ServiceStatus: self._status,
-            Feedback: self._feedback, ExpressionPrediction: self._face, Control: self._control}
+            Step: self._step,
+            EpisodeSummary: self._episode,
+            Credit: self._credit,
+            ServiceStatus: self._status,
+            Feedback: self._feedback,
+            ExpressionPrediction: self._face,
+            Control: self._control,
+        }
         handler = handlers.get(type(msg))
         if handler is not None and getattr(msg, "run", self.config.run) == self.config.run:
             handler(msg, t_recv)
@@ -131,11 +171,23 @@ class Hub:
         while len(self.recent) > 256:
             self.recent.popitem(last=False)
         self.agent.steps[0] = step.seq + 1  # alpha_h's schedule at the next action
-        self.last_step = {"type": "step", "actor": step.incarnation, "seq": step.seq, "episode": step.episode,
-                          "t_in_episode": step.t_in_episode, "action": step.action, "reward": step.reward,
-                          "terminated": step.terminated, "truncated": step.truncated, "t_action": step.t_action,
-                          "t_recv": t_recv, "next_obs": [round(float(x), 4) for x in step.next_obs[:32]],
-                          "scene": scene, "weights_version": step.weights_version, "info": dict(step.info)}
+        self.last_step = {
+            "type": "step",
+            "actor": step.incarnation,
+            "seq": step.seq,
+            "episode": step.episode,
+            "t_in_episode": step.t_in_episode,
+            "action": step.action,
+            "reward": step.reward,
+            "terminated": step.terminated,
+            "truncated": step.truncated,
+            "t_action": step.t_action,
+            "t_recv": t_recv,
+            "next_obs": [round(float(x), 4) for x in step.next_obs[:32]],
+            "scene": scene,
+            "weights_version": step.weights_version,
+            "info": dict(step.info),
+        }
         self.broadcast(self.last_step)
         self.broadcast(self.preferences())
 
@@ -143,34 +195,70 @@ class Hub:
         if self.obs is None:
             return {"type": "prefs", "q": None, "h": None}
         q, h, aq, ah = self.agent.preferences(0, self.obs)
-        return {"type": "prefs", "q": [round(float(x), 4) for x in q], "h": [round(float(x), 4) for x in h],
-                "alpha_q": aq, "alpha_h": round(ah, 5), "weights_version": self.weights.version}
+        return {
+            "type": "prefs",
+            "q": [round(float(x), 4) for x in q],
+            "h": [round(float(x), 4) for x in h],
+            "alpha_q": aq,
+            "alpha_h": round(ah, 5),
+            "weights_version": self.weights.version,
+        }
 
     def _episode(self, ep: EpisodeSummary, t_recv: float) -> None:
-        point = {"episode": ep.episode, "return": ep.return_, "steps": ep.steps,
-                 "feedback_received": ep.feedback_received, "feedback_credited": ep.feedback_credited}
+        point = {
+            "episode": ep.episode,
+            "return": ep.return_,
+            "steps": ep.steps,
+            "feedback_received": ep.feedback_received,
+            "feedback_credited": ep.feedback_credited,
+        }
         self.curve.append(point)
         self.broadcast({"type": "episode", **point})
 
     def _credit(self, c: Credit, t_recv: float) -> None:
-        item = {"type": "credit", "teacher_id": c.teacher_id, "seq": c.seq, "value": c.value, "status": c.status,
-                "t_reaction": c.t_reaction, "t_credited": c.t_credited, "t_recv": t_recv, "actor": c.actor,
-                "steps": [{"seq": s.seq, "weight": s.weight} for s in c.steps], "lost_mass": c.lost_mass,
-                "delay": dataclasses.asdict(c.delay) if c.delay is not None else None}
+        item = {
+            "type": "credit",
+            "teacher_id": c.teacher_id,
+            "seq": c.seq,
+            "value": c.value,
+            "status": c.status,
+            "t_reaction": c.t_reaction,
+            "t_credited": c.t_credited,
+            "t_recv": t_recv,
+            "actor": c.actor,
+            "steps": [{"seq": s.seq, "weight": s.weight} for s in c.steps],
+            "lost_mass": c.lost_mass,
+            "delay": dataclasses.asdict(c.delay) if c.delay is not None else None,
+        }
         self.trail.append(item)
         self.rt.samples["press_to_credited_s"].append(c.t_credited - c.t_reaction)
         self.broadcast(item)
 
     def _feedback(self, fb: Feedback, t_recv: float) -> None:
         if fb.source == "face":  # a webcam's feedback (from the perception service): show whose and when
-            self.broadcast({"type": "face_feedback", "teacher_id": fb.teacher_id, "seq": fb.seq, "value": fb.value,
-                            "t_reaction": fb.t_reaction, "t_recv": t_recv})
+            self.broadcast(
+                {
+                    "type": "face_feedback",
+                    "teacher_id": fb.teacher_id,
+                    "seq": fb.seq,
+                    "value": fb.value,
+                    "t_reaction": fb.t_reaction,
+                    "t_recv": t_recv,
+                }
+            )
 
     def _face(self, p: ExpressionPrediction, t_recv: float) -> None:
         self.rt.samples["frame_to_expression_s"].append(t_recv - p.t_capture)
-        self.broadcast({"type": "face", "label": p.label, "confidence": round(p.confidence, 3),
-                        "box": None if p.box is None else [p.box.x, p.box.y, p.box.w, p.box.h],
-                        "t_capture": p.t_capture, "t_recv": t_recv})
+        self.broadcast(
+            {
+                "type": "face",
+                "label": p.label,
+                "confidence": round(p.confidence, 3),
+                "box": None if p.box is None else [p.box.x, p.box.y, p.box.w, p.box.h],
+                "t_capture": p.t_capture,
+                "t_recv": t_recv,
+            }
+        )
 
     def _control(self, c: Control, t_recv: float) -> None:
         if c.command in ("pause", "resume"):
@@ -207,9 +295,15 @@ class Hub:
         tid = base if base not in self.people else f"{base}-{ledger.joined}"
         ledger.bind(page_id, tid)
         ledger.save()
-        person = Person(tid, RateLimit(c.max_press_rate, 2 * c.max_press_rate), RateLimit(c.max_frame_rate),
-                        incarnation=f"{TEACHER}{tid}-{os.getpid()}-{ledger.joined}", send=send,
-                        controls=RateLimit(c.max_control_rate, 5.0), page_id=page_id)
+        person = Person(
+            tid,
+            RateLimit(c.max_press_rate, 2 * c.max_press_rate),
+            RateLimit(c.max_frame_rate),
+            incarnation=f"{TEACHER}{tid}-{os.getpid()}-{ledger.joined}",
+            send=send,
+            controls=RateLimit(c.max_control_rate, 5.0),
+            page_id=page_id,
+        )
         self.people[tid] = person
         self.rt.counters["people_joined"] += 1
         try:
@@ -240,10 +334,17 @@ class Hub:
 
     def person_status(self, person: Person, state: str) -> None:
         service = f"{TEACHER}{person.teacher_id}"
-        self._publisher(status_key(self.config.run, service)).put(ServiceStatus(
-            run=self.config.run, service=service, pid=os.getpid(), state=state, t=time.time(),
-            counters={**self.ledger.counters(person.teacher_id), "frames_published": person.frames_sent},
-            incarnation=person.incarnation))
+        self._publisher(status_key(self.config.run, service)).put(
+            ServiceStatus(
+                run=self.config.run,
+                service=service,
+                pid=os.getpid(),
+                state=state,
+                t=time.time(),
+                counters={**self.ledger.counters(person.teacher_id), "frames_published": person.frames_sent},
+                incarnation=person.incarnation,
+            )
+        )
 
     def shown(self, person: Person, m: dict) -> None:
         t_action = self.recent.get((m["actor"], m["seq"]))
@@ -262,9 +363,19 @@ class Hub:
         if not person.timeline.add(m["actor"], m["seq"], t_shown):
             self.rt.counters["page_rejected_out_of_order"] += 1
             return
-        self._publisher(shown_key(self.config.run, person.teacher_id)).put(Shown(
-            run=self.config.run, screen=person.teacher_id, actor=m["actor"], seq=m["seq"], t_action=t_action,
-            t_shown=t_shown, t_page=max(0.0, m["t_page"]), offset=person.offset, rtt=min(60.0, person.rtt)))
+        self._publisher(shown_key(self.config.run, person.teacher_id)).put(
+            Shown(
+                run=self.config.run,
+                screen=person.teacher_id,
+                actor=m["actor"],
+                seq=m["seq"],
+                t_action=t_action,
+                t_shown=t_shown,
+                t_page=max(0.0, m["t_page"]),
+                offset=person.offset,
+                rtt=min(60.0, person.rtt),
+            )
+        )
         self.rt.samples["action_to_shown_s"].append(t_shown - t_action)
 
     def feedback(self, person: Person, m: dict) -> dict:
@@ -272,13 +383,28 @@ class Hub:
         duplicate Credit acknowledges it to the page)."""
         seq, again = self.ledger.seq_for(person.teacher_id, person.page_id, m["press"])
         actor, shown = person.timeline.window(m["t_sys"], self.span)
-        fb = Feedback(run=self.config.run, teacher_id=person.teacher_id, seq=seq,
-                      t_reaction=m["t_sys"], value=m["value"], source=m["source"], t_page=max(0.0, m["t_page"]),
-                      actor=actor, shown=shown if actor is not None else None)
+        fb = Feedback(
+            run=self.config.run,
+            teacher_id=person.teacher_id,
+            seq=seq,
+            t_reaction=m["t_sys"],
+            value=m["value"],
+            source=m["source"],
+            t_page=max(0.0, m["t_page"]),
+            actor=actor,
+            shown=shown if actor is not None else None,
+        )
         self._publisher(feedback_key(self.config.run, person.teacher_id)).put(fb)
         self.rt.counters["feedback_resent" if again else "feedback_published_all"] += 1
-        return {"type": "sent", "seq": fb.seq, "press": m["press"], "value": fb.value, "t_reaction": fb.t_reaction,
-                "steps_listed": len(shown), "resent": again}
+        return {
+            "type": "sent",
+            "seq": fb.seq,
+            "press": m["press"],
+            "value": fb.value,
+            "t_reaction": fb.t_reaction,
+            "steps_listed": len(shown),
+            "resent": again,
+        }
 
     def press_dropped(self, person: Person, reason: str) -> None:
         """A press the page gate refused (flood, absurd time, ...): counted for the person's summary."""
@@ -289,8 +415,9 @@ class Hub:
         self._publish_control(person.teacher_id, m["command"], m["rate"])
 
     def _publish_control(self, source: str, command: str, rate: float | None) -> None:
-        self.control_pub.put(Control(run=self.config.run, source=source, seq=self.control_seq, t=time.time(),
-                                     command=command, rate=rate))
+        self.control_pub.put(
+            Control(run=self.config.run, source=source, seq=self.control_seq, t=time.time(), command=command, rate=rate)
+        )
         self.control_seq += 1
 
     def start_when_watched(self) -> None:
@@ -310,17 +437,34 @@ class Hub:
         if self.actor_stopped:  # the run is over: the perception service may finish
             self.rt.counters["frames_after_end"] += 1
             return
-        self.camera_pub.put(CompressedImage(timestamp=Time.from_seconds(t_capture), frame_id=person.teacher_id,
-                                            data=jpeg, format="jpeg"))
+        self.camera_pub.put(
+            CompressedImage(
+                timestamp=Time.from_seconds(t_capture), frame_id=person.teacher_id, data=jpeg, format="jpeg"
+            )
+        )
         person.frames_sent += 1
         self.rt.counters["frames_published"] += 1
 
     def hello(self, person: Person) -> dict:
-        return {"type": "hello", "teacher_id": person.teacher_id, "run": self.config.run, "env": self.config.env,
-                "layout": self.config.layout, "algo": self.config.algo, "scene": self.scene_static,
-                "n_actions": self.n_actions, "rate": self.rate, "paused": self.paused, "episodes": self.config.episodes,
-                "camera": self.config.camera is not None, "span": self.span, "curve": self.curve,
-                "trail": list(self.trail), "ended": self.actor_stopped, "screen_delay": self.config.screen_delay}
+        return {
+            "type": "hello",
+            "teacher_id": person.teacher_id,
+            "run": self.config.run,
+            "env": self.config.env,
+            "layout": self.config.layout,
+            "algo": self.config.algo,
+            "scene": self.scene_static,
+            "n_actions": self.n_actions,
+            "rate": self.rate,
+            "paused": self.paused,
+            "episodes": self.config.episodes,
+            "camera": self.config.camera is not None,
+            "span": self.span,
+            "curve": self.curve,
+            "trail": list(self.trail),
+            "ended": self.actor_stopped,
+            "screen_delay": self.config.screen_delay,
+        }
 
     def close(self) -> None:
         self.subs.close()

@@ -21,6 +21,7 @@ code. A tree with uncommitted changes is keyed COMMIT-dirty-HASH (a hash of its 
 design that names its commit (`commit:`) refuses any other checkout and any dirty tree. Each stretch prints how
 many runs are done and how many remain, with an estimate of the time left.
 """
+
 from __future__ import annotations
 
 import json
@@ -47,8 +48,12 @@ DESIGNS = load_designs()
 class CompareConfig:
     """Run a declared comparison (DESIGNS in this module) and write its table, figure and verdict."""
 
-    design: str = option("first", "which declared design (services/console/designs/NAME.yaml): " + "; ".join(
-        f"{n} ({d.summary})" for n, d in DESIGNS.items()), choices=tuple(DESIGNS))
+    design: str = option(
+        "first",
+        "which declared design (services/console/designs/NAME.yaml): "
+        + "; ".join(f"{n} ({d.summary})" for n, d in DESIGNS.items()),
+        choices=tuple(DESIGNS),
+    )
     out: str = option("runs/compare", "directory of the runs and results (each design's under OUT/DESIGN/COMMIT)")
     parallel: int = option(8, "runs at once")
     pairs: int | None = option(None, "only the first N pairs (a trial of the machinery; no verdict is written)")
@@ -61,15 +66,44 @@ def _tag(arm: Arm, person: str | None, layout: int, seed: int) -> str:
     return f"{arm.algo}-{arm.screen_delay.replace(':', '').replace(',', '-')}{credit}{who}-l{layout}-s{seed}"
 
 
-def scripted_command(design: Design, arm: Arm, person: str | None, layout: int, seed: int, base: Path, tag: str,
-                     timeout: float) -> list[str]:
+def scripted_command(
+    design: Design, arm: Arm, person: str | None, layout: int, seed: int, base: Path, tag: str, timeout: float
+) -> list[str]:
     """The `services.console scripted` process of one run (its result JSON at base/results/TAG.json)."""
-    cmd = [sys.executable, "-m", "services.console", "scripted", "--algo", arm.algo, "--layout", str(layout),
-           "--seed", str(seed), "--episodes", str(design.episodes), "--rate", str(design.rate),
-           "--episode-steps", str(design.episode_steps), "--screen-delay", arm.screen_delay,
-           "--screen-credit", arm.screen_credit, "--p", str(design.p_press),
-           "--good-factor", str(design.good_factor), "--out", str(base / "runs"), "--run", tag,
-           "--timeout", str(timeout), "--result", str(base / "results" / f"{tag}.json")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "services.console",
+        "scripted",
+        "--algo",
+        arm.algo,
+        "--layout",
+        str(layout),
+        "--seed",
+        str(seed),
+        "--episodes",
+        str(design.episodes),
+        "--rate",
+        str(design.rate),
+        "--episode-steps",
+        str(design.episode_steps),
+        "--screen-delay",
+        arm.screen_delay,
+        "--screen-credit",
+        arm.screen_credit,
+        "--p",
+        str(design.p_press),
+        "--good-factor",
+        str(design.good_factor),
+        "--out",
+        str(base / "runs"),
+        "--run",
+        tag,
+        "--timeout",
+        str(timeout),
+        "--result",
+        str(base / "results" / f"{tag}.json"),
+    ]
     return cmd + (["--lag", design.people[person]] if person is not None else [])
 
 
@@ -117,8 +151,9 @@ def run_arm(cfg: CompareConfig, design: Design, run: Run, key: str) -> dict:
             raise RuntimeError(f"run {run.tag} failed (exit {rc}): see {result.with_suffix('.log')}")
         json.loads(result.read_text())  # a torn result file is no finished run
         done = result.with_suffix(".done.json")
-        done.with_suffix(".tmp").write_text(json.dumps({"key": key, "design": design.name, "wall_s":
-                                                        round(time.monotonic() - t0, 1)}))
+        done.with_suffix(".tmp").write_text(
+            json.dumps({"key": key, "design": design.name, "wall_s": round(time.monotonic() - t0, 1)})
+        )
         done.with_suffix(".tmp").replace(done)  # the run counts as finished only once this record is whole
     row = json.loads(result.read_text())["runs"][0]
     return {"arm": run.arm.name, "person": run.person, "layout": run.layout, "seed": run.seed, **row}
@@ -127,15 +162,17 @@ def run_arm(cfg: CompareConfig, design: Design, run: Run, key: str) -> dict:
 def episodes_to_goal(row: dict, design: Design) -> int:
     """The declared measure of one run (fewer is better)."""
     if design.measure == "goals":
-        reached = np.flatnonzero(row["reached_goal"][:design.episodes])
+        reached = np.flatnonzero(row["reached_goal"][: design.episodes])
         if len(reached) >= design.goals:
             return int(reached[design.goals - 1]) + 1
         return design.episodes + design.goals - len(reached)
     return row["first_good_episode"] or design.episodes + 1
 
 
-MEASURE_TITLES = {"first_good": "first episode within {f:g}x shortest path (never = {n})",
-                  "goals": "episodes to reach the goal {k} times"}
+MEASURE_TITLES = {
+    "first_good": "first episode within {f:g}x shortest path (never = {n})",
+    "goals": "episodes to reach the goal {k} times",
+}
 
 
 def one_test(rows: list[dict], design: Design, person: str | None = None, kind: str | None = None) -> dict:
@@ -148,15 +185,28 @@ def one_test(rows: list[dict], design: Design, person: str | None = None, kind: 
     by = {(r["arm"], r.get("person"), r["layout"], r["seed"]): r for r in rows}
     first, second = design.primary
     pairs = [(lay, s) for lay, s in design.pairs if kind is None or layout_kind(lay) == kind]
-    d = np.array([episodes_to_goal(by[first, person, lay, s], design)
-                  - episodes_to_goal(by[second, person, lay, s], design) for lay, s in pairs])
+    d = np.array(
+        [
+            episodes_to_goal(by[first, person, lay, s], design) - episodes_to_goal(by[second, person, lay, s], design)
+            for lay, s in pairs
+        ]
+    )
     nonzero = d[d != 0]
     p = float(stats.wilcoxon(nonzero, alternative="greater").pvalue) if len(nonzero) else 1.0
-    sign = (stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue
-            if len(nonzero) else 1.0)
-    return {"person": person, "kind": kind, "differences": d.tolist(), "mean": float(d.mean()),
-            "wins": int((d > 0).sum()), "ties": int((d == 0).sum()), "losses": int((d < 0).sum()), "wilcoxon_p": p,
-            "sign_p": float(sign)}
+    sign = (
+        stats.binomtest(int((nonzero > 0).sum()), len(nonzero), alternative="greater").pvalue if len(nonzero) else 1.0
+    )
+    return {
+        "person": person,
+        "kind": kind,
+        "differences": d.tolist(),
+        "mean": float(d.mean()),
+        "wins": int((d > 0).sum()),
+        "ties": int((d == 0).sum()),
+        "losses": int((d < 0).sum()),
+        "wilcoxon_p": p,
+        "sign_p": float(sign),
+    }
 
 
 def holm(pvalues: list[float], alpha: float) -> list[float]:
@@ -205,9 +255,14 @@ def cell(row: dict, design: Design) -> str:
 
 def table(rows: list[dict], design: Design) -> str:
     people = design.persons()
-    lines = ["| " + ("person | " if people != [None] else "") + "layout | seed | " +
-             " | ".join(a.name for a in design.arms) + " |",
-             "|" + "---|" * (len(design.arms) + 2 + (people != [None]))]
+    lines = [
+        "| "
+        + ("person | " if people != [None] else "")
+        + "layout | seed | "
+        + " | ".join(a.name for a in design.arms)
+        + " |",
+        "|" + "---|" * (len(design.arms) + 2 + (people != [None])),
+    ]
     by = {(r["arm"], r.get("person"), r["layout"], r["seed"]): r for r in rows}
     for person in people:
         for lay, s in design.pairs:
@@ -218,6 +273,7 @@ def table(rows: list[dict], design: Design) -> str:
 
 def figure(rows: list[dict], design: Design, path: Path) -> None:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -227,11 +283,15 @@ def figure(rows: list[dict], design: Design, path: Path) -> None:
     for (left, right), person in zip(axes, people):
         for a in design.arms:
             mine = {(r["layout"], r["seed"]): r for r in rows if r["arm"] == a.name and r.get("person") == person}
-            steps = np.array([mine[p]["steps_per_episode"][:design.episodes] for p in design.pairs], float)
+            steps = np.array([mine[p]["steps_per_episode"][: design.episodes] for p in design.pairs], float)
             right.plot(np.arange(1, steps.shape[1] + 1), np.median(steps, axis=0), marker="o", label=a.name)
-            left.plot([f"{lay}/{s}" for lay, s in design.pairs],
-                      [episodes_to_goal(mine[p], design) for p in design.pairs], marker="o", linestyle="none",
-                      label=a.name)
+            left.plot(
+                [f"{lay}/{s}" for lay, s in design.pairs],
+                [episodes_to_goal(mine[p], design) for p in design.pairs],
+                marker="o",
+                linestyle="none",
+                label=a.name,
+            )
         who = f"{person}: " if person else ""
         left.set(xlabel="layout/seed", ylabel="episodes (fewer is better)", title=who + title)
         left.tick_params(axis="x", labelrotation=60, labelsize=7)
@@ -246,20 +306,28 @@ def report(rows: list[dict], design: Design, out: Path) -> None:
     tests = declared_tests(rows, design)
     figure(rows, design, out / "compare.png")
     secondary = secondary_tests(rows, design)
-    (out / "compare.json").write_text(json.dumps({"design": asdict(design), "tests": tests, "primary": tests[0],
-                                                  "secondary": secondary, "runs": rows}, indent=1))
+    (out / "compare.json").write_text(
+        json.dumps(
+            {"design": asdict(design), "tests": tests, "primary": tests[0], "secondary": secondary, "runs": rows},
+            indent=1,
+        )
+    )
     (out / "compare.md").write_text(table(rows, design) + "\n")
     print(table(rows, design))
     measure = MEASURE_TITLES[design.measure].format(f=design.good_factor, n=design.episodes + 1, k=design.goals)
     for t in tests:
         where = " ".join(x for x in (t["person"], t["kind"]) if x)
-        print(f"{where + ': ' if where else ''}{design.primary[0]} minus {design.primary[1]}, {measure}: mean "
-              f"{t['mean']:+.2f}, {t['wins']} wins / {t['ties']} ties / {t['losses']} losses, Wilcoxon p "
-              f"{t['wilcoxon_p']:.4f} (decides at {t['alpha']:.4f}, {design.multiplicity}), sign p "
-              f"{t['sign_p']:.4f}: {t['verdict']}")
+        print(
+            f"{where + ': ' if where else ''}{design.primary[0]} minus {design.primary[1]}, {measure}: mean "
+            f"{t['mean']:+.2f}, {t['wins']} wins / {t['ties']} ties / {t['losses']} losses, Wilcoxon p "
+            f"{t['wilcoxon_p']:.4f} (decides at {t['alpha']:.4f}, {design.multiplicity}), sign p "
+            f"{t['sign_p']:.4f}: {t['verdict']}"
+        )
     for t in secondary:
-        print(f"  secondary (never deciding), {t['person']} on {t['kind']} layouts: mean {t['mean']:+.2f}, "
-              f"{t['wins']}/{t['ties']}/{t['losses']}, Wilcoxon p {t['wilcoxon_p']:.4f}")
+        print(
+            f"  secondary (never deciding), {t['person']} on {t['kind']} layouts: mean {t['mean']:+.2f}, "
+            f"{t['wins']}/{t['ties']}/{t['losses']}, Wilcoxon p {t['wilcoxon_p']:.4f}"
+        )
     for a in design.arms:
         print(f"  {a.name}: {sum(r['total_steps'] for r in rows if r['arm'] == a.name)} steps in all")
     print(f"wrote {out / 'compare.json'}, compare.md, compare.png")
@@ -306,17 +374,22 @@ def run_design(cfg: CompareConfig, design: Design, root: Path = ROOT) -> int:
     from tqdm import tqdm
 
     base = run_dir(cfg, design, key)
-    pairs = design.pairs[:cfg.pairs] if cfg.pairs else design.pairs
+    pairs = design.pairs[: cfg.pairs] if cfg.pairs else design.pairs
     runs = [Run(a, who, lay, s) for who in design.persons() for lay, s in pairs for a in design.arms]
     kept = {run: finished(base, run, key) for run in runs}
     walls = [r["wall_s"] for r in kept.values() if r]
-    print(f"[compare] design {design.name} on {key}: {len(walls)} of {len(runs)} runs done, {len(runs) - len(walls)}"
-          f" remain, {time_left(walls, len(runs) - len(walls), cfg.parallel, design)}; kept in {base}",
-          file=sys.stderr, flush=True)
+    print(
+        f"[compare] design {design.name} on {key}: {len(walls)} of {len(runs)} runs done, {len(runs) - len(walls)}"
+        f" remain, {time_left(walls, len(runs) - len(walls), cfg.parallel, design)}; kept in {base}",
+        file=sys.stderr,
+        flush=True,
+    )
     results: dict[Run, dict] = {}
     failed: list[str] = []
-    with tqdm(total=len(runs), initial=len(walls), desc=design.name, unit="run", file=sys.stderr) as bar, \
-            ThreadPoolExecutor(cfg.parallel) as pool:
+    with (
+        tqdm(total=len(runs), initial=len(walls), desc=design.name, unit="run", file=sys.stderr) as bar,
+        ThreadPoolExecutor(cfg.parallel) as pool,
+    ):
         futures = {pool.submit(run_arm, cfg, design, run, key): run for run in runs}
         for future in as_completed(futures):
             run = futures[future]
@@ -330,8 +403,11 @@ def run_design(cfg: CompareConfig, design: Design, root: Path = ROOT) -> int:
                 bar.update(1)
                 bar.set_postfix_str(time_left(walls, len(runs) - bar.n, cfg.parallel, design))
     if failed:
-        print("[compare] " + "\n[compare] ".join(failed) + f"\n[compare] {len(failed)} runs failed; the "
-              f"{len(results)} others are kept: run the same command again to retry", file=sys.stderr)
+        print(
+            "[compare] " + "\n[compare] ".join(failed) + f"\n[compare] {len(failed)} runs failed; the "
+            f"{len(results)} others are kept: run the same command again to retry",
+            file=sys.stderr,
+        )
         return 1
     rows = [results[run] for run in runs]
     if cfg.pairs:

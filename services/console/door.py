@@ -20,6 +20,7 @@ Checks, in this order, before anything of the run is served (docs/security.md):
 Keys are derived from the run's secret (`token_file`, mode 0600; a restarted console keeps it, so open pages keep
 their session keys and printed addresses stay valid until used); spent entry keys are listed beside it (0600).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -123,8 +124,16 @@ class Door:
     """The checks above, as an aiohttp middleware (`door.middleware`); counts every refusal by reason. `guard`
     (services/console/sockets.py) is told which connections presented a valid key."""
 
-    def __init__(self, keys: Keys, host: str, port: int, scheme: str, counters: MutableMapping[str, int],
-                 server_names: tuple[str, ...] = (), guard=None):
+    def __init__(
+        self,
+        keys: Keys,
+        host: str,
+        port: int,
+        scheme: str,
+        counters: MutableMapping[str, int],
+        server_names: tuple[str, ...] = (),
+        guard=None,
+    ):
         self.keys, self.port, self.scheme, self.counters, self.guard = keys, int(port), scheme, counters, guard
         self.host = host
         names = set(LOOPBACK_NAMES)
@@ -136,8 +145,12 @@ class Door:
 
     def refuse(self, reason: str, why: str) -> web.Response:
         self.counters[f"door_refused_{reason}"] += 1
-        return web.Response(status=403, text=REFUSED_PAGE.format(why=why), content_type="text/html",
-                            headers={"Cache-Control": "no-store"})
+        return web.Response(
+            status=403,
+            text=REFUSED_PAGE.format(why=why),
+            content_type="text/html",
+            headers={"Cache-Control": "no-store"},
+        )
 
     def why_not(self, request: web.Request) -> tuple[str, str] | None:
         """(reason, sentence) if this request may not pass Host and Origin; None if it may."""
@@ -185,8 +198,11 @@ class Door:
         """An entry key (one use) for a session key."""
         outcome = self.keys.spend(bearer(request))
         if outcome == "spent":
-            return self.refuse("spent", "This address was used already: each printed address opens one page. "
-                                        "An open page gives another (its 'another page' link).")
+            return self.refuse(
+                "spent",
+                "This address was used already: each printed address opens one page. "
+                "An open page gives another (its 'another page' link).",
+            )
         if outcome != "ok":
             return self.refuse("token", "The key in this address is not this console's.")
         self.counters["door_entered"] += 1

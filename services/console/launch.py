@@ -1,5 +1,6 @@
 """How `python -m services up --teacher web` starts the console (and, with `--webcam`, the perception
 service that reads the people's webcams), for the launcher's teacher registry."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -36,11 +37,20 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
     from services.console.door import Keys, console_address, read_or_make_token
 
     token_file = up.state_path(f"teacher.{prefix}", ".token")  # kept by a restarted console: open pages go on
-    console = ConsoleConfig(**common, stats_out=up.stats_path(f"teacher.{prefix}"), task=up.task, algo=up.algo,
-                            agent=up.agent, **{**settings(up.console), "port": port}, host=host, teacher_prefix=prefix,
-                            actor=ActorSettings(rate=up.rate, episodes=up.episodes, start_paused=up.start_paused),
-                            learner=LearnerSettings(screen_delay=up.screen_delay), camera=WEBCAM if up.webcam else None,
-                            token_file=token_file)
+    console = ConsoleConfig(
+        **common,
+        stats_out=up.stats_path(f"teacher.{prefix}"),
+        task=up.task,
+        algo=up.algo,
+        agent=up.agent,
+        **{**settings(up.console), "port": port},
+        host=host,
+        teacher_prefix=prefix,
+        actor=ActorSettings(rate=up.rate, episodes=up.episodes, start_paused=up.start_paused),
+        learner=LearnerSettings(screen_delay=up.screen_delay),
+        camera=WEBCAM if up.webcam else None,
+        token_file=token_file,
+    )
     scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
     waits = " (the run starts when the first page opens)" if up.start_paused else ""
     # a one-use entry key of the run's secret (services/console/door.py): printed to the person's terminal only
@@ -52,7 +62,20 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
         from services.perception.config import PerceptionLiveConfig
 
         face = f"{prefix}-face"
-        procs.append((f"teacher.{face}", "services.perception", PerceptionLiveConfig(
-            **common, stats_out=up.stats_path(f"teacher.{face}"), source=f"zenoh:{WEBCAM}", teacher_id=face,
-            camera=WEBCAM, stop_with=("actor",), screens=True, screen_span=console.span)))
+        procs.append(
+            (
+                f"teacher.{face}",
+                "services.perception",
+                PerceptionLiveConfig(
+                    **common,
+                    stats_out=up.stats_path(f"teacher.{face}"),
+                    source=f"zenoh:{WEBCAM}",
+                    teacher_id=face,
+                    camera=WEBCAM,
+                    stop_with=("actor",),
+                    screens=True,
+                    screen_span=console.span,
+                ),
+            )
+        )
     return procs

@@ -11,6 +11,7 @@ its recent presses. With a `state_file` (the launcher gives one) it is written w
 each feedback is published: a console restarted after a SIGKILL continues every teacher's seq and recognises
 re-sent presses.
 """
+
 from __future__ import annotations
 
 import collections
@@ -40,8 +41,7 @@ class Ledger:
             self.saved_at = time.monotonic()
 
     def teacher(self, tid: str) -> dict[str, Any]:
-        return self.teachers.setdefault(tid, {"next_seq": 0, "received": 0, "published": 0, "resent": 0,
-                                              "dropped": {}})
+        return self.teachers.setdefault(tid, {"next_seq": 0, "received": 0, "published": 0, "resent": 0, "dropped": {}})
 
     def page_teacher(self, page_id: str | None) -> str | None:
         """The teacher id this page had before (a reload or a reconnect after a console restart)."""
@@ -90,7 +90,10 @@ class Ledger:
     def counters(self, tid: str) -> dict[str, int]:
         """The person's counts for their ServiceStatus (and so the run's summary.json)."""
         t = self.teacher(tid)
-        out = {"feedback_published": int(t["next_seq"]), "presses_received": int(t["received"]),
-               "presses_resent": int(t["resent"])}
+        out = {
+            "feedback_published": int(t["next_seq"]),
+            "presses_received": int(t["received"]),
+            "presses_resent": int(t["resent"]),
+        }
         out.update({f"presses_dropped_{k}": int(v) for k, v in sorted(t["dropped"].items())})
         return out

@@ -13,6 +13,7 @@
 - steps per feedback: the steps a feedback listed as shown in its window, and those it was credited to;
 - the share of each press's credit on steps the paper's rule rates as the press does (a scripted person's).
 """
+
 from __future__ import annotations
 
 import json
@@ -32,9 +33,13 @@ def _stats(values: Sequence[float], scale: float = 1e3) -> dict | None:
     if not values:
         return None
     a = np.asarray(values, np.float64) * scale
-    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 2),
-            "p99": round(float(np.percentile(a, 99)), 2),
-            "mean": round(float(a.mean()), 2), "max": round(float(a.max()), 2)}
+    return {
+        "n": int(a.size),
+        "p50": round(float(np.percentile(a, 50)), 2),
+        "p99": round(float(np.percentile(a, 99)), 2),
+        "mean": round(float(a.mean()), 2),
+        "max": round(float(a.max()), 2),
+    }
 
 
 def measure(paths: list[str]) -> dict:
@@ -65,11 +70,17 @@ def measure(paths: list[str]) -> dict:
                 shown_lag.append(m.t_shown - m.t_action)
             elif isinstance(m, ExpressionPrediction):
                 expression.append(rec.log_time / 1e9 - m.t_capture)
-    return {"runs": paths, "press_to_credited_ms": _stats(press), **used.figures(),
-            "frame_to_face_feedback_ms": _stats(face),
-            "frame_to_expression_ms": _stats(expression), "action_to_screen_ms": _stats(shown_lag),
-            "steps_listed_per_feedback": _stats(listed, 1.0), "steps_credited_per_feedback": _stats(credited, 1.0),
-            "credit_share_on_steps_the_rule_rates_alike": _stats(agreeing, 1.0)}
+    return {
+        "runs": paths,
+        "press_to_credited_ms": _stats(press),
+        **used.figures(),
+        "frame_to_face_feedback_ms": _stats(face),
+        "frame_to_expression_ms": _stats(expression),
+        "action_to_screen_ms": _stats(shown_lag),
+        "steps_listed_per_feedback": _stats(listed, 1.0),
+        "steps_credited_per_feedback": _stats(credited, 1.0),
+        "credit_share_on_steps_the_rule_rates_alike": _stats(agreeing, 1.0),
+    }
 
 
 class FirstUse:
@@ -110,10 +121,12 @@ class FirstUse:
 
     def figures(self) -> dict:
         self.new_log()
-        return {"press_to_first_action_using_it_ms": _stats([s.t_action - c.t_reaction for c, s, _ in self.pairs]),
-                "credited_to_first_action_using_it_ms": _stats([s.t_action - c.t_credited for c, s, _ in self.pairs]),
-                "actions_between_credit_and_first_use": _stats([float(n) for _, _, n in self.pairs], 1.0),
-                "credited_never_used": self.unused}
+        return {
+            "press_to_first_action_using_it_ms": _stats([s.t_action - c.t_reaction for c, s, _ in self.pairs]),
+            "credited_to_first_action_using_it_ms": _stats([s.t_action - c.t_credited for c, s, _ in self.pairs]),
+            "actions_between_credit_and_first_use": _stats([float(n) for _, _, n in self.pairs], 1.0),
+            "credited_never_used": self.unused,
+        }
 
 
 def rule_agreement(credit: Credit, infos: dict) -> float | None:

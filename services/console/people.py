@@ -7,6 +7,7 @@ button; with the page's own id and press number, so a press re-sent after a reco
 time, then a JPEG. Anything else, or anything out of bounds (sizes, timestamps, rates), is rejected with a
 reason; the console counts it (`page_rejected_<reason>`) and drops it.
 """
+
 from __future__ import annotations
 
 import json
@@ -77,8 +78,9 @@ def check_name(name: str | None) -> str | None:
     if name is None or name == "":
         return None
     if not PERSON_NAME.match(name):
-        raise PageError("bad_name", "a name is 1-32 ASCII letters, digits, '_', '.' or '-', starting with a letter "
-                                    "or digit")
+        raise PageError(
+            "bad_name", "a name is 1-32 ASCII letters, digits, '_', '.' or '-', starting with a letter or digit"
+        )
     return name
 
 
@@ -153,8 +155,15 @@ class PageGate:
             past = self.resend_window if resend else None
             t_sys = min(self._system_time(msg, person, self.max_clock_skew, past), self.clock())
             t_action = _number(msg, "t_action", 0.0, self.clock()) if resend and "t_action" in msg else None
-            return {"type": "shown", "seq": seq, "actor": actor, "t_page": float(msg["t_page"]), "t_sys": t_sys,
-                    "resend": resend, "t_action": t_action}
+            return {
+                "type": "shown",
+                "seq": seq,
+                "actor": actor,
+                "t_page": float(msg["t_page"]),
+                "t_sys": t_sys,
+                "resend": resend,
+                "t_action": t_action,
+            }
         if kind == "feedback":
             try:
                 return self._feedback(msg, person)
@@ -181,15 +190,23 @@ class PageGate:
         if source not in FEEDBACK_SOURCES:
             raise PageError("bad_value", "source")
         press = msg.get("press")
-        if press is not None and (isinstance(press, bool) or not isinstance(press, int)
-                                  or not 0 <= press < MAX_PRESS_NO):
+        if press is not None and (
+            isinstance(press, bool) or not isinstance(press, int) or not 0 <= press < MAX_PRESS_NO
+        ):
             raise PageError("bad_value", "press")
         resend = msg.get("resend") is True and press is not None
         t_sys = self._system_time(msg, person, 0.5, self.resend_window if resend else None)
         if not person.presses.take():  # (the page paces its re-sends below this rate)
             raise PageError("flood", "too many presses")
-        return {"type": "feedback", "value": int(value), "source": source, "t_page": float(msg["t_page"]),
-                "t_sys": t_sys, "press": press, "resend": resend}
+        return {
+            "type": "feedback",
+            "value": int(value),
+            "source": source,
+            "t_page": float(msg["t_page"]),
+            "t_sys": t_sys,
+            "press": press,
+            "resend": resend,
+        }
 
     def frame(self, data: bytes, person: Person) -> tuple[float, bytes]:
         """A webcam frame: (capture time on the system clock, JPEG bytes)."""

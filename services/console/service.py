@@ -14,6 +14,7 @@ key the page presents itself: no cookie), and a socket that presents no key is b
 console serves other machines over HTTPS, and only after a person gives a teacher name and password that the
 security file knows. What one page sends or breaks stays with that page (`Pages`).
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -125,8 +126,12 @@ class Pages:
                 return await self.refuse(ws, "login", "teacher name or password not accepted", 4403)
         make_room(config, hub, rt)
         if len(hub.people) >= config.max_people:
-            return await self.refuse(ws, "full", f"the console is full ({config.max_people} people are teaching); "
-                                                 "try again when someone leaves", 1013)
+            return await self.refuse(
+                ws,
+                "full",
+                f"the console is full ({config.max_people} people are teaching); try again when someone leaves",
+                1013,
+            )
         page = Page(ws, rt)
         try:
             person = hub.join(name, page_id, page.send)
@@ -232,8 +237,13 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     hub.subscribe()
     tls = tls_context(config)
     scheme = "https" if tls else "http"
-    guard = SocketGuard(rt.counters, config.header_timeout, config.unauthenticated_idle,
-                        config.max_connections_per_address, config.max_connections)
+    guard = SocketGuard(
+        rt.counters,
+        config.header_timeout,
+        config.unauthenticated_idle,
+        config.max_connections_per_address,
+        config.max_connections,
+    )
     keys = Keys(read_or_make_token(config.token_file), spent_file_for(config.token_file))
     door = Door(keys, config.host, config.port, scheme, rt.counters, config.server_names, guard)
     pages = Pages(config, rt, hub)
@@ -241,8 +251,9 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
     await runner.setup()
     assert runner.server is not None
-    server = await loop.create_server(guard.factory(runner.server), config.host, config.port, ssl=tls,
-                                      reuse_address=True, backlog=1024)
+    server = await loop.create_server(
+        guard.factory(runner.server), config.host, config.port, ssl=tls, reuse_address=True, backlog=1024
+    )
     sweeper = asyncio.create_task(guard.sweeper())
     rt.set_counters_source(lambda: {"people_now": len(hub.people), **guard.gauges()})
     rt.ready()
@@ -275,8 +286,10 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
 
 def main(config: ConsoleConfig) -> int:
     if config.host not in ("127.0.0.1", "localhost", "::1") and not config.security:
-        print(f"error: the console serves {config.host} only with --security (a teacher password per person)",
-              file=sys.stderr)
+        print(
+            f"error: the console serves {config.host} only with --security (a teacher password per person)",
+            file=sys.stderr,
+        )
         return 2
     if config.replay:
         from services.console.replay import replay_main
@@ -304,9 +317,16 @@ def cli(argv: list[str] | None = None) -> int:
         from common.config import Command, run_commands
         from services.console import compare, measure, scripted
 
-        studies = {"scripted": Command(scripted.ScriptedConfig, scripted.main),
-                   "compare": Command(compare.CompareConfig, compare.main),
-                   "measure": Command(measure.MeasureConfig, measure.main)}
+        studies = {
+            "scripted": Command(scripted.ScriptedConfig, scripted.main),
+            "compare": Command(compare.CompareConfig, compare.main),
+            "measure": Command(measure.MeasureConfig, measure.main),
+        }
         return run_commands("python -m services.console", cli.__doc__ or "", studies, argv)
-    return service_main(ConsoleConfig, main, argv, "python -m services.console",
-                        also="Also: python -m services.console scripted|compare|measure --help.")
+    return service_main(
+        ConsoleConfig,
+        main,
+        argv,
+        "python -m services.console",
+        also="Also: python -m services.console scripted|compare|measure --help.",
+    )

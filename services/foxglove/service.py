@@ -9,6 +9,7 @@ to ws://HOST:PORT (Open connection -> Foxglove WebSocket); the layout in docs/fo
 It never slows the run: samples go into a drop-oldest queue (counted when dropped), and what a slow viewer
 cannot take is dropped by the server's own per-client backlog.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,8 +38,10 @@ class Channels:
             cls = parse_key(key).spec.message
             encoding, schema = schema_record(cls)
             ch = self.by_key[key] = foxglove.Channel(
-                log_topic(key), message_encoding=cls.MESSAGE_ENCODING,
-                schema=foxglove.Schema(name=cls.TYPE_NAME, encoding=encoding, data=schema))
+                log_topic(key),
+                message_encoding=cls.MESSAGE_ENCODING,
+                schema=foxglove.Schema(name=cls.TYPE_NAME, encoding=encoding, data=schema),
+            )
         ch.log(data, log_time=log_time)
 
 
@@ -62,8 +65,10 @@ def main(config: FoxgloveConfig) -> int:
     stopped: set[str] = set()
     linger_until: float | None = None
     try:
-        with rt.session() as session, subscription(session, run_prefix(config.run), maxsize=1 << 14,
-                                                   policy="drop_oldest") as inbox:
+        with (
+            rt.session() as session,
+            subscription(session, run_prefix(config.run), maxsize=1 << 14, policy="drop_oldest") as inbox,
+        ):
             rt.ready()
             while True:
                 if rt.stop.is_set() and linger_until is None:
@@ -105,6 +110,10 @@ def cli(argv: list[str] | None = None) -> int:
 
         sys.stdout.write(layout_json())
         return 0
-    return service_main(FoxgloveConfig, main, argv, "python -m services.foxglove",
-                        also="Also: python -m services.foxglove layout (prints docs/foxglove-layout.json).")
-
+    return service_main(
+        FoxgloveConfig,
+        main,
+        argv,
+        "python -m services.foxglove",
+        also="Also: python -m services.foxglove layout (prints docs/foxglove-layout.json).",
+    )

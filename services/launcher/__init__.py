@@ -25,11 +25,25 @@ secured one (TLS, user/password, access control: common/security.py) and every s
 Modules: config (UpConfig, the processes), children (start/stop processes), supervise (restarts, hangs),
 rundir (name, lock, credentials, disk), report (progress, summary), run (the loop).
 """
+
 from services.launcher.children import ROOT, Child, child_env, spawn, stop_children
 from services.launcher.config import Launch, UpConfig, build_processes
 from services.launcher.report import finish, latency_table, percentiles
 from services.launcher.rundir import default_run_name
 from services.launcher.run import up
 
-__all__ = ["ROOT", "Child", "child_env", "spawn", "stop_children", "Launch", "UpConfig", "build_processes", "finish",
-           "latency_table", "percentiles", "default_run_name", "up"]
+__all__ = [
+    "ROOT",
+    "Child",
+    "child_env",
+    "spawn",
+    "stop_children",
+    "Launch",
+    "UpConfig",
+    "build_processes",
+    "finish",
+    "latency_table",
+    "percentiles",
+    "default_run_name",
+    "up",
+]

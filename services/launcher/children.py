@@ -1,4 +1,5 @@
 """The launcher's child processes: start one (its own process group, its log file), signal, stop, reap."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -73,9 +74,15 @@ def spawn(spec: ProcessSpec, rundir: Path, restarts: int = 0) -> Child:
         log.flush()
     try:
         # In the launcher's own directory (the run's paths may be relative to it); the package is on PYTHONPATH.
-        popen = subprocess.Popen([sys.executable, "-m", *spec.module.split(), "--config", str(cfg_path)],
-                                 env=child_env(), stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                 start_new_session=True, umask=CHILD_UMASK)
+        popen = subprocess.Popen(
+            [sys.executable, "-m", *spec.module.split(), "--config", str(cfg_path)],
+            env=child_env(),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            umask=CHILD_UMASK,
+        )
     finally:
         log.close()
     return Child(spec, popen, log_path, restarts=restarts)

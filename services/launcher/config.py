@@ -1,4 +1,5 @@
 """The launcher's configuration (`UpConfig`, also its command line) and the processes of a run."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -14,8 +15,14 @@ from common.config import Groups, nested, option
 from common.core.observer import ObserverConfig
 from common.core.task import Task
 from common.protocol import teacher_id_of
-from services.common.config import (ActorConfig, ActorSettings, FoxgloveConfig, LearnerConfig, LearnerSettings,
-                                     RecorderConfig)
+from services.common.config import (
+    ActorConfig,
+    ActorSettings,
+    FoxgloveConfig,
+    LearnerConfig,
+    LearnerSettings,
+    RecorderConfig,
+)
 from services.console.config import ConsoleSettings
 from services.teacher.registry import TEACHERS, ProcessSpec, missing_extra
 
@@ -27,16 +34,22 @@ class UpConfig(Groups):
 
     task: Task = option(Task(), "environment, layout, seed, teacher rule", flatten=True)
     algo: str = option("dqn-tamer", "agent", choices=ALGOS)
-    agent: AgentConfig | None = option(None, "the agent's hyper-parameters (default: the algo's preset), the actor's "
-                                             "and the learner's", exclude=("algo",),
-                                       was={"assumed_delay_probs": "--assumed-delay-probs",
-                                            "update_interval": "--update-interval"})
-    actor: ActorSettings = option(ActorSettings(), "the actor's settings (services.actor: the same flags)",
-                                  flatten=True)
-    learner: LearnerSettings = option(LearnerSettings(), "the learner's settings (services.learner: the same flags; "
-                                                         "screen-delay and screen-credit are for --teacher web, "
-                                                         "oracle-delay for --teacher oracle/face-video)",
-                                      flatten=True)
+    agent: AgentConfig | None = option(
+        None,
+        "the agent's hyper-parameters (default: the algo's preset), the actor's and the learner's",
+        exclude=("algo",),
+        was={"assumed_delay_probs": "--assumed-delay-probs", "update_interval": "--update-interval"},
+    )
+    actor: ActorSettings = option(
+        ActorSettings(), "the actor's settings (services.actor: the same flags)", flatten=True
+    )
+    learner: LearnerSettings = option(
+        LearnerSettings(),
+        "the learner's settings (services.learner: the same flags; "
+        "screen-delay and screen-credit are for --teacher web, "
+        "oracle-delay for --teacher oracle/face-video)",
+        flatten=True,
+    )
     observer: ObserverConfig = option(ObserverConfig(), "the simulated observer")
     teacher: str = option("oracle", "teacher kind (services/teacher/registry.py)", choices=tuple(TEACHERS))
     teacher_id: str = option("oracle", "the teacher's name (its feedback key's last chunk)")
@@ -48,23 +61,35 @@ class UpConfig(Groups):
     stop_timeout: float = option(10.0, "seconds after the actor ends (or Ctrl-C) before stragglers are terminated")
     progress: bool = option(True, "show a progress bar")
     restart_limit: int = option(3, "restarts per service before the run is given up (0: a dead service stops the run)")
-    restart_backoff: float = option(0.5, "seconds before the first restart of a service; doubles per restart, "
-                                         "at most 8 s")
-    security: str | None = option(None, "security.json of the router machine (python -m services security init): "
-                                        "run the secured router (TLS on HOST:PORT) and connect every service to it")
-    console: ConsoleSettings = option(ConsoleSettings(port=0), "--teacher web: the console's settings "
-                                                                "(services.console: the same flags, here --console.*)",
-                                      was={"port": "--console-port"})
+    restart_backoff: float = option(
+        0.5, "seconds before the first restart of a service; doubles per restart, at most 8 s"
+    )
+    security: str | None = option(
+        None,
+        "security.json of the router machine (python -m services security init): "
+        "run the secured router (TLS on HOST:PORT) and connect every service to it",
+    )
+    console: ConsoleSettings = option(
+        ConsoleSettings(port=0),
+        "--teacher web: the console's settings (services.console: the same flags, here --console.*)",
+        was={"port": "--console-port"},
+    )
     webcam: bool = option(False, "--teacher web: also start the perception service for the people's webcams")
-    foxglove: int | None = option(None, "also serve the run's channels (as in the log) over Foxglove's WebSocket "
-                                        "protocol on this port (services/foxglove; docs/logs.md)")
+    foxglove: int | None = option(
+        None,
+        "also serve the run's channels (as in the log) over Foxglove's WebSocket "
+        "protocol on this port (services/foxglove; docs/logs.md)",
+    )
     foxglove_host: str = option("127.0.0.1", "address the Foxglove bridge serves on")
-    hang_timeout: float = option(60.0, "a ready service that sends no status for this many seconds while its process "
-                                       "runs is hung: killed and restarted like a dead one (a service whose Zenoh "
-                                       "session lapses, e.g. stopped, is caught sooner by its liveliness token)")
-    min_free_mb: float = option(16.0, "stop the run cleanly when the run directory's disk has less than this many "
-                                      "MiB free (a full disk)")
-
+    hang_timeout: float = option(
+        60.0,
+        "a ready service that sends no status for this many seconds while its process "
+        "runs is hung: killed and restarted like a dead one (a service whose Zenoh "
+        "session lapses, e.g. stopped, is caught sooner by its liveliness token)",
+    )
+    min_free_mb: float = option(
+        16.0, "stop the run cleanly when the run directory's disk has less than this many MiB free (a full disk)"
+    )
 
     def __post_init__(self):
         object.__setattr__(self, "task", nested(self.task, Task))
@@ -99,8 +124,12 @@ class UpConfig(Groups):
         put in the group that declares it: for Python callers, as the command line has them."""
         own = {f.name for f in dataclasses.fields(cls)}
         given: dict[str, Any] = {k: v for k, v in settings.items() if k in own}
-        groups: tuple[tuple[str, type], ...] = (("task", Task), ("actor", ActorSettings), ("learner", LearnerSettings),
-                                                ("agent", AgentConfig))
+        groups: tuple[tuple[str, type], ...] = (
+            ("task", Task),
+            ("actor", ActorSettings),
+            ("learner", LearnerSettings),
+            ("agent", AgentConfig),
+        )
         placed = set(given)
         for group, of in groups:
             names = {f.name for f in dataclasses.fields(of)} - own
@@ -136,8 +165,9 @@ class Launch:
 
     def __init__(self, cfg: UpConfig, run: str, rundir: Path, endpoint: str):
         self.cfg, self.run, self.rundir, self.endpoint = cfg, run, rundir, endpoint
-        self.connect_endpoints = (endpoint if cfg.host not in ("0.0.0.0", "::") else
-                                  endpoint.replace(cfg.host, "127.0.0.1"),)
+        self.connect_endpoints = (
+            endpoint if cfg.host not in ("0.0.0.0", "::") else endpoint.replace(cfg.host, "127.0.0.1"),
+        )
         self.parent_pid: int | None = os.getpid()
         self.banners: list[str] = []  # printed once the run is up (the Foxglove bridge's address)
         self.listening_banners: list[tuple[str, int, str]] = []  # (host, port, line): printed once that port listens
@@ -155,9 +185,14 @@ class Launch:
         return str(self.rundir / "credentials" / f"{identity}.json")
 
     def common(self, service: str) -> dict:
-        return dict(run=self.run, connect=self.connect_endpoints, parent_pid=self.parent_pid,
-                    stats_out=self.stats_path(service), security=self.cfg.security,
-                    credentials=self.credentials_path(service))
+        return dict(
+            run=self.run,
+            connect=self.connect_endpoints,
+            parent_pid=self.parent_pid,
+            stats_out=self.stats_path(service),
+            security=self.cfg.security,
+            credentials=self.credentials_path(service),
+        )
 
 
 def settings(group: Any) -> dict[str, Any]:
@@ -173,28 +208,60 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
         raise ValueError(f"teacher kind {c.teacher!r} starts no process")
     teacher_names = [teachers[0].name]
     own_teachers = tuple(t for t in map(teacher_id_of, teacher_names) if t)  # (not a console's people)
-    learner = LearnerConfig(**launch.common("learner"), task=c.task, algo=c.algo, agent=c.agent,
-                            **{**settings(c.learner), "oracle_delay": c.learner.resolved_oracle_delay(c.rate)},
-                            wait_teachers=own_teachers, credits_in_ingest=own_teachers,
-                            checkpoint=launch.state_path("learner", ".ckpt"),
-                            catchup_log=str(launch.rundir / "session.mcap"))
+    learner = LearnerConfig(
+        **launch.common("learner"),
+        task=c.task,
+        algo=c.algo,
+        agent=c.agent,
+        **{**settings(c.learner), "oracle_delay": c.learner.resolved_oracle_delay(c.rate)},
+        wait_teachers=own_teachers,
+        credits_in_ingest=own_teachers,
+        checkpoint=launch.state_path("learner", ".ckpt"),
+        catchup_log=str(launch.rundir / "session.mcap"),
+    )
     others = ["recorder", "learner"] + [t.name for t in teachers]
-    actor = ActorConfig(**launch.common("actor"), task=c.task, algo=c.algo, agent=c.agent, **settings(c.actor),
-                        wait_for=tuple(others), start_timeout=c.start_timeout,
-                        # a restarted learner needs a few seconds (start, restore, catch up) before new weights
-                        weights_timeout=120.0 if c.restart_limit else 30.0)
-    recorder = RecorderConfig(**launch.common("recorder"), out=str(launch.rundir / "session.mcap"),
-                              run_config=str(launch.rundir / "config" / "run.json"),
-                              stop_when=tuple(["actor", "learner"] + teacher_names))
-    procs = [ProcessSpec("recorder", "services.recorder", recorder),
-             ProcessSpec("learner", "services.learner", learner), *teachers,
-             ProcessSpec("actor", "services.actor", actor)]
+    actor = ActorConfig(
+        **launch.common("actor"),
+        task=c.task,
+        algo=c.algo,
+        agent=c.agent,
+        **settings(c.actor),
+        wait_for=tuple(others),
+        start_timeout=c.start_timeout,
+        # a restarted learner needs a few seconds (start, restore, catch up) before new weights
+        weights_timeout=120.0 if c.restart_limit else 30.0,
+    )
+    recorder = RecorderConfig(
+        **launch.common("recorder"),
+        out=str(launch.rundir / "session.mcap"),
+        run_config=str(launch.rundir / "config" / "run.json"),
+        stop_when=tuple(["actor", "learner"] + teacher_names),
+    )
+    procs = [
+        ProcessSpec("recorder", "services.recorder", recorder),
+        ProcessSpec("learner", "services.learner", learner),
+        *teachers,
+        ProcessSpec("actor", "services.actor", actor),
+    ]
     if c.foxglove:
-        procs.insert(1, ProcessSpec("foxglove", "services.foxglove", FoxgloveConfig(
-            **launch.common("foxglove"), port=c.foxglove, host=c.foxglove_host, run_config=recorder.run_config,
-            stop_when=recorder.stop_when)))
-        launch.banners = [*launch.banners, f"foxglove: ws://{c.foxglove_host}:{c.foxglove} "
-                                                           "(Foxglove: open connection, Foxglove WebSocket)"]
+        procs.insert(
+            1,
+            ProcessSpec(
+                "foxglove",
+                "services.foxglove",
+                FoxgloveConfig(
+                    **launch.common("foxglove"),
+                    port=c.foxglove,
+                    host=c.foxglove_host,
+                    run_config=recorder.run_config,
+                    stop_when=recorder.stop_when,
+                ),
+            ),
+        )
+        launch.banners = [
+            *launch.banners,
+            f"foxglove: ws://{c.foxglove_host}:{c.foxglove} (Foxglove: open connection, Foxglove WebSocket)",
+        ]
     # Whatever a teacher kind built: the run's security file, each service's credential file, and a progress
     # file where the service keeps one.
     fields = lambda cfg: {f.name for f in dataclasses.fields(cfg)}  # noqa: E731

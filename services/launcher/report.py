@@ -1,4 +1,5 @@
 """What the user sees: the progress bar (fed by authenticated EpisodeSummary messages) and the run's summary."""
+
 from __future__ import annotations
 
 import json
@@ -40,9 +41,11 @@ class Progress:
             self.received += ep.feedback_received
             self.credited += ep.feedback_credited
             self.bar.update(1)
-            self.bar.set_postfix_str(f"ep {ep.episode} return {ep.return_:.2f} steps {ep.steps} "
-                                     f"feedback {self.received} recv/{self.credited} credited "
-                                     f"weights v{ep.weights_version}")
+            self.bar.set_postfix_str(
+                f"ep {ep.episode} return {ep.return_:.2f} steps {ep.steps} "
+                f"feedback {self.received} recv/{self.credited} credited "
+                f"weights v{ep.weights_version}"
+            )
 
     def close(self) -> None:
         self.pump()
@@ -52,21 +55,37 @@ class Progress:
 EXIT_CODES = {"ok": 0, "interrupted": 130}
 
 
-def finish(cfg: UpConfig, run: str, rundir: RunDir, endpoint: str, children: list[Child], outcome: str,
-           wall: float, restarts: list[dict] | None = None, everyone: list[Child] | None = None,
-           error: str | None = None) -> int:
+def finish(
+    cfg: UpConfig,
+    run: str,
+    rundir: RunDir,
+    endpoint: str,
+    children: list[Child],
+    outcome: str,
+    wall: float,
+    restarts: list[dict] | None = None,
+    everyone: list[Child] | None = None,
+    error: str | None = None,
+) -> int:
     """Summarize the log into summary.json (and the learning curve); whatever the disk allows."""
     from services.replay.summary import format_summary
 
-    summary: dict[str, Any] = {"run": run, "outcome": outcome, "endpoint": endpoint, "wall_s": round(wall, 3),
-                               "exit_codes": {c.name: c.popen.returncode for c in children},
-                               "restarts": restarts or [],
-                               "exit_history": [{"service": c.name, "pid": c.popen.pid, "exit": c.popen.returncode}
-                                                for c in (everyone or children)]}
+    summary: dict[str, Any] = {
+        "run": run,
+        "outcome": outcome,
+        "endpoint": endpoint,
+        "wall_s": round(wall, 3),
+        "exit_codes": {c.name: c.popen.returncode for c in children},
+        "restarts": restarts or [],
+        "exit_history": [
+            {"service": c.name, "pid": c.popen.pid, "exit": c.popen.returncode} for c in (everyone or children)
+        ],
+    }
     if error:
         summary["error"] = error
-    drawn = write_summary_from_log(summary, rundir,
-                                   f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})")
+    drawn = write_summary_from_log(
+        summary, rundir, f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})"
+    )
     figure = ", learning_curve.png" if drawn else ""
     if "returns" in summary:
         print(format_summary(summary), file=sys.stderr)
@@ -125,9 +144,12 @@ def percentiles(values: list[float]) -> dict[str, float] | None:
     if not values:
         return None
     a = np.asarray(values, dtype=float) * 1e3
-    return {"n": int(a.size), "p50": round(float(np.percentile(a, 50)), 3),
-            "p99": round(float(np.percentile(a, 99)), 3),
-            "max": round(float(a.max()), 3)}
+    return {
+        "n": int(a.size),
+        "p50": round(float(np.percentile(a, 50)), 3),
+        "p99": round(float(np.percentile(a, 99)), 3),
+        "max": round(float(a.max()), 3),
+    }
 
 
 def latency_table(stats: dict[str, dict]) -> dict[str, Any]:

@@ -1,4 +1,5 @@
 """`up()`: one live run from start to summary (the loop that starts, watches, restarts and stops the services)."""
+
 from __future__ import annotations
 
 import json
@@ -63,8 +64,17 @@ class Run:
         if self.status_pub is None:
             return
         try:
-            self.status_pub.put(ServiceStatus(run=self.run, service="launcher", pid=os.getpid(), state=state,
-                                              t=time.time(), counters={}, incarnation=f"launcher-{os.getpid()}"))
+            self.status_pub.put(
+                ServiceStatus(
+                    run=self.run,
+                    service="launcher",
+                    pid=os.getpid(),
+                    state=state,
+                    t=time.time(),
+                    counters={},
+                    incarnation=f"launcher-{os.getpid()}",
+                )
+            )
         except Exception as exc:  # never let a status take the launcher down
             print(f"[launcher] (status not published: {exc})", file=sys.stderr)
 
@@ -91,8 +101,9 @@ class Run:
                 continue
             self.handled.add(c.popen.pid)
             if DISK_FULL_TEXT in tail(c.log_path, 40) or self.rundir.free_mb() < self.cfg.min_free_mb:
-                self.disk_full(f"{c.name} exited with code {rc} ({self.rundir.free_mb():.1f} MiB free under "
-                               f"{self.rundir.path})")
+                self.disk_full(
+                    f"{c.name} exited with code {rc} ({self.rundir.free_mb():.1f} MiB free under {self.rundir.path})"
+                )
             elif rc == TERMINAL_EXIT:
                 self.terminal(c)
             elif self.interrupts == 0 and self.outcome == "ok" and self.sup.can_restart(c.name):
@@ -100,15 +111,20 @@ class Run:
             elif self.outcome == "ok":
                 self.outcome = "failed"
                 why = "" if self.interrupts else f" ({self.sup.restarts[c.name]} restarts already)"
-                print(f"\nerror: {c.name} exited with code {rc}{why}; last lines of {c.log_path}:\n{tail(c.log_path)}",
-                      file=sys.stderr)
+                print(
+                    f"\nerror: {c.name} exited with code {rc}{why}; last lines of {c.log_path}:\n{tail(c.log_path)}",
+                    file=sys.stderr,
+                )
 
     def terminal(self, c: Child) -> None:
         """A service stopped by an error a restart would repeat (a teacher rule that raises): end the run with it."""
         errors = [line for line in tail(c.log_path, 40).splitlines() if line.startswith("error: ")]
-        why = errors[-1][len("error: "):] if errors else f"exited with code {TERMINAL_EXIT}"
-        print(f"\nerror: {c.name}: {why}; stopping the run (no restart: it would fail the same way)",
-              file=sys.stderr, flush=True)
+        why = errors[-1][len("error: ") :] if errors else f"exited with code {TERMINAL_EXIT}"
+        print(
+            f"\nerror: {c.name}: {why}; stopping the run (no restart: it would fail the same way)",
+            file=sys.stderr,
+            flush=True,
+        )
         self.end("failed", f"{c.name}: {why}", grace=min(self.cfg.stop_timeout, 5.0))
 
     def respawns(self) -> None:
@@ -138,8 +154,9 @@ class Run:
         self.next_disk_check = time.monotonic() + DISK_CHECK_PERIOD
         free = self.rundir.free_mb()
         if free < self.cfg.min_free_mb:
-            self.disk_full(f"{free:.1f} MiB free under {self.rundir.path} (less than --min-free-mb "
-                           f"{self.cfg.min_free_mb:g})")
+            self.disk_full(
+                f"{free:.1f} MiB free under {self.rundir.path} (less than --min-free-mb {self.cfg.min_free_mb:g})"
+            )
 
     def signals(self) -> None:
         if self.interrupts <= self.asked:
@@ -163,8 +180,11 @@ class Run:
             self.graceful_deadline = time.monotonic() + self.cfg.stop_timeout
         if self.graceful_deadline is not None and time.monotonic() > self.graceful_deadline:
             stragglers = [c.name for c in self.children if c.poll() is None]
-            print(f"\nterminating {', '.join(stragglers)} (still running {self.cfg.stop_timeout:.0f} s after the end)",
-                  file=sys.stderr, flush=True)
+            print(
+                f"\nterminating {', '.join(stragglers)} (still running {self.cfg.stop_timeout:.0f} s after the end)",
+                file=sys.stderr,
+                flush=True,
+            )
             self.announce("stopping")
             stop_children(self.children)
             if self.outcome == "ok":
@@ -204,8 +224,10 @@ def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
     procs, _ = build_processes(launch)
     try:
         rundir.make_credentials(run, ["launcher"] + [p.name for p in procs])
-        run_record = {"launcher": {**config_record(cfg), "run": run, "endpoint": endpoint},
-                      "services": {p.name: config_record(p.config) for p in procs}}
+        run_record = {
+            "launcher": {**config_record(cfg), "run": run, "endpoint": endpoint},
+            "services": {p.name: config_record(p.config) for p in procs},
+        }
         (rundir.path / "config" / "run.json").write_text(json.dumps(run_record, indent=2))
     except OSError as exc:
         raise RunDirError(f"cannot write the run directory {rundir.path}: {describe(exc)}") from None
@@ -255,8 +277,9 @@ def open_launcher_session(r: Run, router_cfg: Any) -> Any:
     session = zenoh.open(router_cfg)
     try:
         r.status_pub = MessagePublisher(session, status_key(r.run, "launcher"), congestion="block")
-        r.status_sub, r.statuses = subscribe(session, KEYS["status"].wildcard(r.run), maxsize=4096,
-                                             policy="drop_oldest")
+        r.status_sub, r.statuses = subscribe(
+            session, KEYS["status"].wildcard(r.run), maxsize=4096, policy="drop_oldest"
+        )
     except BaseException:
         session.close()  # an unclosed session keeps the launcher from exiting
         raise
@@ -298,11 +321,15 @@ def print_when_listening(waiting: list[tuple[str, int, str]]) -> list[tuple[str,
     return left
 
 
-def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, r: Run, session: Any,
-               t_start: float) -> int:
+def _supervise(
+    cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, r: Run, session: Any, t_start: float
+) -> int:
     """Announce the run, start the children and pump until the run ends; always stops what it started."""
-    print(f"zenoh endpoint: {launch.endpoint}  (run {run}; join with --connect {launch.endpoint} --run {run})",
-          file=sys.stderr, flush=True)
+    print(
+        f"zenoh endpoint: {launch.endpoint}  (run {run}; join with --connect {launch.endpoint} --run {run})",
+        file=sys.stderr,
+        flush=True,
+    )
     print(f"run directory: {rundir.path}", file=sys.stderr, flush=True)
     for line in launch.banners:  # e.g. the console's address (--teacher web)
         print(line, file=sys.stderr, flush=True)
@@ -335,5 +362,15 @@ def _supervise(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: l
         progress.close()
         r.sup.close()
         r.status_pub.close()
-    return finish(cfg, run, rundir, launch.endpoint, r.children, r.outcome, time.time() - t_start, r.sup.records,
-                  r.everyone, r.error)
+    return finish(
+        cfg,
+        run,
+        rundir,
+        launch.endpoint,
+        r.children,
+        r.outcome,
+        time.time() - t_start,
+        r.sup.records,
+        r.everyone,
+        r.error,
+    )

@@ -1,5 +1,6 @@
 """The run directory: a unique name, an exclusive lock, the run's credentials, and what a full or read-only
 disk does (a one-line error, a clean stop, a summary.json that says why)."""
+
 from __future__ import annotations
 
 import errno
@@ -117,8 +118,17 @@ class RunDir:
 
 
 # What a summary that must fit the reserve leaves out first: lists that grow with the run (every count stays).
-BULKY = ("episodes", "exit_history", "services", "learners", "unfinished_episodes", "returns", "restarts",
-         "learner_chain", "face")
+BULKY = (
+    "episodes",
+    "exit_history",
+    "services",
+    "learners",
+    "unfinished_episodes",
+    "returns",
+    "restarts",
+    "learner_chain",
+    "face",
+)
 
 
 def fit_reserve(summary: dict[str, Any]) -> str:

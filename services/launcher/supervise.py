@@ -1,5 +1,6 @@
 """Supervision: restarts of dead services (with their records), hung services (liveliness and progress
 watched), and the launcher's foxglove.Log records."""
+
 from __future__ import annotations
 
 import collections
@@ -94,7 +95,8 @@ class HangWatch:
         gone = now - self.lost[name] if name in self.lost else -1.0
         if gone > TOKEN_GRACE and (self._idle_for(name, now) > TOKEN_GRACE or gone > self.timeout):
             return f"its liveliness token is gone since {gone:.0f} s (Zenoh session lapsed) and it " + (
-                f"used no CPU for {self._idle_for(name, now):.0f} s" if gone <= self.timeout else "never got it back")
+                f"used no CPU for {self._idle_for(name, now):.0f} s" if gone <= self.timeout else "never got it back"
+            )
         if self.statuses[name] >= MIN_STATUSES and now - self.last_status[name] > self.timeout:
             return f"no status for {now - self.last_status[name]:.0f} s"
         return None
@@ -149,8 +151,18 @@ class Supervisor:
 
         print(f"\n[launcher] {text}", file=sys.stderr, flush=True)
         try:
-            publish_kept(self.pub, Log(timestamp=Time.from_seconds(time.time()), level=level, message=text[:8000],
-                                       name="launcher", file="", line=0), self.ring)
+            publish_kept(
+                self.pub,
+                Log(
+                    timestamp=Time.from_seconds(time.time()),
+                    level=level,
+                    message=text[:8000],
+                    name="launcher",
+                    file="",
+                    line=0,
+                ),
+                self.ring,
+            )
         except Exception as exc:
             print(f"[launcher] (log record not published: {exc})", file=sys.stderr)
 
@@ -173,16 +185,29 @@ class Supervisor:
     def died(self, child: Child, rc: int) -> None:
         name = child.name
         k = self.restarts[name]
-        delay = min(8.0, self.cfg.restart_backoff * 2 ** k)
+        delay = min(8.0, self.cfg.restart_backoff * 2**k)
         self.restarts[name] += 1
         self.pending[name] = time.monotonic() + delay
         by_signal = rc < 0 and -rc in signal.Signals._value2member_map_
         how = f"signal {signal.Signals(-rc).name}" if by_signal else f"code {rc}"
-        self.records.append({"service": name, "restart": k + 1, "exit": rc, "how": how, "t_died": time.time(),
-                             "t_respawned": None, "t_ready": None, "recovered_s": None,
-                             "pid": child.popen.pid})
-        self.say(f"{name} died ({how}); restarting in {delay:.1f} s (restart {k + 1} of {self.cfg.restart_limit}); "
-                 f"last lines of {child.log_path}:\n{tail(child.log_path, 5)}", 4)
+        self.records.append(
+            {
+                "service": name,
+                "restart": k + 1,
+                "exit": rc,
+                "how": how,
+                "t_died": time.time(),
+                "t_respawned": None,
+                "t_ready": None,
+                "recovered_s": None,
+                "pid": child.popen.pid,
+            }
+        )
+        self.say(
+            f"{name} died ({how}); restarting in {delay:.1f} s (restart {k + 1} of {self.cfg.restart_limit}); "
+            f"last lines of {child.log_path}:\n{tail(child.log_path, 5)}",
+            4,
+        )
 
     def hung(self, children: list[Child], statuses: Any) -> list[tuple[Child, str]]:
         """Services whose process runs but which have lost their liveliness token or stopped sending statuses."""

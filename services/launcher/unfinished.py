@@ -2,6 +2,7 @@
 `{"outcome": "running"}`. `finish_from_log` writes the summary from the run's log, as the launcher would have,
 with the outcome `interrupted` and a note saying so; `python -m services.replay summary RUN_DIR --write` and
 the next `services up` with the same `--out` call it."""
+
 from __future__ import annotations
 
 import json
@@ -13,8 +14,10 @@ from typing import Any
 from services.launcher.report import write_summary_from_log
 from services.launcher.rundir import RUNNING, RunDir, RunDirError
 
-KILLED_NOTE = ("the launcher ended without writing this summary (killed?); the counts were recomputed from the log "
-               "by {by}; exit codes, restarts and wall time are unknown")
+KILLED_NOTE = (
+    "the launcher ended without writing this summary (killed?); the counts were recomputed from the log "
+    "by {by}; exit codes, restarts and wall time are unknown"
+)
 
 
 def summary_state(path: Path) -> str | None:
@@ -50,8 +53,11 @@ def services_running(path: Path) -> list[int]:
             if p.pid in mine or p.info["status"] == psutil.STATUS_ZOMBIE or "-m" not in argv:
                 continue
             module = argv[argv.index("-m") + 1] if argv.index("-m") + 1 < len(argv) else ""
-            if module.startswith("services.") and module != "services.replay" and \
-                    any(n in a for a in argv for n in names):
+            if (
+                module.startswith("services.")
+                and module != "services.replay"
+                and any(n in a for a in argv for n in names)
+            ):
                 found.append(p.pid)
         except (psutil.Error, ValueError):
             continue
@@ -73,15 +79,21 @@ def finish_from_log(path: str | os.PathLike, by: str) -> tuple[dict[str, Any] | 
         alive = services_running(path)
         if alive:
             raise RunDirError(f"{path}: services of this run still run (pids {alive}); try again when they exit")
-        summary: dict[str, Any] = {"run": path.name, "outcome": "interrupted",
-                                   "error": KILLED_NOTE.format(by=by), "finished_from_log": True}
+        summary: dict[str, Any] = {
+            "run": path.name,
+            "outcome": "interrupted",
+            "error": KILLED_NOTE.format(by=by),
+            "finished_from_log": True,
+        }
         record = launcher_record(path)
         if record.get("run"):
             summary["run"] = record["run"]
         if record.get("endpoint"):
             summary["endpoint"] = record["endpoint"]
-        title = (f"{record.get('algo', '?')} on {record.get('env', '?')} (live, teacher {record.get('teacher', '?')}, "
-                 f"seed {record.get('seed', '?')}; launcher killed)")
+        title = (
+            f"{record.get('algo', '?')} on {record.get('env', '?')} (live, teacher {record.get('teacher', '?')}, "
+            f"seed {record.get('seed', '?')}; launcher killed)"
+        )
         write_summary_from_log(summary, rundir, title)
     finally:
         rundir.close()

@@ -1,4 +1,5 @@
 """Catching up after a restart: the recorder's log holds the steps and feedback a restored learner missed."""
+
 from __future__ import annotations
 
 import time
@@ -11,8 +12,9 @@ from services.common.runtime import ServiceRuntime
 from services.learner.core import LearnerCore
 
 
-def catch_up(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, consume, on_status,
-             resumed: dict | None) -> None:
+def catch_up(
+    config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, consume, on_status, resumed: dict | None
+) -> None:
     """Consume from the recorder's log every step and feedback that the (restored) core has not seen, in log
     order; statuses in the log announce incarnations and final counts. The log may be cut or still being
     written (read up to its last complete chunk); what it lacks arrives re-sent or live (deduplicated)."""
@@ -45,9 +47,13 @@ def catch_up(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, consu
     rt.samples["catchup_s"].append(took)
     if resumed is not None:
         age = time.time() - resumed["t_saved"]
-        rt.event(f"restored from checkpoint ({resumed['steps_learned']} steps learned, saved {age:.1f} s ago, "
-                 f"ingest position {resumed['position']}); caught up {steps} steps and {fbs} feedback from the log "
-                 f"({records} records) in {took:.2f} s", 3)
+        rt.event(
+            f"restored from checkpoint ({resumed['steps_learned']} steps learned, saved {age:.1f} s ago, "
+            f"ingest position {resumed['position']}); caught up {steps} steps and {fbs} feedback from the log "
+            f"({records} records) in {took:.2f} s",
+            3,
+        )
     elif steps or fbs:
-        rt.event(f"started without a checkpoint; caught up {steps} steps and {fbs} feedback from the log in "
-                 f"{took:.2f} s", 3)
+        rt.event(
+            f"started without a checkpoint; caught up {steps} steps and {fbs} feedback from the log in {took:.2f} s", 3
+        )

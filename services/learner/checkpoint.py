@@ -11,6 +11,7 @@ dedup state, rejection counts) and its own counters, and the learner config it w
 Nothing is unpickled: safetensors holds raw arrays and a JSON header; torch tensors are rebuilt with
 `torch.from_numpy`.
 """
+
 from __future__ import annotations
 
 import json
@@ -91,5 +92,5 @@ def load(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
         header = f.metadata() or {}
     if header.get("format") != FORMAT:
         raise ValueError(f"{path}: not a learner checkpoint ({header.get('format')!r})")
-    arrays = {k[len("agent."):]: v for k, v in safetensors.numpy.load_file(str(path)).items()}
+    arrays = {k[len("agent.") :]: v for k, v in safetensors.numpy.load_file(str(path)).items()}
     return unflatten(arrays, json.loads(header["skeleton"])), json.loads(header["meta"])

@@ -23,6 +23,7 @@ Per input, in consumption order:
 Every decision depends only on the ordered inputs (no wall clock, no queue lengths), so the same inputs in
 the same order give the same weights bit for bit. The consumption order is written as `IngestEntry`s.
 """
+
 from __future__ import annotations
 
 import collections
@@ -114,8 +115,12 @@ class LearnerCore:
     # -- identity ----------------------------------------------------------------------------------------------
     def config_record(self) -> dict:
         """Everything needed to rebuild this learner (written in the first Ingest message)."""
-        return {"learner": config_record(self.config), "agent": config_record(self.agent_config),
-                "obs_dim": self.obs_dim, "n_actions": self.n_actions}
+        return {
+            "learner": config_record(self.config),
+            "agent": config_record(self.agent_config),
+            "obs_dim": self.obs_dim,
+            "n_actions": self.n_actions,
+        }
 
     @property
     def steps_learned(self) -> int:
@@ -180,10 +185,18 @@ class LearnerCore:
         while self._held and self.clock.placeable(self._held[0][0]):
             _, _, fb, pos = heapq.heappop(self._held)
             results.append(self._credit(fb, pos, t))
-        self.loop.step(ROW, np.asarray(step.obs, np.float32)[None], np.array([step.action]), np.array([step.reward]),
-                       np.asarray(step.next_obs, np.float32)[None], np.array([float(step.terminated)]),
-                       np.array([float(index)]), np.array([step.episode]), np.array([step.t_action]),
-                       np.array([self.polarity(step)]))
+        self.loop.step(
+            ROW,
+            np.asarray(step.obs, np.float32)[None],
+            np.array([step.action]),
+            np.array([step.reward]),
+            np.asarray(step.next_obs, np.float32)[None],
+            np.array([float(step.terminated)]),
+            np.array([float(index)]),
+            np.array([step.episode]),
+            np.array([step.t_action]),
+            np.array([self.polarity(step)]),
+        )
         self.screen.learned(step.seq, index)
         if self.config.history_s > 0:  # the steps shown longer ago than history_s leave the history
             self.agent.history.forget_shown_before(0, step.t_action - self.config.history_s)
@@ -200,8 +213,16 @@ class LearnerCore:
         ep["t_end"] = step.t_action
         done = None
         if step.terminated or step.truncated:
-            done = EpisodeRecord(step.incarnation, int(ep["episode"]), float(ep["return"]), int(ep["steps"]),
-                                 int(ep["received"]), int(ep["credited"]), self.steps_learned, float(ep["t_end"]))
+            done = EpisodeRecord(
+                step.incarnation,
+                int(ep["episode"]),
+                float(ep["return"]),
+                int(ep["steps"]),
+                int(ep["received"]),
+                int(ep["credited"]),
+                self.steps_learned,
+                float(ep["t_end"]),
+            )
             self.episodes.append(done)
             self.counters["episodes"] += 1
             self._ep = self._new_episode_accumulator()
@@ -284,8 +305,16 @@ class LearnerCore:
         those on the step clock say what they assume (`assumed`)."""
         out = {t: d.summary() for t, d in sorted(self.delays.items())}
         for t in sorted(self.teacher_next):
-            out.setdefault(t, {"median_s": None, "p10_s": None, "p90_s": None, "assumed": "steps:" + ",".join(
-                f"{p:g}" for p in self.agent_config.assumed_delay_probs), "feedbacks": None})
+            out.setdefault(
+                t,
+                {
+                    "median_s": None,
+                    "p10_s": None,
+                    "p90_s": None,
+                    "assumed": "steps:" + ",".join(f"{p:g}" for p in self.agent_config.assumed_delay_probs),
+                    "feedbacks": None,
+                },
+            )
         return out
 
     @property
@@ -303,10 +332,18 @@ class LearnerCore:
             raise RuntimeError("snapshot with entries not yet handed out")
         held = [[t, arrival, fb.encode().decode(), pos] for t, arrival, fb, pos in sorted(self._held)]
         meta = {
-            "steps_learned": self.steps_learned, "actor": self.actor, "next_seq": self.next_seq,
-            "teacher_next": dict(self.teacher_next), "held": held, "arrivals": self._arrivals,
-            "position": self.position, "counters": dict(self.counters), "ended": self.ended, "episode": dict(self._ep),
-            "clock": [list(self.clock._index), list(self.clock._time)], "screen": self.screen.state(),
+            "steps_learned": self.steps_learned,
+            "actor": self.actor,
+            "next_seq": self.next_seq,
+            "teacher_next": dict(self.teacher_next),
+            "held": held,
+            "arrivals": self._arrivals,
+            "position": self.position,
+            "counters": dict(self.counters),
+            "ended": self.ended,
+            "episode": dict(self._ep),
+            "clock": [list(self.clock._index), list(self.clock._time)],
+            "screen": self.screen.state(),
             "returning": sorted(self.profiles.returning),  # (their delays are the agent's, in its state)
         }
         return self.agent.state_dict(), meta
@@ -351,8 +388,9 @@ class LearnerCore:
         screen = self.screen.of(fb) if fb.shown is not None else None
         # (a press on a screen may come after the newest action: on the step clock it is nowhere, in seconds exact)
         tau = self.clock.to_steps(fb.t_reaction) if self.clock.placeable(fb.t_reaction) else np.nan
-        out = self.loop.credit(ROW, np.array([tau]), np.array([fb.value]), None, np.array([fb.t_reaction]),
-                               [fb.teacher_id], [screen])
+        out = self.loop.credit(
+            ROW, np.array([tau]), np.array([fb.value]), None, np.array([fb.t_reaction]), [fb.teacher_id], [screen]
+        )
         status = STATUS_NAMES[out.status[0]]
         if screen is not None and status == "stale" and np.isnan(screen.step_times).all():
             status = "too_old"  # the reason: every step it was about has left the history
@@ -376,8 +414,9 @@ class LearnerCore:
             results.append(self._outcome(fb, pos, reason, t))
         return results
 
-    def _outcome(self, fb: Feedback, pos: int, status: str, t: float, steps: int = 0,
-                 lost: float = 0.0) -> FeedbackResult:
+    def _outcome(
+        self, fb: Feedback, pos: int, status: str, t: float, steps: int = 0, lost: float = 0.0
+    ) -> FeedbackResult:
         self._entry("outcome", fb.teacher_id, fb.seq, status, t)
         self.counters[f"feedback_{status}"] += 1
         if status == "credited":

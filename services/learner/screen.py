@@ -11,6 +11,7 @@ seen a step the actor had not taken, so it comes). Like the step clock, everythi
 order of the inputs, so `replay retrain` repeats it bit for bit. Whether a press is credited at all, and how, is the
 agent's door's (`common.agents.feedback`): this only says what the screen showed.
 """
+
 from __future__ import annotations
 
 import collections
@@ -79,8 +80,11 @@ class ScreenCredit:
         return Screen(times, starts, np.append(starts[1:], np.inf))
 
     def state(self) -> dict:
-        return {"index": [[k, v] for k, v in self.index.items()], "past_actors": list(self.past_actors),
-                "held": [[fb.encode().decode(), pos] for fb, pos in self.held]}
+        return {
+            "index": [[k, v] for k, v in self.index.items()],
+            "past_actors": list(self.past_actors),
+            "held": [[fb.encode().decode(), pos] for fb, pos in self.held],
+        }
 
     def load(self, state: dict) -> None:
         self.index = collections.OrderedDict((int(k), int(v)) for k, v in state["index"])

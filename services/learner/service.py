@@ -24,15 +24,32 @@ learned + 1: the state after the last input) and stops. SIGTERM ends at once.
 Everything that affects learning depends only on the consumed order; wall-clock decisions here (when to
 publish weights, flush Ingest, checkpoint, stop waiting) never touch the learner's state.
 """
+
 from __future__ import annotations
 
 import dataclasses
 import time
 
 from common.pathtrace import traced
-from common.protocol import (KEYS, MAX_INGEST_CREDITS, kind_of, teacher_id_of, Credit, EpisodeSummary, Feedback,
-                             Ingest, ProtocolError, ServiceStatus, Step, Weights, episode_key, feedback_wildcard,
-                             ingest_key, step_key, weights_key)
+from common.protocol import (
+    KEYS,
+    MAX_INGEST_CREDITS,
+    kind_of,
+    teacher_id_of,
+    Credit,
+    EpisodeSummary,
+    Feedback,
+    Ingest,
+    ProtocolError,
+    ServiceStatus,
+    Step,
+    Weights,
+    episode_key,
+    feedback_wildcard,
+    ingest_key,
+    step_key,
+    weights_key,
+)
 from services.common.config import LearnerConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
 from services.common.resend import ResendRing, publish_kept
@@ -58,8 +75,12 @@ def restore(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: 
     core.restore(tensors, meta["core"])
     gate.load(meta["gate"])
     rt.counters.update(meta["service"]["counters"])
-    return {"learner": meta["service"]["incarnation"], "position": core.position,
-            "steps_learned": core.steps_learned, "t_saved": meta["service"]["t_saved"]}
+    return {
+        "learner": meta["service"]["incarnation"],
+        "position": core.position,
+        "steps_learned": core.steps_learned,
+        "t_saved": meta["service"]["t_saved"],
+    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,8 +96,21 @@ class Learner:
     """The service around `LearnerCore`: inputs through the gate into the core, Ingest / Weights / EpisodeSummary
     out, checkpoints, and the end rule. Wall-clock decisions here never touch the learner's state."""
 
-    def __init__(self, config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: InputGate,
-                 resumed: dict | None, session, inbox, status, publishers: dict, watch, actors, requests):
+    def __init__(
+        self,
+        config: LearnerConfig,
+        rt: ServiceRuntime,
+        core: LearnerCore,
+        gate: InputGate,
+        resumed: dict | None,
+        session,
+        inbox,
+        status,
+        publishers: dict,
+        watch,
+        actors,
+        requests,
+    ):
         self.config, self.rt, self.core, self.gate, self.resumed = config, rt, core, gate, resumed
         self.session = session
         self.credit_pubs: dict = {}  # per person (console teacher): where their Credit messages go
@@ -89,8 +123,9 @@ class Learner:
         self.sent_at: dict[int, tuple] = {}  # ingest position of a held feedback -> (when sent, when it arrived)
         self.ring = ResendRing(config.resend_window)
         spub = publishers["snapshot"]
-        self.snaps = Snapshots(config.run, rt.incarnation, config.snapshot_every,
-                               lambda m: publish_kept(spub, m, self.ring))
+        self.snaps = Snapshots(
+            config.run, rt.incarnation, config.snapshot_every, lambda m: publish_kept(spub, m, self.ring)
+        )
         self.note_rejected = first_time_logger(rt.event, "input")
         self.last_weights = PublishedWeights(0 if resumed is None else -1, core.revision)
         self.last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
@@ -114,15 +149,31 @@ class Learner:
                 cfg = core.config_record()
                 if self.resumed is not None:
                     cfg["resumed_from"] = {"learner": self.resumed["learner"], "position": self.resumed["position"]}
-            publish_kept(self.ipub, Ingest(run=self.config.run, learner=self.rt.incarnation, seq=self.ingest_seq,
-                                           index=index, entries=entries, config=cfg, credits=credits or None),
-                         self.ring)
+            publish_kept(
+                self.ipub,
+                Ingest(
+                    run=self.config.run,
+                    learner=self.rt.incarnation,
+                    seq=self.ingest_seq,
+                    index=index,
+                    entries=entries,
+                    config=cfg,
+                    credits=credits or None,
+                ),
+                self.ring,
+            )
             self.ingest_seq += 1
 
     def current_weights(self, version: int) -> tuple[dict, bytes]:
         tensors = self.core.policy_weights()
-        return tensors, Weights(run=self.config.run, incarnation=self.rt.incarnation, version=version,
-                                revision=self.core.revision, t_published=time.time(), tensors=tensors).encode()
+        return tensors, Weights(
+            run=self.config.run,
+            incarnation=self.rt.incarnation,
+            version=version,
+            revision=self.core.revision,
+            t_published=time.time(),
+            tensors=tensors,
+        ).encode()
 
     def publish_weights(self, version: int, final: bool = False) -> None:
         t0 = time.perf_counter()
@@ -140,10 +191,12 @@ class Learner:
         self.flush_ingest()  # position = entries handed out
         t0 = time.perf_counter()
         tensors, meta = self.core.snapshot()
-        meta = {"core": meta, "gate": self.gate.state(),
-                "service": {"counters": dict(self.rt.counters), "incarnation": self.rt.incarnation,
-                            "t_saved": time.time()},
-                "config": self.core.config_record()}
+        meta = {
+            "core": meta,
+            "gate": self.gate.state(),
+            "service": {"counters": dict(self.rt.counters), "incarnation": self.rt.incarnation, "t_saved": time.time()},
+            "config": self.core.config_record(),
+        }
         checkpoint.save(path, tensors, meta)
         self.rt.counters["checkpoints"] += 1
         self.rt.samples["checkpoint_cost_s"].append(time.perf_counter() - t0)
@@ -156,8 +209,11 @@ class Learner:
             if r.feedback is not None:  # what became of it: consoles and the log's scene show it
                 screen = r.feedback.shown is not None  # a person's screen: their delay estimate goes along
                 model = self.core.delays.get(r.feedback.teacher_id) if screen else None
-                delay = None if model is None else delay_message(
-                    model, r.feedback.teacher_id in self.core.profiles.returning)
+                delay = (
+                    None
+                    if model is None
+                    else delay_message(model, r.feedback.teacher_id in self.core.profiles.returning)
+                )
                 credit = credit_message(self.config.run, r, self.core.actor, done, delay)
                 if credit.teacher_id in self.config.credits_in_ingest:
                     self.ingest_credits.append(credit)
@@ -203,10 +259,21 @@ class Learner:
         results, ep = self.core.on_step(msg, now)
         self.note_latency(results)
         if ep is not None:
-            publish_kept(self.epub, EpisodeSummary(
-                run=self.config.run, incarnation=ep.incarnation, episode=ep.episode, return_=ep.return_,
-                steps=ep.steps, feedback_received=ep.feedback_received, feedback_credited=ep.feedback_credited,
-                weights_version=ep.weights_version, t_end=ep.t_end), self.ring)
+            publish_kept(
+                self.epub,
+                EpisodeSummary(
+                    run=self.config.run,
+                    incarnation=ep.incarnation,
+                    episode=ep.episode,
+                    return_=ep.return_,
+                    steps=ep.steps,
+                    feedback_received=ep.feedback_received,
+                    feedback_credited=ep.feedback_credited,
+                    weights_version=ep.weights_version,
+                    t_end=ep.t_end,
+                ),
+                self.ring,
+            )
             self.snaps.on_episode(self.core.steps_learned, self.core.policy_weights())
         if self.config.debug_update_sleep:
             time.sleep(self.config.debug_update_sleep)
@@ -220,9 +287,22 @@ class Learner:
         if reason:
             self.reject(reason, "feedback", count=live)
             if reason == DEDUP_REASON and live and msg.teacher_id not in self.config.credits_in_ingest:
-                publish_credit(self.session, self.credit_pubs, Credit(  # acknowledges a page's re-sent press
-                    run=self.config.run, teacher_id=msg.teacher_id, seq=msg.seq, value=msg.value, status="duplicate",
-                    t_reaction=msg.t_reaction, t_credited=time.time(), actor=msg.actor, steps=[], lost_mass=0.0))
+                publish_credit(
+                    self.session,
+                    self.credit_pubs,
+                    Credit(  # acknowledges a page's re-sent press
+                        run=self.config.run,
+                        teacher_id=msg.teacher_id,
+                        seq=msg.seq,
+                        value=msg.value,
+                        status="duplicate",
+                        t_reaction=msg.t_reaction,
+                        t_credited=time.time(),
+                        actor=msg.actor,
+                        steps=[],
+                        lost_mass=0.0,
+                    ),
+                )
             return False
         self.teachers_known.add(msg.teacher_id)
         results = self.core.on_feedback(msg, now)
@@ -270,8 +350,11 @@ class Learner:
         else:
             self.consume(msg, now, got.t_recv, t_sent)
         self.publish_weights_if_due(idle=len(self.inbox) == 0)
-        if (len(self.core.entries) >= self.config.ingest_batch or len(self.ingest_credits) >= MAX_INGEST_CREDITS
-                or time.monotonic() - self.last_ingest >= self.config.ingest_period):
+        if (
+            len(self.core.entries) >= self.config.ingest_batch
+            or len(self.ingest_credits) >= MAX_INGEST_CREDITS
+            or time.monotonic() - self.last_ingest >= self.config.ingest_period
+        ):
             self.flush_ingest()
 
     def publish_weights_if_due(self, idle: bool) -> None:
@@ -299,13 +382,20 @@ class Learner:
         """The actor stopped and all its steps are learned, and every known teacher's feedback has arrived
         (or `end_grace` s have passed waiting for it)."""
         core, config = self.core, self.config
-        if (self.actor_final is None or len(self.inbox) or core.next_seq < self.actor_final
-                or core.actor != self.gate.actor):
+        if (
+            self.actor_final is None
+            or len(self.inbox)
+            or core.next_seq < self.actor_final
+            or core.actor != self.gate.actor
+        ):
             return False
         if self.caught_up_at is None:
             self.caught_up_at = time.monotonic()
-        waiting = [t for t in sorted(self.teachers_known)
-                   if t not in self.teachers_final or core.teacher_next.get(t, 0) < self.teachers_final[t]]
+        waiting = [
+            t
+            for t in sorted(self.teachers_known)
+            if t not in self.teachers_final or core.teacher_next.get(t, 0) < self.teachers_final[t]
+        ]
         if not waiting:
             return True
         if time.monotonic() - self.caught_up_at > config.end_grace:
@@ -327,11 +417,15 @@ class Learner:
             self.take_input()
             self.drain_status()
             if len(self.requests):
-                self.snaps.on_requests(self.requests.drain(), core.steps_learned,
-                                       lambda: self.current_weights(core.steps_learned))
+                self.snaps.on_requests(
+                    self.requests.drain(), core.steps_learned, lambda: self.current_weights(core.steps_learned)
+                )
             self.on_restarts()
-            if (config.checkpoint and core.steps_learned != self.last_ckpt["steps"]
-                    and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period):
+            if (
+                config.checkpoint
+                and core.steps_learned != self.last_ckpt["steps"]
+                and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period
+            ):
                 self.save_checkpoint()
             self.core.profiles.save(self.core.delays)  # returning people's profiles, every 10 s while they move
             if self.finished():
@@ -358,30 +452,54 @@ def main(config: LearnerConfig) -> int:
     apply_torch_threads()
     rt = ServiceRuntime("learner", config)
     core = LearnerCore(config)
-    gate = InputGate(core.obs_dim, core.n_actions, teachers=config.wait_teachers, max_future=config.max_future,
-                     max_past=config.max_past)
+    gate = InputGate(
+        core.obs_dim,
+        core.n_actions,
+        teachers=config.wait_teachers,
+        max_future=config.max_future,
+        max_past=config.max_past,
+    )
     resumed = restore(config, rt, core, gate)
     inbox = Inbox(config.inbox_size, "block", block_timeout=3600)
-    rt.set_counters_source(lambda: {**core.counters, "steps_learned": core.steps_learned,
-                                    "feedback_held_now": core.held, "inbox_now": len(inbox)})
+    rt.set_counters_source(
+        lambda: {
+            **core.counters,
+            "steps_learned": core.steps_learned,
+            "feedback_held_now": core.held,
+            "inbox_now": len(inbox),
+        }
+    )
     learner = None
     with rt.session() as session:
-        subs = [session.declare_subscriber(step_key(config.run), inbox.handler()),
-                session.declare_subscriber(feedback_wildcard(config.run), inbox.handler())]
+        subs = [
+            session.declare_subscriber(step_key(config.run), inbox.handler()),
+            session.declare_subscriber(feedback_wildcard(config.run), inbox.handler()),
+        ]
         watch = AliveWatch(session, config.run, ("recorder", "actor"))
         actors = IncarnationWatch(session, config.run, "actor")
         try:
-            with subscription(session, KEYS["status"].wildcard(config.run), maxsize=256,
-                              policy="drop_oldest") as status, \
-                    MessagePublisher(session, weights_key(config.run)) as wpub, \
-                    MessagePublisher(session, episode_key(config.run)) as epub, \
-                    MessagePublisher(session, ingest_key(config.run)) as ipub, \
-                    MessagePublisher(session, KEYS["snapshot"].key(config.run)) as spub, \
-                    subscription(session, KEYS["request"].key(config.run), maxsize=4,
-                                 policy="drop_oldest") as requests:
-                learner = Learner(config, rt, core, gate, resumed, session, inbox, status,
-                                  {"weights": wpub, "episode": epub, "ingest": ipub, "snapshot": spub}, watch, actors,
-                                  requests)
+            with (
+                subscription(session, KEYS["status"].wildcard(config.run), maxsize=256, policy="drop_oldest") as status,
+                MessagePublisher(session, weights_key(config.run)) as wpub,
+                MessagePublisher(session, episode_key(config.run)) as epub,
+                MessagePublisher(session, ingest_key(config.run)) as ipub,
+                MessagePublisher(session, KEYS["snapshot"].key(config.run)) as spub,
+                subscription(session, KEYS["request"].key(config.run), maxsize=4, policy="drop_oldest") as requests,
+            ):
+                learner = Learner(
+                    config,
+                    rt,
+                    core,
+                    gate,
+                    resumed,
+                    session,
+                    inbox,
+                    status,
+                    {"weights": wpub, "episode": epub, "ingest": ipub, "snapshot": spub},
+                    watch,
+                    actors,
+                    requests,
+                )
                 learner.run()
         finally:
             inbox.close()
@@ -389,12 +507,12 @@ def main(config: LearnerConfig) -> int:
             actors.close()
             for s in subs:
                 s.undeclare()
-    rt.write_stats(final_version=learner.last_weights.version if learner else 0, resumed=resumed,
-                   delay=core.delay_summary())
+    rt.write_stats(
+        final_version=learner.last_weights.version if learner else 0, resumed=resumed, delay=core.delay_summary()
+    )
     rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
     return 0
 
 
 def cli(argv: list[str] | None = None) -> int:
     return service_main(LearnerConfig, main, argv, "python -m services.learner")
-

@@ -32,9 +32,17 @@ def tensor_summaries(tensors: dict[str, np.ndarray]) -> list[TensorSummary]:
         mean = np.add.reduce(a, axis=None) / n
         d = a - mean
         d *= d
-        out.append(TensorSummary(name, list(a.shape), float(mean), float(np.sqrt(np.add.reduce(d, axis=None) / n)),
-                                 float(np.minimum.reduce(a, axis=None)), float(np.maximum.reduce(a, axis=None)),
-                                 float(np.sqrt(np.add.reduce(a * a, axis=None)))))
+        out.append(
+            TensorSummary(
+                name,
+                list(a.shape),
+                float(mean),
+                float(np.sqrt(np.add.reduce(d, axis=None) / n)),
+                float(np.minimum.reduce(a, axis=None)),
+                float(np.maximum.reduce(a, axis=None)),
+                float(np.sqrt(np.add.reduce(a * a, axis=None))),
+            )
+        )
     return out
 
 
@@ -48,8 +56,17 @@ class Snapshots:
         self.counts: dict[str, int] = {}
 
     def _send(self, reason: str, version: int, tensors: dict[str, np.ndarray], raw: bytes | None) -> None:
-        self._publish(WeightsSnapshot(run=self.run, incarnation=self.incarnation, version=version, reason=reason,
-                                      t_published=time.time(), tensors=tensor_summaries(tensors), weights=raw))
+        self._publish(
+            WeightsSnapshot(
+                run=self.run,
+                incarnation=self.incarnation,
+                version=version,
+                reason=reason,
+                t_published=time.time(),
+                tensors=tensor_summaries(tensors),
+                weights=raw,
+            )
+        )
         self.counts[reason] = self.counts.get(reason, 0) + 1
         if raw is not None:
             self.last_version = version

@@ -57,8 +57,9 @@ def run_pipeline(config: PerceptionServiceConfig, sink: Sink | None = None) -> i
 
 @dataclass(frozen=True)
 class _PipelineOptions:
-    model: str = option(PipelineConfig.model, "mini-xception, haar-smile, or a model config .json/.toml "
-                                              "(see docs/perception.md)")
+    model: str = option(
+        PipelineConfig.model, "mini-xception, haar-smile, or a model config .json/.toml (see docs/perception.md)"
+    )
     detector: str = option(PipelineConfig.detector, "face detector", choices=("tracking", "haar", "haar-full"))
     detect_width: int = option(PipelineConfig.detect_width, "width of the copy the full face search runs on")
 
@@ -70,8 +71,9 @@ class _PipelineOptions:
 class ClassifyConfig(_PipelineOptions):
     """Print expression and feedback per frame of a video or per image (offline, no network)."""
 
-    path: str = option("", "a video file, an image, a folder of images, or mcap:LOG.mcap (a session's frames)",
-                       positional=True)
+    path: str = option(
+        "", "a video file, an image, a folder of images, or mcap:LOG.mcap (a session's frames)", positional=True
+    )
     json: bool = option(False, "one JSON object per line")
     every: int = option(1, "process every N-th frame only")
 
@@ -115,6 +117,7 @@ def _offline(run):
             return 2
         except BrokenPipeError:  # e.g. piped into head
             return 0
+
     return guarded
 
 
@@ -128,14 +131,22 @@ def _classify(args: ClassifyConfig) -> int:
 def _bench(args: PerceptionBenchConfig) -> int:
     from .bench import run_bench
 
-    run_bench(sizes=_parse_sizes(args.sizes), repeats=args.repeats, naive=not args.no_naive,
-              one_core=not args.all_cores, config=args.pipeline(), as_json=args.json,
-              frame_step=max(1, args.frame_step))
+    run_bench(
+        sizes=_parse_sizes(args.sizes),
+        repeats=args.repeats,
+        naive=not args.no_naive,
+        one_core=not args.all_cores,
+        config=args.pipeline(),
+        as_json=args.json,
+        frame_step=max(1, args.frame_step),
+    )
     return 0
 
 
-SUBCOMMANDS = {"classify": Command(ClassifyConfig, _offline(_classify)),
-               "bench": Command(PerceptionBenchConfig, _offline(_bench))}
+SUBCOMMANDS = {
+    "classify": Command(ClassifyConfig, _offline(_classify)),
+    "bench": Command(PerceptionBenchConfig, _offline(_bench)),
+}
 
 
 def main(config):
@@ -152,6 +163,7 @@ def cli(argv: list[str] | None = None) -> int:
 
         return live_cli(argv)
     return run_commands("python -m services.perception", __doc__.split("\n\n")[0], SUBCOMMANDS, argv)
+
 
 if __name__ == "__main__":
     sys.exit(cli())

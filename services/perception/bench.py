@@ -61,8 +61,16 @@ def held_smile_clip(frames: list[np.ndarray]) -> list[np.ndarray]:
     return [frames[i] for i in HELD_SMILE_SAD] + [frames[i] for i in HELD_SMILE_HAPPY]
 
 
-def bench_one(pipeline: PerceptionPipeline, frames: list[np.ndarray], fps: float, truth, repeats: int,
-              size: str, name: str, frame_step: int = 1) -> BenchRow:
+def bench_one(
+    pipeline: PerceptionPipeline,
+    frames: list[np.ndarray],
+    fps: float,
+    truth,
+    repeats: int,
+    size: str,
+    name: str,
+    frame_step: int = 1,
+) -> BenchRow:
     """One row. ``frame_step`` > 1 runs the clip on every n-th frame only (a quick look, not the figure)."""
     main = frames[::frame_step]
     truth = truth[::frame_step]
@@ -77,13 +85,31 @@ def bench_one(pipeline: PerceptionPipeline, frames: list[np.ndarray], fps: float
     pos = [e for e in smile.events if e.value == 1]
     t_onset = len(HELD_SMILE_SAD) / 30.0
     lag = (pos[0].t_capture - t_onset) * 1000.0 if pos else None
-    return BenchRow(size, name, len(lat) / total, len(lat) / cpu, float(np.percentile(lat, 50) * 1000),
-                    float(np.percentile(lat, 99) * 1000), acc.accuracy, acc.no_face, events, len(pos), lag)
+    return BenchRow(
+        size,
+        name,
+        len(lat) / total,
+        len(lat) / cpu,
+        float(np.percentile(lat, 50) * 1000),
+        float(np.percentile(lat, 99) * 1000),
+        acc.accuracy,
+        acc.no_face,
+        events,
+        len(pos),
+        lag,
+    )
 
 
-def run_bench(sizes=((320, 240), (640, 480)), repeats: int = 3, naive: bool = True, one_core: bool = True,
-              config: PipelineConfig = PipelineConfig(), out: TextIO | None = None,
-              as_json: bool = False, frame_step: int = 1) -> list[BenchRow]:
+def run_bench(
+    sizes=((320, 240), (640, 480)),
+    repeats: int = 3,
+    naive: bool = True,
+    one_core: bool = True,
+    config: PipelineConfig = PipelineConfig(),
+    out: TextIO | None = None,
+    as_json: bool = False,
+    frame_step: int = 1,
+) -> list[BenchRow]:
     out = out or sys.stdout
     pinned = pin_to_one_core() if one_core else "not pinned"
     cv2.setNumThreads(1)
@@ -101,33 +127,55 @@ def run_bench(sizes=((320, 240), (640, 480)), repeats: int = 3, naive: bool = Tr
             reps = repeats if name == "default" else 1  # the naive rows are slow; one pass shows them
             rows.append(bench_one(pipeline, frames, fps, truth, reps, f"{w}x{h}", label, frame_step))
     if as_json:
-        out.write(json.dumps({"pinned": pinned, "model": model.name, "config": _describe(config),
-                              "rows": [dataclasses.asdict(r) for r in rows]}, indent=2) + "\n")
+        out.write(
+            json.dumps(
+                {
+                    "pinned": pinned,
+                    "model": model.name,
+                    "config": _describe(config),
+                    "rows": [dataclasses.asdict(r) for r in rows],
+                },
+                indent=2,
+            )
+            + "\n"
+        )
         return rows
-    out.write(f"perception bench: {platform.processor() or platform.machine()}, {pinned}, "
-              f"cv2 {cv2.__version__} threads={cv2.getNumThreads()}, model {model.name} (onnxruntime, 1 thread)\n")
+    out.write(
+        f"perception bench: {platform.processor() or platform.machine()}, {pinned}, "
+        f"cv2 {cv2.__version__} threads={cv2.getNumThreads()}, model {model.name} (onnxruntime, 1 thread)\n"
+    )
     out.write(f"default pipeline: {_describe(config)}\n")
     step = f", every {frame_step}th frame only" if frame_step > 1 else ""
-    out.write(f"clip: WolfgangLanger_Pexels.mp4 (472 frames{step}) letterboxed; accuracy on frames 0-223 "
-              "(other) + 256-471 (happy); no face counts as wrong\n\n")
-    head = (f"{'size':8s} {'detector':10s} {'fps':>7s} {'cpu fps':>7s} {'p50 ms':>7s} {'p99 ms':>7s} "
-            f"{'happy/other':>11s} {'no face':>7s}  {'held smile: +1s, lag':20s} events on the clip")
+    out.write(
+        f"clip: WolfgangLanger_Pexels.mp4 (472 frames{step}) letterboxed; accuracy on frames 0-223 "
+        "(other) + 256-471 (happy); no face counts as wrong\n\n"
+    )
+    head = (
+        f"{'size':8s} {'detector':10s} {'fps':>7s} {'cpu fps':>7s} {'p50 ms':>7s} {'p99 ms':>7s} "
+        f"{'happy/other':>11s} {'no face':>7s}  {'held smile: +1s, lag':20s} events on the clip"
+    )
     out.write(head + "\n" + "-" * len(head) + "\n")
     for r in rows:
         lag = "-" if r.smile_lag_ms is None else f"{r.smile_lag_ms:.0f} ms"
-        out.write(f"{r.size:8s} {r.detector:10s} {r.fps:7.1f} {r.cpu_fps:7.1f} {r.latency_p50_ms:7.2f} "
-                  f"{r.latency_p99_ms:7.2f} {100 * r.accuracy:10.1f}% {r.no_face:7d}  "
-                  f"{r.smile_events:d} x +1, {lag:11s}       {r.events}\n")
-    out.write("\nfps: frames / wall time; cpu fps: frames / CPU time of this process (what one free core "
-              "sustains);\nlatency: wall time from handing a frame over to its decision; held smile: 30 sad "
-              "then 60 smiling frames at 30 fps,\nlag = capture time of the +1 minus that of the first "
-              "smiling frame (the smoothing's delay).\n")
+        out.write(
+            f"{r.size:8s} {r.detector:10s} {r.fps:7.1f} {r.cpu_fps:7.1f} {r.latency_p50_ms:7.2f} "
+            f"{r.latency_p99_ms:7.2f} {100 * r.accuracy:10.1f}% {r.no_face:7d}  "
+            f"{r.smile_events:d} x +1, {lag:11s}       {r.events}\n"
+        )
+    out.write(
+        "\nfps: frames / wall time; cpu fps: frames / CPU time of this process (what one free core "
+        "sustains);\nlatency: wall time from handing a frame over to its decision; held smile: 30 sad "
+        "then 60 smiling frames at 30 fps,\nlag = capture time of the +1 minus that of the first "
+        "smiling frame (the smoothing's delay).\n"
+    )
     out.flush()
     return rows
 
 
 def _describe(c: PipelineConfig) -> str:
     r = c.reaction
-    return (f"detector={c.detector} (full Haar search on a {c.detect_width}-px-wide copy"
-            f"{', local search in between' if c.detector == 'tracking' else ''}), model={c.model}, "
-            f"EMA tau={r.tau_s}s, on>={r.on_threshold}, re-arm<{r.off_threshold}")
+    return (
+        f"detector={c.detector} (full Haar search on a {c.detect_width}-px-wide copy"
+        f"{', local search in between' if c.detector == 'tracking' else ''}), model={c.model}, "
+        f"EMA tau={r.tau_s}s, on>={r.on_threshold}, re-arm<{r.off_threshold}"
+    )

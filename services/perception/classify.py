@@ -24,8 +24,10 @@ def format_line(pred: FramePrediction, event: FeedbackEvent | None, source: str 
     label = pred.label or "-"
     fb = "" if event is None else f"{event.value:+d}"
     src = f"  {source}" if source else ""
-    return (f"frame {pred.index:5d}  t={pred.t_capture:8.3f}s  box={box:20s}  {label:8s} "
-            f"{pred.confidence:.2f}  feedback={fb}{src}").rstrip()
+    return (
+        f"frame {pred.index:5d}  t={pred.t_capture:8.3f}s  box={box:20s}  {label:8s} "
+        f"{pred.confidence:.2f}  feedback={fb}{src}"
+    ).rstrip()
 
 
 def format_json(pred: FramePrediction, event: FeedbackEvent | None, source: str | None = None) -> str:
@@ -43,8 +45,13 @@ def format_json(pred: FramePrediction, event: FeedbackEvent | None, source: str 
     return json.dumps(rec)
 
 
-def classify(path: str, config: PipelineConfig = PipelineConfig(), as_json: bool = False, every: int = 1,
-             out: TextIO | None = None) -> int:
+def classify(
+    path: str,
+    config: PipelineConfig = PipelineConfig(),
+    as_json: bool = False,
+    every: int = 1,
+    out: TextIO | None = None,
+) -> int:
     """Classify every ``every``-th frame of ``path`` (a video, an image or a folder of images).
 
     Returns the number of feedback events. Raises ``MediaError`` / ``AssetsMissingError`` /
@@ -53,8 +60,10 @@ def classify(path: str, config: PipelineConfig = PipelineConfig(), as_json: bool
     out = out or sys.stdout
     spec = SourceSpec.parse(path)
     if spec.kind not in ("video", "image", "mcap"):
-        raise ValueError(f"classify reads files and logs; {path!r} is a live source "
-                         f"(python -m services.perception --source {path} reads it)")
+        raise ValueError(
+            f"classify reads files and logs; {path!r} is a live source "
+            f"(python -m services.perception --source {path} reads it)"
+        )
     stills = spec.kind == "image"
     if stills:  # each image alone: no smoothing across unrelated pictures
         config = dataclasses.replace(config, reaction=dataclasses.replace(config.reaction, tau_s=0.0))

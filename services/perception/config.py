@@ -106,42 +106,62 @@ class PerceptionLiveConfig(ServiceConfig):
     To the learner this service is a teacher: its service name is teacher.<teacher_id>.
     Offline subcommands: `python -m services.perception classify --help`, `... bench --help`."""
 
-    source: str = option("", "frames: a video file, an image or a folder of images, camera:N, mcap:LOG.mcap "
-                             "(re-run perception on a recorded session's camera frames), or zenoh:CAMERA (frames "
-                             "published on hitl/<run>/camera/CAMERA, e.g. by the face-video observer)")
+    source: str = option(
+        "",
+        "frames: a video file, an image or a folder of images, camera:N, mcap:LOG.mcap "
+        "(re-run perception on a recorded session's camera frames), or zenoh:CAMERA (frames "
+        "published on hitl/<run>/camera/CAMERA, e.g. by the face-video observer)",
+    )
     teacher_id: str = option("face", "teacher name: Feedback goes to hitl/<run>/feedback/<teacher_id>")
-    camera: str = option("cam0", "camera id of the published frames and predictions (zenoh:CAMERA and "
-                                 "mcap sources keep their own)")
-    publish_frames: bool = option(True, "publish the frames as JPEG CompressedImage (never for zenoh: sources, "
-                                        "whose frames are on the bus already)")
+    camera: str = option(
+        "cam0", "camera id of the published frames and predictions (zenoh:CAMERA and mcap sources keep their own)"
+    )
+    publish_frames: bool = option(
+        True,
+        "publish the frames as JPEG CompressedImage (never for zenoh: sources, whose frames are on the bus already)",
+    )
     jpeg_quality: int = option(80, "JPEG quality of published frames")
-    realtime: bool = option(True, "video files: pace at the file's frame rate and stamp frames with the wall clock, "
-                                  "as a camera (false: as fast as possible, stamped index / fps); mcap: pace by "
-                                  "the recorded capture times (false: as fast as possible)")
+    realtime: bool = option(
+        True,
+        "video files: pace at the file's frame rate and stamp frames with the wall clock, "
+        "as a camera (false: as fast as possible, stamped index / fps); mcap: pace by "
+        "the recorded capture times (false: as fast as possible)",
+    )
     every: int = option(1, "process every N-th frame only")
     max_frames: int | None = option(None, "stop after this many processed frames (none = until the source ends)")
     queue: int = option(4, "zenoh: sources: frames waiting beyond this many are dropped, oldest first (counted)")
-    stop_with: tuple[str, ...] = option((), "zenoh: sources: stop once these services have reported 'stopped' and "
-                                            "no frame has come for idle-stop s (empty: run until SIGTERM)")
+    stop_with: tuple[str, ...] = option(
+        (),
+        "zenoh: sources: stop once these services have reported 'stopped' and "
+        "no frame has come for idle-stop s (empty: run until SIGTERM)",
+    )
     idle_stop: float = option(0.5, "see stop-with (s)")
-    screens: bool = option(False, "zenoh: sources from the console: a frame's frame_id names the person's screen; "
-                                  "each Feedback lists the steps that screen showed (hitl/<run>/shown/<screen>) in "
-                                  "the screen-span s before the frame, so the learner credits it in seconds")
+    screens: bool = option(
+        False,
+        "zenoh: sources from the console: a frame's frame_id names the person's screen; "
+        "each Feedback lists the steps that screen showed (hitl/<run>/shown/<screen>) in "
+        "the screen-span s before the frame, so the learner credits it in seconds",
+    )
     screen_span: float = option(4.0, "see screens (s): the longest delay the learner assumes")
     wait_for: tuple[str, ...] = option((), "services that must be alive before the first frame (e.g. recorder)")
     start_timeout: float = option(60.0, "seconds to wait for those services")
-    state_file: str | None = option(None, "progress file (the next Feedback seq), rewritten before each Feedback, so "
-                                          "a restarted service continues the seq instead of repeating it")
-    model: str = option("mini-xception", "mini-xception, haar-smile, or a model config .json/.toml "
-                                         "(docs/perception.md)")
+    state_file: str | None = option(
+        None,
+        "progress file (the next Feedback seq), rewritten before each Feedback, so "
+        "a restarted service continues the seq instead of repeating it",
+    )
+    model: str = option(
+        "mini-xception", "mini-xception, haar-smile, or a model config .json/.toml (docs/perception.md)"
+    )
     detector: str = option("tracking", "face detector", choices=DETECTORS)
     detect_width: int = option(160, "width of the copy the full face search runs on")
 
     def __post_init__(self):
         super().__post_init__()
         if not self.source:
-            raise ValueError("--source is required: a video file, an image or folder, camera:N, mcap:LOG.mcap "
-                             "or zenoh:CAMERA")
+            raise ValueError(
+                "--source is required: a video file, an image or folder, camera:N, mcap:LOG.mcap or zenoh:CAMERA"
+            )
         SourceSpec.parse(self.source)  # raises ValueError for a malformed camera:/zenoh: source
         _check_name(self.teacher_id, "teacher-id")
         _check_name(self.camera, "camera")

@@ -19,6 +19,7 @@ CompressedImage is counted by reason (``frames_dropped_<reason>``).
 To the learner this service is a teacher: its service name is ``teacher.<teacher_id>`` and its final status
 carries ``feedback_published``, which the learner waits for at the end of a run.
 """
+
 from __future__ import annotations
 
 import os
@@ -33,9 +34,18 @@ import numpy as np
 from common.perception.media import MediaError
 from common.perception.pipeline import PerceptionPipeline
 from common.perception.reaction import FeedbackEvent, FramePrediction
-from common.protocol import (KEYS, Box, CompressedImage, ExpressionPrediction, Feedback, ProtocolError,
-                             Time, camera_key,
-                             feedback_key, perception_key)
+from common.protocol import (
+    KEYS,
+    Box,
+    CompressedImage,
+    ExpressionPrediction,
+    Feedback,
+    ProtocolError,
+    Time,
+    camera_key,
+    feedback_key,
+    perception_key,
+)
 from services.common.runtime import ServiceRuntime, wait_alive
 
 from .config import PerceptionLiveConfig
@@ -52,19 +62,33 @@ def prediction_message(pred: FramePrediction) -> ExpressionPrediction:
     probs = {}
     if pred.probs is not None:
         probs = {str(label)[:32]: min(1.0, max(0.0, float(p))) for label, p in list(zip(pred.labels, pred.probs))[:16]}
-    return ExpressionPrediction(t_capture=max(0.0, float(pred.t_capture)), frame=int(pred.index), box=box,
-                                label=(pred.label or "")[:32], confidence=min(1.0, max(0.0, pred.confidence)),
-                                probabilities=probs)
+    return ExpressionPrediction(
+        t_capture=max(0.0, float(pred.t_capture)),
+        frame=int(pred.index),
+        box=box,
+        label=(pred.label or "")[:32],
+        confidence=min(1.0, max(0.0, pred.confidence)),
+        probabilities=probs,
+    )
 
 
-def feedback_message(run: str, teacher_id: str, seq: int, event: FeedbackEvent, screen=None,
-                     span: float = 4.0) -> Feedback:
+def feedback_message(
+    run: str, teacher_id: str, seq: int, event: FeedbackEvent, screen=None, span: float = 4.0
+) -> Feedback:
     """The Feedback of one reaction; with the `screen` (a ScreenTimeline) the person watched, the steps it
     showed in the `span` s before the triggering frame."""
     t = max(0.0, float(event.t_capture))
     actor, shown = screen.window(t, span) if screen is not None else (None, [])
-    return Feedback(run=run, teacher_id=teacher_id, seq=seq, t_reaction=t, value=int(event.value),
-                    source=FEEDBACK_SOURCE, actor=actor, shown=shown if actor is not None else None)
+    return Feedback(
+        run=run,
+        teacher_id=teacher_id,
+        seq=seq,
+        t_reaction=t,
+        value=int(event.value),
+        source=FEEDBACK_SOURCE,
+        actor=actor,
+        shown=shown if actor is not None else None,
+    )
 
 
 def encode_jpeg(image: np.ndarray, quality: int) -> bytes:
@@ -81,8 +105,7 @@ def image_message(data: bytes, t_capture: float, camera: str, fmt: str = "jpeg")
 class PerceptionService:
     """The per-frame work and the publishing, given a session (no loop, no source)."""
 
-    def __init__(self, config: PerceptionLiveConfig, rt: ServiceRuntime, session: Any,
-                 pipeline: PerceptionPipeline):
+    def __init__(self, config: PerceptionLiveConfig, rt: ServiceRuntime, session: Any, pipeline: PerceptionPipeline):
         from common.wire.transport import MessagePublisher
 
         self.config, self.rt, self.session, self.pipeline = config, rt, session, pipeline
@@ -114,12 +137,14 @@ class PerceptionService:
         return pub
 
     def publish_frame(self, data: bytes, t_capture: float, camera: str, fmt: str = "jpeg") -> None:
-        self._publisher(self._frames,
-                        camera_key(self.config.run, camera)).put(image_message(data, t_capture, camera, fmt))
+        self._publisher(self._frames, camera_key(self.config.run, camera)).put(
+            image_message(data, t_capture, camera, fmt)
+        )
         self.rt.counters["frames_published"] += 1
 
-    def process(self, image: np.ndarray, index: int, t_capture: float, camera: str,
-                live_clock: bool) -> FeedbackEvent | None:
+    def process(
+        self, image: np.ndarray, index: int, t_capture: float, camera: str, live_clock: bool
+    ) -> FeedbackEvent | None:
         t0 = time.perf_counter()
         if self.t_first is None:
             self.t_first, self.cpu_first = time.monotonic(), time.process_time()
@@ -138,8 +163,16 @@ class PerceptionService:
             seq = self.feedback_seq
             if self.progress:  # first: a crash right after must not reuse this seq
                 self.progress.write({"next_seq": seq + 1})
-            self.feedback.put(feedback_message(self.config.run, self.config.teacher_id, seq, event,
-                                               self.screens.get(self.screen), self.config.screen_span))
+            self.feedback.put(
+                feedback_message(
+                    self.config.run,
+                    self.config.teacher_id,
+                    seq,
+                    event,
+                    self.screens.get(self.screen),
+                    self.config.screen_span,
+                )
+            )
             self.feedback_seq = seq + 1
             c["feedback_published"] = self.feedback_seq
             c["feedback_positive" if event.value > 0 else "feedback_negative"] += 1
@@ -156,8 +189,11 @@ class PerceptionService:
         if image is None:
             self.rt.counters["frames_undecodable"] += 1
             if self.rt.counters["frames_undecodable"] == 1:
-                self.rt.event(f"frame {frame.index} of camera {frame.camera}: the image bytes cannot be decoded; "
-                              f"dropped (counted as frames_undecodable)", level=3)
+                self.rt.event(
+                    f"frame {frame.index} of camera {frame.camera}: the image bytes cannot be decoded; "
+                    f"dropped (counted as frames_undecodable)",
+                    level=3,
+                )
             return None
         return self.process(image, frame.index, frame.t_capture, frame.camera, live_clock)
 
@@ -181,8 +217,12 @@ class PerceptionService:
             return {}
         wall = max(1e-9, self.t_last - self.t_first)
         cpu = time.process_time() - self.cpu_first
-        return {"frames": n, "wall_s": round(wall, 3), "fps": round((n - 1) / wall, 2),
-                "cpu_ms_per_frame": round(1e3 * cpu / n, 3)}
+        return {
+            "frames": n,
+            "wall_s": round(wall, 3),
+            "fps": round((n - 1) / wall, 2),
+            "cpu_ms_per_frame": round(1e3 * cpu / n, 3),
+        }
 
     def close(self) -> None:
         for pub in (self.feedback, *self._predictions.values(), *self._frames.values()):
@@ -215,7 +255,8 @@ def main(config: PerceptionLiveConfig) -> int:
     pipeline_config = config.pipeline
     if _stills(spec):  # each image alone: no smoothing across unrelated pictures (as `classify`)
         pipeline_config = dataclasses.replace(
-            pipeline_config, reaction=dataclasses.replace(pipeline_config.reaction, tau_s=0.0))
+            pipeline_config, reaction=dataclasses.replace(pipeline_config.reaction, tau_s=0.0)
+        )
     pipeline = PerceptionPipeline.from_config(pipeline_config)  # a missing model fails here, before joining
     rt = ServiceRuntime(config.service_name, config)
     rt.set_counters_source(lambda: {"feedback_published": svc.feedback_seq if svc is not None else 0})
@@ -226,15 +267,21 @@ def main(config: PerceptionLiveConfig) -> int:
         svc = PerceptionService(config, rt, session, pipeline)
         try:
             if spec.kind == "zenoh":
-                with subscription(session, camera_key(config.run, spec.target), maxsize=config.queue,
-                                  policy="drop_oldest") as frames, \
-                        subscription(session, KEYS["status"].wildcard(config.run), maxsize=256,
-                                     policy="drop_oldest") as status, \
-                        subscription(session, KEYS["shown"].wildcard(config.run), maxsize=1024,
-                                     policy="drop_oldest") as shown:
+                with (
+                    subscription(
+                        session, camera_key(config.run, spec.target), maxsize=config.queue, policy="drop_oldest"
+                    ) as frames,
+                    subscription(
+                        session, KEYS["status"].wildcard(config.run), maxsize=256, policy="drop_oldest"
+                    ) as status,
+                    subscription(
+                        session, KEYS["shown"].wildcard(config.run), maxsize=1024, policy="drop_oldest"
+                    ) as shown,
+                ):
                     rt.ready()
-                    processed = _run_zenoh(config, rt, svc, frames, status, spec.target,
-                                           shown if config.screens else None)
+                    processed = _run_zenoh(
+                        config, rt, svc, frames, status, spec.target, shown if config.screens else None
+                    )
                     rt.counters.update({f"inbox_{k}": v for k, v in frames.snapshot().items()})
             else:
                 rt.ready()
@@ -247,10 +294,13 @@ def main(config: PerceptionLiveConfig) -> int:
             svc.close()
     tp = svc.throughput()
     rt.write_stats(throughput=tp)
-    rate = (f" in {tp['wall_s']:.1f} s ({tp['fps']:.1f} fps, {tp['cpu_ms_per_frame']:.1f} ms CPU per frame)"
-            if tp else "")
-    rt.log(f"stopped: {processed} frames processed{rate}, {svc.feedback_seq} feedback published "
-           f"({rt.counters['feedback_positive']} +1, {rt.counters['feedback_negative']} -1)")
+    rate = (
+        f" in {tp['wall_s']:.1f} s ({tp['fps']:.1f} fps, {tp['cpu_ms_per_frame']:.1f} ms CPU per frame)" if tp else ""
+    )
+    rt.log(
+        f"stopped: {processed} frames processed{rate}, {svc.feedback_seq} feedback published "
+        f"({rt.counters['feedback_positive']} +1, {rt.counters['feedback_negative']} -1)"
+    )
     return code
 
 
@@ -286,8 +336,9 @@ def _run_iterator(config: PerceptionLiveConfig, rt: ServiceRuntime, svc: Percept
     return processed
 
 
-def _run_zenoh(config: PerceptionLiveConfig, rt: ServiceRuntime, svc: PerceptionService, frames, status,
-               camera: str, shown=None) -> int:
+def _run_zenoh(
+    config: PerceptionLiveConfig, rt: ServiceRuntime, svc: PerceptionService, frames, status, camera: str, shown=None
+) -> int:
     stopped: set[str] = set()
     waiting = set(config.stop_with)
     index = processed = 0
@@ -319,8 +370,7 @@ def _run_zenoh(config: PerceptionLiveConfig, rt: ServiceRuntime, svc: Perception
                 continue
             if st.state == "stopped" and st.service in waiting:
                 stopped.add(st.service)
-        if waiting and waiting <= stopped and len(frames) == 0 \
-                and time.monotonic() - last_frame >= config.idle_stop:
+        if waiting and waiting <= stopped and len(frames) == 0 and time.monotonic() - last_frame >= config.idle_stop:
             break
         rt.tick()
     return processed
@@ -330,9 +380,13 @@ def cli(argv: list[str] | None = None) -> int:
     from common.config import parse_config
     from common.perception.assets import AssetsMissingError
 
-    config = parse_config(PerceptionLiveConfig, argv, prog="python -m services.perception",
-                          description=(PerceptionLiveConfig.__doc__ or "").strip()
-                          + "\n\nAlso: python -m services.perception classify|bench --help (offline).")
+    config = parse_config(
+        PerceptionLiveConfig,
+        argv,
+        prog="python -m services.perception",
+        description=(PerceptionLiveConfig.__doc__ or "").strip()
+        + "\n\nAlso: python -m services.perception classify|bench --help (offline).",
+    )
     try:
         return main(config)
     except (MediaError, AssetsMissingError, FileNotFoundError) as exc:

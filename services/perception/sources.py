@@ -73,8 +73,9 @@ class EncodedFrame:
     error: str | None = None
 
 
-def iter_mcap_frames(path: str, camera: str | None = None, realtime: bool = False, clock=time.time,
-                     sleep=time.sleep) -> Iterator[EncodedFrame]:
+def iter_mcap_frames(
+    path: str, camera: str | None = None, realtime: bool = False, clock=time.time, sleep=time.sleep
+) -> Iterator[EncodedFrame]:
     """The camera frames (CompressedImage on ``hitl/<run>/camera/<id>``) of a recorded session, in log order,
     stamped with their recorded capture time. ``camera`` picks one camera (default: every camera). With
     ``realtime`` they are paced by their capture times. A log without camera frames raises ``MediaError``."""
@@ -97,8 +98,13 @@ def iter_mcap_frames(path: str, camera: str | None = None, realtime: bool = Fals
                     continue
                 msg = rec.message
                 if not isinstance(msg, CompressedImage):
-                    yield EncodedFrame(index, rec.log_time * 1e-9, None, parts[3],
-                                       rec.error.reason if rec.error is not None else "not_an_image")
+                    yield EncodedFrame(
+                        index,
+                        rec.log_time * 1e-9,
+                        None,
+                        parts[3],
+                        rec.error.reason if rec.error is not None else "not_an_image",
+                    )
                     index += 1
                     continue
                 t = msg.timestamp.to_seconds()
@@ -115,12 +121,12 @@ def iter_mcap_frames(path: str, camera: str | None = None, realtime: bool = Fals
                 raise MediaError(f"{path}: cannot read this as a session log ({exc})") from None
             raise
     if index == 0:
-        raise MediaError(f"{path}: the log holds no camera frames"
-                         + (f" from camera {camera!r}" if camera else ""))
+        raise MediaError(f"{path}: the log holds no camera frames" + (f" from camera {camera!r}" if camera else ""))
 
 
-def iter_mcap(path: str, every: int = 1, realtime: bool = False,
-              on_bad: Callable[[EncodedFrame], None] | None = None) -> Iterator[Frame]:
+def iter_mcap(
+    path: str, every: int = 1, realtime: bool = False, on_bad: Callable[[EncodedFrame], None] | None = None
+) -> Iterator[Frame]:
     """Decoded frames of a recorded session (see ``iter_mcap_frames``); undecodable ones go to ``on_bad``."""
     for i, ef in enumerate(iter_mcap_frames(path, realtime=realtime)):
         if i % every:
@@ -139,8 +145,10 @@ def open_source(spec: SourceSpec, every: int = 1, realtime: bool = False) -> Ite
     if spec.kind == "mcap":
         return iter_mcap(spec.target, every, realtime)
     if spec.kind == "zenoh":
-        raise ValueError(f"{spec}: frames from Zenoh are read by the live service (python -m services.perception "
-                         f"--source {spec} --connect ... --run ...)")
+        raise ValueError(
+            f"{spec}: frames from Zenoh are read by the live service (python -m services.perception "
+            f"--source {spec} --connect ... --run ...)"
+        )
     if spec.kind == "video" and realtime:
         return iter_video_realtime(spec.target, every)
     return iter_media(spec.target, every)

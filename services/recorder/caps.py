@@ -3,6 +3,7 @@
 Token buckets (capacity: one second's worth): every sender (the identity that publishes the key,
 `common.protocol.sender_of`) at most `sender_bytes` bytes/s; every camera at most `camera_fps` frames/s and
 `camera_bytes` bytes/s on top. What exceeds a cap is not written and is counted (`capped_<kind>`)."""
+
 from __future__ import annotations
 
 import time
@@ -43,7 +44,9 @@ class RecordCaps:
         now = time.monotonic() if now is None else now
         parsed = parse_key(key)
         if parsed.spec.kind == "camera":
-            if not (self._bucket("frames", key, self.camera_fps, now).take(1, now)
-                    and self._bucket("camera_bytes", key, self.camera_bytes, now).take(nbytes, now)):
+            if not (
+                self._bucket("frames", key, self.camera_fps, now).take(1, now)
+                and self._bucket("camera_bytes", key, self.camera_bytes, now).take(nbytes, now)
+            ):
                 return False
         return self._bucket("bytes", sender_of(key) or key, self.sender_bytes, now).take(nbytes, now)

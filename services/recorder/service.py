@@ -14,6 +14,7 @@ only valid messages. A restarted recorder opens the next segment (`session.1.mca
 re-send their last seconds to it, so a reader of all segments (`read_log`, which drops the duplicates) gets
 what the killed recorder had not flushed.
 """
+
 from __future__ import annotations
 
 import json
@@ -65,8 +66,9 @@ def main(config: RecorderConfig) -> int:
     scene = SceneBuilder.from_run_config(run_config.config)  # the environment drawn for Foxglove (docs/logs.md)
     if not scene_available():
         print("recorder: the log gets no Foxglove scene (pip install 'hitl-tamer[foxglove]' adds it)", file=sys.stderr)
-    rt.set_counters_source(lambda: {"messages_written": writer.counters["messages"],
-                                    "bytes_written": writer.counters["bytes"]})
+    rt.set_counters_source(
+        lambda: {"messages_written": writer.counters["messages"], "bytes_written": writer.counters["bytes"]}
+    )
     stopped: set[str] = set()
     caps = RecordCaps(config.max_sender_mb_s * MIB, config.max_camera_mb_s * MIB, config.max_camera_fps)
     try:
@@ -97,8 +99,12 @@ def main(config: RecorderConfig) -> int:
                                 rt.counters[f"capped_{item.key.split('/')[2]}"] += 1
                                 continue
                             t_log = int(item.t_recv * 1e9)
-                            writer.write(item.key, item.data, log_time=t_log,
-                                         publish_time=int((item.t_zenoh or item.t_recv) * 1e9))
+                            writer.write(
+                                item.key,
+                                item.data,
+                                log_time=t_log,
+                                publish_time=int((item.t_zenoh or item.t_recv) * 1e9),
+                            )
                         except ProtocolError as e:
                             rt.counters[f"rejected_{e.reason}"] += 1
                             note_rejected(e.reason, item.key[:80])
@@ -110,9 +116,13 @@ def main(config: RecorderConfig) -> int:
                                 stopped.add(st.service)
                                 if linger_until is None and set(config.stop_when) <= stopped:
                                     linger_until = time.monotonic() + config.linger
-                    if others is not None and linger_until is None and time.monotonic() - t_ready > 3.0 \
-                            and not others.alive and all(time.monotonic() - others.gone_since.get(n, t_ready) > 1.0
-                                                         for n in config.stop_when):
+                    if (
+                        others is not None
+                        and linger_until is None
+                        and time.monotonic() - t_ready > 3.0
+                        and not others.alive
+                        and all(time.monotonic() - others.gone_since.get(n, t_ready) > 1.0 for n in config.stop_when)
+                    ):
                         rt.log(f"none of {', '.join(config.stop_when)} is alive any more: the run is over")
                         linger_until = time.monotonic() + config.linger
                     rt.tick()
@@ -120,9 +130,17 @@ def main(config: RecorderConfig) -> int:
                     others.close()
                 rt.counters.update({f"inbox_{k}": v for k, v in inbox.snapshot().items()})
                 # Its own last word goes straight into the file (its subscription is closing).
-                writer.write(status_key(config.run, rt.name), ServiceStatus(
-                    run=config.run, service=rt.name, pid=os.getpid(), state="stopped", t=time.time(),
-                    counters=dict(sorted(rt.all_counters().items())[:256])))
+                writer.write(
+                    status_key(config.run, rt.name),
+                    ServiceStatus(
+                        run=config.run,
+                        service=rt.name,
+                        pid=os.getpid(),
+                        state="stopped",
+                        t=time.time(),
+                        counters=dict(sorted(rt.all_counters().items())[:256]),
+                    ),
+                )
     finally:
         writer.finish()
     rt.write_stats(paths=[str(p) for p in writer.paths])
@@ -132,4 +150,3 @@ def main(config: RecorderConfig) -> int:
 
 def cli(argv: list[str] | None = None) -> int:
     return service_main(RecorderConfig, main, argv, "python -m services.recorder")
-

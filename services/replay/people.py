@@ -1,5 +1,6 @@
 """Per person at the console (summary.json `people`): what became of their presses, from the console's counts
 (carried by each person's ServiceStatus, kept across a console restart by its ledger) and the log."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -7,8 +8,9 @@ from typing import Any
 DROPPED_PREFIX = "presses_dropped_"
 
 
-def people_report(statuses: dict, feedback: dict[str, list[int]], outcome: dict[tuple[str, int], str],
-                  teacher_of) -> dict[str, dict[str, Any]]:
+def people_report(
+    statuses: dict, feedback: dict[str, list[int]], outcome: dict[tuple[str, int], str], teacher_of
+) -> dict[str, dict[str, Any]]:
     """{teacher id: received, published, resent, logged, credited, dropped {reason: n}} for each console person.
 
     `received`: presses the console got from the person's pages; `published`: distinct feedback seqs it sent;
@@ -23,7 +25,7 @@ def people_report(statuses: dict, feedback: dict[str, list[int]], outcome: dict[
             continue
         counters = {k: int(v) for k, v in st.counters.items()}
         seqs = sorted(set(feedback.get(tid, [])))
-        dropped = {k[len(DROPPED_PREFIX):]: v for k, v in counters.items() if k.startswith(DROPPED_PREFIX) and v}
+        dropped = {k[len(DROPPED_PREFIX) :]: v for k, v in counters.items() if k.startswith(DROPPED_PREFIX) and v}
         published = counters.get("feedback_published", 0)
         if published > len(seqs):
             dropped["not_logged"] = published - len(seqs)
@@ -34,7 +36,12 @@ def people_report(statuses: dict, feedback: dict[str, list[int]], outcome: dict[
                 credited += 1
             else:
                 dropped[status] = dropped.get(status, 0) + 1
-        out[tid] = {"received": counters["presses_received"], "published": published,
-                    "resent": counters.get("presses_resent", 0), "logged": len(seqs), "credited": credited,
-                    "dropped": dict(sorted(dropped.items()))}
+        out[tid] = {
+            "received": counters["presses_received"],
+            "published": published,
+            "resent": counters.get("presses_resent", 0),
+            "logged": len(seqs),
+            "credited": credited,
+            "dropped": dict(sorted(dropped.items())),
+        }
     return out

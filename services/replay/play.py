@@ -3,6 +3,7 @@
 Every record goes back on its own key with its own bytes (so a recorder or any subscriber sees what the
 live system saw), spaced by the recorded arrival times divided by `speed` (0: as fast as possible).
 """
+
 from __future__ import annotations
 
 import os
@@ -14,8 +15,16 @@ from common.logs.mcap_log import LogRecoveryWarning, read_log
 from common.protocol import ProtocolError, parse_key
 
 
-def play(path: str | os.PathLike, session: Any, *, speed: float = 1.0, kinds: tuple[str, ...] = (),
-         stop: Any = None, on_record: Any = None, signer: Any = None) -> dict[str, int]:
+def play(
+    path: str | os.PathLike,
+    session: Any,
+    *,
+    speed: float = 1.0,
+    kinds: tuple[str, ...] = (),
+    stop: Any = None,
+    on_record: Any = None,
+    signer: Any = None,
+) -> dict[str, int]:
     """Publish the log's records on `session`, each signed as its original sender by `signer`
     (`common.wire.auth.SignAsSender`; receivers drop what is not signed). Returns counts by kind."""
     from common.wire.transport import declare_publisher

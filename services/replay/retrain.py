@@ -6,6 +6,7 @@ messages from the same log through a fresh `LearnerCore` in that order repeats e
 machine (same torch build, one thread) the final weights are equal bit for bit to the live learner's last
 Weights message (published after its `end` entry).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -37,20 +38,29 @@ class RetrainResult:
     live_revision: int | None = None  # the live final weights' revision (equal to the retrained one when identical)
 
     def report(self) -> str:
-        lines = [f"learner {self.learner}: replayed {self.inputs} inputs ({self.steps} steps, {self.feedback} "
-                 f"feedback){'' if self.ended else ', log ends before the learner ended'}"]
+        lines = [
+            f"learner {self.learner}: replayed {self.inputs} inputs ({self.steps} steps, {self.feedback} "
+            f"feedback){'' if self.ended else ', log ends before the learner ended'}"
+        ]
         if self.missing_inputs:
             lines.append(f"  {self.missing_inputs} recorded inputs are missing from the log")
-        lines.append(f"  feedback outcomes and input statuses {'match' if self.outcomes_match else 'DIFFER'}"
-                     + (f" ({self.entry_mismatch})" if self.entry_mismatch else ""))
+        lines.append(
+            f"  feedback outcomes and input statuses {'match' if self.outcomes_match else 'DIFFER'}"
+            + (f" ({self.entry_mismatch})" if self.entry_mismatch else "")
+        )
         if not self.compared:
             lines.append("  final weights: NOT COMPARED (the log has no Weights published after the learner's end)")
         elif self.identical:
-            lines.append(f"  final weights: IDENTICAL bit for bit to the live learner's (version {self.live_version}"
-                         + ("" if self.live_revision is None else f", revision {self.live_revision}") + ")")
+            lines.append(
+                f"  final weights: IDENTICAL bit for bit to the live learner's (version {self.live_version}"
+                + ("" if self.live_revision is None else f", revision {self.live_revision}")
+                + ")"
+            )
         else:
-            lines.append(f"  final weights: DIFFERENT from the live learner's (version {self.live_version}, "
-                         f"max |diff| {self.max_abs_diff:.3g})")
+            lines.append(
+                f"  final weights: DIFFERENT from the live learner's (version {self.live_version}, "
+                f"max |diff| {self.max_abs_diff:.3g})"
+            )
         return "\n".join(lines)
 
 
@@ -174,11 +184,30 @@ def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResul
     if compared:
         w = live[-1]
         version = w.version
-        identical = set(w.tensors) == set(final) and all(_bit_equal(w.tensors[k], final[k]) for k in final) \
-            and w.revision in (None, core.revision)  # (older logs' weights have no revision)
+        identical = (
+            set(w.tensors) == set(final)
+            and all(_bit_equal(w.tensors[k], final[k]) for k in final)
+            and w.revision in (None, core.revision)
+        )  # (older logs' weights have no revision)
         if set(w.tensors) == set(final):
-            diff = max(float(np.max(np.abs(np.asarray(w.tensors[k], np.float64) - final[k]))) if final[k].size else 0.0
-                       for k in final)
-    return RetrainResult(learner, n_steps + n_fb, n_steps, n_fb, ended, mismatch is None, mismatch, compared,
-                         identical, diff, version, final, missing, log.warnings,
-                         live[-1].revision if compared else None)
+            diff = max(
+                float(np.max(np.abs(np.asarray(w.tensors[k], np.float64) - final[k]))) if final[k].size else 0.0
+                for k in final
+            )
+    return RetrainResult(
+        learner,
+        n_steps + n_fb,
+        n_steps,
+        n_fb,
+        ended,
+        mismatch is None,
+        mismatch,
+        compared,
+        identical,
+        diff,
+        version,
+        final,
+        missing,
+        log.warnings,
+        live[-1].revision if compared else None,
+    )

@@ -21,6 +21,7 @@ writes its summary.json and learning_curve.png from the log, outcome `interrupte
 
 LOG may also come before the command (`python -m services.replay LOG summary`).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -48,8 +49,11 @@ class SummaryConfig(LogConfig):
     json: bool = option(False, "print the whole summary as JSON")
     plot: str | None = option(None, "learning-curve PNG (default: replay_curve.png beside the log)")
     no_plot: bool = option(False, "no plot")
-    write: bool = option(False, "finish a run whose launcher was killed (summary.json still 'running'): write its "
-                                "summary.json and learning_curve.png from the log, outcome 'interrupted'")
+    write: bool = option(
+        False,
+        "finish a run whose launcher was killed (summary.json still 'running'): write its "
+        "summary.json and learning_curve.png from the log, outcome 'interrupted'",
+    )
 
 
 @dataclass(frozen=True)
@@ -61,8 +65,11 @@ class PlayConfig(LogConfig):
     speed: float = option(1.0, "pace multiplier; 0 = as fast as possible")
     kinds: str = option("", "only these key kinds, comma-separated (e.g. step,feedback)")
     start_delay: float = option(1.0, "seconds to wait before publishing")
-    credentials: str | None = option(None, "a service credential of the run (python -m services credentials): each "
-                                           "record is signed as its original sender; without one, receivers drop them")
+    credentials: str | None = option(
+        None,
+        "a service credential of the run (python -m services credentials): each "
+        "record is signed as its original sender; without one, receivers drop them",
+    )
 
 
 @dataclass(frozen=True)
@@ -72,15 +79,28 @@ class RetrainConfig(LogConfig):
 
     learner: str | None = option(None, "learner incarnation (default: the last one in the log)")
     save: str | None = option(None, "write the retrained final weights to this safetensors file")
-    screen_delay: tuple[str, ...] = option((), "instead: score this credit setting's delay (learned, learned:PRIOR, "
-                                               "uniform:LOW,HIGH, NAME:ARGS; repeat to compare) by how well it "
-                                               "predicts the presses it was not fitted on", nargs="+", metavar="SPEC")
-    screen_credit: tuple[str, ...] = option((), "with --screen-delay: a step's time is its onset or its interval "
-                                                "(repeat to compare both)", nargs="+", choices=REFERENCES)
-    fit_share: float = option(0.7, "the earliest share of each person's presses that fits a setting; the rest are "
-                                   "scored")
-    folds: int = option(0, "instead of one split: forward chaining over K blocks of presses in time (block k scored "
-                           "by a fit on the blocks before it)")
+    screen_delay: tuple[str, ...] = option(
+        (),
+        "instead: score this credit setting's delay (learned, learned:PRIOR, "
+        "uniform:LOW,HIGH, NAME:ARGS; repeat to compare) by how well it "
+        "predicts the presses it was not fitted on",
+        nargs="+",
+        metavar="SPEC",
+    )
+    screen_credit: tuple[str, ...] = option(
+        (),
+        "with --screen-delay: a step's time is its onset or its interval (repeat to compare both)",
+        nargs="+",
+        choices=REFERENCES,
+    )
+    fit_share: float = option(
+        0.7, "the earliest share of each person's presses that fits a setting; the rest are scored"
+    )
+    folds: int = option(
+        0,
+        "instead of one split: forward chaining over K blocks of presses in time (block k scored "
+        "by a fit on the blocks before it)",
+    )
     teacher: str | None = option(None, "only this teacher's presses (default: every console teacher's)")
     json: bool = option(False, "the scores as JSON")
 
@@ -107,8 +127,9 @@ def cmd_summary(args) -> int:
 
         log = Path(args.log)
         try:
-            s, line = finish_from_log(log if log.is_dir() else log.parent,
-                                      by="`python -m services.replay summary RUN_DIR --write`")
+            s, line = finish_from_log(
+                log if log.is_dir() else log.parent, by="`python -m services.replay summary RUN_DIR --write`"
+            )
         except RunDirError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
@@ -157,8 +178,14 @@ def cmd_play(args) -> int:
         if args.start_delay > 0:
             stop.wait(args.start_delay)
         t = time.perf_counter()
-        counts = play(args.log, session, speed=args.speed, kinds=tuple(k for k in args.kinds.split(",") if k),
-                      stop=stop, signer=signer)
+        counts = play(
+            args.log,
+            session,
+            speed=args.speed,
+            kinds=tuple(k for k in args.kinds.split(",") if k),
+            stop=stop,
+            signer=signer,
+        )
         time.sleep(0.2)  # let BLOCK queues drain before closing
     total = sum(counts.values())
     print(f"published {total} records in {time.perf_counter() - t:.2f} s: {counts}", file=sys.stderr)
@@ -191,9 +218,14 @@ def cmd_heldout(args) -> int:
     from services.replay.heldout import compare_settings, format_scores
 
     try:
-        scores = compare_settings(args.log, list(args.screen_delay) or ["learned"],
-                                  list(args.screen_credit) or ["onset"],
-                                  args.fit_share, args.teacher, args.folds)
+        scores = compare_settings(
+            args.log,
+            list(args.screen_delay) or ["learned"],
+            list(args.screen_credit) or ["onset"],
+            args.fit_share,
+            args.teacher,
+            args.folds,
+        )
     except ValueError as exc:
         print(f"cannot score: {exc}", file=sys.stderr)
         return 2
@@ -226,6 +258,7 @@ def no_log_here(path: Path) -> str | None:
 
 def _guarded(run):
     """No log to read, or a file that is not MCAP (a video, a random file): one line, exit 2."""
+
     def guarded(args) -> int:
         from common.logs.mcap_log import NotMcapError
 
@@ -242,11 +275,16 @@ def _guarded(run):
         except (FileNotFoundError, PermissionError, IsADirectoryError) as e:
             print(f"error: {e.filename or args.log}: {e.strerror or e}", file=sys.stderr)
             return 2
+
     return guarded
 
 
-COMMANDS = {"summary": Command(SummaryConfig, _guarded(cmd_summary)), "play": Command(PlayConfig, _guarded(cmd_play)),
-            "retrain": Command(RetrainConfig, _guarded(cmd_retrain)), "size": Command(SizeConfig, _guarded(cmd_size))}
+COMMANDS = {
+    "summary": Command(SummaryConfig, _guarded(cmd_summary)),
+    "play": Command(PlayConfig, _guarded(cmd_play)),
+    "retrain": Command(RetrainConfig, _guarded(cmd_retrain)),
+    "size": Command(SizeConfig, _guarded(cmd_size)),
+}
 
 
 def cli(argv: list[str] | None = None) -> int:

@@ -1,5 +1,6 @@
 """`python -m services.replay size LOG`: what a log costs, per 1,000 steps and per topic (payload bytes before
 compression; the file is zstd-compressed). Reads any log, also those written before topics dropped the run id."""
+
 from __future__ import annotations
 
 import collections
@@ -24,14 +25,19 @@ def log_size(path) -> dict:
             per_topic[kind][1] += len(rec.data)
     total = sum(os.path.getsize(f) for f in files)
     steps = per_topic.get("/step", [0, 0])[0]
-    return {"file_bytes": total, "steps": steps,
-            "bytes_per_1000_steps": round(total * 1000 / steps) if steps else None,
-            "topics": {k: {"messages": n, "payload_bytes": b} for k, (n, b) in sorted(per_topic.items())}}
+    return {
+        "file_bytes": total,
+        "steps": steps,
+        "bytes_per_1000_steps": round(total * 1000 / steps) if steps else None,
+        "topics": {k: {"messages": n, "payload_bytes": b} for k, (n, b) in sorted(per_topic.items())},
+    }
 
 
 def format_size(s: dict) -> str:
-    lines = [f"file: {s['file_bytes']} bytes for {s['steps']} steps: {s['bytes_per_1000_steps']} bytes per 1,000 steps",
-             f"  {'topic':<14} {'messages':>9} {'payload bytes':>14} {'per 1,000 steps':>16}"]
+    lines = [
+        f"file: {s['file_bytes']} bytes for {s['steps']} steps: {s['bytes_per_1000_steps']} bytes per 1,000 steps",
+        f"  {'topic':<14} {'messages':>9} {'payload bytes':>14} {'per 1,000 steps':>16}",
+    ]
     for k, v in s["topics"].items():
         per = round(v["payload_bytes"] * 1000 / s["steps"]) if s["steps"] else 0
         lines.append(f"  {k:<14} {v['messages']:>9} {v['payload_bytes']:>14} {per:>16}")

@@ -2,6 +2,7 @@
 
 Used by `python -m services.replay summary LOG` and by the launcher for `summary.json`.
 """
+
 from __future__ import annotations
 
 import collections
@@ -12,9 +13,18 @@ from typing import Any
 
 from common.logs.mcap_log import LogRecoveryWarning, read_log
 from services.replay.people import people_report
-from common.protocol import (kind_of, teacher_id_of, EpisodeSummary, Feedback, Ingest, ObserverReaction, ServiceStatus,
-                             Step, Weights,
-                             WeightsSnapshot)
+from common.protocol import (
+    kind_of,
+    teacher_id_of,
+    EpisodeSummary,
+    Feedback,
+    Ingest,
+    ObserverReaction,
+    ServiceStatus,
+    Step,
+    Weights,
+    WeightsSnapshot,
+)
 
 
 def _contiguous(seqs: list[int]) -> bool:
@@ -31,8 +41,9 @@ class LogContents:
     ingest: dict[str, list[Ingest]] = field(default_factory=lambda: collections.defaultdict(list))
     episodes: list[EpisodeSummary] = field(default_factory=list)
     statuses: dict[str, ServiceStatus] = field(default_factory=dict)  # the latest of each service
-    by_pid: dict[tuple[str, int],
-                 ServiceStatus] = field(default_factory=dict)  # the latest of each process (restarts are new pids)
+    by_pid: dict[tuple[str, int], ServiceStatus] = field(
+        default_factory=dict
+    )  # the latest of each process (restarts are new pids)
     weights: dict[str, list[int]] = field(default_factory=lambda: collections.defaultdict(list))
     kinds: collections.Counter = field(default_factory=collections.Counter)
 
@@ -87,8 +98,9 @@ def drop_not_from_run(c: LogContents) -> collections.Counter:
             teacher_count[tid] = max(teacher_count.get(tid, 0), int(st.counters.get("feedback_published", 0)))
     kept = []
     for m in c.feedback_msgs:
-        if teacher_count and (m.teacher_id not in teacher_count
-                              or m.seq > teacher_count[m.teacher_id] + MAX_FEEDBACK_JUMP):
+        if teacher_count and (
+            m.teacher_id not in teacher_count or m.seq > teacher_count[m.teacher_id] + MAX_FEEDBACK_JUMP
+        ):
             not_from_run["feedback"] += 1
             continue
         kept.append(m)
@@ -108,9 +120,16 @@ def episode_rows(steps: dict[str, list[Step]], episodes: list[EpisodeSummary]) -
             by_ep[s.episode].append(s)
         for ep, items in sorted(by_ep.items()):
             finished = items[-1].terminated or items[-1].truncated
-            ep_rows.append({"actor": inc, "episode": ep, "return": float(sum(s.reward for s in items)),
-                            "steps": len(items), "finished": bool(finished),
-                            "reached_goal": bool(items[-1].terminated)})
+            ep_rows.append(
+                {
+                    "actor": inc,
+                    "episode": ep,
+                    "return": float(sum(s.reward for s in items)),
+                    "steps": len(items),
+                    "finished": bool(finished),
+                    "reached_goal": bool(items[-1].terminated),
+                }
+            )
     last_actor = list(steps)[-1] if steps else None
     for row in ep_rows:  # the episode a killed actor was in: closed by the learner, not a result
         row["aborted"] = not row["finished"] and row["actor"] != last_actor
@@ -120,8 +139,11 @@ def episode_rows(steps: dict[str, list[Step]], episodes: list[EpisodeSummary]) -
     for row in ep_rows:
         e = learner_eps.get((row["actor"], row["episode"]))
         if e is not None:
-            row.update(feedback_received=e.feedback_received, feedback_credited=e.feedback_credited,
-                       weights_version=e.weights_version)
+            row.update(
+                feedback_received=e.feedback_received,
+                feedback_credited=e.feedback_credited,
+                weights_version=e.weights_version,
+            )
     return ep_rows
 
 
@@ -145,13 +167,16 @@ def learner_record(ingest: dict[str, list[Ingest]]) -> LearnerRecord:
         batches.sort(key=lambda b: b.seq)
         entries = [e for b in batches for e in b.entries]
         first = batches[0]
-        learners[inc] = {"batches": len(batches), "batch_seq_contiguous": _contiguous([b.seq for b in batches]),
-                         "entries": len(entries), "ended": any(e.kind == "end" for e in entries),
-                         "first_index": first.index,
-                         "resumed_from": (first.config or {}).get("resumed_from") if first.seq == 0 else None}
+        learners[inc] = {
+            "batches": len(batches),
+            "batch_seq_contiguous": _contiguous([b.seq for b in batches]),
+            "entries": len(entries),
+            "ended": any(e.kind == "end" for e in entries),
+            "first_index": first.index,
+            "resumed_from": (first.config or {}).get("resumed_from") if first.seq == 0 else None,
+        }
     record, chain, record_gaps = effective_ingest(ingest)
-    out = LearnerRecord(learners, {}, collections.Counter(), collections.defaultdict(list), set(), chain,
-                        record_gaps)
+    out = LearnerRecord(learners, {}, collections.Counter(), collections.defaultdict(list), set(), chain, record_gaps)
     for e in record:
         if e.kind == "outcome":
             out.outcome[(e.source, e.seq)] = e.status
@@ -164,8 +189,9 @@ def learner_record(ingest: dict[str, list[Ingest]]) -> LearnerRecord:
     return out
 
 
-def actor_steps_sent(by_pid: dict[tuple[str, int], ServiceStatus],
-                     step_seqs: dict[str, list[int]]) -> tuple[int, list[str | None]]:
+def actor_steps_sent(
+    by_pid: dict[tuple[str, int], ServiceStatus], step_seqs: dict[str, list[int]]
+) -> tuple[int, list[str | None]]:
     """Steps sent: each actor process's own count (a killed one's last status may be old: the log tells more).
 
     Returns the sum and the incarnations of the actors that did not report `stopped` (killed).
@@ -228,10 +254,17 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
     sent, steps_learned, stale = counts_sent_and_learned(c, lr, feedback)
     out = {
         "run": reader.run_config.run if reader.run_config else None,
-        "log": {"path": str(path), "messages": status.messages, "complete": status.complete,
-                "truncated_files": status.truncated, "recovery": status.summary(), "lost": status.losses(),
-                "by_kind": dict(c.kinds),
-                "warnings": [str(w.message) for w in caught], "not_from_run": dict(not_from_run)},
+        "log": {
+            "path": str(path),
+            "messages": status.messages,
+            "complete": status.complete,
+            "truncated_files": status.truncated,
+            "recovery": status.summary(),
+            "lost": status.losses(),
+            "by_kind": dict(c.kinds),
+            "warnings": [str(w.message) for w in caught],
+            "not_from_run": dict(not_from_run),
+        },
         "steps_sent": actor_sent if any(k[0] == "actor" for k in c.by_pid) else None,
         "actor_incarnations_killed": killed_actors,
         "steps_logged": sum(len(v) for v in step_seqs.values()),
@@ -262,10 +295,12 @@ def summarize(path: str | os.PathLike) -> dict[str, Any]:
         "learners": lr.learners,
         "episodes": ep_rows,
         "returns": [r["return"] for r in ep_rows if r["finished"]],
-        "unfinished_episodes": [{"actor": r["actor"], "episode": r["episode"], "steps": r["steps"]}
-                                for r in ep_rows if r["unfinished"]],
-        "services": {name: {"state": st.state, "counters": dict(st.counters)}
-                     for name, st in sorted(c.statuses.items())},
+        "unfinished_episodes": [
+            {"actor": r["actor"], "episode": r["episode"], "steps": r["steps"]} for r in ep_rows if r["unfinished"]
+        ],
+        "services": {
+            name: {"state": st.state, "counters": dict(st.counters)} for name, st in sorted(c.statuses.items())
+        },
         "services_not_stopped": stale,  # their counters are from an earlier status (see steps_learned)
     }
     if c.reactions:  # face-video: what the perception path did to the observer's reactions
@@ -281,8 +316,9 @@ def status_counter(c: LogContents, service: str, name: str) -> int | None:
     return None if st is None or name not in st.counters else int(st.counters[name])
 
 
-def counts_sent_and_learned(c: LogContents, lr: LearnerRecord,
-                            feedback: dict[str, list[int]]) -> tuple[list[int | None], int | None, list[str]]:
+def counts_sent_and_learned(
+    c: LogContents, lr: LearnerRecord, feedback: dict[str, list[int]]
+) -> tuple[list[int | None], int | None, list[str]]:
     """Feedback sent per teacher service, steps learned, and the services whose latest status is not 'stopped'.
 
     Counters come from each service's latest status (kept across restarts: state files, checkpoints). A service
@@ -291,8 +327,10 @@ def counts_sent_and_learned(c: LogContents, lr: LearnerRecord,
     stale = sorted(name for name, st in c.statuses.items() if st.state != "stopped" and name != "launcher")
     teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
     sent = [status_counter(c, svc, "feedback_published") for svc in teacher_services]
-    sent = [x if svc not in stale else max(x or 0, len(feedback.get(teacher_id_of(svc), [])))
-            for svc, x in zip(teacher_services, sent)]
+    sent = [
+        x if svc not in stale else max(x or 0, len(feedback.get(teacher_id_of(svc), [])))
+        for svc, x in zip(teacher_services, sent)
+    ]
     steps_learned = status_counter(c, "learner", "steps_learned")
     if "learner" in stale:
         steps_learned = max(steps_learned or 0, lr.step_entries.get("learned", 0))
@@ -336,20 +374,22 @@ def effective_ingest(ingest: dict[str, list[Ingest]]) -> tuple[list, list[str], 
     return [merged[p] for p in positions], chain[::-1], gaps
 
 
-def rejected_inputs(by_pid: dict[tuple[str, int], ServiceStatus],
-                    prefixes: tuple[str, ...] = ("rejected_", "weights_dropped_")) -> dict[str, dict[str, int]]:
+def rejected_inputs(
+    by_pid: dict[tuple[str, int], ServiceStatus], prefixes: tuple[str, ...] = ("rejected_", "weights_dropped_")
+) -> dict[str, dict[str, int]]:
     """Inputs each service dropped, by reason: summed over its processes (a restarted learner carries its
     counts over in its checkpoint, so only its newest process counts)."""
     out: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
-    newest_learner = max((pid for (svc, pid) in by_pid if svc == "learner"),
-                         key=lambda pid: by_pid[("learner", pid)].t, default=None)
+    newest_learner = max(
+        (pid for (svc, pid) in by_pid if svc == "learner"), key=lambda pid: by_pid[("learner", pid)].t, default=None
+    )
     for (service, pid), st in by_pid.items():
         if service == "learner" and pid != newest_learner:
             continue
         for k, v in st.counters.items():
             for p in prefixes:
                 if k.startswith(p) and v:
-                    out[service][k[len(p):]] += int(v)
+                    out[service][k[len(p) :]] += int(v)
     return {svc: dict(sorted(c.items())) for svc, c in sorted(out.items()) if c}
 
 
@@ -358,20 +398,28 @@ def format_summary(s: dict[str, Any]) -> str:
     state = "DATA LOST" if lost else "complete" if s["log"]["complete"] else "all data read, file summary missing"
     lines = [f"run {s['run']}: {s['log']['messages']} messages read ({state})"]
     lines += [f"  lost: {line}" for line in lost]
-    lines.append(f"  steps: sent {s['steps_sent']}, logged {s['steps_logged']} "
-                 f"(contiguous: {s['steps_seq_contiguous_in_log']}), learned {s['steps_learned']}")
-    lines.append(f"  feedback: sent {s['feedback_sent']}, logged {s['feedback_logged']}, "
-                 f"credited {s['feedback_credited']}, rejected {s['feedback_rejected'] or {}}")
+    lines.append(
+        f"  steps: sent {s['steps_sent']}, logged {s['steps_logged']} "
+        f"(contiguous: {s['steps_seq_contiguous_in_log']}), learned {s['steps_learned']}"
+    )
+    lines.append(
+        f"  feedback: sent {s['feedback_sent']}, logged {s['feedback_logged']}, "
+        f"credited {s['feedback_credited']}, rejected {s['feedback_rejected'] or {}}"
+    )
     rets = s["returns"]
     if rets:
         k = min(5, len(rets))
-        lines.append(f"  episodes: {len(rets)}; mean return first {k}: {sum(rets[:k]) / k:.3f}, "
-                     f"last {k}: {sum(rets[-k:]) / k:.3f}")
+        lines.append(
+            f"  episodes: {len(rets)}; mean return first {k}: {sum(rets[:k]) / k:.3f}, "
+            f"last {k}: {sum(rets[-k:]) / k:.3f}"
+        )
     lines.append(f"  weights snapshots logged: {s['weights_logged']}")
     if s.get("steps_not_ingested") or s.get("feedback_not_ingested") or len(s.get("learner_chain", [])) > 1:
-        lines.append(f"  learner record across {len(s['learner_chain'])} learner process(es): steps not ingested "
-                     f"{s['steps_not_ingested']}, feedback not ingested {s['feedback_not_ingested']}, seqs contiguous "
-                     f"{s['learner_seq_contiguous']}")
+        lines.append(
+            f"  learner record across {len(s['learner_chain'])} learner process(es): steps not ingested "
+            f"{s['steps_not_ingested']}, feedback not ingested {s['feedback_not_ingested']}, seqs contiguous "
+            f"{s['learner_seq_contiguous']}"
+        )
     for r in s.get("restarts") or []:
         back = "not back" if r.get("recovered_s") is None else f"back after {r['recovered_s']:.2f} s"
         lines.append(f"  restart: {r['service']} died ({r['how']}), {back}")
@@ -380,8 +428,10 @@ def format_summary(s: dict[str, Any]) -> str:
     for tid, f in (s.get("face") or {}).items():
         rate = f["polarity_error_rate"]
         lag = (f["lag_s"] or {}).get("p50")
-        lines.append(f"  face {tid}: {f['reactions_shown']} reactions shown, {f['reactions_read']} read "
-                     f"(missed {f['missed']}, extra {f['extra']}), polarity error rate "
-                     f"{'n/a' if rate is None else f'{100 * rate:.1f}%'}, lag p50 "
-                     f"{'n/a' if lag is None else f'{lag:.2f} s'}")
+        lines.append(
+            f"  face {tid}: {f['reactions_shown']} reactions shown, {f['reactions_read']} read "
+            f"(missed {f['missed']}, extra {f['extra']}), polarity error rate "
+            f"{'n/a' if rate is None else f'{100 * rate:.1f}%'}, lag p50 "
+            f"{'n/a' if lag is None else f'{lag:.2f} s'}"
+        )
     return "\n".join(lines)

@@ -6,6 +6,7 @@ real face) and the perception service that reads them (`services/perception/`). 
 a face arrives later than the observer's own lag, by the perception path's lag: the learner's assumed delay
 is shifted to match (`face_assumed_delay`).
 """
+
 from __future__ import annotations
 
 import math
@@ -20,8 +21,9 @@ PERCEPTION_LAG_S = (0.29, 0.46)
 DEFAULT_RATE = 3.0  # actor steps per second when --teacher face-video is given no --rate
 
 
-def face_assumed_delay(rate: float, lag_s: tuple[float, float] = PERCEPTION_LAG_S,
-                       true_lags: int = 3) -> tuple[float, ...]:
+def face_assumed_delay(
+    rate: float, lag_s: tuple[float, float] = PERCEPTION_LAG_S, true_lags: int = 3
+) -> tuple[float, ...]:
     """The learner's assumed delay (over 0, 1, 2, ... steps) for feedback that comes through the face.
 
     The observer reacts to step k at t_k + (d + 0.5) steps (d in 0..true_lags-1) and perception fires
@@ -77,11 +79,25 @@ def face_video_processes(up, teacher_id: str) -> list[tuple[str, str, object]]:
     observer = observer_service_name(teacher_id)
     teacher = teacher_service_name(teacher_id)
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
-    perception = PerceptionLiveConfig(**common, stats_out=up.stats_path(teacher), source=f"zenoh:{teacher_id}",
-                                      teacher_id=teacher_id, stop_with=(observer,))
+    perception = PerceptionLiveConfig(
+        **common,
+        stats_out=up.stats_path(teacher),
+        source=f"zenoh:{teacher_id}",
+        teacher_id=teacher_id,
+        stop_with=(observer,),
+    )
     o = up.observer
-    face = FaceVideoConfig(**common, stats_out=up.stats_path(observer), task=up.task,
-                           teacher_id=teacher_id, camera=teacher_id, p_feedback=o.p_feedback,
-                           delay_probs=o.delay_probs, flip=o.p_flip, stop_episode=o.stop_episode,
-                           stop_step=o.stop_step, step_unit=1.0 / up.rate)
+    face = FaceVideoConfig(
+        **common,
+        stats_out=up.stats_path(observer),
+        task=up.task,
+        teacher_id=teacher_id,
+        camera=teacher_id,
+        p_feedback=o.p_feedback,
+        delay_probs=o.delay_probs,
+        flip=o.p_flip,
+        stop_episode=o.stop_episode,
+        stop_step=o.stop_step,
+        step_unit=1.0 / up.rate,
+    )
     return [(teacher, "services.perception", perception), (observer, "services.teacher face-video", face)]

@@ -8,6 +8,7 @@ fresh), through the default pipeline. For each clip length it reports how many r
 wrong polarity, more than once, and the lag from the clip's first frame to the frame that fired. The pipeline
 is causal, so a clip of N frames fires exactly as the first N frames of a longer one: each start is run once.
 """
+
 from __future__ import annotations
 
 import json
@@ -27,8 +28,9 @@ def _decoded(decode_image, data: bytes) -> np.ndarray:
     return image
 
 
-def measure(clip_lengths_s: list[float], width: int = 320, quality: int = 80, step: int = 1,
-            gap_s: float = 0.6) -> dict:
+def measure(
+    clip_lengths_s: list[float], width: int = 320, quality: int = 80, step: int = 1, gap_s: float = 0.6
+) -> dict:
     import cv2
 
     from common.perception.pipeline import PerceptionPipeline, PipelineConfig
@@ -69,25 +71,39 @@ def measure(clip_lengths_s: list[float], width: int = 320, quality: int = 80, st
             clips = [[e for e in evs if e[1] < n] for evs in runs[value]]
             fired = [c for c in clips if c]
             lags = np.array([c[0][1] / fps for c in fired]) if fired else np.array([])
-            rows.append({
-                "clip_s": round(n / fps, 3), "clip_frames": n, "value": value, "clips": len(clips),
-                "fired": len(fired), "missed": len(clips) - len(fired),
-                "wrong_polarity": sum(c[0][0] != value for c in fired),
-                "extra": sum(len(c) - 1 for c in fired),
-                "lag_s": None if not fired else {q: round(float(np.percentile(lags, p)), 3)
-                                                 for q, p in (("p10", 10), ("p50", 50), ("p90", 90), ("max", 100))},
-            })
+            rows.append(
+                {
+                    "clip_s": round(n / fps, 3),
+                    "clip_frames": n,
+                    "value": value,
+                    "clips": len(clips),
+                    "fired": len(fired),
+                    "missed": len(clips) - len(fired),
+                    "wrong_polarity": sum(c[0][0] != value for c in fired),
+                    "extra": sum(len(c) - 1 for c in fired),
+                    "lag_s": None
+                    if not fired
+                    else {
+                        q: round(float(np.percentile(lags, p)), 3)
+                        for q, p in (("p10", 10), ("p50", 50), ("p90", 90), ("max", 100))
+                    },
+                }
+            )
     return {"width": width, "size": list(lib.size), "fps": round(fps, 3), "gap_s": gap_s, "rows": rows}
 
 
 def format_rows(result: dict) -> str:
-    lines = [f"frames {result['size'][0]}x{result['size'][1]} at {result['fps']} fps, gap {result['gap_s']} s",
-             "clip_s  value  clips  fired  missed  wrong  extra   lag p10   p50   p90   max"]
+    lines = [
+        f"frames {result['size'][0]}x{result['size'][1]} at {result['fps']} fps, gap {result['gap_s']} s",
+        "clip_s  value  clips  fired  missed  wrong  extra   lag p10   p50   p90   max",
+    ]
     for r in result["rows"]:
         lag = r["lag_s"] or {}
-        lines.append(f"{r['clip_s']:6.3f}  {r['value']:+d}    {r['clips']:5d}  {r['fired']:5d}  {r['missed']:6d}  "
-                     f"{r['wrong_polarity']:5d}  {r['extra']:5d}   "
-                     + "  ".join(f"{lag.get(q, float('nan')):5.3f}" for q in ("p10", "p50", "p90", "max")))
+        lines.append(
+            f"{r['clip_s']:6.3f}  {r['value']:+d}    {r['clips']:5d}  {r['fired']:5d}  {r['missed']:6d}  "
+            f"{r['wrong_polarity']:5d}  {r['extra']:5d}   "
+            + "  ".join(f"{lag.get(q, float('nan')):5.3f}" for q in ("p10", "p50", "p90", "max"))
+        )
     return "\n".join(lines)
 
 

@@ -15,6 +15,7 @@ in it or outside every window is *extra*. Reported:
   reaction (a second firing, or one while no face was shown);
 - `lag_s`: first frame of the clip -> capture time of the frame that fired (p10, p50, p90, max).
 """
+
 from __future__ import annotations
 
 import bisect
@@ -33,8 +34,9 @@ def _q(values: list[float]) -> dict[str, float] | None:
     return {k: round(float(np.percentile(a, p)), 4) for k, p in (("p10", 10), ("p50", 50), ("p90", 90), ("max", 100))}
 
 
-def face_metrics(reactions: Iterable[ObserverReaction], feedback: Iterable[Feedback],
-                 slack_s: float = 0.05) -> dict[str, Any]:
+def face_metrics(
+    reactions: Iterable[ObserverReaction], feedback: Iterable[Feedback], slack_s: float = 0.05
+) -> dict[str, Any]:
     """Match perceived feedback to shown reactions by capture time, per teacher id."""
     out: dict[str, Any] = {}
     by_teacher: dict[str, list[ObserverReaction]] = {}

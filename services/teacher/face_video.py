@@ -23,6 +23,7 @@ Stops like the oracle teacher: once the actor has reported 'stopped' and every s
 seen, pending reactions are dropped (counted), the clip on screen is finished, and the face stays away for one
 gap so the perception service sees the end of it.
 """
+
 from __future__ import annotations
 
 import collections
@@ -39,8 +40,17 @@ from common.core.delay import parse_probs
 from common.envs import make_env
 from common.core.observer import FeedbackEvent, ObserverConfig, SimulatedObserver
 from common.envs.rules import RuleError
-from common.protocol import (CompressedImage, ObserverReaction, Step, Time, camera_key, observer_service_name,
-                             reaction_key, status_key, step_key)
+from common.protocol import (
+    CompressedImage,
+    ObserverReaction,
+    Step,
+    Time,
+    camera_key,
+    observer_service_name,
+    reaction_key,
+    status_key,
+    step_key,
+)
 from common.core.seeding import derive_seed
 from services.common.config import TaskConfig, _check_name
 from services.common.progress import ProgressFile
@@ -50,17 +60,24 @@ from services.teacher.follow import StepFollower
 
 STEPS_AFTER_STOP_TIMEOUT = 5.0  # s to wait for steps still in flight once the actor reported 'stopped'
 
+
 @dataclass(frozen=True)
 class FaceVideoConfig(TaskConfig):
     """The face-video observer: the simulated observer's reactions shown to a camera as clips of a real face."""
 
-    teacher_id: str = option("face", "the teacher these reactions are for (the perception service's teacher id); "
-                                     "this service is observer.<teacher_id>")
+    teacher_id: str = option(
+        "face",
+        "the teacher these reactions are for (the perception service's teacher id); "
+        "this service is observer.<teacher_id>",
+    )
     camera: str = option("face", "camera id: frames go to hitl/<run>/camera/<camera>")
     p_feedback: float = option(0.5, "probability that the observer reacts to a step")
     delay_probs: tuple[float, ...] = option((0.3, 0.6, 0.1), "true lag distribution over 0,1,2.. steps")
-    flip: float = option(0.0, "probability that the observer shows the opposite expression (a simulated misread, "
-                              "on top of the perception's own errors)")
+    flip: float = option(
+        0.0,
+        "probability that the observer shows the opposite expression (a simulated misread, "
+        "on top of the perception's own errors)",
+    )
     stop_episode: int | None = option(None, "silent from this episode on (0-based); none = never")
     stop_step: int | None = option(None, "silent from this global step on; none = never")
     step_unit: float = option(1.0 / DEFAULT_RATE, "seconds per step (1 / the actor's rate): the unit of the lags")
@@ -68,8 +85,9 @@ class FaceVideoConfig(TaskConfig):
     gap_s: float = option(0.6, "seconds without a face after each clip (> the reaction detector's lost_after_s)")
     width: int = option(320, "frame width in pixels (the 640x360 clip is scaled, aspect kept)")
     jpeg_quality: int = option(80, "JPEG quality")
-    state_file: str | None = option(None, "progress file (the next ObserverReaction seq), so a restarted observer "
-                                          "continues the seq")
+    state_file: str | None = option(
+        None, "progress file (the next ObserverReaction seq), so a restarted observer continues the seq"
+    )
 
     def __post_init__(self):
         super().__post_init__()
@@ -96,8 +114,8 @@ class FaceVideoConfig(TaskConfig):
         return observer_service_name(self.teacher_id)
 
 
-
 # -- the clips --------------------------------------------------------------------------------------------------
+
 
 @dataclass
 class ClipLibrary:
@@ -135,6 +153,7 @@ class ClipLibrary:
 
 # -- the core (no transport) ------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class Shown:
     """A reaction shown to the camera."""
@@ -157,9 +176,12 @@ class FaceVideoCore:
     def __init__(self, config: FaceVideoConfig, library: ClipLibrary):
         self.config, self.lib = config, library
         _, rule = make_env(config.env, config.layout, config.teacher_rule)
-        self.observer = SimulatedObserver(ObserverConfig(config.p_feedback, config.delay_probs, config.flip,
-                                                         config.stop_episode, config.stop_step),
-                                          rule, derive_seed(config.seed, "observer"), config.step_unit)
+        self.observer = SimulatedObserver(
+            ObserverConfig(config.p_feedback, config.delay_probs, config.flip, config.stop_episode, config.stop_step),
+            rule,
+            derive_seed(config.seed, "observer"),
+            config.step_unit,
+        )
         self.rng = np.random.default_rng(derive_seed(config.seed, "face-video"))
         self.clip_frames = max(1, int(round(config.clip_s * library.fps)))
         for v, seg in library.segments.items():
@@ -211,8 +233,15 @@ class FaceVideoCore:
                     continue
                 seg = self.lib.segments[int(ev.value)]
                 start = int(self.rng.integers(seg.start, seg.stop - self.clip_frames + 1))
-                clip = self._clip = {"ev": ev, "ref": ref, "due": due, "start": start, "next": 0, "t0": now,
-                                     "t_last": now}
+                clip = self._clip = {
+                    "ev": ev,
+                    "ref": ref,
+                    "due": due,
+                    "start": start,
+                    "next": 0,
+                    "t0": now,
+                    "t_last": now,
+                }
                 self.counters["reactions_shown"] += 1
                 self.counters["reaction_start_delay_us"] += int((now - due) * 1e6)
                 break
@@ -230,8 +259,18 @@ class FaceVideoCore:
 
     def _finish(self, clip: dict) -> Shown:
         ev = clip["ev"]
-        s = Shown(self.shown, clip["ref"], int(ev.lag_steps), int(ev.value), int(ev.intended), float(clip["due"]),
-                  float(clip["t0"]), float(clip["t_last"]), clip["start"], clip["start"] + clip["next"] - 1)
+        s = Shown(
+            self.shown,
+            clip["ref"],
+            int(ev.lag_steps),
+            int(ev.value),
+            int(ev.intended),
+            float(clip["due"]),
+            float(clip["t0"]),
+            float(clip["t_last"]),
+            clip["start"],
+            clip["start"] + clip["next"] - 1,
+        )
         self.shown += 1
         return s
 
@@ -251,13 +290,23 @@ class FaceVideoCore:
 
 
 def reaction_message(config: FaceVideoConfig, s: Shown) -> ObserverReaction:
-    return ObserverReaction(run=config.run, teacher_id=config.teacher_id, seq=s.seq, ref_seq=s.ref_seq,
-                            lag_steps=s.lag_steps, value=s.value, intended=s.intended, t_start=s.t_start,
-                            t_end=max(s.t_end, s.t_start), camera=config.camera,
-                            clip=f"pexels:{s.first_frame}-{s.last_frame}")
+    return ObserverReaction(
+        run=config.run,
+        teacher_id=config.teacher_id,
+        seq=s.seq,
+        ref_seq=s.ref_seq,
+        lag_steps=s.lag_steps,
+        value=s.value,
+        intended=s.intended,
+        t_start=s.t_start,
+        t_end=max(s.t_end, s.t_start),
+        camera=config.camera,
+        clip=f"pexels:{s.first_frame}-{s.last_frame}",
+    )
 
 
 # -- the service --------------------------------------------------------------------------------------------------
+
 
 def main(config: FaceVideoConfig) -> int:
     from common.wire.transport import MessagePublisher, subscription
@@ -271,15 +320,21 @@ def main(config: FaceVideoConfig) -> int:
             core.shown = int(state["next_seq"])
     rt = ServiceRuntime(config.service_name, config)
     published = {"frames": 0, "reactions": 0}
-    rt.set_counters_source(lambda: {**core.counters, "frames_published": published["frames"],
-                                    "reactions_published": published["reactions"]})
+    rt.set_counters_source(
+        lambda: {
+            **core.counters,
+            "frames_published": published["frames"],
+            "reactions_published": published["reactions"],
+        }
+    )
     period = 1.0 / library.fps
     with rt.session() as session:
-        with subscription(session, step_key(config.run), maxsize=1 << 16, policy="block",
-                          block_timeout=3600) as steps, \
-                subscription(session, status_key(config.run, "actor"), maxsize=64, policy="drop_oldest") as status, \
-                MessagePublisher(session, camera_key(config.run, config.camera)) as cam, \
-                MessagePublisher(session, reaction_key(config.run, config.teacher_id)) as rpub:
+        with (
+            subscription(session, step_key(config.run), maxsize=1 << 16, policy="block", block_timeout=3600) as steps,
+            subscription(session, status_key(config.run, "actor"), maxsize=64, policy="drop_oldest") as status,
+            MessagePublisher(session, camera_key(config.run, config.camera)) as cam,
+            MessagePublisher(session, reaction_key(config.run, config.teacher_id)) as rpub,
+        ):
 
             def send(done: list[Shown]) -> None:
                 for s in done:
@@ -317,8 +372,9 @@ def main(config: FaceVideoConfig) -> int:
                 now = time.time()
                 index, done = core.frame(now)
                 data = library.blank if index is None else library.frames[index]
-                cam.put(CompressedImage(timestamp=Time.from_seconds(now), frame_id=config.camera, data=data,
-                                        format="jpeg"))
+                cam.put(
+                    CompressedImage(timestamp=Time.from_seconds(now), frame_id=config.camera, data=data, format="jpeg")
+                )
                 published["frames"] += 1
                 send(done)
                 if ending and core.idle_after(now):
@@ -334,8 +390,10 @@ def main(config: FaceVideoConfig) -> int:
             send(core.flush())  # a clip cut short by SIGTERM is still reported
             rt.counters.update({f"inbox_{k}": v for k, v in steps.snapshot().items()})
     rt.write_stats()
-    rt.log(f"stopped: {core.counters['reactions_shown']} reactions shown "
-           f"({core.counters['reactions_skipped_busy']} skipped while busy), {published['frames']} frames")
+    rt.log(
+        f"stopped: {core.counters['reactions_shown']} reactions shown "
+        f"({core.counters['reactions_skipped_busy']} skipped while busy), {published['frames']} frames"
+    )
     return 0
 
 

@@ -1,4 +1,5 @@
 """Which actor a teacher is watching, and whether a step is news: the bookkeeping every teacher shares."""
+
 from __future__ import annotations
 
 import collections

@@ -14,6 +14,7 @@ When the actor stops, reactions not yet due are dropped (never sent): the in-pro
 nothing after the last step's tick except reactions stamped before the next action, which no live learner
 could place without a next action.
 """
+
 from __future__ import annotations
 
 import collections

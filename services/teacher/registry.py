@@ -5,6 +5,7 @@ observer (`python -m services.teacher`). Another kind (e.g. `face-video`: a came
 perception service and a face-reading teacher) registers itself here with `register(...)`; the launcher
 only needs the processes' argv and service names.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -62,16 +63,23 @@ def teacher_names() -> tuple[str, ...]:
 def _oracle(up: Any, teacher_id: str) -> list[ProcessSpec]:
     from services.common.config import TeacherConfig, teacher_service_name
 
-    cfg = TeacherConfig(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid,
-                        stats_out=up.stats_path(teacher_service_name(teacher_id)), task=up.task,
-                        teacher_id=teacher_id, observer=up.observer,
-                        clock="wall" if up.rate > 0 else "steps",
-                        step_unit=1.0 / up.rate if up.rate > 0 else 0.1)
+    cfg = TeacherConfig(
+        run=up.run,
+        connect=up.connect_endpoints,
+        parent_pid=up.parent_pid,
+        stats_out=up.stats_path(teacher_service_name(teacher_id)),
+        task=up.task,
+        teacher_id=teacher_id,
+        observer=up.observer,
+        clock="wall" if up.rate > 0 else "steps",
+        step_unit=1.0 / up.rate if up.rate > 0 else 0.1,
+    )
     return [ProcessSpec(teacher_service_name(teacher_id), "services.teacher", cfg)]
 
 
-register(TeacherKind("oracle", "simulated observer (the core's SimulatedObserver) reacting to the steps it sees",
-                     _oracle))
+register(
+    TeacherKind("oracle", "simulated observer (the core's SimulatedObserver) reacting to the steps it sees", _oracle)
+)
 
 
 def _face_video_unavailable() -> str | None:
@@ -99,9 +107,16 @@ def _face_video(up: Any, teacher_id: str) -> list[ProcessSpec]:
     return [ProcessSpec(*p) for p in face_video_processes(up, teacher_id)]
 
 
-register(TeacherKind("face-video", "the simulated observer's reactions shown as clips of a real face to a camera "
-                                   "(services.teacher face-video), read by the perception service (teacher.<id>)",
-                     _face_video, _face_video_unavailable, _face_video_defaults))
+register(
+    TeacherKind(
+        "face-video",
+        "the simulated observer's reactions shown as clips of a real face to a camera "
+        "(services.teacher face-video), read by the perception service (teacher.<id>)",
+        _face_video,
+        _face_video_unavailable,
+        _face_video_defaults,
+    )
+)
 
 
 def _web(up: Any, teacher_id: str) -> list[ProcessSpec]:
@@ -120,6 +135,13 @@ def _web_unavailable() -> str | None:
     return missing_extra("console", "aiohttp")
 
 
-register(TeacherKind("web", "people in a browser: the console (services.console) serves a page on which each person "
-                            "watches the agent and teaches it by key, button or webcam", _web, _web_unavailable,
-                     _web_defaults))
+register(
+    TeacherKind(
+        "web",
+        "people in a browser: the console (services.console) serves a page on which each person "
+        "watches the agent and teaches it by key, button or webcam",
+        _web,
+        _web_unavailable,
+        _web_defaults,
+    )
+)

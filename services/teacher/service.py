@@ -12,6 +12,7 @@ seq is used twice); the feedback of the last `resend_window` s is re-sent when a
 fails (raises, or answers other than +1/-1) stops the run with the rule's name and its error (exit code
 `TERMINAL_EXIT`: the launcher does not restart a service that would fail the same way).
 """
+
 from __future__ import annotations
 
 import sys
@@ -48,12 +49,14 @@ class Teacher:
         self.published = int(self.state["next_seq"]) if self.state else 0  # the next feedback seq
         self.ring = ResendRing(config.resend_window)
         env, _ = make_env(config.env, config.layout)
-        self.gate = InputGate(int(np.prod(obs_shape(env))), n_actions(env),
-                              max_future=config.max_future, max_past=config.max_past)
+        self.gate = InputGate(
+            int(np.prod(obs_shape(env))), n_actions(env), max_future=config.max_future, max_past=config.max_past
+        )
         env.close()
         self.note_rejected = first_time_logger(rt.event, "step")
-        rt.set_counters_source(lambda: {**self.core.counters, "feedback_published": self.published,
-                                        "resent": self.ring.resent})
+        rt.set_counters_source(
+            lambda: {**self.core.counters, "feedback_published": self.published, "resent": self.ring.resent}
+        )
         self.actor_final: int | None = None  # steps the actor reported when it stopped
         self.stopped_at = 0.0  # monotonic time of that report
 
@@ -69,9 +72,20 @@ class Teacher:
             seq = self.published
             if self.progress:  # first: a crash right after must not reuse this seq
                 self.progress.write({"next_seq": seq + 1})
-            publish_kept(self.pub, Feedback(run=config.run, teacher_id=config.teacher_id, seq=seq,
-                                            t_reaction=r.t_reaction, value=r.value, source="oracle",
-                                            ref_seq=r.ref_seq, intended=r.intended), self.ring)
+            publish_kept(
+                self.pub,
+                Feedback(
+                    run=config.run,
+                    teacher_id=config.teacher_id,
+                    seq=seq,
+                    t_reaction=r.t_reaction,
+                    value=r.value,
+                    source="oracle",
+                    ref_seq=r.ref_seq,
+                    intended=r.intended,
+                ),
+                self.ring,
+            )
             self.published += 1
             self.rt.samples["send_delay_s"].append(time.time() - r.t_reaction)
 
@@ -163,10 +177,11 @@ def main(config: TeacherConfig) -> int:
     rt = ServiceRuntime(config.service_name, config)
     teacher = Teacher(config, rt)
     with rt.session() as session:
-        with subscription(session, step_key(config.run), maxsize=1 << 16, policy="block",
-                          block_timeout=3600) as steps, \
-                subscription(session, status_key(config.run, "actor"), maxsize=64, policy="drop_oldest") as status, \
-                MessagePublisher(session, feedback_key(config.run, config.teacher_id)) as pub:
+        with (
+            subscription(session, step_key(config.run), maxsize=1 << 16, policy="block", block_timeout=3600) as steps,
+            subscription(session, status_key(config.run, "actor"), maxsize=64, policy="drop_oldest") as status,
+            MessagePublisher(session, feedback_key(config.run, config.teacher_id)) as pub,
+        ):
             teacher.connect(session, steps, status, pub)
             teacher.run()
     rt.write_stats()
@@ -182,6 +197,10 @@ def cli(argv: list[str] | None = None) -> int:
         from services.teacher.face_video import cli as face_video_cli
 
         return face_video_cli(argv[1:])
-    return service_main(TeacherConfig, main, argv, "python -m services.teacher",
-                        also="Also: python -m services.teacher face-video [measure] --help.")
-
+    return service_main(
+        TeacherConfig,
+        main,
+        argv,
+        "python -m services.teacher",
+        also="Also: python -m services.teacher face-video [measure] --help.",
+    )

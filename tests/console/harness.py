@@ -1,5 +1,6 @@
 """Helpers of the console tests: a live run with `--teacher web` as a process, and Debian's Chromium driven by
 Playwright (never a downloaded browser build; a browser that cannot start fails the test)."""
+
 from __future__ import annotations
 
 import re
@@ -17,8 +18,16 @@ from services.console.scripted import y4m_from_video  # noqa: F401  (the tests' 
 from tests.services.live import ROOT, env, kill_tree
 
 CHROMIUM = "/usr/bin/chromium"
-FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 SCRIPTED = ROOT / "services" / "console" / "static" / "scripted_person.js"
 ADDRESS = r"console: (https?://127\.0\.0\.1:(\d+)/#token=[A-Za-z0-9_.-]+)"  # a one-use address (door.py)
 
@@ -33,11 +42,31 @@ class WebRun:
     """`python -m services up --teacher web ...` in its own session; its output collected by a thread."""
 
     def __init__(self, tmp_path: Path, run: str, *args: str):
-        cmd = [sys.executable, "-m", "services", "up", "--teacher", "web", "--out", str(tmp_path), "--run", run,
-               "--progress", "false", *args]
+        cmd = [
+            sys.executable,
+            "-m",
+            "services",
+            "up",
+            "--teacher",
+            "web",
+            "--out",
+            str(tmp_path),
+            "--run",
+            run,
+            "--progress",
+            "false",
+            *args,
+        ]
         self.rundir = tmp_path / run
-        self.popen = subprocess.Popen(cmd, cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                      text=True, start_new_session=True)
+        self.popen = subprocess.Popen(
+            cmd,
+            cwd=ROOT,
+            env=env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
         self.lines: list[str] = []
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
@@ -86,13 +115,24 @@ class WebRun:
             self.popen.wait(10)
 
 
-def browser(playwright, user_data_dir: Path, extra_args: tuple[str, ...] = (), permissions: tuple[str, ...] = (),
-            ignore_https_errors: bool = False):
+def browser(
+    playwright,
+    user_data_dir: Path,
+    extra_args: tuple[str, ...] = (),
+    permissions: tuple[str, ...] = (),
+    ignore_https_errors: bool = False,
+):
     """A headless Chromium context (fresh profile). Raises (the test fails) if the browser cannot start."""
     assert Path(CHROMIUM).exists(), f"{CHROMIUM} is missing: `make setup` installs Debian's chromium"
     return playwright.chromium.launch_persistent_context(
-        str(user_data_dir), executable_path=CHROMIUM, headless=True, args=[*FLAGS, *extra_args],
-        permissions=list(permissions), viewport={"width": 1280, "height": 760}, ignore_https_errors=ignore_https_errors)
+        str(user_data_dir),
+        executable_path=CHROMIUM,
+        headless=True,
+        args=[*FLAGS, *extra_args],
+        permissions=list(permissions),
+        viewport={"width": 1280, "height": 760},
+        ignore_https_errors=ignore_https_errors,
+    )
 
 
 def port_of(address: str) -> int:
@@ -147,7 +187,7 @@ def canvas_pixels(page) -> np.ndarray:
     img = np.asarray(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR))
     border = page.evaluate("parseFloat(getComputedStyle(document.getElementById('scene')).borderLeftWidth)")
     b = int(round(border))
-    return img[b:img.shape[0] - b, b:img.shape[1] - b]
+    return img[b : img.shape[0] - b, b : img.shape[1] - b]
 
 
 def uniform_weights(t_feedback: float, shown: list[dict], low: float = 0.2, high: float = 4.0) -> dict[int, float]:
@@ -165,4 +205,3 @@ def uniform_weights(t_feedback: float, shown: list[dict], low: float = 0.2, high
         if b > a and s["episode"] == episode:
             out[s["seq"]] = (b - a) / (high - low)
     return out
-

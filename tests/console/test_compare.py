@@ -1,5 +1,6 @@
 """The console comparison's declared test (`services.console.compare`): paired episodes-to-goal differences, an
 agent that never reached the goal scored episodes + 1, the Wilcoxon verdict."""
+
 import dataclasses
 
 import numpy as np
@@ -9,25 +10,28 @@ from services.console import compare
 
 
 def rows(dqn: list, tamer: list) -> list[dict]:
-    pairs = compare.DESIGNS['first'].pairs
+    pairs = compare.DESIGNS["first"].pairs
     out = []
     for (layout, seed), d, t in zip(pairs, dqn, tamer):
-        out += [{"arm": "DQN", "layout": layout, "seed": seed, "first_good_episode": d},
-                {"arm": "DQN-TAMER", "layout": layout, "seed": seed, "first_good_episode": t}]
+        out += [
+            {"arm": "DQN", "layout": layout, "seed": seed, "first_good_episode": d},
+            {"arm": "DQN-TAMER", "layout": layout, "seed": seed, "first_good_episode": t},
+        ]
     return out
 
 
 def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_wilcoxon():
-    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.DESIGNS['first'])
+    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.DESIGNS["first"])
     assert clear["differences"][0] == 11 - 2 and clear["wins"] == 8 and clear["verdict"] == "fewer episodes"
     assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
-    mixed = compare.primary_test(rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]),
-                                 compare.DESIGNS["first"])
+    mixed = compare.primary_test(
+        rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.DESIGNS["first"]
+    )
     assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
 
 
 def test_goals_measure_counts_episodes_to_the_tenth_goal_and_decides_at_alpha_over_the_looks():
-    design = compare.DESIGNS['goals']
+    design = compare.DESIGNS["goals"]
     early = {"reached_goal": [True] * 15, "first_good_episode": 1}
     late = {"reached_goal": [False, False, False] + [True] * 12, "first_good_episode": 5}
     short = {"reached_goal": [True, False] * 7 + [True], "first_good_episode": 1}  # 8 goals: 15 + 2 missing
@@ -36,8 +40,10 @@ def test_goals_measure_counts_episodes_to_the_tenth_goal_and_decides_at_alpha_ov
     assert compare.episodes_to_goal(short, design) == 17
     rows = []
     for (layout, seed), dqn in zip(design.pairs, [late] * 5 + [early] * 7):
-        rows += [{"arm": "DQN", "layout": layout, "seed": seed, **dqn},
-                 {"arm": design.primary[1], "layout": layout, "seed": seed, **early}]
+        rows += [
+            {"arm": "DQN", "layout": layout, "seed": seed, **dqn},
+            {"arm": design.primary[1], "layout": layout, "seed": seed, **early},
+        ]
     test = compare.primary_test(rows, design)
     # 5 wins and 7 ties: Wilcoxon p = 1/32 = 0.031 < 0.05, but the fourth look decides at 0.0125
     assert test["wilcoxon_p"] == pytest.approx(1 / 32) and test["alpha"] == pytest.approx(0.0125)
@@ -70,21 +76,34 @@ def test_holm_steps_down_and_stops_at_the_first_test_that_fails():
 def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
     from services.console.design import design_from_dict
 
-    design = design_from_dict({
-        "name": "t", "pairs": [[0, 200], [2, 201], [4, 202], [6, 203], [1, 204], [3, 205]],
-        "arms": [{"name": "T", "algo": "dqn-tamer", "screen_delay": "learned"}, {"name": "D", "algo": "dqn"}],
-        "primary": ["D", "T"], "episodes": 15, "measure": "goals", "multiplicity": "holm",
-        "people": {"slow": "uniform:1,2", "drifting": "drift:0.5,2,0.2"}})
-    assert design.tests() == [("slow", "honest"), ("slow", "misleading"), ("drifting", "honest"),
-                              ("drifting", "misleading")]
+    design = design_from_dict(
+        {
+            "name": "t",
+            "pairs": [[0, 200], [2, 201], [4, 202], [6, 203], [1, 204], [3, 205]],
+            "arms": [{"name": "T", "algo": "dqn-tamer", "screen_delay": "learned"}, {"name": "D", "algo": "dqn"}],
+            "primary": ["D", "T"],
+            "episodes": 15,
+            "measure": "goals",
+            "multiplicity": "holm",
+            "people": {"slow": "uniform:1,2", "drifting": "drift:0.5,2,0.2"},
+        }
+    )
+    assert design.tests() == [
+        ("slow", "honest"),
+        ("slow", "misleading"),
+        ("drifting", "honest"),
+        ("drifting", "misleading"),
+    ]
     early = {"reached_goal": [True] * 15, "first_good_episode": 1, "total_steps": 300}
     late = {"reached_goal": [False] * 5 + [True] * 10, "first_good_episode": 6, "total_steps": 900}
     rows = []
     for person in design.people:
         for layout, seed in design.pairs:
             dqn = late if person == "slow" and layout % 2 == 0 else early
-            rows += [{"arm": "D", "person": person, "layout": layout, "seed": seed, **dqn},
-                     {"arm": "T", "person": person, "layout": layout, "seed": seed, **early}]
+            rows += [
+                {"arm": "D", "person": person, "layout": layout, "seed": seed, **dqn},
+                {"arm": "T", "person": person, "layout": layout, "seed": seed, **early},
+            ]
     tests = compare.declared_tests(rows, design)
     slow_honest = tests[0]
     assert slow_honest["wins"] == 4 and slow_honest["wilcoxon_p"] == pytest.approx(1 / 16)
@@ -97,19 +116,27 @@ def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
     assert len(compare.secondary_tests(rows, dataclasses.replace(design, tests_by="person"))) == 4
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"colour": "red"}, "unknown fields"),
-    ({"primary": ["D", "X"]}, "primary"),
-    ({"people": {"p": "drift:1"}}, "drift"),
-    ({"pairs": [[0, 1], [0, 1]]}, "distinct"),
-    ({"pairs": [[1000, 1]]}, "layouts"),
-    ({"multiplicity": "holm"}, "holm tests one hypothesis per declared person"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"colour": "red"}, "unknown fields"),
+        ({"primary": ["D", "X"]}, "primary"),
+        ({"people": {"p": "drift:1"}}, "drift"),
+        ({"pairs": [[0, 1], [0, 1]]}, "distinct"),
+        ({"pairs": [[1000, 1]]}, "layouts"),
+        ({"multiplicity": "holm"}, "holm tests one hypothesis per declared person"),
+    ],
+)
 def test_a_design_file_that_says_something_wrong_is_refused(change, message):
     from services.console.design import design_from_dict
 
-    raw = {"name": "t", "pairs": [[0, 1]], "arms": [{"name": "T", "algo": "dqn-tamer"}, {"name": "D", "algo": "dqn"}],
-           "primary": ["D", "T"], **change}
+    raw = {
+        "name": "t",
+        "pairs": [[0, 1]],
+        "arms": [{"name": "T", "algo": "dqn-tamer"}, {"name": "D", "algo": "dqn"}],
+        "primary": ["D", "T"],
+        **change,
+    }
     with pytest.raises(ValueError, match=message):
         design_from_dict(raw)
 

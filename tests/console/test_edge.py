@@ -2,6 +2,7 @@
 it (a page from another port, a `file://` page and a forged Host are refused before anything of the run is
 served), one page cannot break it (a non-ASCII name, a number of 400 digits, 20,000 controls, idle sockets
 holding every seat), and the printed address still opens the page with one click."""
+
 from __future__ import annotations
 
 import http.client
@@ -72,8 +73,13 @@ def check_raw_http(url: str) -> str:
     auth = {"Authorization": f"Bearer {key}"}
     assert request(port, "/settings", {**own, **auth}).status == 200
     assert request(port, "/settings", {"Host": f"evil.example:{port}", **auth}).status == 403
-    upgrade = {**own, "Connection": "Upgrade", "Upgrade": "websocket", "Sec-WebSocket-Version": "13",
-               "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="}
+    upgrade = {
+        **own,
+        "Connection": "Upgrade",
+        "Upgrade": "websocket",
+        "Sec-WebSocket-Version": "13",
+        "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ==",
+    }
     assert request(port, f"/ws?key={key}", {**upgrade, "Origin": "http://localhost:8765"}).status == 403
     assert request(port, f"/ws?key={key}", {**upgrade, "Origin": "null"}).status == 403
     return key
@@ -95,8 +101,22 @@ def serve_dir(directory) -> tuple[http.server.ThreadingHTTPServer, int]:
 def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    run = WebRun(tmp_path, "edge", "--env", "maze", "--layout", "2", "--episodes", "400", "--max-steps", "6000",
-                 "--rate", "8", "--seed", "5")
+    run = WebRun(
+        tmp_path,
+        "edge",
+        "--env",
+        "maze",
+        "--layout",
+        "2",
+        "--episodes",
+        "400",
+        "--max-steps",
+        "6000",
+        "--rate",
+        "8",
+        "--seed",
+        "5",
+    )
     evil_dir = tmp_path / "evil"
     evil_dir.mkdir()
     server = None
@@ -112,8 +132,11 @@ def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):
             assert page.url == f"http://127.0.0.1:{port}/" and page.evaluate("hitl.me") == "web-1"
 
             # Pages of other origins in the same browser: refused, nothing read or steered.
-            for where in (f"http://127.0.0.1:{evil_port}/index.html", f"http://localhost:{evil_port}/index.html",
-                          (evil_dir / "index.html").as_uri()):
+            for where in (
+                f"http://127.0.0.1:{evil_port}/index.html",
+                f"http://localhost:{evil_port}/index.html",
+                (evil_dir / "index.html").as_uri(),
+            ):
                 intruder = ctx.new_page()
                 intruder.goto(where)
                 intruder.wait_for_function("window.result && window.result.ws !== 'pending'", timeout=20_000)

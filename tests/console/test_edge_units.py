@@ -1,5 +1,6 @@
 """The console's edge without a browser (issue 25; the door's checks: test_door_units.py): the page gate's
 bounds (names, a 400-digit number, controls), and the press ledger across a console restart."""
+
 from __future__ import annotations
 
 import json
@@ -56,5 +57,9 @@ def test_the_ledger_never_reuses_a_seq_and_recognises_a_resent_press(tmp_path):
     restarted.bind("page-bbbbbbbb", "web-alice")  # alice comes back in a new tab
     assert restarted.seq_for("web-alice", "page-bbbbbbbb", 0) == (3, False)
     assert restarted.seq_for("web-alice", None, None) == (4, False)
-    assert restarted.counters("web-alice") == {"feedback_published": 5, "presses_received": 6,
-                                               "presses_resent": 1, "presses_dropped_flood": 1}
+    assert restarted.counters("web-alice") == {
+        "feedback_published": 5,
+        "presses_received": 6,
+        "presses_resent": 1,
+        "presses_dropped_flood": 1,
+    }

@@ -2,6 +2,7 @@
 the console is SIGKILLed in the middle of their presses and restarted by the launcher, the person reloads the page,
 then closes it and comes back (`?name=alice` again). Every press becomes one feedback seq of its own, is logged
 once as that seq and credited once; summary.json says so per person."""
+
 from __future__ import annotations
 
 import json
@@ -42,8 +43,22 @@ def press(page, keys: list[str], gap_s: float) -> None:
 def test_a_killed_console_and_a_returning_person_lose_no_press(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    run = WebRun(tmp_path, "noloss", "--env", "maze", "--layout", "2", "--episodes", "400", "--max-steps", "6000",
-                 "--rate", "8", "--seed", "7")
+    run = WebRun(
+        tmp_path,
+        "noloss",
+        "--env",
+        "maze",
+        "--layout",
+        "2",
+        "--episodes",
+        "400",
+        "--max-steps",
+        "6000",
+        "--rate",
+        "8",
+        "--seed",
+        "7",
+    )
     try:
         url = with_query(run.url(), "name=alice")
         with sync_playwright() as pw:
@@ -61,8 +76,7 @@ def test_a_killed_console_and_a_returning_person_lose_no_press(tmp_path):
             os.kill(learner, signal.SIGSTOP)
             try:
                 press(page, ["+", "+", "-", "-"], 0.1)
-                page.wait_for_function("hitl.held.length === 4 && hitl.held.every(h => h.seq !== null)",
-                                       timeout=10_000)
+                page.wait_for_function("hitl.held.length === 4 && hitl.held.every(h => h.seq !== null)", timeout=10_000)
                 killed = service_pid(run)
                 os.kill(killed, signal.SIGKILL)
             finally:

@@ -2,6 +2,7 @@
 the run waits for its first page, the page draws the maze, key presses become feedback credited to the steps
 shown 0.2-4 s before each press, pause stops the actor, and the run's log holds every press with its page time and
 its system time."""
+
 from __future__ import annotations
 
 import json
@@ -25,10 +26,29 @@ WALL_BGR = np.array([0x33, 0x33, 0x33])
 def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     from playwright.sync_api import sync_playwright
 
-    run = WebRun(tmp_path, "page", "--env", "maze", "--layout", str(LAYOUT), "--algo", "dqn-tamer",
-                 "--episodes", "200", "--rate", "4", "--seed", "1", "--start-paused", "true",
-                 # the exact weights below are Deep TAMER's fixed rule (the default learns each person's delay)
-                 "--screen-delay", "uniform:0.2,4", "--screen-credit", "interval")
+    run = WebRun(
+        tmp_path,
+        "page",
+        "--env",
+        "maze",
+        "--layout",
+        str(LAYOUT),
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "200",
+        "--rate",
+        "4",
+        "--seed",
+        "1",
+        "--start-paused",
+        "true",
+        # the exact weights below are Deep TAMER's fixed rule (the default learns each person's delay)
+        "--screen-delay",
+        "uniform:0.2,4",
+        "--screen-credit",
+        "interval",
+    )
     try:
         url = run.url()
         with sync_playwright() as pw:
@@ -54,8 +74,9 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             for key in keys:
                 page.keyboard.press(key)
                 time.sleep(0.9)
-            page.wait_for_function(f"[...hitl.mine.values()].filter(f => f.credit).length >= {len(keys)}",
-                                   timeout=30_000)
+            page.wait_for_function(
+                f"[...hitl.mine.values()].filter(f => f.credit).length >= {len(keys)}", timeout=30_000
+            )
             presses = page.evaluate("hitl.pressLog")
             mine = page.evaluate("[...hitl.mine.values()]")
             shown = page.evaluate("hitl.shownLog")
@@ -70,8 +91,9 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             assert other.evaluate("hitl.me") == "web-2"
             other.wait_for_function("hitl.shownLog.length >= 6", timeout=30_000)
             other.keyboard.press("+")
-            other.wait_for_function("[...hitl.mine.values()].some(f => f.credit && f.credit.status === 'credited')",
-                                    timeout=30_000)
+            other.wait_for_function(
+                "[...hitl.mine.values()].some(f => f.credit && f.credit.status === 'credited')", timeout=30_000
+            )
             other.evaluate("""() => {
                 hitl.sentBefore = hitl.mine.size;
                 const ws = hitl.ws, now = (performance.timeOrigin + performance.now()) / 1000;
@@ -88,11 +110,19 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             }""")
             # each of the 40 presses is answered, sent or refused; how many the bucket refills for while the
             # console reads them depends on the machine's load (at most 16 at once, then 8 a second)
-            other.wait_for_function("(hitl.rejected.flood || 0) + hitl.mine.size - hitl.sentBefore >= 40",
-                                    timeout=30_000)
+            other.wait_for_function(
+                "(hitl.rejected.flood || 0) + hitl.mine.size - hitl.sentBefore >= 40", timeout=30_000
+            )
             rejected = other.evaluate("hitl.rejected")
-            for reason in ("malformed", "unknown_kind", "absurd_timestamp", "bad_value", "oversized", "bad_frame",
-                           "flood"):
+            for reason in (
+                "malformed",
+                "unknown_kind",
+                "absurd_timestamp",
+                "bad_value",
+                "oversized",
+                "bad_frame",
+                "flood",
+            ):
                 assert rejected.get(reason, 0) >= 1, (reason, rejected)
             floods = rejected["flood"]
             # A better clock estimate 2 s behind is slewed in at half speed, so the page's system time never runs

@@ -1,6 +1,7 @@
 """`python -m services.console --replay LOG` in headless Chromium (Debian's, via Playwright): the recorded session
 scrubs step by step, the agent is drawn where the log says it was, each feedback lists and tints the steps it was
 credited to, and Q and H are there for every step."""
+
 from __future__ import annotations
 
 import re
@@ -24,8 +25,9 @@ AGENT_BGR = (185, 128, 41)  # the console's agent colour #2980b9
 @pytest.fixture(scope="module")
 def session_log(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("replay")
-    launch = start_up(tmp, "rp", "--env", "maze", "--layout", "1", "--episodes", "3", "--episode-steps", "150",
-                      "--seed", "2")  # three episodes (cut at 150 steps: the first ones here run to 1000)
+    launch = start_up(
+        tmp, "rp", "--env", "maze", "--layout", "1", "--episodes", "3", "--episode-steps", "150", "--seed", "2"
+    )  # three episodes (cut at 150 steps: the first ones here run to 1000)
     assert launch.wait(timeout=300) == 0, launch.out
     assert_nothing_left(launch.rundir)
     return launch.rundir / "session.mcap"
@@ -34,9 +36,15 @@ def session_log(tmp_path_factory):
 @pytest.fixture()
 def replay_url(session_log):
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "services.console", "--replay", str(session_log), "--port",
-                             str(port)], cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                            text=True, start_new_session=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "services.console", "--replay", str(session_log), "--port", str(port)],
+        cwd=ROOT,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     try:
         seen = ""
         assert proc.stdout is not None  # (stdout=PIPE)
@@ -98,7 +106,9 @@ def test_replay_scrubs_the_session_with_scene_feedback_and_q_h(session_log, repl
         assert f"#{c.seq} -> steps {expected}" in near
         before = steps[index - 1]
         if before.episode == steps[index].episode and (int(before.info["row"]), int(before.info["col"])) != (
-                int(steps[index].info["row"]), int(steps[index].info["col"])):
+            int(steps[index].info["row"]),
+            int(steps[index].info["col"]),
+        ):
             bgr = cell_bgr(page, int(before.info["row"]), int(before.info["col"]))
             assert bgr.min() < 235, bgr  # tinted red or green
 
@@ -116,7 +126,13 @@ def test_replay_scrubs_the_session_with_scene_feedback_and_q_h(session_log, repl
 def test_replay_of_a_file_that_is_not_mcap_is_one_line_and_nonzero(tmp_path, content):
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(content)
-    proc = subprocess.run([sys.executable, "-m", "services.console", "--replay", str(bad)], cwd=ROOT, env=env(),
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-m", "services.console", "--replay", str(bad)],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 2
     assert len(proc.stderr.strip().splitlines()) == 1 and "not an MCAP file" in proc.stderr

@@ -1,6 +1,7 @@
 """A scripted person in the browser (the paper's rule, a lag of 0.3-1.5 s after each paint) teaches DQN-TAMER on a
 maze through the console at a test-friendly pace: every press is credited, and always to (among others) the step
 the person was reacting to, since its on-screen interval lies inside the assumed 0.2-4 s window."""
+
 from __future__ import annotations
 
 import json
@@ -20,8 +21,24 @@ pytestmark = [pytest.mark.live, pytest.mark.browser]
 
 
 def test_scripted_person_teaches_dqn_tamer(tmp_path):
-    run = WebRun(tmp_path, "scripted", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "50",
-                 "--max-steps", "160", "--rate", "8", "--seed", "2")
+    run = WebRun(
+        tmp_path,
+        "scripted",
+        "--env",
+        "maze",
+        "--layout",
+        "0",
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "50",
+        "--max-steps",
+        "160",
+        "--rate",
+        "8",
+        "--seed",
+        "2",
+    )
     plan, presses = scripted_person(run, tmp_path / "profile", "{p: 0.6, lagMin: 0.3, lagMax: 1.5, seed: 7}")
 
     summary = run.rundir / "summary.json"
@@ -54,8 +71,14 @@ def test_scripted_person_teaches_dqn_tamer(tmp_path):
     assert checked >= 35
     # The learner's idle-time updates and its credit of the person's feedback are in its Ingest order:
     # retraining from the log gives its weights bit for bit.
-    retrain = subprocess.run([sys.executable, "-m", "services.replay", str(run.rundir / "session.mcap"), "retrain"],
-                             cwd=ROOT, env=env(), capture_output=True, text=True, timeout=300)
+    retrain = subprocess.run(
+        [sys.executable, "-m", "services.replay", str(run.rundir / "session.mcap"), "retrain"],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert retrain.returncode == 0, retrain.stdout[-2000:] + retrain.stderr[-2000:]
     stats = json.loads((run.rundir / "stats" / "learner.json").read_text())["counters"]
     assert stats.get("idle_updates", 0) > 0

@@ -2,6 +2,7 @@
 --security FILE`): HTTPS with the router's certificate (signed by the run's CA), a page whose teacher name or password
 is wrong gets no connection and is counted, and a person who logs in teaches as `web-<name>` through the secured
 router, the learner crediting their presses."""
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,24 @@ def test_secured_console_needs_the_password_serves_https_and_credits_the_person(
     init(tmp_path / "sec", ["web", "alice"], run=RUN)
     sec = tmp_path / "sec" / SECURITY_FILE
     security = load_security(str(sec))
-    run = WebRun(tmp_path, RUN, "--security", str(sec), "--env", "maze", "--layout", "2", "--episodes", "200",
-                 "--max-steps", "4000", "--rate", "8", "--seed", "3")
+    run = WebRun(
+        tmp_path,
+        RUN,
+        "--security",
+        str(sec),
+        "--env",
+        "maze",
+        "--layout",
+        "2",
+        "--episodes",
+        "200",
+        "--max-steps",
+        "4000",
+        "--rate",
+        "8",
+        "--seed",
+        "3",
+    )
     try:
         url = run.url()
         assert url.startswith("https://127.0.0.1:"), run.out
@@ -73,8 +90,10 @@ def test_secured_console_needs_the_password_serves_https_and_credits_the_person(
             for key in ["+", "-", "+"]:
                 alice.keyboard.press(key)
                 alice.wait_for_timeout(600)
-            alice.wait_for_function("[...hitl.mine.values()].filter(f => f.credit && f.credit.status === 'credited')"
-                                    ".length >= 3", timeout=60_000)
+            alice.wait_for_function(
+                "[...hitl.mine.values()].filter(f => f.credit && f.credit.status === 'credited').length >= 3",
+                timeout=60_000,
+            )
             alice.click("#end")  # the person ends the run (the confirm dialog is accepted)
             assert run.wait(120) == 0, run.out[-3000:]
             ctx.close()

@@ -1,5 +1,6 @@
 """The console's parts without a browser: the page gate, a screen's timeline, the scene, and the learner's credit
 of a person's feedback in seconds over on-screen intervals."""
+
 from __future__ import annotations
 
 import json
@@ -35,7 +36,9 @@ def test_page_gate_accepts_good_input_and_names_the_reason_for_bad():
     fb = gate.text(json.dumps({"type": "feedback", "value": -1, "t_page": NOW - 0.4, "offset": 0.1, "rtt": 0.001}), p)
     assert fb["t_sys"] == pytest.approx(NOW - 0.3) and fb["value"] == -1 and p.offset == 0.1
     cases = {
-        "{oops": "malformed", "[]": "malformed", json.dumps({"type": "hack"}): "unknown_kind",
+        "{oops": "malformed",
+        "[]": "malformed",
+        json.dumps({"type": "hack"}): "unknown_kind",
         json.dumps({"type": "feedback", "value": 2, "t_page": NOW, "offset": 0, "rtt": 0}): "bad_value",
         json.dumps({"type": "feedback", "value": True, "t_page": NOW, "offset": 0, "rtt": 0}): "bad_value",
         json.dumps({"type": "feedback", "value": 1, "t_page": NOW + 60, "offset": 0, "rtt": 0}): "absurd_timestamp",
@@ -49,8 +52,14 @@ def test_page_gate_accepts_good_input_and_names_the_reason_for_bad():
     # a paint stamped ahead of the console's clock is placed at its arrival; one absurdly far is refused
     ahead = {"type": "shown", "seq": 3, "actor": "a", "t_page": NOW + 2, "offset": 0, "rtt": 0}
     assert gate.text(json.dumps(ahead), p)["t_sys"] == NOW
-    assert reason(gate.text, json.dumps({"type": "shown", "seq": 4, "actor": "a", "t_page": NOW + 60, "offset": 0,
-                                         "rtt": 0}), p) == "absurd_timestamp"
+    assert (
+        reason(
+            gate.text,
+            json.dumps({"type": "shown", "seq": 4, "actor": "a", "t_page": NOW + 60, "offset": 0, "rtt": 0}),
+            p,
+        )
+        == "absurd_timestamp"
+    )
     assert gate.text(json.dumps({"type": "ping", "t0": NOW, "ready": True}), p)["ready"] is True
     assert gate.text(json.dumps({"type": "ping", "t0": NOW, "ready": "yes"}), p)["ready"] is False
     for text, why in cases.items():
@@ -59,11 +68,15 @@ def test_page_gate_accepts_good_input_and_names_the_reason_for_bad():
     assert gate.frame(frame, p)[1][:2] == b"\xff\xd8"
     assert reason(gate.frame, b"\0" * 50, p) == "bad_frame"
     assert reason(gate.frame, struct.pack("<d", NOW) + b"\xff\xd8" + b"\0" * 2000, p) == "oversized_frame"
-    flood = [gate.text(json.dumps({"type": "feedback", "value": 1, "t_page": NOW, "offset": 0, "rtt": 0}), p)
-             for _ in range(15)]  # the burst (16, one used above) ...
+    flood = [
+        gate.text(json.dumps({"type": "feedback", "value": 1, "t_page": NOW, "offset": 0, "rtt": 0}), p)
+        for _ in range(15)
+    ]  # the burst (16, one used above) ...
     assert len(flood) == 15
-    assert reason(gate.text, json.dumps({"type": "feedback", "value": 1, "t_page": NOW, "offset": 0, "rtt": 0}),
-                  p) == "flood"  # ... and then no more
+    assert (
+        reason(gate.text, json.dumps({"type": "feedback", "value": 1, "t_page": NOW, "offset": 0, "rtt": 0}), p)
+        == "flood"
+    )  # ... and then no more
 
 
 def test_screen_timeline_lists_what_a_feedback_may_refer_to():
@@ -93,16 +106,39 @@ def _credit_of_one_press(config: LearnerConfig):
     env, _ = make_env("maze", 0)
     obs, t0 = env.reset(seed=0)[0], 1000.0
     shown = [ShownStep(k, t0 + 0.5 * k + 0.05) for k in range(12)]
-    fb = Feedback(run="r", teacher_id="web-1", seq=0, t_reaction=t0 + 5.8, value=1, source="key", t_page=5.0,
-                  actor="act-1", shown=shown)
+    fb = Feedback(
+        run="r",
+        teacher_id="web-1",
+        seq=0,
+        t_reaction=t0 + 5.8,
+        value=1,
+        source="key",
+        t_page=5.0,
+        actor="act-1",
+        shown=shown,
+    )
     assert core.on_feedback(fb) == []  # held: the newest step it lists is not learned yet
     results = []
     for k in range(12):
         nxt, r, term, _, _ = env.step(k % 4)
-        results += core.on_step(Step(run="r", incarnation="act-1", seq=k, t_action=t0 + 0.5 * k, episode=0,
-                                     t_in_episode=k, obs=obs.tolist(), action=k % 4, reward=float(r),
-                                     next_obs=nxt.tolist(), terminated=bool(term), truncated=False,
-                                     weights_version=k, info={}))[0]
+        results += core.on_step(
+            Step(
+                run="r",
+                incarnation="act-1",
+                seq=k,
+                t_action=t0 + 0.5 * k,
+                episode=0,
+                t_in_episode=k,
+                obs=obs.tolist(),
+                action=k % 4,
+                reward=float(r),
+                next_obs=nxt.tolist(),
+                terminated=bool(term),
+                truncated=False,
+                weights_version=k,
+                info={},
+            )
+        )[0]
         obs = nxt
     (res,) = results
     return res, core
@@ -127,8 +163,9 @@ def test_learner_credits_a_persons_feedback_with_their_learned_delay_by_default(
 
 
 def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals():
-    res, core = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.2,4",
-                                             screen_credit="interval"))
+    res, core = _credit_of_one_press(
+        LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.2,4", screen_credit="interval")
+    )
     # uniform 0.2-4 s: each step gets the share of [t - 4, t - 0.2] = [1001.8, 1005.6] it was on screen
     want = {3: 0.25 / 3.8, **{k: 0.5 / 3.8 for k in range(4, 11)}, 11: 0.05 / 3.8}
     assert res.status == "credited" and dict(res.credited) == pytest.approx(want)
@@ -136,8 +173,9 @@ def test_learner_credits_a_persons_feedback_in_seconds_over_the_screen_intervals
 
 
 def test_learner_credits_at_each_steps_onset_when_told_and_refuses_onset_with_a_step_counted_delay():
-    res, core = _credit_of_one_press(LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.3,1.5",
-                                             screen_credit="onset"))
+    res, core = _credit_of_one_press(
+        LearnerConfig(run="r", task=Task(env="maze"), screen_delay="uniform:0.3,1.5", screen_credit="onset")
+    )
     # of the steps that appeared before t0 + 5.8, those 0.3-1.5 s before it: step 9 (t0 + 4.55) and step 10
     # (t0 + 5.05), equally; step 8 appeared 1.75 s before, step 11 only 0.25 s before
     assert res.status == "credited" and dict(res.credited) == pytest.approx({9: 0.5, 10: 0.5})
@@ -203,7 +241,17 @@ def test_rule_agreement_is_the_share_of_a_press_on_steps_the_rule_rates_alike():
     closer = {"target_distance_before": 5.0, "target_distance_after": 4.0}
     away = {"target_distance_before": 4.0, "target_distance_after": 5.0}
     infos = {("act-1", 7): closer, ("act-1", 8): away}
-    credit = Credit(run="r", teacher_id="web-1", seq=0, value=1, status="credited", t_reaction=NOW,
-                    t_credited=NOW, actor="act-1", steps=[CreditedStep(7, 0.3), CreditedStep(8, 0.1)], lost_mass=0.6)
+    credit = Credit(
+        run="r",
+        teacher_id="web-1",
+        seq=0,
+        value=1,
+        status="credited",
+        t_reaction=NOW,
+        t_credited=NOW,
+        actor="act-1",
+        steps=[CreditedStep(7, 0.3), CreditedStep(8, 0.1)],
+        lost_mass=0.6,
+    )
     assert rule_agreement(credit, infos) == pytest.approx(0.75)
     assert rule_agreement(credit, {("act-1", 7): closer, ("act-1", 8): {}}) is None  # no distances: no rule

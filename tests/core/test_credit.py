@@ -141,8 +141,16 @@ class _CdfOnly:
         self.cdf = delay.cdf
 
 
-@pytest.mark.parametrize("probs,unit", [((1 / 3, 1 / 3, 1 / 3), 1.0), ((0.1, 0.2, 0.3, 0.25, 0.15), 1.0),
-                                        ((0.3, 0.6, 0.1), 0.25), ((0.5, 0.3, 0.2), 0.7), ((1.0,), 1.0)])
+@pytest.mark.parametrize(
+    "probs,unit",
+    [
+        ((1 / 3, 1 / 3, 1 / 3), 1.0),
+        ((0.1, 0.2, 0.3, 0.25, 0.15), 1.0),
+        ((0.3, 0.6, 0.1), 0.25),
+        ((0.5, 0.3, 0.2), 0.7),
+        ((1.0,), 1.0),
+    ],
+)
 def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
     from common.core.delay_learning import RowDelays
 
@@ -154,16 +162,18 @@ def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
         # steps held); feedback stamps between and beyond them.
         gaps = np.ones((6, 12)) if trial % 2 else rng.choice([0.2, 0.5, 1.0, 2.0, 3.0], size=(6, 12))
         starts = np.cumsum(gaps, axis=1) + rng.integers(0, 50, size=(6, 1))
-        starts[rng.random(6) < 0.3, :rng.integers(1, 12)] = np.inf
+        starts[rng.random(6) < 0.3, : rng.integers(1, 12)] = np.inf
         starts = np.sort(starts, axis=1)
         t_f = np.where(np.isfinite(starts[:, -1]), starts[:, -1], 0) - rng.uniform(-2, 6, size=6)
-        for d, general in ((delay, _CdfOnly(delay)),
-                           (RowDelays(row_probs, unit), _CdfOnly(RowDelays(row_probs, unit)))):
+        for d, general in (
+            (delay, _CdfOnly(delay)),
+            (RowDelays(row_probs, unit), _CdfOnly(RowDelays(row_probs, unit))),
+        ):
             fast_w, fast_lost = credit_weights(t_f, starts, d)
             w, lost = credit_weights(t_f, starts, general)
             assert np.array_equal(fast_w, w) and np.array_equal(fast_lost, lost)
             for k in range(6):  # one feedback alone (1-d) as the console and the learner ask
-                one = d if d is delay else RowDelays(row_probs[k:k + 1], unit)
+                one = d if d is delay else RowDelays(row_probs[k : k + 1], unit)
                 w1, lost1 = credit_weights(t_f[k], starts[k], one)
                 assert np.array_equal(w1, fast_w[k]) and lost1 == fast_lost[k]
 

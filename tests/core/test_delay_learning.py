@@ -1,4 +1,5 @@
 """The delay learned online in seconds (common/core/delay_model.py) and its use per trial (delay_learning.py)."""
+
 import json
 from dataclasses import replace
 
@@ -6,8 +7,15 @@ import numpy as np
 import pytest
 
 from common.core.delay import delay_from_spec
-from common.core.delay_model import (FixedDelay, LearnedDelay, LearnedDelayConfig, check_delay_estimate_spec,
-                                     delay_estimate, estimate_from_state, polarity_likelihood)
+from common.core.delay_model import (
+    FixedDelay,
+    LearnedDelay,
+    LearnedDelayConfig,
+    check_delay_estimate_spec,
+    delay_estimate,
+    estimate_from_state,
+    polarity_likelihood,
+)
 
 STEPS = np.arange(0.0, 200.0, 0.5)  # a step every 0.5 s
 
@@ -103,8 +111,9 @@ def test_per_trial_delays_plug_into_the_runner_and_leave_other_trials_unchanged(
 
     obs = ObserverConfig(0.5, (0.0, 0.1, 0.2, 0.7))
     plain = TrialSpec("maze", agent_for("dqn-tamer"), obs, seed=3, layout=0, episodes=6)
-    learned = replace(plain, agent=replace(agent_for("dqn-tamer"), learn_delay=True),
-                      observer=replace(obs, delay_s="gamma:4,0,0.25"))
+    learned = replace(
+        plain, agent=replace(agent_for("dqn-tamer"), learn_delay=True), observer=replace(obs, delay_s="gamma:4,0,0.25")
+    )
     alone = run_trials([plain])[0]
     together = run_trials([plain, learned])
     assert list(alone.returns) == list(together[0].returns)

@@ -40,6 +40,7 @@ def test_maze_rewards_goal_and_walls():
     layout = env.layout
     # Walk the shortest path found by BFS: -0.01 per step, +1 on the goal step, terminated there.
     from collections import deque
+
     moves = ((-1, 0), (0, 1), (1, 0), (0, -1))
     prev = {layout.start: None}
     q = deque([layout.start])

@@ -1,15 +1,26 @@
 """Maze layouts: the honest / misleading classifier on hand-made mazes, the generated pool, the
 shortest-path teacher."""
+
 import numpy as np
 
 from common.envs import make_env
-from common.envs.maze import (HONEST, LAYOUT_COUNT, LAYOUT_KIND_COUNT, MISLEADING, SIZE, MazeLayout, layout_kind,
-                              layout_pool, make_layout)
+from common.envs.maze import (
+    HONEST,
+    LAYOUT_COUNT,
+    LAYOUT_KIND_COUNT,
+    MISLEADING,
+    SIZE,
+    MazeLayout,
+    layout_kind,
+    layout_pool,
+    make_layout,
+)
 
 
 def maze(rows: list[str]) -> MazeLayout:
     """'#' wall, 'S' start, 'G' goal, '.' space; rows shorter than SIZE are padded with walls."""
     rows = [r.ljust(SIZE, "#") for r in rows] + ["#" * SIZE] * (SIZE - len(rows))
+
     def find(ch: str) -> tuple[int, int]:
         return next((r, c) for r, row in enumerate(rows) for c, x in enumerate(row) if x == ch)
 
@@ -18,10 +29,7 @@ def maze(rows: list[str]) -> MazeLayout:
 
 
 def test_an_open_maze_is_honest():
-    m = maze(["S.....",
-              "......",
-              "......",
-              "..G..."])
+    m = maze(["S.....", "......", "......", "..G..."])
     assert m.misleading_dead_ends() == [] and m.kind == HONEST
     assert m.shortest_path() == 5
 
@@ -29,8 +37,7 @@ def test_an_open_maze_is_honest():
 def test_a_dead_end_along_an_approved_path_makes_a_maze_misleading():
     # From S every approved move goes east towards G, into the pocket at (0, 3), whose only approved
     # move (east) is a wall: the rule leads the agent into a dead end; the way round is south.
-    m = maze(["S..#G",
-              "....."])
+    m = maze(["S..#G", "....."])
     assert m.misleading_dead_ends() == [(0, 2)]
     assert m.kind == MISLEADING
     assert m.shortest_path() == 6  # longer than the Manhattan distance 4
@@ -38,9 +45,7 @@ def test_a_dead_end_along_an_approved_path_makes_a_maze_misleading():
 
 def test_a_dead_end_off_every_approved_path_does_not_count():
     # The pocket at (2, 0) has no approved move, but no approved move from S ever enters it.
-    m = maze(["S...G",
-              "#####",
-              "."])
+    m = maze(["S...G", "#####", "."])
     assert m.misleading_dead_ends() == [] and m.kind == HONEST
 
 
@@ -61,6 +66,7 @@ def test_layouts_0_to_59_are_those_of_every_run_before_the_fresh_ones():
     """Layouts 60-179 continue the same stream: the first 60 are the pool of every earlier run and pilot
     (this fingerprint is theirs, computed with the 60-layout generator of commit 5a1a7bf)."""
     import hashlib
+
     pool, _ = layout_pool()
     old = repr([(L.walls, L.start, L.goal) for L in pool[:60]]).encode()
     assert hashlib.sha256(old).hexdigest()[:16] == "2fcf6c4b9a026826"

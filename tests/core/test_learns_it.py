@@ -3,6 +3,7 @@
 Layout 0's shortest path is 5 steps. "Reaches the shortest path" is judged on the greedy policy after each
 episode (no exploration), so a lucky exploratory episode does not count.
 """
+
 import numpy as np
 import pytest
 
@@ -18,8 +19,10 @@ HIGH_FREQUENCY_DELAYED = ObserverConfig(p_feedback=0.5, delay_probs=(0.3, 0.6, 0
 
 def first_optimal_episode(algo: str, episodes: int) -> list[int | None]:
     shortest = make_layout(LAYOUT).shortest_path()
-    specs = [TrialSpec("maze", agent_config(algo), HIGH_FREQUENCY_DELAYED, seed=s, layout=LAYOUT,
-                       episodes=episodes) for s in SEEDS]
+    specs = [
+        TrialSpec("maze", agent_config(algo), HIGH_FREQUENCY_DELAYED, seed=s, layout=LAYOUT, episodes=episodes)
+        for s in SEEDS
+    ]
     firsts = []
     for result in run_trials(specs, greedy_eval=True):
         greedy = [e["greedy_steps"] for e in result.episodes]
@@ -35,5 +38,6 @@ def test_dqn_tamer_reaches_the_shortest_path_quickly_and_dqn_more_slowly():
     assert sum(f is not None for f in tamer) >= 4, tamer
     assert sum(f is not None for f in dqn) >= 3, dqn
     never = 10**6
-    assert np.median([f if f is not None else never for f in tamer]) < \
-        np.median([f if f is not None else never for f in dqn])
+    assert np.median([f if f is not None else never for f in tamer]) < np.median(
+        [f if f is not None else never for f in dqn]
+    )

@@ -53,9 +53,15 @@ def test_deterministic_for_a_seed_and_common_random_numbers():
     assert low <= {k for k, _ in a}
 
 
-@pytest.mark.parametrize("kwargs, match", [
-    ({"p_feedback": 1.5}, "p-feedback"), ({"p_flip": -0.1}, "p-flip"),
-    ({"delay_probs": (0.5, 0.2)}, "sum to 1"), ({"stop_episode": -1}, "stop-episode")])
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"p_feedback": 1.5}, "p-feedback"),
+        ({"p_flip": -0.1}, "p-flip"),
+        ({"delay_probs": (0.5, 0.2)}, "sum to 1"),
+        ({"stop_episode": -1}, "stop-episode"),
+    ],
+)
 def test_config_validation(kwargs, match):
     with pytest.raises(ValueError, match=match):
         ObserverConfig(**kwargs)

@@ -1,5 +1,6 @@
 """The agent's parts, each alone: value networks (gradients against torch autograd, stacked fits, shapes that
 differ), replay, explorer and mixture, and an agent assembled from parts passed in."""
+
 import math
 
 import numpy as np
@@ -8,8 +9,18 @@ import torch
 
 from common.agents import AgentParts, TrialBatchAgent, agent_config, build_parts
 from common.agents.explorer import EpsilonGreedy, Mixture
-from common.agents.networks import (HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, StackedMLP, fit_together,
-                                    init_mlp, mlp_backward, mlp_forward, with_ones)
+from common.agents.networks import (
+    HUBER_MEAN,
+    SQUARED_MEAN,
+    SQUARED_SUM,
+    FitJob,
+    StackedMLP,
+    fit_together,
+    init_mlp,
+    mlp_backward,
+    mlp_forward,
+    with_ones,
+)
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import TransitionReplay
 from common.agents.streams import UniformBlocks, to_integers, uniforms
@@ -22,8 +33,12 @@ def test_the_numpy_initialisation_is_torchs_bit_for_bit(seed, dims):
     default bounds (1/sqrt(fan_in)), in the order torch draws them."""
     in_dim, hidden, out_dim = dims
     g = torch.Generator().manual_seed(seed % (2**63))
-    layers = [("w1", (in_dim, hidden), in_dim), ("b1", (1, hidden), in_dim), ("w2", (hidden, out_dim), hidden),
-              ("b2", (1, out_dim), hidden)]
+    layers = [
+        ("w1", (in_dim, hidden), in_dim),
+        ("b1", (1, hidden), in_dim),
+        ("w2", (hidden, out_dim), hidden),
+        ("b2", (1, out_dim), hidden),
+    ]
     got = init_mlp(in_dim, hidden, out_dim, seed)
     for name, shape, fan_in in layers:
         want = (torch.rand(*shape, generator=g) * 2 - 1) * (1.0 / math.sqrt(fan_in))
@@ -72,8 +87,10 @@ def jobs_for(q, h, rng):
     a = rng.integers(0, 4, (2, 8))
     t = rng.standard_normal((2, 8)).astype(np.float32)
     w = rng.random((2, 8)).astype(np.float32)
-    return [FitJob(q, np.array([0, 2]), x, a, t, None, HUBER_MEAN),
-            FitJob(h, np.array([1, 2]), x, a, t, w, SQUARED_MEAN)]
+    return [
+        FitJob(q, np.array([0, 2]), x, a, t, None, HUBER_MEAN),
+        FitJob(h, np.array([1, 2]), x, a, t, w, SQUARED_MEAN),
+    ]
 
 
 def test_fitting_q_and_h_together_equals_fitting_them_apart():
@@ -108,8 +125,9 @@ def test_squared_sum_loss_is_the_weighted_sum():
     d = SQUARED_SUM.grad(pred[None].astype(np.float32), f, w)
     np.testing.assert_allclose(d[0], 2 * w[0] * (pred - f[0]), rtol=1e-6)
     np.testing.assert_allclose(SQUARED_MEAN.grad(pred[None].astype(np.float32), f, w), d / 2, rtol=1e-6)
-    assert np.all(np.abs(HUBER_MEAN.grad(np.array([[5.0, -5.0]], np.float32), np.zeros((1, 2), np.float32), None))
-                  == 0.5)
+    assert np.all(
+        np.abs(HUBER_MEAN.grad(np.array([[5.0, -5.0]], np.float32), np.zeros((1, 2), np.float32), None)) == 0.5
+    )
 
 
 def test_replay_rows_are_independent_and_sample_their_own_stream():
@@ -130,8 +148,14 @@ def test_replay_holds_each_observation_with_its_bias_input_and_fits_use_it_uncha
     r = TransitionReplay(1, 8, 3)
     rng = np.random.default_rng(2)
     for k in range(8):
-        r.add_rows(np.array([0]), obs=rng.standard_normal((1, 3)), action=[k % 4], reward=[k],
-                   next_obs=rng.standard_normal((1, 3)), terminated=[0.0])
+        r.add_rows(
+            np.array([0]),
+            obs=rng.standard_normal((1, 3)),
+            action=[k % 4],
+            reward=[k],
+            next_obs=rng.standard_normal((1, 3)),
+            terminated=[0.0],
+        )
     rec = r.gather_records(np.array([0]), np.arange(8)[None, :])
     assert np.array_equal(rec[:, :, r.with_ones["obs"]], with_ones(r.data["obs"][:1]))
     assert np.array_equal(rec[:, :, r.with_ones["next_obs"]], with_ones(r.data["next_obs"][:1]))
@@ -143,8 +167,9 @@ def test_replay_holds_each_observation_with_its_bias_input_and_fits_use_it_uncha
     x, actions = rec[:, :, r.columns["obs"]], rec[:, :, r.at["action"]].astype(np.int64)
     for net, x1 in zip(nets, (None, rec[:, :, r.with_ones["obs"]])):  # the same step, given the bias input or not
         fit_together([FitJob(net, np.array([0]), x, actions, targets, None, HUBER_MEAN, x1)])
-    assert np.array_equal(nets[0].flat, nets[1].flat) and not np.array_equal(nets[0].flat,
-                                                                             StackedMLP(3, 5, 4, [7]).flat)
+    assert np.array_equal(nets[0].flat, nets[1].flat) and not np.array_equal(
+        nets[0].flat, StackedMLP(3, 5, 4, [7]).flat
+    )
 
 
 def test_explorer_and_mixture_are_functions_of_the_step():
@@ -163,7 +188,7 @@ def test_explorer_and_mixture_are_functions_of_the_step():
     m = Mixture(cfgs)
     aq, ah = m.weights(rows, np.array([100, 100]))
     assert aq.ravel().tolist() == [1.0, 0.0]
-    np.testing.assert_allclose(ah.ravel(), [0.9999 ** 100, 1.0], rtol=1e-6)
+    np.testing.assert_allclose(ah.ravel(), [0.9999**100, 1.0], rtol=1e-6)
 
 
 def test_an_agent_takes_the_parts_it_is_given():
@@ -173,8 +198,9 @@ def test_an_agent_takes_the_parts_it_is_given():
     agent = TrialBatchAgent(cfg, 2, 4, [0], parts=parts)
     assert isinstance(agent.parts, AgentParts) and agent.h is parts.h
     for k in range(40):
-        agent.record_step(0, np.array([k % 3, 1], np.float32), k % 4, -0.1, np.array([k % 3, 0], np.float32),
-                          False, float(k))
+        agent.record_step(
+            0, np.array([k % 3, 1], np.float32), k % 4, -0.1, np.array([k % 3, 0], np.float32), False, float(k)
+        )
         agent.give_feedback([(0, k + 0.5, 1)])
         agent.update()
     assert agent.h_updates[0] > 40 and agent.q_updates[0] > 0
@@ -220,9 +246,10 @@ def test_rmsprop_on_touched_rows_is_the_dense_step_bit_for_bit(rows):
     n = 3 if rows is None else 2
     grad = np.zeros((n, count * width + tail), np.float32)
     keys = np.array([1, 4, 6, 11]) if n == 3 else np.array([0, 5, 7])
-    grad[:, :count * width].reshape(n, count, width)[keys // count, keys % count] = rng.standard_normal(
-        (len(keys), width))
-    grad[:, count * width:] = rng.standard_normal((n, tail))
+    grad[:, : count * width].reshape(n, count, width)[keys // count, keys % count] = rng.standard_normal(
+        (len(keys), width)
+    )
+    grad[:, count * width :] = rng.standard_normal((n, tail))
     dense, blocked = FlatRMSProp(1e-2), FlatRMSProp(1e-2)
     weights, start_avg = {}, rng.random(flat.shape).astype(np.float32)
     for name, opt, blocks in (("dense", dense, None), ("blocked", blocked, (count, width, keys))):

@@ -1,4 +1,5 @@
 """The torch path: Q and H as torch modules trained with autograd and torch.optim (common/agents/torch_*.py)."""
+
 from __future__ import annotations
 
 import sys
@@ -32,16 +33,25 @@ def _drive(agent, rng_seed: int, steps: int, obs_dim: int, n_actions: int, t0: i
         if give.any():
             k = rows[give]
             loop.credit(k, np.full(len(k), t - 0.5), rng.choice([-1, 1], len(k)))
-        loop.step(rows, obs, rng.integers(0, n_actions, agent.B), rng.normal(size=agent.B).astype(np.float32),
-                  nxt, rng.random(agent.B) < 0.05, np.full(agent.B, float(t)), np.zeros(agent.B, np.int64))
+        loop.step(
+            rows,
+            obs,
+            rng.integers(0, n_actions, agent.B),
+            rng.normal(size=agent.B).astype(np.float32),
+            nxt,
+            rng.random(agent.B) < 0.05,
+            np.full(agent.B, float(t)),
+            np.zeros(agent.B, np.int64),
+        )
 
 
 @pytest.mark.parametrize("algo", ["dqn-tamer", "dqn-rs", "deep-tamer"])
 def test_mlp_numpy_and_torch_paths_give_the_same_updates(algo):
     obs_dim, n_actions, seeds = 5, 4, [3, 4, 5]
     fast = make_agent([agent_config(algo, network="mlp", target_update_interval=25)] * 3, obs_dim, n_actions, seeds)
-    slow = make_agent([agent_config(algo, network="torch-mlp", target_update_interval=25)] * 3, obs_dim, n_actions,
-                      seeds)
+    slow = make_agent(
+        [agent_config(algo, network="torch-mlp", target_update_interval=25)] * 3, obs_dim, n_actions, seeds
+    )
     assert isinstance(fast.q, StackedMLP) and isinstance(slow.q, TorchValueNetworks)
     for i in range(3):  # same initial weights
         for k, v in slow.policy_weights(i).items():
@@ -60,8 +70,10 @@ def test_mlp_numpy_and_torch_paths_give_the_same_updates(algo):
 
 
 def test_mlp_paths_act_alike_in_the_runner():
-    specs = [TrialSpec("maze", agent_config("dqn-tamer", network=net), ObserverConfig(), 1, 2, 2)
-             for net in ("mlp", "torch-mlp")]
+    specs = [
+        TrialSpec("maze", agent_config("dqn-tamer", network=net), ObserverConfig(), 1, 2, 2)
+        for net in ("mlp", "torch-mlp")
+    ]
     fast, slow = (run_trials([s], record_actions=True)[0] for s in specs)
     assert fast.actions == slow.actions and fast.returns.tolist() == pytest.approx(slow.returns.tolist())
 
@@ -74,7 +86,8 @@ def test_lr_reaches_both_optimisers():
 
 
 def test_a_users_module_factory_is_trained(tmp_path, monkeypatch):
-    (tmp_path / "usernet.py").write_text(textwrap.dedent('''
+    (tmp_path / "usernet.py").write_text(
+        textwrap.dedent("""
         import torch
         from torch import nn
 
@@ -83,13 +96,22 @@ def test_a_users_module_factory_is_trained(tmp_path, monkeypatch):
             for s in obs_shape:
                 size *= s
             return nn.Sequential(nn.Linear(size, 16), nn.ELU(), nn.Linear(16, n_actions))
-    '''))
+    """)
+    )
     monkeypatch.syspath_prepend(str(tmp_path))
     sys.modules.pop("usernet", None)
     agent = make_agent([agent_config("dqn-tamer", network="usernet:two_layers")], 6, 3, [1])
     before = {k: v.copy() for k, v in agent.policy_weights(0).items()}
-    assert set(before) == {"q.0.weight", "q.0.bias", "q.2.weight", "q.2.bias", "h.0.weight", "h.0.bias",
-                           "h.2.weight", "h.2.bias"}
+    assert set(before) == {
+        "q.0.weight",
+        "q.0.bias",
+        "q.2.weight",
+        "q.2.bias",
+        "h.0.weight",
+        "h.0.bias",
+        "h.2.weight",
+        "h.2.bias",
+    }
     _drive(agent, 2, 60, 6, 3)
     after = agent.policy_weights(0)
     assert all(not np.array_equal(before[k], after[k]) for k in before)

@@ -1,6 +1,7 @@
 """Batching must not change the science: a trial gives the same actions and returns whatever runs beside
 it, whether its environment is stepped by tables or for real, and the vectorised pieces agree with the
 plain ones they replace."""
+
 import numpy as np
 import pytest
 
@@ -19,10 +20,15 @@ DELAYED = ObserverConfig(p_feedback=0.5, delay_probs=(0.3, 0.6, 0.1))
 def mixed_specs(env="maze"):
     """All four agents, several layouts, observers and lengths, so trials finish at different times and
     the batch is shrunk while others still run."""
-    observers = [DELAYED, ObserverConfig(p_feedback=0.1, delay_probs=(1.0,)),
-                 ObserverConfig(p_feedback=0.5, p_flip=0.15, stop_episode=2)]
-    return [TrialSpec(env, agent_config(algo), observers[k % 3], seed=k, layout=k % 10, episodes=2 + k % 4)
-            for k, algo in enumerate(ALGOS * 3)]
+    observers = [
+        DELAYED,
+        ObserverConfig(p_feedback=0.1, delay_probs=(1.0,)),
+        ObserverConfig(p_feedback=0.5, p_flip=0.15, stop_episode=2),
+    ]
+    return [
+        TrialSpec(env, agent_config(algo), observers[k % 3], seed=k, layout=k % 10, episodes=2 + k % 4)
+        for k, algo in enumerate(ALGOS * 3)
+    ]
 
 
 @pytest.mark.parametrize("env", ["maze", "taxi"])
@@ -50,8 +56,12 @@ def test_compiled_tables_step_exactly_like_the_real_environments(env):
 
 
 def test_observer_batch_reacts_as_single_observers_do_event_for_event():
-    cfgs = [ObserverConfig(0.5, (0.3, 0.6, 0.1), 0.15, None, None), ObserverConfig(0.1, (1.0,)),
-            ObserverConfig(1.0, (0.2, 0.2, 0.2, 0.4), 0.5, stop_episode=3), ObserverConfig(0.7, stop_step=2500)]
+    cfgs = [
+        ObserverConfig(0.5, (0.3, 0.6, 0.1), 0.15, None, None),
+        ObserverConfig(0.1, (1.0,)),
+        ObserverConfig(1.0, (0.2, 0.2, 0.2, 0.4), 0.5, stop_episode=3),
+        ObserverConfig(0.7, stop_step=2500),
+    ]
     ref = [SimulatedObserver(c, progress_rule, seed=11 + k) for k, c in enumerate(cfgs)]
     batch = ObserverBatch(cfgs, [11 + k for k in range(len(cfgs))], block=64)
     rng = np.random.default_rng(0)
@@ -71,14 +81,27 @@ def test_observer_batch_reacts_as_single_observers_do_event_for_event():
 def test_agent_history_credits_with_the_credit_function():
     rng = np.random.default_rng(3)
     model = DelayModel((0.2, 0.5, 0.0, 0.3), unit=0.7)
-    agent = TrialBatchAgent([agent_config("dqn-tamer", assumed_delay_probs=model.probs, history_steps=6)] * 4,
-                            2, 4, [0, 1, 2, 3], step_unit=0.7)
+    agent = TrialBatchAgent(
+        [agent_config("dqn-tamer", assumed_delay_probs=model.probs, history_steps=6)] * 4,
+        2,
+        4,
+        [0, 1, 2, 3],
+        step_unit=0.7,
+    )
     times = [[] for _ in range(4)]
     for k in range(40):
         rows = np.flatnonzero(rng.random(4) < 0.8)
         t = np.array([(times[i][-1] if times[i] else 0.0) + rng.exponential(0.6) for i in rows])
-        agent.record_steps(rows, rng.random((len(rows), 2)), rng.integers(0, 4, len(rows)), np.zeros(len(rows)),
-                           rng.random((len(rows), 2)), np.zeros(len(rows)), t, np.full(len(rows), k // 10))
+        agent.record_steps(
+            rows,
+            rng.random((len(rows), 2)),
+            rng.integers(0, 4, len(rows)),
+            np.zeros(len(rows)),
+            rng.random((len(rows), 2)),
+            np.zeros(len(rows)),
+            t,
+            np.full(len(rows), k // 10),
+        )
         for i, ti in zip(rows, t):
             times[i].append(ti)
         t_f = np.array([(times[i][-1] if times[i] else 0.0) + rng.uniform(-1, 3) for i in range(4)])
@@ -87,7 +110,7 @@ def test_agent_history_credits_with_the_credit_function():
             w, lost = credit_weights(t_f[i], times[i][-6:], model)
             nz = w[w > 0]
             assert got.counts[i] == len(nz)
-            np.testing.assert_array_equal(got.weights[i, :len(nz)], nz)
+            np.testing.assert_array_equal(got.weights[i, : len(nz)], nz)
             assert got.lost[i] == pytest.approx(lost)
 
 
@@ -100,11 +123,12 @@ def test_state_dict_round_trip_continues_the_same_trial():
         for k in range(start, start + steps):
             obs = rng_obs[k]
             a = agent.act(obs)
-            agent.record_steps(np.arange(2), obs, a, np.full(2, -0.01), rng_obs[k + 1], np.zeros(2),
-                               np.full(2, float(k)),
-                               np.zeros(2))
-            agent.feedback_rounds(np.arange(2), np.full(2, k + 0.5), np.where(a % 2 == 0, 1, -1)[:, None],
-                                  np.ones(2, np.int64))
+            agent.record_steps(
+                np.arange(2), obs, a, np.full(2, -0.01), rng_obs[k + 1], np.zeros(2), np.full(2, float(k)), np.zeros(2)
+            )
+            agent.feedback_rounds(
+                np.arange(2), np.full(2, k + 0.5), np.where(a % 2 == 0, 1, -1)[:, None], np.ones(2, np.int64)
+            )
             agent.update()
             acts.append(a.copy())
         return acts

@@ -1,4 +1,5 @@
 """The benchmark command: three ways of running the same trials, identical results, ratios reported."""
+
 import json
 import subprocess
 import sys
@@ -18,11 +19,16 @@ def test_bench_runs_the_same_trials_three_ways_and_reports_ratios(tmp_path):
 
 
 def test_cli_wiring(tmp_path):
-    proc = subprocess.run([sys.executable, "-m", "experiments", "reproduce", "--only", "nonexistent"],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments", "reproduce", "--only", "nonexistent"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2 and "invalid choice" in proc.stderr
-    proc = subprocess.run([sys.executable, "-m", "experiments", "bench", "--trials", "0"],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments", "bench", "--trials", "0"], capture_output=True, text=True, timeout=60
+    )
     assert proc.returncode == 2 and "must be positive" in proc.stderr
 
 
@@ -32,9 +38,28 @@ def test_bench_compare_alternates_two_checkouts_and_prints_ratios(tmp_path):
     from experiments.bench_compare import ROOT
 
     out = tmp_path / "compare.json"
-    proc = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--against", str(ROOT), "--rounds",
-                           "2", "--envs", "maze", "--episodes", "1", "--out", str(out)],
-                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "experiments",
+            "bench-compare",
+            "--against",
+            str(ROOT),
+            "--rounds",
+            "2",
+            "--envs",
+            "maze",
+            "--episodes",
+            "1",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+    )
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.count("plain") >= 2 and "median ratio this/other" in proc.stdout
     result = json.loads(out.read_text())
@@ -44,6 +69,11 @@ def test_bench_compare_alternates_two_checkouts_and_prints_ratios(tmp_path):
     first = result["runs"][0]["this"]
     assert 0 < first["ticks"] <= first["env_steps"] and len(result["tick_ratios"]) == 2
     assert "lockstep ticks per second" in proc.stdout
-    proc = subprocess.run([sys.executable, "-m", "experiments", "bench-compare", "--against", str(tmp_path)],
-                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments", "bench-compare", "--against", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
     assert proc.returncode == 2 and "not a checkout of this project" in proc.stderr

@@ -1,4 +1,5 @@
 """The declared claims and their evaluation on synthetic trials whose truth is known."""
+
 import numpy as np
 
 from experiments import claims as C
@@ -58,8 +59,10 @@ def test_the_metrics_decide_together_and_disagreement_is_mixed():
 def test_honest_layouts_decide_and_the_interaction_is_reported():
     """An effect on honest layouts only: the paper's claim (honest) is reproduced, the extension shows
     nothing on misleading layouts and a clear layout-class x method interaction."""
+
     def levels(cond, arm):
         return paper_levels(cond, arm)
+
     data = world(levels)
     dqn = data["maze-flip"]["dqn"]
     tamer = data["maze-flip"]["dqn-tamer"]

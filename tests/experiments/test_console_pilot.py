@@ -1,4 +1,5 @@
 """The in-process pilot of the console comparison: its measures, its seeds, and a small run."""
+
 import pytest
 
 from experiments import console_pilot as cp

@@ -1,4 +1,5 @@
 """The maze horizon pilot: the report's flatness rule by checkpoint, and trials that are never the reproduction's."""
+
 import numpy as np
 import pytest
 
@@ -7,9 +8,13 @@ from experiments.conditions import BY_NAME, CONDITIONS, FULL, n_trials, trial_sp
 
 
 def test_pilot_trials_are_never_the_reproductions():
-    repro = {(s.layout, s.seed) for c in CONDITIONS if not c.is_taxi
-             for k in range(n_trials(c, FULL)) for s in [trial_spec(c,
-                                                                    "dqn" if "dqn" in c.arms else c.arms[0], k, FULL)]}
+    repro = {
+        (s.layout, s.seed)
+        for c in CONDITIONS
+        if not c.is_taxi
+        for k in range(n_trials(c, FULL))
+        for s in [trial_spec(c, "dqn" if "dqn" in c.arms else c.arms[0], k, FULL)]
+    }
     repro_seeds = {seed for _, seed in repro}
     for name in maze_pilot.DEFAULT_CONDITIONS:
         got = maze_pilot.specs(BY_NAME[name], 5)
@@ -17,8 +22,10 @@ def test_pilot_trials_are_never_the_reproductions():
         assert {arm for arm, _ in got} == set(BY_NAME[name].arms)  # every arm: the cost covers the grid
     # the learned-delay conditions' pilot layouts are honest and outside their reproduction set
     delay = {s.layout for _, s in maze_pilot.specs(BY_NAME["delay-late"], 5)}
-    repro_delay = {trial_spec(BY_NAME["delay-late"], "dqn-tamer/true", k, FULL).layout
-                   for k in range(n_trials(BY_NAME["delay-late"], FULL))}
+    repro_delay = {
+        trial_spec(BY_NAME["delay-late"], "dqn-tamer/true", k, FULL).layout
+        for k in range(n_trials(BY_NAME["delay-late"], FULL))
+    }
     assert delay and all(L % 2 == 0 for L in delay) and not delay & repro_delay
     # a drifting observer drifts over the pilot's own length
     assert {s.observer.drift_episodes for _, s in maze_pilot.specs(BY_NAME["delay-drift"], 150)} == {150}

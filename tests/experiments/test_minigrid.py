@@ -1,5 +1,6 @@
 """A task with pictures: MiniGrid's 7x7x3 view, the default CNN, the grid-world progress rule; DQN-TAMER
 (feedback) learns it in fewer steps than DQN (none) on the in-process runner."""
+
 from __future__ import annotations
 
 import numpy as np

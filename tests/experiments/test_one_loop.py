@@ -1,5 +1,6 @@
 """One step loop: the in-process runner and the live learner's core, given the same ordered inputs, end with
 the same weights bit for bit, for all four agents."""
+
 import pytest
 
 from common.agents import ALGOS
@@ -41,14 +42,36 @@ def to_messages(inputs, t0: float = T0, period: float = PERIOD) -> list:
     for kind, rec in inputs:
         if kind == "step":
             k = int(rec["t"])
-            out.append(Step(run=RUN, incarnation="actor-1", seq=k, t_action=t0 + k * period, episode=rec["episode"],
-                            t_in_episode=t_in, obs=rec["obs"].tolist(), action=rec["action"], reward=rec["reward"],
-                            next_obs=rec["next_obs"].tolist(), terminated=rec["terminated"],
-                            truncated=rec["truncated"], weights_version=0, info=rule_info(rec["polarity"])))
+            out.append(
+                Step(
+                    run=RUN,
+                    incarnation="actor-1",
+                    seq=k,
+                    t_action=t0 + k * period,
+                    episode=rec["episode"],
+                    t_in_episode=t_in,
+                    obs=rec["obs"].tolist(),
+                    action=rec["action"],
+                    reward=rec["reward"],
+                    next_obs=rec["next_obs"].tolist(),
+                    terminated=rec["terminated"],
+                    truncated=rec["truncated"],
+                    weights_version=0,
+                    info=rule_info(rec["polarity"]),
+                )
+            )
             t_in = 0 if rec["terminated"] or rec["truncated"] else t_in + 1
         else:
-            out.append(Feedback(run=RUN, teacher_id="oracle", seq=seq_fb, t_reaction=t0 + rec["t"] * period,
-                                value=rec["value"], source="oracle"))
+            out.append(
+                Feedback(
+                    run=RUN,
+                    teacher_id="oracle",
+                    seq=seq_fb,
+                    t_reaction=t0 + rec["t"] * period,
+                    value=rec["value"],
+                    source="oracle",
+                )
+            )
             seq_fb += 1
     return out
 
@@ -57,8 +80,9 @@ def to_messages(inputs, t0: float = T0, period: float = PERIOD) -> list:
 def test_runner_and_live_learner_end_with_identical_weights(algo):
     config = LearnerConfig(run=RUN, task=Task(env="maze", layout=2, seed=11), algo=algo)
     agent = agent_of(config)
-    spec = TrialSpec("maze", agent, ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11, layout=2,
-                     episodes=8)
+    spec = TrialSpec(
+        "maze", agent, ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11, layout=2, episodes=8
+    )
     result, inputs = runner_inputs(spec)
     n_feedback = sum(kind == "feedback" for kind, _ in inputs)
     assert result.total_steps > 80 and n_feedback > 40
@@ -85,10 +109,21 @@ def test_with_a_delay_learned_in_seconds_too():
     clock (the same seconds) credit every feedback with the same learned posterior, across episodes."""
     from dataclasses import replace
 
-    config = LearnerConfig(run=RUN, task=Task(env="maze", layout=2, seed=11), algo="dqn-tamer",
-                           agent=replace(agent_of(LearnerConfig(run=RUN)), learn_delay=True))
-    spec = TrialSpec("maze", agent_of(config), ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)), seed=11,
-                     layout=2, episodes=8, step_seconds=0.5)
+    config = LearnerConfig(
+        run=RUN,
+        task=Task(env="maze", layout=2, seed=11),
+        algo="dqn-tamer",
+        agent=replace(agent_of(LearnerConfig(run=RUN)), learn_delay=True),
+    )
+    spec = TrialSpec(
+        "maze",
+        agent_of(config),
+        ObserverConfig(p_feedback=0.6, delay_probs=(0.3, 0.6, 0.1)),
+        seed=11,
+        layout=2,
+        episodes=8,
+        step_seconds=0.5,
+    )
     result, inputs = runner_inputs(spec)
     core = LearnerCore(config)
     for msg in to_messages(inputs, t0=0.0, period=0.5):

@@ -1,4 +1,5 @@
 """The reproduction pipeline: cached resume after an interruption, report generation, trial seeds."""
+
 import dataclasses
 import json
 import os
@@ -10,8 +11,16 @@ from experiments import trialcache
 from experiments.sweeps import execute
 from experiments.conditions import BY_NAME, CONDITIONS, FULL, Scale, n_trials, trial_spec
 
-TINY = Scale(layouts=4, reps=1, maze_episodes=3, taxi_episodes=2, taxi_random_episodes=2, taxi_trials=2,
-             first_layout=0, seed_block=1)  # development layouts and seeds, never a deciding trial
+TINY = Scale(
+    layouts=4,
+    reps=1,
+    maze_episodes=3,
+    taxi_episodes=2,
+    taxi_random_episodes=2,
+    taxi_trials=2,
+    first_layout=0,
+    seed_block=1,
+)  # development layouts and seeds, never a deciding trial
 
 
 class Stop(Exception):
@@ -127,6 +136,7 @@ def test_the_deciding_trials_are_fresh():
     """Layouts 120-179 and seed block 3: no layout and no seed of an earlier run (layouts 0-119, blocks 1 and 2,
     up to 3 repetitions) or of a pilot (seeds 9000-9999) is a deciding trial's."""
     from experiments.conditions import QUICK, trial_layout, trial_seed
+
     old = {trial_seed(L, r, b) for L in range(120) for r in range(3) for b in (1, 2)} | set(range(9000, 10000))
     for c in CONDITIONS:
         specs = [trial_spec(c, c.arms[-1], k) for k in range(n_trials(c, FULL))]
@@ -158,10 +168,14 @@ def test_full_run_jobs_are_small_longest_first_and_never_mix_batch_groups(tmp_pa
     assert all(len({trialcache._batch_group(t.spec) for t in j}) == 1 for j in jobs)
     assert 6 <= len(jobs) <= 14 and max(costs) <= sum(costs) / 2 / 3  # no job is more than a third of a worker's share
     # a family whose trials differ in a structural setting (replay size) is never batched together
-    mixed = [dataclasses.replace(t,
-                                 spec=dataclasses.replace(t.spec,
-                                                          agent=dataclasses.replace(t.spec.agent, replay_size=50_000)))
-             if k % 2 else t for k, t in enumerate(todo)]
+    mixed = [
+        dataclasses.replace(
+            t, spec=dataclasses.replace(t.spec, agent=dataclasses.replace(t.spec.agent, replay_size=50_000))
+        )
+        if k % 2
+        else t
+        for k, t in enumerate(todo)
+    ]
     assert all(len({t.spec.agent.replay_size for t in j}) == 1 for j in trialcache.make_jobs(mixed, workers=2))
     assert len(trialcache.make_jobs(todo, workers=1)) == len({trialcache._batch_group(t.spec) for t in todo})
 

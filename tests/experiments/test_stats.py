@@ -1,4 +1,5 @@
 """Cluster bootstrap (a case with known layout variance), Holm's correction, one-sided tests, MDE."""
+
 import numpy as np
 import pytest
 
@@ -20,7 +21,7 @@ def test_cluster_bootstrap_se_matches_the_layout_variance():
         v, cl = clustered(k, m, sd_l, sd_t, seed)
         ses.append(stats.cluster_bootstrap(v, cl, n_boot=1000, seed=seed)["se"])
         naive.append(stats.cluster_bootstrap(v, np.arange(len(v)), n_boot=1000, seed=seed)["se"])
-    expected = np.sqrt((sd_l ** 2 + sd_t ** 2 / m) / k)  # the mean of k cluster means
+    expected = np.sqrt((sd_l**2 + sd_t**2 / m) / k)  # the mean of k cluster means
     assert np.mean(ses) == pytest.approx(expected, rel=0.15)
     # treating the 200 trials as independent understates it by about sqrt(m)
     assert np.mean(naive) < 0.6 * np.mean(ses)
@@ -60,6 +61,7 @@ def test_one_sided_p_and_mde():
     # and a test at that effect rejects about 80% of the time
     se, k = 0.1, 30
     sd = se * np.sqrt(k)
-    rejects = np.mean([stats.one_sided_p(np.random.default_rng(s).normal(stats.mde(se, 0.05), sd, k)) < 0.05
-                       for s in range(300)])
+    rejects = np.mean(
+        [stats.one_sided_p(np.random.default_rng(s).normal(stats.mde(se, 0.05), sd, k)) < 0.05 for s in range(300)]
+    )
     assert 0.7 < rejects < 0.9

@@ -1,4 +1,5 @@
 """Sweeps: a grid from the command line and from YAML, the tidy table, cache resume, named contrasts."""
+
 import csv
 import json
 import os
@@ -30,9 +31,31 @@ contrasts:
 
 
 def cli(out, *extra):
-    return main(["sweep", "--grid", *GRID, "--trials", "3", "--layouts", "0,1", "--set", "env.episodes=3",
-                 "--contrast", CONTRAST, "--name", "small", "--out", str(out), "--workers", "1",
-                 "--no-progress", "--boot", "50", *extra])
+    return main(
+        [
+            "sweep",
+            "--grid",
+            *GRID,
+            "--trials",
+            "3",
+            "--layouts",
+            "0,1",
+            "--set",
+            "env.episodes=3",
+            "--contrast",
+            CONTRAST,
+            "--name",
+            "small",
+            "--out",
+            str(out),
+            "--workers",
+            "1",
+            "--no-progress",
+            "--boot",
+            "50",
+            *extra,
+        ]
+    )
 
 
 def read_csv(path):
@@ -45,13 +68,31 @@ def test_grid_from_the_command_line_gives_a_tidy_table_summary_figures_and_contr
     rows = read_csv(tmp_path / "trials.csv")
     # one row per cell (2 x 2), trial (3) and episode (3), every swept field a column
     assert len(rows) == 4 * 3 * 3
-    assert list(rows[0]) == ["cell", "observer.p_feedback", "agent.algo", "trial", "layout", "seed", "episode",
-                             "return", "steps", "feedback_given", "feedback_credited"]
-    assert {(r["observer.p_feedback"], r["agent.algo"]) for r in rows} == \
-        {("0.1", "dqn"), ("0.1", "dqn-tamer"), ("0.5", "dqn"), ("0.5", "dqn-tamer")}
+    assert list(rows[0]) == [
+        "cell",
+        "observer.p_feedback",
+        "agent.algo",
+        "trial",
+        "layout",
+        "seed",
+        "episode",
+        "return",
+        "steps",
+        "feedback_given",
+        "feedback_credited",
+    ]
+    assert {(r["observer.p_feedback"], r["agent.algo"]) for r in rows} == {
+        ("0.1", "dqn"),
+        ("0.1", "dqn-tamer"),
+        ("0.5", "dqn"),
+        ("0.5", "dqn-tamer"),
+    }
     # trials cycle over the given layouts, the reproduction's seeds (from layout and repetition k // 2)
     assert {(r["trial"], r["layout"], r["seed"]) for r in rows} == {
-        ("0", "0", str(trial_seed(0, 0))), ("1", "1", str(trial_seed(1, 0))), ("2", "0", str(trial_seed(0, 1)))}
+        ("0", "0", str(trial_seed(0, 0))),
+        ("1", "1", str(trial_seed(1, 0))),
+        ("2", "0", str(trial_seed(0, 1))),
+    }
     table = pq.read_table(tmp_path / "trials.parquet")
     assert table.num_rows == len(rows) and table.column_names == list(rows[0])
     assert table.schema.field("observer.p_feedback").type == "double"
@@ -70,12 +111,25 @@ def test_named_contrast_is_computed_from_the_table(tmp_path):
     rows = read_csv(tmp_path / "trials.csv")
     result = json.loads((tmp_path / "contrasts.json").read_text())
     assert [(r["metric"], r["where"]) for r in result] == [
-        ("ln_steps", "observer.p_feedback=0.1"), ("ln_steps", "observer.p_feedback=0.5"),
-        ("return", "agent.algo=dqn"), ("return", "agent.algo=dqn-tamer")]
+        ("ln_steps", "observer.p_feedback=0.1"),
+        ("ln_steps", "observer.p_feedback=0.5"),
+        ("return", "agent.algo=dqn"),
+        ("return", "agent.algo=dqn-tamer"),
+    ]
 
     def per_trial(column, transform, **where):  # per-trial mean over episodes, in trial order
-        return np.array([np.mean([transform(float(r[column])) for r in rows if r["trial"] == str(k)
-                                  and all(r[f] == v for f, v in where.items())]) for k in range(3)])
+        return np.array(
+            [
+                np.mean(
+                    [
+                        transform(float(r[column]))
+                        for r in rows
+                        if r["trial"] == str(k) and all(r[f] == v for f, v in where.items())
+                    ]
+                )
+                for k in range(3)
+            ]
+        )
 
     for r, p in zip(result[:2], ("0.1", "0.5")):  # mean ln steps, dqn-tamer minus dqn, paired by trial
         a = per_trial("steps", np.log, **{"observer.p_feedback": p, "agent.algo": "dqn-tamer"})
@@ -96,8 +150,10 @@ def test_the_same_grid_from_yaml_is_the_same_sweep(tmp_path):
     path = tmp_path / "small.yaml"
     path.write_text(YAML)
     assert cli(tmp_path / "cli") == 0
-    assert main(["sweep", str(path), "--out", str(tmp_path / "yaml"), "--workers", "1", "--no-progress",
-                 "--boot", "50"]) == 0
+    assert (
+        main(["sweep", str(path), "--out", str(tmp_path / "yaml"), "--workers", "1", "--no-progress", "--boot", "50"])
+        == 0
+    )
     assert Sweep(**load_yaml(str(path))).record() == Sweep(**load_yaml(str(tmp_path / "cli" / "sweep.yaml"))).record()
     for name in ("trials.csv", "summary.csv", "contrasts.json"):
         assert (tmp_path / "yaml" / name).read_text() == (tmp_path / "cli" / name).read_text()
@@ -143,18 +199,23 @@ def load_yaml_text(tmp_path, text):
     return load_yaml(str(p))
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--grid", "observer.p_feedbak=0.1"], "unknown sweep field"),
-    (["--grid", "observer.p_feedback=0.1,2"], "p-feedback must be in [0, 1]"),
-    (["--grid", "agent.algo=dqn,sarsa"], "agent.algo must be one of"),
-    (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=deep-tamer - agent.algo=dqn"],
-     "not in the grid"),
-    (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=dqn-tamer-agent.algo=dqn"], "a minus"),
-    (["--grid", "agent.lr=fast"], "agent.lr expects float"),
-    (["--set", "observer.delay_probs=[0.5,0.6]"], "must sum to 1"),
-    (["--grid", "env.layout=3,1000"], "layout must be in 0..179"),
-    (["--set", "env=NoSuchEnv-v0"], "unknown env"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--grid", "observer.p_feedbak=0.1"], "unknown sweep field"),
+        (["--grid", "observer.p_feedback=0.1,2"], "p-feedback must be in [0, 1]"),
+        (["--grid", "agent.algo=dqn,sarsa"], "agent.algo must be one of"),
+        (
+            ["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=deep-tamer - agent.algo=dqn"],
+            "not in the grid",
+        ),
+        (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=dqn-tamer-agent.algo=dqn"], "a minus"),
+        (["--grid", "agent.lr=fast"], "agent.lr expects float"),
+        (["--set", "observer.delay_probs=[0.5,0.6]"], "must sum to 1"),
+        (["--grid", "env.layout=3,1000"], "layout must be in 0..179"),
+        (["--set", "env=NoSuchEnv-v0"], "unknown env"),
+    ],
+)
 def test_bad_sweeps_fail_with_one_line_before_running(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exc:
         main(["sweep", *args, "--trials", "2", "--out", str(tmp_path), "--no-progress"])
@@ -165,8 +226,11 @@ def test_bad_sweeps_fail_with_one_line_before_running(tmp_path, capsys, args, me
 
 
 def test_any_agent_observer_and_env_field_reaches_the_trial():
-    sweep = Sweep(grid={"agent.lr": [0.01], "observer.delay_probs": [(1.0, 0.0, 0.0)], "env.name": ["taxi"]},
-                  fixed={"agent.algo": "deep-tamer", "observer.stop_episode": 5, "env.episodes": 4}, trials=2)
+    sweep = Sweep(
+        grid={"agent.lr": [0.01], "observer.delay_probs": [(1.0, 0.0, 0.0)], "env.name": ["taxi"]},
+        fixed={"agent.algo": "deep-tamer", "observer.stop_episode": 5, "env.episodes": 4},
+        trials=2,
+    )
     spec = sweep.spec(sweep.cells()[0], 1)
     assert (spec.agent.algo, spec.agent.lr, spec.agent.update_interval) == ("deep-tamer", 0.01, 4)  # taxi's default
     assert spec.observer.delay_probs == (1.0, 0.0, 0.0) and spec.observer.stop_episode == 5
@@ -183,8 +247,22 @@ def test_the_sweep_file_in_the_docs_is_valid(tmp_path):
 
 
 def test_an_unreachable_ray_address_is_a_one_line_error(tmp_path, capsys):
-    code = main(["sweep", "--grid", "agent.algo=dqn,dqn-tamer", "--trials", "2", "--set", "episodes=2",
-                 "--out", str(tmp_path), "--no-progress", "--ray", "127.0.0.1:1"])
+    code = main(
+        [
+            "sweep",
+            "--grid",
+            "agent.algo=dqn,dqn-tamer",
+            "--trials",
+            "2",
+            "--set",
+            "episodes=2",
+            "--out",
+            str(tmp_path),
+            "--no-progress",
+            "--ray",
+            "127.0.0.1:1",
+        ]
+    )
     assert code == 1
     assert capsys.readouterr().err.strip() == "error: cannot connect to Ray at 127.0.0.1:1: Connection refused"
 
@@ -193,11 +271,14 @@ def test_a_sweep_trial_is_the_reproductions_trial():
     from dataclasses import replace
 
     from experiments.conditions import BY_NAME, FULL, trial_spec
+
     cond = BY_NAME["maze-high-delay"]
     FULL = replace(FULL, first_layout=0, seed_block=1)  # a sweep runs the development layouts and seeds
-    sweep = Sweep(grid={"agent.algo": ["dqn", "dqn-tamer"]}, trials=45,
-                  fixed={"observer.p_feedback": 0.5, "observer.delay_probs": (0.3, 0.6, 0.1),
-                         "episodes": cond.episodes(FULL)})
+    sweep = Sweep(
+        grid={"agent.algo": ["dqn", "dqn-tamer"]},
+        trials=45,
+        fixed={"observer.p_feedback": 0.5, "observer.delay_probs": (0.3, 0.6, 0.1), "episodes": cond.episodes(FULL)},
+    )
     for cell in sweep.cells():
         for k in (0, 7, 44):
             mine, theirs = sweep.spec(cell, k), trial_spec(cond, cell.values["agent.algo"], k, FULL)

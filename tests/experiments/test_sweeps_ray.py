@@ -1,5 +1,6 @@
 """The same sweep through a real local Ray head (127.0.0.1, two CPUs) gives the local pool's results, and
 leaves no Ray process behind."""
+
 import json
 import os
 import subprocess
@@ -11,14 +12,28 @@ from experiments.__main__ import main
 from experiments.sweeps.ray_head import local_head
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-SWEEP = ["sweep", "--grid", "agent.algo=dqn,dqn-tamer", "--set", "episodes=3", "observer.p_feedback=0.3",
-         "--trials", "4", "--no-progress", "--boot", "50", "--contrast", "agent.algo=dqn-tamer - agent.algo=dqn"]
+SWEEP = [
+    "sweep",
+    "--grid",
+    "agent.algo=dqn,dqn-tamer",
+    "--set",
+    "episodes=3",
+    "observer.p_feedback=0.3",
+    "--trials",
+    "4",
+    "--no-progress",
+    "--boot",
+    "50",
+    "--contrast",
+    "agent.algo=dqn-tamer - agent.algo=dqn",
+]
 ENV = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0", "PYTHONPATH": ROOT}
 
 
 def run(args, timeout=300):
-    res = subprocess.run([sys.executable, "-m", "experiments", *args], cwd=ROOT, env=ENV, capture_output=True,
-                         text=True, timeout=timeout)
+    res = subprocess.run(
+        [sys.executable, "-m", "experiments", *args], cwd=ROOT, env=ENV, capture_output=True, text=True, timeout=timeout
+    )
     assert res.returncode == 0, res.stderr[-3000:]
     return res.stdout
 
@@ -32,8 +47,22 @@ def test_a_sweep_through_a_local_ray_head_equals_the_local_pool(tmp_path):
         # the Ray run's results were streamed back into its own cache: a repeat computes nothing
         assert "nothing to compute" in run([*SWEEP, "--out", str(tmp_path / "ray"), "--ray", head.address])
         # the reproduction is the same engine: its named grid runs through the head too
-        run(["reproduce", "--only", "maze-high-nodelay", "--layouts", "4", "--maze-episodes", "3", "--no-progress",
-             "--out", str(tmp_path / "paper"), "--ray", head.address])
+        run(
+            [
+                "reproduce",
+                "--only",
+                "maze-high-nodelay",
+                "--layouts",
+                "4",
+                "--maze-episodes",
+                "3",
+                "--no-progress",
+                "--out",
+                str(tmp_path / "paper"),
+                "--ray",
+                head.address,
+            ]
+        )
         head.snapshot()
         timing = json.loads((tmp_path / "paper" / "timing.json").read_text())
         assert timing["ray"] == head.address and timing["trials_computed"] > 0 and timing["jobs"]

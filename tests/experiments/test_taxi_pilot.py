@@ -1,4 +1,5 @@
 """The Taxi pilot: the report's convergence rule, and seeds that are never the reproduction's."""
+
 import numpy as np
 import pytest
 
@@ -23,8 +24,11 @@ def test_convergence_rule_on_known_curves():
 def test_pilot_seeds_and_tasks_are_not_the_reproductions():
     pilot = taxi_pilot.specs("taxi-s", 5, 6, {})
     fixed = taxi_pilot.specs("taxi-fixed-s", 5, 6, {})
-    repro = {trial_spec(BY_NAME[c], "dqn", k, FULL).seed for c in ("taxi-stop", "taxi-fixed-stop")
-             for k in range(n_trials(BY_NAME[c], FULL))}
+    repro = {
+        trial_spec(BY_NAME[c], "dqn", k, FULL).seed
+        for c in ("taxi-stop", "taxi-fixed-stop")
+        for k in range(n_trials(BY_NAME[c], FULL))
+    }
     assert not {s.seed for s in pilot + fixed} & repro
     assert [s.layout for s in fixed] == [3, 8, 1, 6, 11, 4]  # another order of the 12 tasks
     with pytest.raises(SystemExit):

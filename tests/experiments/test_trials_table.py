@@ -1,5 +1,6 @@
 """The per-trial table: reproduce writes it, `report --from` recomputes the same claims.json from it alone,
 and the committed table reproduces the committed docs/results/claims.json exactly."""
+
 import lzma
 import json
 import os
@@ -10,8 +11,16 @@ from experiments.__main__ import main
 from experiments.conditions import BY_NAME, Scale
 from experiments.trials import COLUMNS, read_table
 
-TINY = Scale(layouts=4, reps=1, maze_episodes=3, taxi_episodes=2, taxi_random_episodes=2, taxi_trials=2,
-             first_layout=0, seed_block=1)
+TINY = Scale(
+    layouts=4,
+    reps=1,
+    maze_episodes=3,
+    taxi_episodes=2,
+    taxi_random_episodes=2,
+    taxi_trials=2,
+    first_layout=0,
+    seed_block=1,
+)
 RESULTS = os.path.join(os.path.dirname(__file__), "..", "..", "docs", "results")
 
 
@@ -29,6 +38,7 @@ def test_report_from_the_table_recomputes_claims_exactly_without_running_a_trial
 
     def no_trials(*a, **k):
         raise AssertionError("report --from ran a trial")
+
     monkeypatch.setattr("experiments.runner.run_trials", no_trials)
     out = tmp_path / "again"
     assert main(["report", "--from", str(run / "trials.csv.xz"), "--out", str(out), "--n-boot", "50"]) == 0

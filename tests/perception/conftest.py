@@ -57,8 +57,10 @@ def pexels_sized(pexels_raw):
 def pexels_runs(pexels_sized, model):
     """The default pipeline over the whole labelled clip, at each size (run once per session)."""
     frames_by_size, fps = pexels_sized
-    return {name: evaluate.run_frames(PerceptionPipeline.from_config(PipelineConfig(), model=model), frames, fps)
-            for name, frames in frames_by_size.items()}
+    return {
+        name: evaluate.run_frames(PerceptionPipeline.from_config(PipelineConfig(), model=model), frames, fps)
+        for name, frames in frames_by_size.items()
+    }
 
 
 @pytest.fixture

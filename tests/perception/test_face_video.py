@@ -1,5 +1,6 @@
 """The face-video teacher's pure parts: scheduling reactions as clips, the assumed delay that accounts for the
 perception lag, matching perceived feedback to shown reactions, the launcher defaults, the protocol message."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -26,9 +27,22 @@ def step(seq: int, t: float, good: bool, episode: int = 0):
     from common.protocol import Step
 
     d0 = 5.0
-    return Step(run="r", incarnation="a1", seq=seq, t_action=t, episode=episode, t_in_episode=seq, obs=[0.0],
-                action=0, reward=-0.01, next_obs=[0.0], terminated=False, truncated=False, weights_version=0,
-                info={"target_distance_before": d0, "target_distance_after": d0 - 1 if good else d0 + 1})
+    return Step(
+        run="r",
+        incarnation="a1",
+        seq=seq,
+        t_action=t,
+        episode=episode,
+        t_in_episode=seq,
+        obs=[0.0],
+        action=0,
+        reward=-0.01,
+        next_obs=[0.0],
+        terminated=False,
+        truncated=False,
+        weights_version=0,
+        info={"target_distance_before": d0, "target_distance_after": d0 - 1 if good else d0 + 1},
+    )
 
 
 def play(core: FaceVideoCore, steps, until: float, t0: float = 100.0):
@@ -110,9 +124,19 @@ def test_flipped_reactions_show_the_opposite_expression():
 
 
 def reaction(seq, t0, value=1, intended=None, dur=0.75):
-    return ObserverReaction(run="r", teacher_id="face", seq=seq, ref_seq=seq, lag_steps=0, value=value,
-                            intended=value if intended is None else intended, t_start=t0, t_end=t0 + dur,
-                            camera="face", clip="pexels:0-17")
+    return ObserverReaction(
+        run="r",
+        teacher_id="face",
+        seq=seq,
+        ref_seq=seq,
+        lag_steps=0,
+        value=value,
+        intended=value if intended is None else intended,
+        t_start=t0,
+        t_end=t0 + dur,
+        camera="face",
+        clip="pexels:0-17",
+    )
 
 
 def fb(seq, t, value):
@@ -121,12 +145,14 @@ def fb(seq, t, value):
 
 def test_face_metrics_matches_feedback_to_reactions_by_capture_time():
     rs = [reaction(0, 10.0, 1), reaction(1, 12.0, -1), reaction(2, 14.0, 1), reaction(3, 16.0, -1, intended=1)]
-    fbs = [fb(0, 10.3, 1),  # read
-           fb(1, 10.6, 1),  # a second firing in the same clip: extra
-           fb(2, 12.4, 1),  # wrong polarity
-           fb(3, 13.5, -1),  # while no face was shown: extra
-           # reaction 2 missed
-           fb(4, 16.3, -1)]  # read as shown, but the observer meant +1 (a simulated misread)
+    fbs = [
+        fb(0, 10.3, 1),  # read
+        fb(1, 10.6, 1),  # a second firing in the same clip: extra
+        fb(2, 12.4, 1),  # wrong polarity
+        fb(3, 13.5, -1),  # while no face was shown: extra
+        # reaction 2 missed
+        fb(4, 16.3, -1),
+    ]  # read as shown, but the observer meant +1 (a simulated misread)
     m = face_metrics(rs, fbs)["face"]
     assert m["reactions_shown"] == 4 and m["reactions_read"] == 3 and m["missed"] == 1 and m["extra"] == 2
     assert m["polarity_errors"] == 2 and m["polarity_error_rate"] == pytest.approx(2 / 3, abs=1e-4)
@@ -146,8 +172,12 @@ def test_launcher_defaults_for_face_video():
     assert c.rate == 3.0 and c.agent.assumed_delay_probs == (0.0, 0.3333, 0.3333, 0.3334) and c.teacher_id == "face"
     c = UpConfig.flat(teacher="face-video", rate=1.0, teacher_id="me", assumed_delay_probs=(0.5, 0.5), end_grace=20)
     assert (c.rate, c.teacher_id, c.agent.assumed_delay_probs, c.end_grace) == (1.0, "me", (0.5, 0.5), 20)
-    assert face_video_defaults(UpConfig()) == {"rate": 3.0, "assumed_delay_probs": (0.0, 0.3333, 0.3333, 0.3334),
-                                               "teacher_id": "face", "end_grace": 8.0}
+    assert face_video_defaults(UpConfig()) == {
+        "rate": 3.0,
+        "assumed_delay_probs": (0.0, 0.3333, 0.3333, 0.3334),
+        "teacher_id": "face",
+        "end_grace": 8.0,
+    }
     assert UpConfig().rate == 0.0  # the oracle is untouched
 
 
@@ -204,11 +234,15 @@ def test_mcap_source_reads_a_sessions_camera_frames(tmp_path, onnx_path, capsys)
     with LogWriter(log, RunConfig.create("r", {})) as w:
         for i in range(6):
             data = cv2.imencode(".jpg", frames[i])[1].tobytes() if i != 3 else b"not a jpeg"
-            w.write(camera_key("r", "cam"), CompressedImage(timestamp=Time.from_seconds(t0 + i / 30), frame_id="cam",
-                                                            data=data, format="jpeg"))
+            w.write(
+                camera_key("r", "cam"),
+                CompressedImage(timestamp=Time.from_seconds(t0 + i / 30), frame_id="cam", data=data, format="jpeg"),
+            )
         w.write(camera_key("r", "cam"), b"{broken")
-        w.write(camera_key("r", "other"), CompressedImage(timestamp=Time.from_seconds(t0), frame_id="other",
-                                                          data=b"x", format="jpeg"))
+        w.write(
+            camera_key("r", "other"),
+            CompressedImage(timestamp=Time.from_seconds(t0), frame_id="other", data=b"x", format="jpeg"),
+        )
     got = list(iter_mcap_frames(str(log), camera="cam"))
     assert [f.index for f in got] == list(range(7))
     assert got[0].t_capture == pytest.approx(t0) and got[5].t_capture == pytest.approx(t0 + 5 / 30)

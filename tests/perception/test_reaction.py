@@ -7,8 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from common.perception.faces import FaceBox
-from common.perception.reaction import (FramePrediction, ReactionConfig, ReactionDetector,
-                                        synthetic_predictions)
+from common.perception.reaction import FramePrediction, ReactionConfig, ReactionDetector, synthetic_predictions
 
 
 def events(seq, fps=30.0, config=ReactionConfig(), **kw):
@@ -69,6 +68,7 @@ def test_behaviour_is_time_based_not_frame_based():
     # 2 s smile, 0.5 s neutral, 2 s smile at 24 and at 30 fps: same events, same times (to a frame)
     out = {}
     for fps in (24.0, 30.0):
+
         def n(s: float, fps: float = fps) -> int:
             return int(round(s * fps))
 
@@ -92,8 +92,14 @@ def test_no_smoothing_fires_on_the_first_frame():
 
 def test_label_names_from_other_models_map_to_polarity():
     labels = ("neutral", "anger", "contempt", "disgust", "fear", "happy", "sadness", "surprise")
-    for lab, value in [("happy", 1), ("contempt", -1), ("sadness", -1), ("anger", -1), ("surprise", None),
-                       ("neutral", None)]:
+    for lab, value in [
+        ("happy", 1),
+        ("contempt", -1),
+        ("sadness", -1),
+        ("anger", -1),
+        ("surprise", None),
+        ("neutral", None),
+    ]:
         evs = events([lab] * 30, labels=labels)
         assert [e.value for e in evs] == ([] if value is None else [value]), lab
 

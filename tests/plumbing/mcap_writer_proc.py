@@ -16,9 +16,22 @@ writer = LogWriter(path, RunConfig.create("killed", {"note": "sigkill test"}))
 try:
     seq = 0
     while True:
-        step = Step(run="killed", incarnation="w", seq=seq, t_action=time.time(), episode=0, t_in_episode=seq,
-                    obs=[0.0], action=0, reward=0.0, next_obs=[1.0], terminated=False, truncated=False,
-                    weights_version=0, info={})
+        step = Step(
+            run="killed",
+            incarnation="w",
+            seq=seq,
+            t_action=time.time(),
+            episode=0,
+            t_in_episode=seq,
+            obs=[0.0],
+            action=0,
+            reward=0.0,
+            next_obs=[1.0],
+            terminated=False,
+            truncated=False,
+            weights_version=0,
+            info={},
+        )
         writer.write(step_key("killed"), step.encode())
         print(seq, time.time(), flush=True)
         seq += 1

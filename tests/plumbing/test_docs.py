@@ -19,8 +19,13 @@ def test_committed_protocol_doc_equals_generated():
 
 
 def test_cli_prints_the_same_markdown():
-    out = subprocess.run([sys.executable, "-m", "services", "protocol", "--markdown"], cwd=ROOT, capture_output=True,
-                         check=True, timeout=60).stdout.decode("utf-8")
+    out = subprocess.run(
+        [sys.executable, "-m", "services", "protocol", "--markdown"],
+        cwd=ROOT,
+        capture_output=True,
+        check=True,
+        timeout=60,
+    ).stdout.decode("utf-8")
     assert out == markdown()
 
 

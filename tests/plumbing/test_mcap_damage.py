@@ -1,6 +1,7 @@
 """Damaged and wrong files: a corrupt chunk is skipped and every other chunk is read; a file that is not MCAP
 is refused with one line and a non-zero exit. What each chunk holds is worked out with the `mcap` package's
 own stream reader on the intact file, not with the project's reader."""
+
 from __future__ import annotations
 
 import os
@@ -91,7 +92,7 @@ def test_damaged_chunk_header_resyncs_on_the_next_good_chunk(tmp_path):
     k = len(chunks) // 3
     offset, length, lost = chunks[k]
     data = bytearray(path.read_bytes())
-    data[offset + 1:offset + 9] = (2**62).to_bytes(8, "little")  # the chunk's record length: runs past the end
+    data[offset + 1 : offset + 9] = (2**62).to_bytes(8, "little")  # the chunk's record length: runs past the end
     damaged = tmp_path / "damaged.mcap"
     damaged.write_bytes(bytes(data))
     got, status, _ = payloads(damaged)
@@ -137,8 +138,14 @@ def test_a_file_that_is_not_mcap_is_refused_in_one_line_with_a_nonzero_exit(tmp_
     with pytest.raises(NotMcapError):
         list(read_log(bad))
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.run([sys.executable, "-m", "services.replay", str(bad), "summary", "--no-plot"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120, env=env)
+    proc = subprocess.run(
+        [sys.executable, "-m", "services.replay", str(bad), "summary", "--no-plot"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
     assert proc.returncode != 0
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "not an MCAP file" in lines[0], proc.stderr
@@ -147,8 +154,14 @@ def test_a_file_that_is_not_mcap_is_refused_in_one_line_with_a_nonzero_exit(tmp_
 
 def replay_summary(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    return subprocess.run([sys.executable, "-m", "services.replay", *args, "summary", "--no-plot"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120, env=env)
+    return subprocess.run(
+        [sys.executable, "-m", "services.replay", *args, "summary", "--no-plot"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
 
 
 def test_summary_of_a_log_with_one_flipped_byte_exits_nonzero_and_names_what_was_lost(tmp_path):
@@ -171,7 +184,7 @@ def test_summary_of_a_log_with_one_flipped_byte_exits_nonzero_and_names_what_was
     assert f"offset {offset}" in lost_lines[0]
     assert f"{whole - len(lost)} messages read" in proc.stdout
     assert replay_summary(str(tmp_path)).returncode == 1  # the run directory: the same log
-    path.write_bytes(bytes(data[:offset + length // 2]))  # cut inside that chunk: truncated, also named
+    path.write_bytes(bytes(data[: offset + length // 2]))  # cut inside that chunk: truncated, also named
     proc = replay_summary(str(path))
     assert proc.returncode == 1 and "truncated" in proc.stdout, proc.stdout
 
@@ -184,8 +197,9 @@ def test_summary_of_an_intact_log_exits_zero(tmp_path):
 
 @pytest.mark.parametrize("kind", ["empty", "directory", "missing"])
 def test_summary_of_no_log_is_one_line_and_exit_2(tmp_path, kind):
-    target = {"empty": tmp_path / "session.mcap", "directory": tmp_path / "somedir",
-              "missing": tmp_path / "nope.mcap"}[kind]
+    target = {"empty": tmp_path / "session.mcap", "directory": tmp_path / "somedir", "missing": tmp_path / "nope.mcap"}[
+        kind
+    ]
     if kind == "empty":
         target.write_bytes(b"")
     elif kind == "directory":

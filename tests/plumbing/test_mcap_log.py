@@ -16,10 +16,30 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from common.logs.mcap_log import (LogRecoveryWarning, LogWriter, load_log, next_segment_path, read_log, segment_path,
-                             segment_paths)
-from common.protocol import (CompressedImage, Feedback, ProtocolError, RunConfig, ServiceStatus, Step, Weights,
-                             camera_key, config_key, feedback_key, status_key, step_key, weights_key)
+from common.logs.mcap_log import (
+    LogRecoveryWarning,
+    LogWriter,
+    load_log,
+    next_segment_path,
+    read_log,
+    segment_path,
+    segment_paths,
+)
+from common.protocol import (
+    CompressedImage,
+    Feedback,
+    ProtocolError,
+    RunConfig,
+    ServiceStatus,
+    Step,
+    Weights,
+    camera_key,
+    config_key,
+    feedback_key,
+    status_key,
+    step_key,
+    weights_key,
+)
 
 from .strategies import example
 
@@ -48,8 +68,12 @@ def test_write_then_read_with_schemas_and_metadata(tmp_path):
     assert reader.run_config == CONFIG
     assert [r.message.seq for r in records if isinstance(r.message, Step)] == list(range(5))
     assert [r.log_time for r in records[1:6]] == [1000, 1001, 1002, 1003, 1004]
-    assert [type(r.message).__name__ for r in records[6:]] == ["Feedback", "Weights", "CompressedImage",
-                                                               "ServiceStatus"]
+    assert [type(r.message).__name__ for r in records[6:]] == [
+        "Feedback",
+        "Weights",
+        "CompressedImage",
+        "ServiceStatus",
+    ]
     assert records[7].message.same_as(example(Weights))
     assert (records[1].key, records[1].data) == (step_key(RUN), example(Step, seq=0).encode())
     name, meta = reader.metadata[0]
@@ -60,8 +84,14 @@ def test_write_then_read_with_schemas_and_metadata(tmp_path):
     with open(path, "rb") as f:
         summary = make_reader(f).get_summary()
     schemas = {s.name: s for s in summary.schemas.values()}
-    assert set(schemas) == {"hitl.RunConfig", "hitl.Step", "hitl.Feedback", "hitl.Weights",
-                            "foxglove.CompressedImage", "hitl.ServiceStatus"}
+    assert set(schemas) == {
+        "hitl.RunConfig",
+        "hitl.Step",
+        "hitl.Feedback",
+        "hitl.Weights",
+        "foxglove.CompressedImage",
+        "hitl.ServiceStatus",
+    }
     assert all(s.encoding == "jsonschema" for s in schemas.values())
     assert json.loads(schemas["hitl.Step"].data) == Step.json_schema()
     assert json.loads(schemas["hitl.Weights"].data)["x-message-encoding"] == "safetensors"
@@ -196,13 +226,21 @@ def test_background_flush_sleeps_while_quiet_and_wakes_for_the_next_write(tmp_pa
 @pytest.mark.timeout(60)
 def test_sigkill_loses_at_most_about_one_second(tmp_path):
     path = tmp_path / "session.mcap"
-    proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name("mcap_writer_proc.py")), str(path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, str(Path(__file__).with_name("mcap_writer_proc.py")), str(path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     written: list[tuple[int, float]] = []
     try:
         # (a line cut by the kill is not a report of a write)
-        reader = threading.Thread(target=lambda: [written.append((int(f[0]), float(f[1]))) for f in
-                                                  (line.split() for line in proc.stdout) if len(f) == 2], daemon=True)
+        reader = threading.Thread(
+            target=lambda: [
+                written.append((int(f[0]), float(f[1]))) for f in (line.split() for line in proc.stdout) if len(f) == 2
+            ],
+            daemon=True,
+        )
         reader.start()
         deadline = time.monotonic() + 20
         while (not written or written[-1][1] - written[0][1] < 2.5) and time.monotonic() < deadline:
@@ -273,8 +311,12 @@ def test_writer_never_overwrites_and_is_thread_safe(tmp_path):
     base.write_bytes(b"precious")
     w = LogWriter(base, CONFIG, flush_interval=0.01)
     try:
-        threads = [threading.Thread(target=lambda k=k: [w.write(step_key(RUN), example(Step, seq=i).encode())
-                                                         for i in range(200)]) for k in range(4)]
+        threads = [
+            threading.Thread(
+                target=lambda k=k: [w.write(step_key(RUN), example(Step, seq=i).encode()) for i in range(200)]
+            )
+            for k in range(4)
+        ]
         for t in threads:
             t.start()
         for t in threads:

@@ -13,11 +13,36 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from common.protocol import (KEYS, MESSAGE_TYPES, REASONS, EpisodeSummary, Feedback, ProtocolError, RunConfig,
-                             ServiceStatus, Step,
-                             Weights, camera_key, config_key, decode, episode_key, feedback_key, feedback_wildcard,
-                             ingest_key, message_type, parse_key, perception_key, run_prefix, status_key, step_key,
-                             validate_name, weights_key, shown_key, control_key, credit_key)
+from common.protocol import (
+    KEYS,
+    MESSAGE_TYPES,
+    REASONS,
+    EpisodeSummary,
+    Feedback,
+    ProtocolError,
+    RunConfig,
+    ServiceStatus,
+    Step,
+    Weights,
+    camera_key,
+    config_key,
+    decode,
+    episode_key,
+    feedback_key,
+    feedback_wildcard,
+    ingest_key,
+    message_type,
+    parse_key,
+    perception_key,
+    run_prefix,
+    status_key,
+    step_key,
+    validate_name,
+    weights_key,
+    shown_key,
+    control_key,
+    credit_key,
+)
 from common.protocol import Log, ObserverReaction
 from common.protocol._weights import header_json
 
@@ -55,6 +80,7 @@ DROP = object()
 
 # -- round trips ---------------------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("cls", JSON_TYPES, ids=lambda c: c.__name__)
 def test_schema_is_valid_draft_2020_12(cls):
     validator(cls)
@@ -85,15 +111,27 @@ def test_weights_round_trip(msg):
 
 def test_examples_round_trip_by_key():
     keys = {
-        Step: step_key("r1"), Feedback: feedback_key("r1", "oracle"), Weights: weights_key("r1"),
-        ServiceStatus: status_key("r1", "learner"), RunConfig: config_key("r1"),
+        Step: step_key("r1"),
+        Feedback: feedback_key("r1", "oracle"),
+        Weights: weights_key("r1"),
+        ServiceStatus: status_key("r1", "learner"),
+        RunConfig: config_key("r1"),
     }
     for cls in ALL_TYPES:
-        key = keys.get(cls) or {"EpisodeSummary": episode_key("r1"), "CompressedImage": camera_key("r1", "cam0"),
-                                "ExpressionPrediction": perception_key("r1", "cam0"),
-                                "Ingest": ingest_key("r1"), "Shown": shown_key("r1", "alice"),
-                                "Control": control_key("r1"), "Credit": credit_key("r1", "alice"),
-                                "WeightsSnapshot": "hitl/r1/snapshot", "Request": "hitl/r1/request"}[cls.__name__]
+        key = (
+            keys.get(cls)
+            or {
+                "EpisodeSummary": episode_key("r1"),
+                "CompressedImage": camera_key("r1", "cam0"),
+                "ExpressionPrediction": perception_key("r1", "cam0"),
+                "Ingest": ingest_key("r1"),
+                "Shown": shown_key("r1", "alice"),
+                "Control": control_key("r1"),
+                "Credit": credit_key("r1", "alice"),
+                "WeightsSnapshot": "hitl/r1/snapshot",
+                "Request": "hitl/r1/request",
+            }[cls.__name__]
+        )
         msg = example(cls)
         back = decode(key, msg.encode())
         assert type(back) is cls
@@ -102,8 +140,14 @@ def test_examples_round_trip_by_key():
 
 
 def test_numpy_values_encode_as_plain_json():
-    msg = example(Step, obs=np.array([0.5, 1.0], np.float32), next_obs=(np.float64(1.0), np.float32(2.0)),
-                  action=np.int64(3), seq=np.uint32(9), terminated=np.bool_(True))
+    msg = example(
+        Step,
+        obs=np.array([0.5, 1.0], np.float32),
+        next_obs=(np.float64(1.0), np.float32(2.0)),
+        action=np.int64(3),
+        seq=np.uint32(9),
+        terminated=np.bool_(True),
+    )
     back = Step.decode(msg.encode())
     assert back.obs == [0.5, 1.0] and back.next_obs == [1.0, 2.0] and back.action == 3 and back.terminated is True
 
@@ -119,6 +163,7 @@ def test_episode_summary_return_field_is_named_return_on_the_wire():
 
 
 # -- rejections with the right reason ---------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("cls", ALL_TYPES, ids=lambda c: c.__name__)
 def test_malformed_and_oversized(cls):
@@ -172,8 +217,17 @@ def test_encode_validates_too():
     big = {f"{i:064d}": 2**53 - 1 for i in range(256)}  # each field in range, the whole too large
     assert reason_of(example(ServiceStatus, counters=big).encode) == "oversized"
     # The largest valid Step still fits its limit.
-    assert len(example(Step, obs=[-1.2345678901234567e-300] * 1024, next_obs=[-1.2345678901234567e-300] * 1024,
-                       info={f"{i:064d}": -1.2345678901234567e-300 for i in range(16)}).encode()) <= Step.MAX_BYTES
+    assert (
+        len(
+            example(
+                Step,
+                obs=[-1.2345678901234567e-300] * 1024,
+                next_obs=[-1.2345678901234567e-300] * 1024,
+                info={f"{i:064d}": -1.2345678901234567e-300 for i in range(16)},
+            ).encode()
+        )
+        <= Step.MAX_BYTES
+    )
 
 
 def test_feedback_rejections():
@@ -188,6 +242,7 @@ def test_other_rejections():
     assert reason_of(ServiceStatus.decode, raw(ServiceStatus, state="sleeping")) == "bad_value"
     assert reason_of(ServiceStatus.decode, raw(ServiceStatus, counters={"x": -1})) == "bad_value"
     from common.protocol import CompressedImage, ExpressionPrediction
+
     assert reason_of(CompressedImage.decode, raw(CompressedImage, data="not base64!")) == "bad_value"
     assert reason_of(CompressedImage.decode, raw(CompressedImage, timestamp={"sec": 1})) == "missing_field"
     assert reason_of(CompressedImage.decode, raw(CompressedImage, timestamp={"sec": 1, "nsec": 10**9})) == "bad_value"
@@ -204,7 +259,7 @@ def test_other_rejections():
 # -- arbitrary input: only ProtocolError, and agreement with the JSON Schema ----------------------------------
 
 DECODERS = [(cls.__name__, cls.decode) for cls in ALL_TYPES] + [
-    (f"decode[{spec.kind}]", (lambda key: (lambda b: decode(key, b)))(spec.key("r1", "x" if spec.param else None)))
+    (f"decode[{spec.kind}]", (lambda key: lambda b: decode(key, b))(spec.key("r1", "x" if spec.param else None)))
     for spec in KEYS.values()
 ]
 
@@ -292,7 +347,7 @@ def test_weights_header_schema_and_decoder_agree_on_the_version(version):
     header["__metadata__"]["version"] = str(version)
     body = json.dumps(header).encode()
     (n,) = struct.unpack("<Q", data[:8])
-    wire = struct.pack("<Q", len(body)) + body + data[8 + n:]
+    wire = struct.pack("<Q", len(body)) + body + data[8 + n :]
     try:
         Weights.decode(wire)
         accepted = True
@@ -302,6 +357,7 @@ def test_weights_header_schema_and_decoder_agree_on_the_version(version):
 
 
 # -- weights ---------------------------------------------------------------------------------------------------
+
 
 def test_weights_shape_and_name_mismatch():
     w = example(Weights)
@@ -344,10 +400,16 @@ def test_weights_rejections():
     nan = safetensors.numpy.save({"a": np.array([np.inf], np.float32)}, metadata=meta)
     assert reason_of(Weights.decode, nan) == "non_finite"
     assert reason_of(Weights.decode, safetensors.numpy.save({"a": np.ones(2, np.float32)})) == "missing_field"
-    for key, value, reason in [("version", "x", "bad_value"), ("version", "-1", "bad_value"),
-                               ("t_published", "nan", "bad_value"), ("t_published", "1e999", "non_finite"),
-                               ("format", "other", "bad_value"), ("run", "a/b", "bad_value"),
-                               ("revision", "-1", "bad_value"), ("revision", "2.5", "bad_value")]:
+    for key, value, reason in [
+        ("version", "x", "bad_value"),
+        ("version", "-1", "bad_value"),
+        ("t_published", "nan", "bad_value"),
+        ("t_published", "1e999", "non_finite"),
+        ("format", "other", "bad_value"),
+        ("run", "a/b", "bad_value"),
+        ("revision", "-1", "bad_value"),
+        ("revision", "2.5", "bad_value"),
+    ]:
         bad = safetensors.numpy.save({"a": np.ones(2, np.float32)}, metadata={**meta, key: value})
         assert reason_of(Weights.decode, bad) == reason, key
     extra = safetensors.numpy.save({"a": np.ones(2, np.float32)}, metadata={**meta, "more": "x"})
@@ -359,6 +421,7 @@ def test_weights_rejections():
 
 
 # -- keys --------------------------------------------------------------------------------------------------------
+
 
 def test_keys():
     assert step_key("r1") == "hitl/r1/step"
@@ -383,8 +446,19 @@ def test_bad_run_names(bad):
     assert reason_of(feedback_key, "r1", bad) == "bad_value"
 
 
-@pytest.mark.parametrize("key", ["hitl/r1", "hitl/r1/nope", "other/r1/step", "hitl/r1/step/x", "hitl/r1/feedback",
-                                 "hitl/r*/step", "hitl/r1/feedback/a/b", ""])
+@pytest.mark.parametrize(
+    "key",
+    [
+        "hitl/r1",
+        "hitl/r1/nope",
+        "other/r1/step",
+        "hitl/r1/step/x",
+        "hitl/r1/feedback",
+        "hitl/r*/step",
+        "hitl/r1/feedback/a/b",
+        "",
+    ],
+)
 def test_unknown_keys(key):
     assert reason_of(parse_key, key) == "unknown_key"
     assert reason_of(decode, key, example(Step).encode()) == "unknown_key"

@@ -1,5 +1,6 @@
 """The scene drawn from steps and credits: walls where the maze has walls, the agent where the environment put
 it, feedback tiles on the credited steps' cells with their weights."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -16,10 +17,24 @@ def steps_of(env, actions, seed=0):
     out = []
     for k, a in enumerate(actions):
         nxt, r, term, trunc, info = env.step(a)
-        out.append(Step(run="r", incarnation="a1", seq=k, t_action=1700000000.0 + k, episode=0, t_in_episode=k,
-                        obs=np.asarray(obs).tolist(), action=int(a), reward=float(r),
-                        next_obs=np.asarray(nxt).tolist(), terminated=term, truncated=trunc, weights_version=0,
-                        info={k2: float(v) for k2, v in info.items()}))
+        out.append(
+            Step(
+                run="r",
+                incarnation="a1",
+                seq=k,
+                t_action=1700000000.0 + k,
+                episode=0,
+                t_in_episode=k,
+                obs=np.asarray(obs).tolist(),
+                action=int(a),
+                reward=float(r),
+                next_obs=np.asarray(nxt).tolist(),
+                terminated=term,
+                truncated=trunc,
+                weights_version=0,
+                info={k2: float(v) for k2, v in info.items()},
+            )
+        )
         obs = nxt
     return out
 
@@ -55,9 +70,18 @@ def test_feedback_tiles_sit_on_the_credited_steps_with_their_weights():
     steps = steps_of(env, [1, 1, 2, 2])
     for s in steps:
         builder.feed("r", s)
-    credit = Credit(run="r", teacher_id="oracle", seq=5, value=-1, status="credited", t_reaction=1700000003.5,
-                    t_credited=1700000003.6, actor="a1", steps=[CreditedStep(1, 0.25), CreditedStep(2, 0.75)],
-                    lost_mass=0.0)
+    credit = Credit(
+        run="r",
+        teacher_id="oracle",
+        seq=5,
+        value=-1,
+        status="credited",
+        t_reaction=1700000003.5,
+        t_credited=1700000003.6,
+        actor="a1",
+        steps=[CreditedStep(1, 0.25), CreditedStep(2, 0.75)],
+        lost_mass=0.0,
+    )
     [(key, data)] = builder.feed("r", credit)
     assert key == "hitl/r/scene/feedback"
     e = SceneUpdate.decode(data).entities[0]

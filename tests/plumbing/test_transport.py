@@ -15,9 +15,22 @@ import psutil
 import pytest
 
 from common.protocol import ServiceStatus, Step, status_key, step_key
-from common.wire.transport import (Inbox, MessagePublisher, Received, client_config, declare_publisher, default_policy,
-                              free_port, open_session, peer_config, router_config, subscribe, subscription,
-                              tcp_endpoint, wait_for_router)
+from common.wire.transport import (
+    Inbox,
+    MessagePublisher,
+    Received,
+    client_config,
+    declare_publisher,
+    default_policy,
+    free_port,
+    open_session,
+    peer_config,
+    router_config,
+    subscribe,
+    subscription,
+    tcp_endpoint,
+    wait_for_router,
+)
 
 from .strategies import example
 
@@ -30,6 +43,7 @@ def item(i: int) -> Received:
 
 
 # -- Inbox ------------------------------------------------------------------------------------------------------------
+
 
 def test_inbox_drop_oldest_counts():
     q = Inbox(3, "drop_oldest")
@@ -104,10 +118,14 @@ def test_configs_are_loopback_only():
 
 # -- in one process -----------------------------------------------------------------------------------------------
 
+
 def test_in_process_router_and_clients_with_drop_and_block_publishers():
     port = free_port()
-    with open_session(router_config(port)) as _router, open_session(client_config(port)) as a, \
-            open_session(client_config(port)) as b:
+    with (
+        open_session(router_config(port)) as _router,
+        open_session(client_config(port)) as a,
+        open_session(client_config(port)) as b,
+    ):
         assert wait_for_router(a) and wait_for_router(b)
         sub, inbox = subscribe(b, "hitl/r1/**")
         try:
@@ -136,9 +154,16 @@ def test_in_process_router_and_clients_with_drop_and_block_publishers():
 
 # -- separate processes ---------------------------------------------------------------------------------------------
 
+
 def _spawn(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    return subprocess.Popen(
+        [sys.executable, *args],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
 
 
 def _readline(proc: subprocess.Popen, timeout: float) -> str:

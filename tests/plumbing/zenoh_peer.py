@@ -32,8 +32,11 @@ def sub(endpoint: str, run: str, count: int = 2, timeout: float = 20.0) -> int:
                 if isinstance(msg, Step):
                     out.update(seq=msg.seq, obs=msg.obs, action=msg.action)
                 else:
-                    out.update(version=msg.version, spec={k: list(v) for k, v in msg.spec().items()},
-                               sum=float(sum(a.sum() for a in msg.tensors.values())))
+                    out.update(
+                        version=msg.version,
+                        spec={k: list(v) for k, v in msg.spec().items()},
+                        sum=float(sum(a.sum() for a in msg.tensors.values())),
+                    )
                 print(json.dumps(out), flush=True)
                 got += 1
             print(json.dumps({"counters": inbox.snapshot()}), flush=True)
@@ -49,9 +52,24 @@ def pub(endpoint: str, run: str) -> int:
             if not (steps.wait_for_subscribers(10) and weights.wait_for_subscribers(10)):
                 print("no subscriber", flush=True)
                 return 1
-            steps.put(Step(run=run, incarnation="pub-1", seq=0, t_action=time.time(), episode=0, t_in_episode=0,
-                           obs=[0.5, -1.0], action=3, reward=-0.01, next_obs=[1.5, -1.0], terminated=False,
-                           truncated=False, weights_version=0, info={}))
+            steps.put(
+                Step(
+                    run=run,
+                    incarnation="pub-1",
+                    seq=0,
+                    t_action=time.time(),
+                    episode=0,
+                    t_in_episode=0,
+                    obs=[0.5, -1.0],
+                    action=3,
+                    reward=-0.01,
+                    next_obs=[1.5, -1.0],
+                    terminated=False,
+                    truncated=False,
+                    weights_version=0,
+                    info={},
+                )
+            )
             tensors = {"q.0.weight": np.arange(6, dtype=np.float32).reshape(3, 2), "q.0.bias": np.ones(3, np.float32)}
             weights.put(Weights(run=run, incarnation="learner-1", version=7, t_published=time.time(), tensors=tensors))
             print("sent", flush=True)

@@ -23,8 +23,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import zenoh  # noqa: E402
 
 from common.config import option, parse_config  # noqa: E402
-from common.security import (client_config_for, client_settings, load_security,  # noqa: E402
-                             SecurityConfig)
+from common.security import (
+    client_config_for,
+    client_settings,
+    load_security,  # noqa: E402
+    SecurityConfig,
+)
 from common.wire.transport import make_config, open_session, wait_for_matching  # noqa: E402
 
 
@@ -38,10 +42,14 @@ def sub(args: ClientArgs) -> int:
         closed.set()
 
     threading.Thread(target=watch_stdin, daemon=True).start()
-    with open_session(client_config_for(sec, sec.role_of(args.user), args.endpoint,
-                                        teacher=args.user if args.user in sec.teachers else None)) as session:
+    with open_session(
+        client_config_for(
+            sec, sec.role_of(args.user), args.endpoint, teacher=args.user if args.user in sec.teachers else None
+        )
+    ) as session:
         subscriber = session.declare_subscriber(
-            args.key, lambda s: samples.put((str(s.key_expr), s.payload.to_bytes())))
+            args.key, lambda s: samples.put((str(s.key_expr), s.payload.to_bytes()))
+        )
         try:
             print("subscribed", flush=True)
             while not closed.is_set():
@@ -64,8 +72,11 @@ def client_config(sec: SecurityConfig, args: ClientArgs) -> zenoh.Config:
     if args.no_auth:
         settings = {"transport/link/tls/root_ca_certificate": str(sec.path(sec.ca_cert))}
     elif args.password is not None:  # any user, any password
-        settings = {"transport/link/tls/root_ca_certificate": str(sec.path(sec.ca_cert)),
-                    "transport/auth/usrpwd/user": args.user, "transport/auth/usrpwd/password": args.password}
+        settings = {
+            "transport/link/tls/root_ca_certificate": str(sec.path(sec.ca_cert)),
+            "transport/auth/usrpwd/user": args.user,
+            "transport/auth/usrpwd/password": args.password,
+        }
     else:
         settings = client_settings(sec, args.user)
     if args.ca:

@@ -23,9 +23,18 @@ from pathlib import Path
 
 import pytest
 
-from common.security import (SecurityConfig, SecurityError, access_control, client_config_for,
-                             generate_certificates, load_security, publish_keys, read_credentials,
-                             router_config_dict, tls_endpoint)
+from common.security import (
+    SecurityConfig,
+    SecurityError,
+    access_control,
+    client_config_for,
+    generate_certificates,
+    load_security,
+    publish_keys,
+    read_credentials,
+    router_config_dict,
+    tls_endpoint,
+)
 from common.wire.transport import free_port
 
 pytestmark = [pytest.mark.live, pytest.mark.timeout(120)]
@@ -64,9 +73,13 @@ def _stop(proc: subprocess.Popen, *, close_stdin: bool = False) -> None:
 def deployment(tmp_path_factory) -> Path:
     """``python -m services security init DIR --teachers alice,bob`` (the CLI, as a user runs it)."""
     d = tmp_path_factory.mktemp("security") / "sec"
-    out = subprocess.run([sys.executable, "-m", "services", "security", "init", str(d),
-                          "--teachers", ",".join(TEACHERS)],
-                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "services", "security", "init", str(d), "--teachers", ",".join(TEACHERS)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 0, out.stderr
     return d
 
@@ -74,9 +87,23 @@ def deployment(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def router(deployment: Path):
     port = free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "services", "security", "router",
-                             "--security", str(deployment / "security.json"), "--port", str(port)],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services",
+            "security",
+            "router",
+            "--security",
+            str(deployment / "security.json"),
+            "--port",
+            str(port),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+    )
     lines: queue.Queue = queue.Queue()
     threading.Thread(target=_reader, args=(proc.stdout, lines), daemon=True).start()
     try:
@@ -91,11 +118,26 @@ class Recorder:
     """The recorder identity's subscriber to ``hitl/**`` in its own process; collects what it prints."""
 
     def __init__(self, deployment: Path, endpoint: str):
-        self.proc = subprocess.Popen([sys.executable, str(CLIENT), "sub", "--security",
-                                      str(deployment / "clients" / "recorder" / "security.json"),
-                                      "--endpoint", endpoint, "--user", "recorder", "--key", "hitl/**"],
-                                     cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.DEVNULL, text=True)
+        self.proc = subprocess.Popen(
+            [
+                sys.executable,
+                str(CLIENT),
+                "sub",
+                "--security",
+                str(deployment / "clients" / "recorder" / "security.json"),
+                "--endpoint",
+                endpoint,
+                "--user",
+                "recorder",
+                "--key",
+                "hitl/**",
+            ],
+            cwd=ROOT,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
         self.samples: list[dict] = []
         self._cond = threading.Condition()
         self._ready = threading.Event()
@@ -136,12 +178,24 @@ def recorder(deployment: Path, router: str):
         _stop(rec.proc, close_stdin=True)
 
 
-def publish(deployment: Path, endpoint: str, user: str, *puts: tuple[str, str], connect_timeout: float = 5.0,
-            **flags: object) -> dict:
+def publish(
+    deployment: Path, endpoint: str, user: str, *puts: tuple[str, str], connect_timeout: float = 5.0, **flags: object
+) -> dict:
     """Run a publisher process as ``user`` (its own client folder's security.json) and return its report."""
     folder = deployment / "clients" / (user if (deployment / "clients" / user).is_dir() else "learner")
-    cmd = [sys.executable, str(CLIENT), "pub", "--security", str(folder / "security.json"), "--endpoint", endpoint,
-           "--user", user, "--connect-timeout", str(connect_timeout)]
+    cmd = [
+        sys.executable,
+        str(CLIENT),
+        "pub",
+        "--security",
+        str(folder / "security.json"),
+        "--endpoint",
+        endpoint,
+        "--user",
+        user,
+        "--connect-timeout",
+        str(connect_timeout),
+    ]
     for key, payload in puts:
         cmd += ["--put", f"{key}={payload}"]
     for flag, value in flags.items():
@@ -153,6 +207,7 @@ def publish(deployment: Path, endpoint: str, user: str, *puts: tuple[str, str], 
 
 # -- allowed -------------------------------------------------------------------------------------------------------
 
+
 def test_access_learner_weights_and_teacher_feedback_reach_the_recorder(deployment, router, recorder):
     run = "allowed"
     learner = publish(deployment, router, "learner", (f"hitl/{run}/weights", "w1"), (f"hitl/{run}/episode", "e0"))
@@ -160,20 +215,37 @@ def test_access_learner_weights_and_teacher_feedback_reach_the_recorder(deployme
     actor = publish(deployment, router, "actor", (f"hitl/{run}/step", "s0"))
     perception = publish(deployment, router, "perception", (f"hitl/{run}/perception/cam0", "happy"))
     assert all(r["opened"] for r in (learner, alice, actor, perception))
-    for key, payload in [("weights", "w1"), ("feedback/alice", "+1"), ("step", "s0"), ("episode", "e0"),
-                         ("perception/cam0", "happy")]:
+    for key, payload in [
+        ("weights", "w1"),
+        ("feedback/alice", "+1"),
+        ("step", "s0"),
+        ("episode", "e0"),
+        ("perception/cam0", "happy"),
+    ]:
         assert recorder.wait_for(f"hitl/{run}/{key}", payload), (key, recorder.of_run(run))
-    assert sorted(recorder.of_run(run)) == sorted([
-        (f"hitl/{run}/weights", "w1"), (f"hitl/{run}/feedback/alice", "+1"), (f"hitl/{run}/step", "s0"),
-        (f"hitl/{run}/episode", "e0"), (f"hitl/{run}/perception/cam0", "happy")])
+    assert sorted(recorder.of_run(run)) == sorted(
+        [
+            (f"hitl/{run}/weights", "w1"),
+            (f"hitl/{run}/feedback/alice", "+1"),
+            (f"hitl/{run}/step", "s0"),
+            (f"hitl/{run}/episode", "e0"),
+            (f"hitl/{run}/perception/cam0", "happy"),
+        ]
+    )
 
 
 # -- denied puts: silently dropped ----------------------------------------------------------------------------------
 
+
 def test_access_teacher_cannot_publish_weights(deployment, router, recorder):
     run = "forged-weights"
-    report = publish(deployment, router, "alice", *[(f"hitl/{run}/weights", f"forged{i}") for i in range(3)],
-                     (f"hitl/{run}/feedback/alice", "sentinel"))
+    report = publish(
+        deployment,
+        router,
+        "alice",
+        *[(f"hitl/{run}/weights", f"forged{i}") for i in range(3)],
+        (f"hitl/{run}/feedback/alice", "sentinel"),
+    )
     assert report["opened"]
     # measured: the denied puts raise nothing and the publisher still sees a matching subscriber
     assert all(p["matching"] and p["result"] == "None" for p in report["puts"])
@@ -191,20 +263,44 @@ def test_access_teacher_cannot_speak_for_another_teacher(deployment, router, rec
 
 def test_access_only_the_learner_publishes_weights_and_only_teachers_feedback(deployment, router, recorder):
     run = "roles"
-    publish(deployment, router, "actor", (f"hitl/{run}/weights", "x"), (f"hitl/{run}/feedback/alice", "x"),
-            (f"hitl/{run}/step", "sentinel"))
-    publish(deployment, router, "recorder", (f"hitl/{run}/weights", "x"), (f"hitl/{run}/step", "x"),
-            (f"hitl/{run}/status/recorder", "sentinel"))
-    publish(deployment, router, "learner", (f"hitl/{run}/feedback/alice", "x"), (f"hitl/{run}/step", "x"),
-            (f"hitl/{run}/other", "x"), (f"hitl/{run}/weights", "sentinel"))
+    publish(
+        deployment,
+        router,
+        "actor",
+        (f"hitl/{run}/weights", "x"),
+        (f"hitl/{run}/feedback/alice", "x"),
+        (f"hitl/{run}/step", "sentinel"),
+    )
+    publish(
+        deployment,
+        router,
+        "recorder",
+        (f"hitl/{run}/weights", "x"),
+        (f"hitl/{run}/step", "x"),
+        (f"hitl/{run}/status/recorder", "sentinel"),
+    )
+    publish(
+        deployment,
+        router,
+        "learner",
+        (f"hitl/{run}/feedback/alice", "x"),
+        (f"hitl/{run}/step", "x"),
+        (f"hitl/{run}/other", "x"),
+        (f"hitl/{run}/weights", "sentinel"),
+    )
     for key in ("step", "status/recorder", "weights"):
         assert recorder.wait_for(f"hitl/{run}/{key}", "sentinel"), key
     assert sorted(recorder.of_run(run)) == sorted(
-        [(f"hitl/{run}/step", "sentinel"), (f"hitl/{run}/status/recorder", "sentinel"),
-         (f"hitl/{run}/weights", "sentinel")])
+        [
+            (f"hitl/{run}/step", "sentinel"),
+            (f"hitl/{run}/status/recorder", "sentinel"),
+            (f"hitl/{run}/weights", "sentinel"),
+        ]
+    )
 
 
 # -- refused connections -------------------------------------------------------------------------------------------
+
 
 def _refused(report: dict) -> None:
     assert report == {"opened": False, "error": report.get("error")}
@@ -221,15 +317,19 @@ def test_access_without_credentials_is_refused(deployment, router, recorder):
 
 def test_access_wrong_password_is_refused(deployment, router, recorder):
     run = "wrong-password"
-    _refused(publish(deployment, router, "learner", (f"hitl/{run}/weights", "x"), password="not-the-password",
-                     connect_timeout=1))
+    _refused(
+        publish(
+            deployment, router, "learner", (f"hitl/{run}/weights", "x"), password="not-the-password", connect_timeout=1
+        )
+    )
     time.sleep(0.5)
     assert recorder.of_run(run) == []
 
 
 def test_access_unknown_user_is_refused(deployment, router, recorder):
-    _refused(publish(deployment, router, "mallory", ("hitl/unknown/weights", "x"), password="whatever",
-                     connect_timeout=1))
+    _refused(
+        publish(deployment, router, "mallory", ("hitl/unknown/weights", "x"), password="whatever", connect_timeout=1)
+    )
 
 
 def test_access_plain_tcp_is_refused(deployment, router, recorder):
@@ -239,11 +339,11 @@ def test_access_plain_tcp_is_refused(deployment, router, recorder):
 
 def test_access_router_not_signed_by_the_run_ca_is_refused(deployment, router, recorder, tmp_path):
     other = generate_certificates(tmp_path / "other")  # a different CA: as if someone sat in the middle
-    _refused(publish(deployment, router, "learner", ("hitl/mitm/weights", "x"), ca=other["ca_cert"],
-                     connect_timeout=1))
+    _refused(publish(deployment, router, "learner", ("hitl/mitm/weights", "x"), ca=other["ca_cert"], connect_timeout=1))
 
 
 # -- the files and the rules (no processes) ---------------------------------------------------------------------------
+
 
 def test_access_init_writes_private_secrets_and_one_folder_per_identity(deployment):
     sec = load_security(deployment / "security.json")
@@ -276,33 +376,47 @@ def test_access_rules_are_default_deny_and_least_privilege():
         elif rule["id"].startswith("alive-") and rule["id"] not in ("alive-watch", "alive-ask"):
             # liveliness tokens: only ingress, only under the identity's own service name
             assert rule["messages"] == ["liveliness_token"] and rule["flows"] == ["ingress"]
-            user = rule["id"][len("alive-"):]
+            user = rule["id"][len("alive-") :]
             service = f"teacher.{user}" if user in ("alice", "bob") else user
             assert rule["key_exprs"] == [f"hitl/*/alive/{service}", f"hitl/*/alive/{service}/*"]
         elif rule["id"].startswith("alive-"):
             assert rule["key_exprs"] == ["hitl/*/alive/**"]
-            assert "put" not in rule["messages"] and (rule["flows"] == ["egress"] or "liveliness_token" not in
-                                                      rule["messages"])
+            assert "put" not in rule["messages"] and (
+                rule["flows"] == ["egress"] or "liveliness_token" not in rule["messages"]
+            )
         else:
             assert rule["key_exprs"] == ["hitl/**"]
             assert rule["messages"] == ["declare_subscriber"] or rule["flows"] == ["egress"]
+
     def own(service):  # each identity only its own status and log (its console's people: <service>-...)
         return [f"hitl/*/{k}/{service}{tail}" for k in ("status", "log") for tail in ("", "-$*")]
 
-    assert publish_keys(sec, "learner") == ["hitl/*/weights", "hitl/*/snapshot", "hitl/*/episode", "hitl/*/ingest",
-                                            "hitl/*/credit/*"] + own("learner")
+    assert publish_keys(sec, "learner") == [
+        "hitl/*/weights",
+        "hitl/*/snapshot",
+        "hitl/*/episode",
+        "hitl/*/ingest",
+        "hitl/*/credit/*",
+    ] + own("learner")
     assert publish_keys(sec, "alice")[:2] == ["hitl/*/feedback/alice", "hitl/*/feedback/alice-$*"]
     assert publish_keys(sec, "alice")[-4:] == own("teacher.alice")
     assert publish_keys(sec, "actor") == ["hitl/*/step", "hitl/*/camera/env"] + own("actor")
     assert publish_keys(sec, "recorder") == own("recorder")
-    assert not any("status/*" in k or k.endswith("/status/learner") for u in ("actor", "alice", "bob")
-                   for k in publish_keys(sec, u))
-    assert not any("weights" in k for u in ("actor", "recorder", "perception", "alice", "bob")
-                   for k in publish_keys(sec, u))
+    assert not any(
+        "status/*" in k or k.endswith("/status/learner")
+        for u in ("actor", "alice", "bob")
+        for k in publish_keys(sec, u)
+    )
+    assert not any(
+        "weights" in k for u in ("actor", "recorder", "perception", "alice", "bob") for k in publish_keys(sec, u)
+    )
     assert all(s["link_protocols"] == ["tls"] for s in acl["subjects"])
     one_run = access_control(SecurityConfig(ca_cert="x", credentials_file="x", teachers=("alice",), run="r1"))
-    assert {k for r in one_run["rules"] for k in r["key_exprs"]} >= {"hitl/r1/**", "hitl/r1/weights",
-                                                                     "hitl/r1/feedback/alice"}
+    assert {k for r in one_run["rules"] for k in r["key_exprs"]} >= {
+        "hitl/r1/**",
+        "hitl/r1/weights",
+        "hitl/r1/feedback/alice",
+    }
     with pytest.raises(SecurityError):
         SecurityConfig(ca_cert="x", credentials_file="x", teachers=("learner",))  # identities must differ
     with pytest.raises(SecurityError):
@@ -330,9 +444,23 @@ def test_access_router_stops_on_sigterm(deployment):
     """The router CLI exits promptly on SIGTERM (a handler that took the stop Event's lock once deadlocked)."""
     for delay in (0.0, 0.07, 0.23):
         port = free_port()
-        proc = subprocess.Popen([sys.executable, "-m", "services", "security", "router",
-                                 "--security", str(deployment / "security.json"), "--port", str(port)],
-                                cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "services",
+                "security",
+                "router",
+                "--security",
+                str(deployment / "security.json"),
+                "--port",
+                str(port),
+            ],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+        )
         try:
             assert proc.stdout.readline().startswith("ready tls/")
             time.sleep(delay)

@@ -1,5 +1,6 @@
 """The real services on the secured loopback config (`python -m services up --security FILE`): TLS, user/password
 and access control between every service and the launcher's router, and a whole run still learns."""
+
 from __future__ import annotations
 
 import json
@@ -18,8 +19,9 @@ def test_access_live_run_of_the_real_services_on_the_secured_router(tmp_path):
     from common.wire.transport import client_config
 
     init(tmp_path / "sec", ["oracle"], run="secure")
-    launch = start_up(tmp_path, "secure", "--security", str(tmp_path / "sec" / "security.json"), "--episodes", "8",
-                      "--seed", "1")
+    launch = start_up(
+        tmp_path, "secure", "--security", str(tmp_path / "sec" / "security.json"), "--episodes", "8", "--seed", "1"
+    )
     run_json = launch.rundir / "config" / "run.json"
     assert wait_for(run_json.exists, 30)
     endpoint = json.loads(run_json.read_text())["launcher"]["endpoint"]

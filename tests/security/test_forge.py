@@ -4,6 +4,7 @@ replayed authentic message, and messages signed with a stolen teacher credential
 same actions and returns as the undisturbed run of the same seed) and each is counted by its receivers.
 
 `pytest -k forge` selects them."""
+
 from __future__ import annotations
 
 import json
@@ -83,15 +84,28 @@ class Attacker:
         import dataclasses
 
         from common.wire.auth import Auth, Credential, make_teacher_credential, load_credential
-        from common.protocol import (Feedback, ServiceStatus, Step, Weights, feedback_key, status_key, step_key,
-                                     weights_key)
+        from common.protocol import (
+            Feedback,
+            ServiceStatus,
+            Step,
+            Weights,
+            feedback_key,
+            status_key,
+            step_key,
+            weights_key,
+        )
 
         run = self.run
         real = Weights.decode(self.weights[-1][0])
         learner_inc = real.incarnation
         # 1. a forged Weights message: the real learner's incarnation, version 2^53-1, real-shaped tensors
-        top = Weights(run=run, incarnation=learner_inc, version=2**53 - 1, t_published=time.time(),
-                      tensors={k: np.zeros_like(v) for k, v in real.tensors.items()}).encode()
+        top = Weights(
+            run=run,
+            incarnation=learner_inc,
+            version=2**53 - 1,
+            t_published=time.time(),
+            tensors={k: np.zeros_like(v) for k, v in real.tensors.items()},
+        ).encode()
         self.put("weights_unsigned", weights_key(run), top)
         fake_learner = Auth(Credential("learner", run, b"k" * 32))  # a guessed key: a wrong tag
         self.put("weights_bad_tag", weights_key(run), top, fake_learner.sign(weights_key(run), top))
@@ -101,8 +115,9 @@ class Attacker:
         # 2. forged `stopped` statuses of the actor, the learner and the teacher (their real incarnations)
         for service in ("actor", "learner", "teacher.oracle"):
             st = self.statuses[service]
-            stopped = dataclasses.replace(st, state="stopped", t=time.time(), counters={"steps_published": 1,
-                                                                                      "feedback_published": 0})
+            stopped = dataclasses.replace(
+                st, state="stopped", t=time.time(), counters={"steps_published": 1, "feedback_published": 0}
+            )
             self.put("status_unsigned", status_key(run, service), stopped.encode())
         # 4. sequence jumps: feedback and a step far ahead of the real ones
         fb = self.feedback
@@ -125,25 +140,37 @@ class Attacker:
                 return oracle.sign(key, data)
 
         stolen_jump = dataclasses.replace(fb, seq=fb.seq + 4000, t_reaction=time.time()).encode()
-        self.put("stolen_teacher_seq_jump", feedback_key(run, fb.teacher_id), stolen_jump,
-                 sign=sign_after_the_newest_press)
+        self.put(
+            "stolen_teacher_seq_jump", feedback_key(run, fb.teacher_id), stolen_jump, sign=sign_after_the_newest_press
+        )
         jump = dataclasses.replace(fb, seq=fb.seq + 4000, t_reaction=time.time())
         self.put("feedback_seq_jump", feedback_key(run, fb.teacher_id), jump.encode())
         step = self.last_step
-        self.put("step_seq_jump", step_key(run), dataclasses.replace(step, seq=step.seq + 4000,
-                                                                    t_action=time.time()).encode())
+        self.put(
+            "step_seq_jump",
+            step_key(run),
+            dataclasses.replace(step, seq=step.seq + 4000, t_action=time.time()).encode(),
+        )
         # 5. a fake incarnation announced by a status, then its steps
-        fake = dataclasses.replace(self.statuses["actor"], incarnation="actor-666-deadbeef", state="ready",
-                                   t=time.time())
+        fake = dataclasses.replace(
+            self.statuses["actor"], incarnation="actor-666-deadbeef", state="ready", t=time.time()
+        )
         self.put("fake_incarnation_status", status_key(run, "actor"), fake.encode())
-        self.put("fake_incarnation_step", step_key(run), dataclasses.replace(
-            step, incarnation="actor-666-deadbeef", seq=0, t_action=time.time()).encode())
+        self.put(
+            "fake_incarnation_step",
+            step_key(run),
+            dataclasses.replace(step, incarnation="actor-666-deadbeef", seq=0, t_action=time.time()).encode(),
+        )
         # a stolen teacher credential: it signs as its teacher, never as the learner or the actor
         path = make_teacher_credential(self.rundir / "credentials", run, "mallory", self.rundir / "mallory.json")
         mallory = Auth(load_credential(path))
         stopped = dataclasses.replace(self.statuses["learner"], state="stopped", t=time.time()).encode()
-        self.put("teacher_cred_status", status_key(run, "learner"), stopped,
-                 mallory.sign(status_key(run, "learner"), stopped))
+        self.put(
+            "teacher_cred_status",
+            status_key(run, "learner"),
+            stopped,
+            mallory.sign(status_key(run, "learner"), stopped),
+        )
         self.put("teacher_cred_weights", weights_key(run), top, mallory.sign(weights_key(run), top))
         assert isinstance(fb, Feedback) and isinstance(step, Step) and isinstance(fake, ServiceStatus)
 
@@ -165,8 +192,15 @@ def run_attacked(tmp_path, run: str) -> tuple:
 
     def attack() -> None:
         try:
-            ok = wait_for(lambda: attacker.steps >= 40 and attacker.weights and attacker.feedback is not None
-                          and {"actor", "learner", "teacher.oracle"} <= set(attacker.statuses), 120)
+            ok = wait_for(
+                lambda: (
+                    attacker.steps >= 40
+                    and attacker.weights
+                    and attacker.feedback is not None
+                    and {"actor", "learner", "teacher.oracle"} <= set(attacker.statuses)
+                ),
+                120,
+            )
             assert ok, "the run never got going"
             attacker.forge_all()
         except BaseException as exc:  # reported by the fixture
@@ -200,8 +234,11 @@ def actions(rundir) -> list[tuple[int, int, int]]:
     from common.logs.mcap_log import read_log
     from common.protocol import Step
 
-    return [(r.message.episode, r.message.t_in_episode, r.message.action) for r in read_log(rundir)
-            if isinstance(r.message, Step)]
+    return [
+        (r.message.episode, r.message.t_in_episode, r.message.action)
+        for r in read_log(rundir)
+        if isinstance(r.message, Step)
+    ]
 
 
 def counters(rundir, service: str) -> dict[str, int]:
@@ -291,8 +328,11 @@ def test_forge_stopped_status_in_secured_mode_with_a_teachers_credentials(runs, 
     assert wait_for(run_json.exists, 60)
     endpoint = json.loads(run_json.read_text())["launcher"]["endpoint"]
     alice = load_security(tmp_path / "sec" / "clients" / "alice" / "security.json")
-    stolen = Auth(load_credential(make_teacher_credential(launch.rundir / "credentials", "secure", "alice",
-                                                          tmp_path / "alice.json")))
+    stolen = Auth(
+        load_credential(
+            make_teacher_credential(launch.rundir / "credentials", "secure", "alice", tmp_path / "alice.json")
+        )
+    )
     seen: dict[str, object] = {}
     sent = 0
     with zenoh.open(client_config_for(alice, "teacher", endpoint, teacher="alice", connect_timeout=20)) as session:
@@ -310,8 +350,9 @@ def test_forge_stopped_status_in_secured_mode_with_a_teachers_credentials(runs, 
         assert wait_for(lambda: {"actor", "learner"} <= set(seen), 120)
         for service in ("learner", "actor", "teacher.oracle"):
             key = status_key("secure", service)
-            data = dataclasses.replace(seen.get(service) or seen["actor"], service=service, state="stopped",
-                                       t=time.time()).encode()
+            data = dataclasses.replace(
+                seen.get(service) or seen["actor"], service=service, state="stopped", t=time.time()
+            ).encode()
             pub = session.declare_publisher(key)
             for _ in range(ROUNDS):
                 pub.put(data, attachment=stolen.sign(key, data))

@@ -12,6 +12,7 @@ Measure the distributions (each prints the share of 4-seed draws that fail the r
     python -m tests.services.learning_rule --variant untrained --seeds 10000:10500
     python -m tests.services.learning_rule --live --seeds 10000:10060             # the live system, one at a time
 """
+
 from __future__ import annotations
 
 import json
@@ -98,8 +99,18 @@ def live_steps(seeds, out: Path) -> list[list[int]]:
 
     runs = []
     for s in seeds:
-        launch = start_up(out, f"s{s}", "--episodes", str(EPISODES), "--seed", str(s), "--max-ahead", "0",
-                          "--agent.history-steps", str(HISTORY_STEPS))
+        launch = start_up(
+            out,
+            f"s{s}",
+            "--episodes",
+            str(EPISODES),
+            "--seed",
+            str(s),
+            "--max-ahead",
+            "0",
+            "--agent.history-steps",
+            str(HISTORY_STEPS),
+        )
         if launch.wait(timeout=600) != 0:
             raise RuntimeError(f"live run of seed {s} failed:\n{launch.out[-2000:]}")
         assert_nothing_left(launch.rundir)
@@ -140,9 +151,11 @@ def main(argv=None) -> None:
     m = np.array([learning_measure(r) for r in runs])
     means = m[np.random.default_rng(0).integers(0, len(m), (400_000, SEEDS_PER_DRAW))].mean(axis=1)
     q = np.quantile(means, [0.5, 0.99, 0.999, 0.9999])
-    print(f"{'live' if a.live else a.variant}, seeds {lo}-{hi - 1}: per-seed measure mean {m.mean():.3f} sd "
-          f"{m.std():.3f}; 4-seed means: median {q[0]:.2f}, 99% {q[1]:.2f}, 99.9% {q[2]:.2f}, 99.99% {q[3]:.2f}; "
-          f"draws failing the rule (mean > {MAX_MEAN_LOG_STEPS}): {draw_fail_rate(m):.4%}")
+    print(
+        f"{'live' if a.live else a.variant}, seeds {lo}-{hi - 1}: per-seed measure mean {m.mean():.3f} sd "
+        f"{m.std():.3f}; 4-seed means: median {q[0]:.2f}, 99% {q[1]:.2f}, 99.9% {q[2]:.2f}, 99.99% {q[3]:.2f}; "
+        f"draws failing the rule (mean > {MAX_MEAN_LOG_STEPS}): {draw_fail_rate(m):.4%}"
+    )
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
 """Helpers of the live tests: run the launcher as a process, find processes a run left behind."""
+
 from __future__ import annotations
 
 import json
@@ -45,10 +46,10 @@ class Launch:
 
 def start_up(tmp_path: Path, run: str, *args: str) -> Launch:
     """`python -m services up` in its own session (so a test can send it SIGINT like a terminal would)."""
-    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false",
-           *args]
-    popen = subprocess.Popen(cmd, cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                             start_new_session=True)
+    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false", *args]
+    popen = subprocess.Popen(
+        cmd, cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    )
     return Launch(popen, tmp_path / run, time.time())
 
 

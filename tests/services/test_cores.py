@@ -1,4 +1,5 @@
 """The services' pure parts: step clock, learner core (hold rule, credit, determinism), teacher timing."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -31,10 +32,24 @@ def make_steps(n: int, times, seed: int = 0, incarnation: str = "actor-1") -> li
     for k in range(n):
         a = int(rng.integers(4))
         nxt, r, term, trunc, info = env.step(a)
-        out.append(Step(run=RUN, incarnation=incarnation, seq=k, t_action=float(times[k]), episode=episode,
-                        t_in_episode=t_in, obs=obs.tolist(), action=a, reward=float(r), next_obs=nxt.tolist(),
-                        terminated=bool(term), truncated=bool(trunc), weights_version=0,
-                        info={k_: float(v) for k_, v in info.items()}))
+        out.append(
+            Step(
+                run=RUN,
+                incarnation=incarnation,
+                seq=k,
+                t_action=float(times[k]),
+                episode=episode,
+                t_in_episode=t_in,
+                obs=obs.tolist(),
+                action=a,
+                reward=float(r),
+                next_obs=nxt.tolist(),
+                terminated=bool(term),
+                truncated=bool(trunc),
+                weights_version=0,
+                info={k_: float(v) for k_, v in info.items()},
+            )
+        )
         obs, t_in = nxt, t_in + 1
         if term or trunc:
             obs, episode, t_in = env.reset()[0], episode + 1, 0
@@ -46,6 +61,7 @@ def fb(seq: int, t: float, value: int = 1, teacher: str = "oracle") -> Feedback:
 
 
 # -- step clock ---------------------------------------------------------------------------------------------------
+
 
 def test_step_clock_places_times_between_actions():
     c = StepClock(8)
@@ -76,6 +92,7 @@ def test_step_clock_round_trip(durations, frac):
 
 # -- learner core -------------------------------------------------------------------------------------------------
 
+
 def config(**kw) -> LearnerConfig:
     return LearnerConfig(run=RUN, **kw)
 
@@ -94,9 +111,19 @@ def test_feedback_is_held_until_a_newer_step_arrives():
     assert core.on_feedback(fb(2, 103.7)) == []
     assert [(r.seq, r.status) for r in core.end()] == [(2, "after_end")]
     kinds = [(e.kind, e.seq, e.status) for e in core.take_entries()]
-    assert kinds == [("step", 0, "learned"), ("step", 1, "learned"), ("step", 2, "learned"), ("feedback", 0, ""),
-                     ("feedback", 1, ""), ("outcome", 1, "credited"), ("step", 3, "learned"),
-                     ("outcome", 0, "credited"), ("feedback", 2, ""), ("end", 0, ""), ("outcome", 2, "after_end")]
+    assert kinds == [
+        ("step", 0, "learned"),
+        ("step", 1, "learned"),
+        ("step", 2, "learned"),
+        ("feedback", 0, ""),
+        ("feedback", 1, ""),
+        ("outcome", 1, "credited"),
+        ("step", 3, "learned"),
+        ("outcome", 0, "credited"),
+        ("feedback", 2, ""),
+        ("end", 0, ""),
+        ("outcome", 2, "after_end"),
+    ]
 
 
 def test_a_feedback_between_two_steps_moves_the_weights_revision():
@@ -110,8 +137,16 @@ def test_a_feedback_between_two_steps_moves_the_weights_revision():
     for s in steps:
         core.on_step(s)
     version, revision = core.steps_learned, core.revision
-    press = Feedback(run=RUN, teacher_id="web-1", seq=0, t_reaction=104.5, value=1, source="key", actor="actor-1",
-                     shown=[ShownStep(k, 100.05 + k) for k in range(4)])
+    press = Feedback(
+        run=RUN,
+        teacher_id="web-1",
+        seq=0,
+        t_reaction=104.5,
+        value=1,
+        source="key",
+        actor="actor-1",
+        shown=[ShownStep(k, 100.05 + k) for k in range(4)],
+    )
     [out] = core.on_feedback(press)
     assert out.status == "credited" and core.steps_learned == version
     assert core.revision == revision + 1 == out.revision
@@ -135,8 +170,16 @@ def test_a_late_press_is_credited_while_its_steps_are_held_and_counted_as_too_ol
     steps = make_steps(80, [100.0 + k for k in range(80)])
 
     def press(seq: int) -> Feedback:
-        return Feedback(run=RUN, teacher_id="web-1", seq=seq, t_reaction=113.9, value=1, source="key",
-                        actor="actor-1", shown=[ShownStep(k, 100.05 + k) for k in range(10, 14)])
+        return Feedback(
+            run=RUN,
+            teacher_id="web-1",
+            seq=seq,
+            t_reaction=113.9,
+            value=1,
+            source="key",
+            actor="actor-1",
+            shown=[ShownStep(k, 100.05 + k) for k in range(10, 14)],
+        )
 
     for s in steps[:40]:
         core.on_step(s)
@@ -200,7 +243,7 @@ def test_step_durations_do_not_matter_on_the_step_clock(scale):
     when reactions are stamped half-way between two actions (the teacher's steps clock)."""
     n = 120
     rng = np.random.default_rng(len(scale))
-    durations = (rng.uniform(2e-4, 2e-3, n) if scale == "fast-jitter" else rng.exponential(0.3, n) + 1e-3)
+    durations = rng.uniform(2e-4, 2e-3, n) if scale == "fast-jitter" else rng.exponential(0.3, n) + 1e-3
     wall = 1.7e9 + np.concatenate([[0.0], np.cumsum(durations)[:-1]])
     virtual = np.arange(n, dtype=float)
     at = sorted(int(k) for k in rng.choice(np.arange(2, n - 1), 40, replace=False))  # feedback sent after step k
@@ -234,13 +277,14 @@ def test_config_record_round_trips():
 
 # -- teacher -------------------------------------------------------------------------------------------------------
 
+
 def teacher(**kw) -> OracleTeacher:
     return OracleTeacher(TeacherConfig(run=RUN, **kw))
 
 
 def test_steps_clock_reacts_after_step_k_plus_lag_plus_one_stamped_half_way():
     t = teacher(observer=ObserverConfig(p_feedback=1.0), task=Task(seed=5))
-    times = [1000.0 + 0.37 * k ** 1.5 for k in range(40)]
+    times = [1000.0 + 0.37 * k**1.5 for k in range(40)]
     steps = make_steps(40, times)
     sent = []
     for k, s in enumerate(steps):
@@ -285,6 +329,7 @@ def test_teacher_config_rejects_bad_values():
 
 # -- actor's weights slot -------------------------------------------------------------------------------------------
 
+
 def test_actor_never_goes_back_to_an_older_version():
     import time as _time
 
@@ -297,16 +342,18 @@ def test_actor_never_goes_back_to_an_older_version():
 
     agent = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [0])
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
-    rt = ServiceRuntime("actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False,
-                        process_default=False)
+    rt = ServiceRuntime(
+        "actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False, process_default=False
+    )
     slot = WeightsFollower(agent, spec, rt)
     slot.announced = ["learner-1", "learner-2"]  # their ServiceStatus / liveliness announced them
     inbox = Inbox(8, "block")
 
     def send(version: int, fill: float, learner: str = "learner-1", revision: int | None = None) -> None:
         tensors = {k: np.full(s, fill, np.float32) for k, s in spec.items()}
-        w = Weights(run=RUN, incarnation=learner, version=version, t_published=_time.time(), tensors=tensors,
-                    revision=revision)
+        w = Weights(
+            run=RUN, incarnation=learner, version=version, t_published=_time.time(), tensors=tensors, revision=revision
+        )
         inbox.put(Received(weights_key(RUN), w.encode(), _time.time(), None))
 
     send(5, 0.5)

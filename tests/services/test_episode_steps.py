@@ -1,5 +1,6 @@
 """`--episode-steps`: the actor's cut on episode length, validated at the edge and handed by `services up` to the
 actor (the cut itself is what `services.console.compare` runs with)."""
+
 from pathlib import Path
 
 import pytest

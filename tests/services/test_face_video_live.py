@@ -11,6 +11,7 @@ then picked by an in-process scan of honest layouts 0-18 x seeds 0-4 at the face
 step, lag 1-3 steps): it finished all 12 episodes within 240 steps there. Live it finishes fewer
 (1 to 4 in honest runs), so the test asks for a finished episode that was short (return above 0.5: at most 50 steps).
 """
+
 from __future__ import annotations
 
 import json
@@ -35,8 +36,24 @@ STEPS = 240
 @pytest.fixture(scope="module")
 def face_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("face")
-    launch = start_up(out, "face", "--teacher", "face-video", "--env", "maze", "--algo", "dqn-tamer", "--layout", "6",
-                      "--seed", "4", "--max-steps", str(STEPS), "--episodes", "1000")
+    launch = start_up(
+        out,
+        "face",
+        "--teacher",
+        "face-video",
+        "--env",
+        "maze",
+        "--algo",
+        "dqn-tamer",
+        "--layout",
+        "6",
+        "--seed",
+        "4",
+        "--max-steps",
+        str(STEPS),
+        "--episodes",
+        "1000",
+    )
     rc = launch.wait(timeout=400)
     assert rc == 0, launch.out
     yield launch
@@ -98,20 +115,47 @@ def test_mcap_source_reruns_perception_on_a_recorded_session(face_run, tmp_path)
 
     log = face_run.rundir / "session.mcap"
     records, _ = load_log(log)
-    live = [(r.message.value, r.message.t_reaction) for r in records
-            if isinstance(r.message, Feedback) and r.key == feedback_key("face", "face")]
+    live = [
+        (r.message.value, r.message.t_reaction)
+        for r in records
+        if isinstance(r.message, Feedback) and r.key == feedback_key("face", "face")
+    ]
     endpoint = tcp_endpoint(free_port())
     got: list[bytes] = []
     with open_session(router_config(endpoint)) as session:
         token = session.liveliness().declare_token("hitl/rerun/alive/tester")
         sub = _collect(session, "hitl/rerun/feedback/face", got)
         creds = make_run_credentials(tmp_path / "creds", "rerun", services=("teacher.face",))
-        out = subprocess.run([sys.executable, "-m", "services.perception", "--source", f"mcap:{log}", "--connect",
-                              endpoint, "--run", "rerun", "--wait-for", "tester", "--realtime", "false",
-                              "--credentials", str(creds["teacher.face"]),
-                              "--publish-frames", "false", "--stats-out", str(tmp_path / "stats.json"),
-                              "--parent-pid", str(os.getpid())],
-                             cwd=ROOT, env=env(), capture_output=True, text=True, timeout=180)
+        out = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "services.perception",
+                "--source",
+                f"mcap:{log}",
+                "--connect",
+                endpoint,
+                "--run",
+                "rerun",
+                "--wait-for",
+                "tester",
+                "--realtime",
+                "false",
+                "--credentials",
+                str(creds["teacher.face"]),
+                "--publish-frames",
+                "false",
+                "--stats-out",
+                str(tmp_path / "stats.json"),
+                "--parent-pid",
+                str(os.getpid()),
+            ],
+            cwd=ROOT,
+            env=env(),
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
         time.sleep(0.5)
         sub.undeclare()
         token.undeclare()
@@ -148,11 +192,31 @@ def test_malformed_frames_are_counted_and_dropped(tmp_path):
     creds = make_run_credentials(tmp_path / "creds", "bad", services=("teacher.face", "observer.cam"))
     camera = Auth(load_credential(creds["observer.cam"]))  # the frames are signed: only their content is bad
     with open_session(router_config(endpoint)) as session:
-        proc = subprocess.Popen([sys.executable, "-m", "services.perception", "--source", "zenoh:cam", "--connect",
-                                 endpoint, "--run", "bad", "--stats-out", str(stats), "--parent-pid",
-                                 str(os.getpid()), "--credentials", str(creds["teacher.face"])], cwd=ROOT, env=env(),
-                                 stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "services.perception",
+                "--source",
+                "zenoh:cam",
+                "--connect",
+                endpoint,
+                "--run",
+                "bad",
+                "--stats-out",
+                str(stats),
+                "--parent-pid",
+                str(os.getpid()),
+                "--credentials",
+                str(creds["teacher.face"]),
+            ],
+            cwd=ROOT,
+            env=env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
         try:
             assert not wait_alive(session, "bad", ["teacher.face"], 60), "perception did not come up"
             pub = session.declare_publisher(camera_key("bad", "cam"), congestion_control=zenoh.CongestionControl.BLOCK)
@@ -162,12 +226,21 @@ def test_malformed_frames_are_counted_and_dropped(tmp_path):
                 pub.put(payload, attachment=camera.sign(camera_key("bad", "cam"), payload))
                 time.sleep(0.3)  # one at a time: the service's frame queue drops the oldest when full
 
-            put(CompressedImage(timestamp=Time.from_seconds(now), frame_id="cam", data=b"not a jpeg",
-                                format="jpeg").encode())
+            put(
+                CompressedImage(
+                    timestamp=Time.from_seconds(now), frame_id="cam", data=b"not a jpeg", format="jpeg"
+                ).encode()
+            )
             put(b"\xff\xd8 raw bytes, not JSON")
             for i in range(3):
-                put(CompressedImage(timestamp=Time.from_seconds(now + 0.04 * (i + 1)), frame_id="cam",
-                                    data=encode_jpeg(frames[i], 80), format="jpeg").encode())
+                put(
+                    CompressedImage(
+                        timestamp=Time.from_seconds(now + 0.04 * (i + 1)),
+                        frame_id="cam",
+                        data=encode_jpeg(frames[i], 80),
+                        format="jpeg",
+                    ).encode()
+                )
             pub.undeclare()
             proc.send_signal(signal.SIGTERM)
             out, _ = proc.communicate(timeout=30)

@@ -1,5 +1,6 @@
 """Fault tolerance without processes: the learner's checkpoint restores bit for bit, the input gate rejects what
 must not reach a model (property-based), the resend ring is bounded, state files are atomic."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -57,14 +58,17 @@ def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo, oracle_dela
     entries and counters as a learner that never stopped (with a delay learned in seconds too: the agent's
     registry of its teachers' delays is in the checkpoint)."""
     inputs = scenario()
-    cut = next(i for i in range(150, len(inputs)) if isinstance(inputs[i], Feedback) and
-               inputs[i].t_reaction > inputs[i - 1].t_action)  # a held feedback at the cut
+    cut = next(
+        i
+        for i in range(150, len(inputs))
+        if isinstance(inputs[i], Feedback) and inputs[i].t_reaction > inputs[i - 1].t_action
+    )  # a held feedback at the cut
     ref = LearnerCore(LearnerConfig(run=RUN, algo=algo, oracle_delay=oracle_delay))
     feed(ref, inputs)
     ref.end()
 
     a = LearnerCore(LearnerConfig(run=RUN, algo=algo, oracle_delay=oracle_delay))
-    feed(a, inputs[:cut + 1])
+    feed(a, inputs[: cut + 1])
     assert a.held >= 1 or algo == "dqn-rs"
     head = a.take_entries()
     tensors, meta = a.snapshot()
@@ -74,11 +78,12 @@ def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo, oracle_dela
     b = LearnerCore(LearnerConfig(run=RUN, algo=algo, oracle_delay=oracle_delay))
     b.restore(tensors2, meta2)
     assert b.position == len(head)
-    feed(b, inputs[cut + 1:])
+    feed(b, inputs[cut + 1 :])
     b.end()
     assert weights_bytes(b) == weights_bytes(ref)
-    assert [dataclasses.astuple(e)[:4] for e in head + b.take_entries()] == \
-        [dataclasses.astuple(e)[:4] for e in ref.take_entries()]
+    assert [dataclasses.astuple(e)[:4] for e in head + b.take_entries()] == [
+        dataclasses.astuple(e)[:4] for e in ref.take_entries()
+    ]
     assert b.counters == ref.counters
     assert b.delay_summary() == ref.delay_summary() and (oracle_delay == "steps") == (not b.delays)
     full_a, full_ref = a.agent.state_dict(), ref.agent.state_dict()  # noqa: F841 (a kept learning state)
@@ -92,24 +97,39 @@ def test_checkpoint_is_not_a_pickle_and_rejects_other_files(tmp_path):
     checkpoint.save(tmp_path / "c.ckpt", *core.snapshot())
     raw = (tmp_path / "c.ckpt").read_bytes()
     assert b"\x80\x04" not in raw[:16] and raw[8:9] == b"{"  # a safetensors JSON header, not a pickle
-    (tmp_path / "bad.ckpt").write_bytes(b"\x10\x00\x00\x00\x00\x00\x00\x00{\"__metadata__\":{}}  ")
+    (tmp_path / "bad.ckpt").write_bytes(b'\x10\x00\x00\x00\x00\x00\x00\x00{"__metadata__":{}}  ')
     with pytest.raises(Exception):  # noqa: B017  (whatever safetensors raises: it never unpickles)
         checkpoint.load(tmp_path / "bad.ckpt")
 
 
 # -- input gate -------------------------------------------------------------------------------------------------------
 
+
 def gate(**kw) -> InputGate:
     g = InputGate(8, 4, teachers=("oracle",), **kw)
-    g.on_status(ServiceStatus(run=RUN, service="actor", pid=1, state="ready", t=NOW, counters={},
-                              incarnation="actor-1"))
+    g.on_status(
+        ServiceStatus(run=RUN, service="actor", pid=1, state="ready", t=NOW, counters={}, incarnation="actor-1")
+    )
     return g
 
 
 def step(seq=0, t=NOW, inc="actor-1", obs_len=8, action=1) -> Step:
-    return Step(run=RUN, incarnation=inc, seq=seq, t_action=t, episode=0, t_in_episode=seq, obs=[0.0] * obs_len,
-                action=action, reward=0.0, next_obs=[0.0] * obs_len, terminated=False, truncated=False,
-                weights_version=0, info={})
+    return Step(
+        run=RUN,
+        incarnation=inc,
+        seq=seq,
+        t_action=t,
+        episode=0,
+        t_in_episode=seq,
+        obs=[0.0] * obs_len,
+        action=action,
+        reward=0.0,
+        next_obs=[0.0] * obs_len,
+        terminated=False,
+        truncated=False,
+        weights_version=0,
+        info={},
+    )
 
 
 def test_gate_admits_announced_steps_in_order_and_drops_duplicates():
@@ -118,8 +138,9 @@ def test_gate_admits_announced_steps_in_order_and_drops_duplicates():
     assert g.admit_step(step(1), NOW) == "duplicate" and g.admit_step(step(0), NOW) == "duplicate"
     assert g.admit_step(step(3), NOW) is None  # a gap is the core's business (counted as lost there)
     assert g.admit_step(step(0, inc="actor-2"), NOW) == "unknown_incarnation"
-    g.on_status(ServiceStatus(run=RUN, service="actor", pid=2, state="starting", t=NOW, counters={},
-                              incarnation="actor-2"))
+    g.on_status(
+        ServiceStatus(run=RUN, service="actor", pid=2, state="starting", t=NOW, counters={}, incarnation="actor-2")
+    )
     assert g.admit_step(step(0, inc="actor-2"), NOW) is None  # the restarted actor replaces the old one
     assert g.admit_step(step(4, inc="actor-1"), NOW) == "retired_incarnation"
     assert g.rejected() == {"unknown_incarnation": 1, "retired_incarnation": 1}
@@ -158,17 +179,29 @@ finite = st.floats(allow_nan=False, allow_infinity=False)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(st.lists(st.tuples(st.sampled_from(["actor-1", "actor-2", "x"]), st.integers(0, 10**6),
-                          finite | st.sampled_from([math.nan, math.inf]), st.integers(1, 12), st.integers(0, 1023)),
-                max_size=40))
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["actor-1", "actor-2", "x"]),
+            st.integers(0, 10**6),
+            finite | st.sampled_from([math.nan, math.inf]),
+            st.integers(1, 12),
+            st.integers(0, 1023),
+        ),
+        max_size=40,
+    )
+)
 def test_gate_never_admits_what_a_model_cannot_take(items):
     """Whatever mix of steps arrives, an admitted one has the env's shapes, an announced incarnation, a
     timestamp near its arrival, and a seq beyond every one admitted before from that incarnation."""
     g = gate(max_future=10, max_past=600, max_seq_jump=1000)
     last: dict[str, int] = {}
     for inc, seq, dt, n, action in items:
-        s = dataclasses.replace(step(0, inc=inc, obs_len=n, action=min(action, 1023)), seq=seq,
-                                t_action=NOW + dt if math.isfinite(dt) else dt)
+        s = dataclasses.replace(
+            step(0, inc=inc, obs_len=n, action=min(action, 1023)),
+            seq=seq,
+            t_action=NOW + dt if math.isfinite(dt) else dt,
+        )
         reason = g.admit_step(s, NOW)
         if reason is None:
             assert n == 8 and 0 <= action < 4 and inc == "actor-1"
@@ -229,6 +262,7 @@ def test_gate_seq_window_is_bounded_and_survives_a_restart():
 
 # -- resend ring, state files ----------------------------------------------------------------------------------------
 
+
 class Pub:
     def __init__(self):
         self.sent = []
@@ -273,11 +307,23 @@ def test_summary_that_must_fit_its_reserve_keeps_every_count():
     """summary.json on a full disk: the bulky lists are left out first, every count and the outcome stay."""
     from services.launcher.rundir import SUMMARY_RESERVE, fit_reserve
 
-    counts = {"run": "r", "outcome": "disk_full", "error": "disk full", "steps_sent": 123456, "steps_logged": 123450,
-              "steps_learned": 123400, "feedback_sent": 999, "feedback_credited": 990,
-              "feedback_rejected": {"stale": 9}, "rejected_inputs": {"learner": {"bad_seq": 1}}}
-    big = {**counts, "episodes": [{"actor": "actor-1", "episode": i, "return": 0.5, "steps": 20} for i in range(5000)],
-           "returns": [0.5] * 5000}
+    counts = {
+        "run": "r",
+        "outcome": "disk_full",
+        "error": "disk full",
+        "steps_sent": 123456,
+        "steps_logged": 123450,
+        "steps_learned": 123400,
+        "feedback_sent": 999,
+        "feedback_credited": 990,
+        "feedback_rejected": {"stale": 9},
+        "rejected_inputs": {"learner": {"bad_seq": 1}},
+    }
+    big = {
+        **counts,
+        "episodes": [{"actor": "actor-1", "episode": i, "return": 0.5, "steps": 20} for i in range(5000)],
+        "returns": [0.5] * 5000,
+    }
     text = fit_reserve(big)
     s = json.loads(text)
     assert len(text.encode()) <= SUMMARY_RESERVE
@@ -313,9 +359,11 @@ def test_progress_file_whole_after_sigkill(tmp_path):
     import time
 
     p = tmp_path / "actor.json"
-    code = ("import sys; from services.common.progress import ProgressFile\n"
-            "f = ProgressFile(sys.argv[1]); n = 0\n"
-            "while True:\n    n += 1; f.write({'episodes_done': n, 'pad': 'y' * (n % 40)})\n")
+    code = (
+        "import sys; from services.common.progress import ProgressFile\n"
+        "f = ProgressFile(sys.argv[1]); n = 0\n"
+        "while True:\n    n += 1; f.write({'episodes_done': n, 'pad': 'y' * (n % 40)})\n"
+    )
     for delay in (0.01, 0.05, 0.2):
         p.unlink(missing_ok=True)
         proc = subprocess.Popen([sys.executable, "-c", code, str(p)], cwd=os.getcwd())
@@ -331,9 +379,24 @@ def test_progress_file_whole_after_sigkill(tmp_path):
 
 # -- the actor's weights check ------------------------------------------------------------------------------------
 
-shapes = st.dictionaries(st.sampled_from(["q.0.weight", "q.0.bias", "q.2.weight", "q.2.bias", "h.0.weight",
-                                          "h.0.bias", "h.2.weight", "h.2.bias", "x.0.weight"]),
-                         st.lists(st.integers(1, 6), min_size=1, max_size=3).map(tuple), min_size=1, max_size=9)
+shapes = st.dictionaries(
+    st.sampled_from(
+        [
+            "q.0.weight",
+            "q.0.bias",
+            "q.2.weight",
+            "q.2.bias",
+            "h.0.weight",
+            "h.0.bias",
+            "h.2.weight",
+            "h.2.bias",
+            "x.0.weight",
+        ]
+    ),
+    st.lists(st.integers(1, 6), min_size=1, max_size=3).map(tuple),
+    min_size=1,
+    max_size=9,
+)
 
 
 @settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -353,17 +416,22 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     agent = TrialBatchAgent([agent_config("dqn-tamer")], 2, 4, [0])
     spec = {k: tuple(v.shape) for k, v in agent.policy_weights(0).items()}
     before = agent.policy_weights(0)  # copies
-    rt = ServiceRuntime("actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False,
-                        process_default=False)
+    rt = ServiceRuntime(
+        "actor", ActorConfig(run=RUN, credentials=actor_credentials(RUN)), install_signals=False, process_default=False
+    )
     slot = WeightsFollower(agent, spec, rt)
     if announced:
         slot.announced = ["learner-1"]
     inbox = Inbox(4, "drop_oldest")
     now = _time.time()
     for candidate in (tensors, spec):  # the generated tensors, then exactly the right ones
-        data = Weights(run=RUN, incarnation="learner-1", version=1 if candidate is tensors else 2,
-                       t_published=max(0.0, now + dt), tensors={k: np.full(s, 0.25, np.float32)
-                                                               for k, s in candidate.items()}).encode()
+        data = Weights(
+            run=RUN,
+            incarnation="learner-1",
+            version=1 if candidate is tensors else 2,
+            t_published=max(0.0, now + dt),
+            tensors={k: np.full(s, 0.25, np.float32) for k, s in candidate.items()},
+        ).encode()
         inbox.put(Received(weights_key(RUN), data, now, None))
         adopted = slot.adopt(inbox)
         ok = announced and abs(dt) <= 10 and dict(candidate) == spec
@@ -371,8 +439,9 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
         after = agent.policy_weights(0)
         changed = any(not np.array_equal(after[k], before[k]) for k in spec)
         assert changed == (ok or slot.version > 0)
-    assert sum(v for k, v in rt.counters.items() if k.startswith("weights_dropped_")) >= 1 or \
-        (announced and abs(dt) <= 10 and dict(tensors) == spec)
+    assert sum(v for k, v in rt.counters.items() if k.startswith("weights_dropped_")) >= 1 or (
+        announced and abs(dt) <= 10 and dict(tensors) == spec
+    )
 
 
 _CREDENTIALS: dict[str, str] = {}

@@ -1,5 +1,6 @@
 """`services up --foxglove PORT`: a WebSocket client speaking Foxglove's protocol (advertise, subscribe, binary
 message data) connects to the bridge and receives the scene and the steps of a live run."""
+
 from __future__ import annotations
 
 import asyncio
@@ -75,11 +76,17 @@ async def watch(port: int, deadline: float) -> tuple[dict, dict]:
                     if data[0] == 0x01:  # message data: subscription id, log time, payload
                         sub_id, _ = struct.unpack_from("<IQ", data, 1)
                         got[channels[by_sub[sub_id]]["topic"]].append(bytes(data[13:]))
-                elif msg is not None and msg.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED,
-                                                      aiohttp.WSMsgType.ERROR):
+                elif msg is not None and msg.type in (
+                    aiohttp.WSMsgType.CLOSE,
+                    aiohttp.WSMsgType.CLOSED,
+                    aiohttp.WSMsgType.ERROR,
+                ):
                     break
-                silent = [cid for cid, t in asked.items() if cid not in again
-                          and not got[channels[cid]["topic"]] and time.monotonic() - t > 1.5]
+                silent = [
+                    cid
+                    for cid, t in asked.items()
+                    if cid not in again and not got[channels[cid]["topic"]] and time.monotonic() - t > 1.5
+                ]
                 if silent:
                     again.update(silent)
                     await subscribe(silent)

@@ -2,6 +2,7 @@
 
 Each test checks that nothing is left running afterwards (every service's argv names the run directory).
 """
+
 from __future__ import annotations
 
 import json
@@ -87,16 +88,36 @@ def test_launcher_exits_within_10_s_of_the_end(live_run):
 
 
 def test_retrain_reproduces_the_live_weights_bit_for_bit(live_run):
-    out = subprocess.run([sys.executable, "-m", "services.replay", str(live_run.rundir / "session.mcap"), "retrain"],
-                         cwd=ROOT, env=env(), capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "services.replay", str(live_run.rundir / "session.mcap"), "retrain"],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 0, out.stdout + out.stderr
     assert "IDENTICAL bit for bit" in out.stdout and "match" in out.stdout
 
 
 def test_replay_summary_agrees_with_the_launcher(live_run, tmp_path):
-    out = subprocess.run([sys.executable, "-m", "services.replay", str(live_run.rundir), "summary", "--json",
-                          "--plot", str(tmp_path / "c.png")], cwd=ROOT, env=env(), capture_output=True, text=True,
-                         timeout=120)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "services.replay",
+            str(live_run.rundir),
+            "summary",
+            "--json",
+            "--plot",
+            str(tmp_path / "c.png"),
+        ],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 0, out.stderr
     s, launcher = json.loads(out.stdout), live_run.summary()
     for k in ("steps_sent", "steps_learned", "feedback_sent", "feedback_credited", "feedback_rejected", "returns"):
@@ -113,11 +134,18 @@ def test_replay_summary_of_the_recorded_log_with_one_flipped_byte_names_what_was
     offset, length, lost = chunks[len(chunks) // 2]
     data[offset + length // 2] ^= 0x01
     (tmp_path / "session.mcap").write_bytes(bytes(data))
-    out = subprocess.run([sys.executable, "-m", "services.replay", str(tmp_path), "summary", "--no-plot"],
-                         cwd=ROOT, env=env(), capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "services.replay", str(tmp_path), "summary", "--no-plot"],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 1, out.stdout + out.stderr
-    assert "DATA LOST" in out.stdout and f"skipped 1 damaged chunk(s), {length} bytes, {len(lost)} messages" \
-        in out.stdout, out.stdout
+    assert (
+        "DATA LOST" in out.stdout and f"skipped 1 damaged chunk(s), {length} bytes, {len(lost)} messages" in out.stdout
+    ), out.stdout
 
 
 def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
@@ -127,20 +155,63 @@ def test_play_republishes_the_session_to_a_recorder(live_run, tmp_path):
     endpoint = tcp_endpoint(free_port())
     copy = tmp_path / "copy.mcap"
     creds = tmp_path / "creds"
-    subprocess.run([sys.executable, "-m", "services", "credentials", "--run", "it", "--out", str(creds)], cwd=ROOT,
-                   env=env(), check=True, timeout=60)
+    subprocess.run(
+        [sys.executable, "-m", "services", "credentials", "--run", "it", "--out", str(creds)],
+        cwd=ROOT,
+        env=env(),
+        check=True,
+        timeout=60,
+    )
     with open_session(router_config(endpoint)) as session:
-        rec = subprocess.Popen([sys.executable, "-m", "services.recorder", "--connect", endpoint, "--run", "it",
-                                "--out", str(copy), "--parent-pid", str(os.getpid()),
-                                "--credentials", str(creds / "recorder.json")], cwd=ROOT, env=env(),
-                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        rec = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "services.recorder",
+                "--connect",
+                endpoint,
+                "--run",
+                "it",
+                "--out",
+                str(copy),
+                "--parent-pid",
+                str(os.getpid()),
+                "--credentials",
+                str(creds / "recorder.json"),
+            ],
+            cwd=ROOT,
+            env=env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
         try:
             assert not wait_alive(session, "it", ["recorder"], 60)
-            play = subprocess.run([sys.executable, "-m", "services.replay", str(live_run.rundir / "session.mcap"),
-                                   "play", "--connect", endpoint, "--speed", "0", "--kinds", "step,feedback,episode",
-                                   "--start-delay", "0", "--credentials", str(creds / "launcher.json")], cwd=ROOT,
-                                   env=env(), capture_output=True, text=True,
-                                  timeout=120)
+            play = subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "services.replay",
+                    str(live_run.rundir / "session.mcap"),
+                    "play",
+                    "--connect",
+                    endpoint,
+                    "--speed",
+                    "0",
+                    "--kinds",
+                    "step,feedback,episode",
+                    "--start-delay",
+                    "0",
+                    "--credentials",
+                    str(creds / "launcher.json"),
+                ],
+                cwd=ROOT,
+                env=env(),
+                capture_output=True,
+                text=True,
+                timeout=120,
+            )
             assert play.returncode == 0, play.stderr
             time.sleep(3.0)  # the recorder checks and writes what is still in flight
         finally:
@@ -161,12 +232,14 @@ def test_dqn_live_in_lockstep_equals_the_in_process_runner(tmp_path):
     from experiments.runner import TrialSpec, run_trials
 
     episodes, seed = 6, 2
-    launch = start_up(tmp_path, "dqn", "--algo", "dqn", "--episodes", str(episodes), "--seed", str(seed),
-                      "--max-ahead", "0")
+    launch = start_up(
+        tmp_path, "dqn", "--algo", "dqn", "--episodes", str(episodes), "--seed", str(seed), "--max-ahead", "0"
+    )
     assert launch.wait(timeout=240) == 0, launch.out
     steps, _, _ = steps_in_log(launch.rundir / "session.mcap")
-    ref = run_trials([TrialSpec("maze", agent_config("dqn"), ObserverConfig(), seed, 0, episodes)],
-                     record_actions=True)[0]
+    ref = run_trials(
+        [TrialSpec("maze", agent_config("dqn"), ObserverConfig(), seed, 0, episodes)], record_actions=True
+    )[0]
     assert [m.action for m in steps] == ref.actions
     assert launch.summary()["returns"] == pytest.approx(list(ref.returns), abs=1e-9)
     assert_nothing_left(launch.rundir)
@@ -190,8 +263,18 @@ def test_dqn_tamer_live_learns_like_in_process(tmp_path):
     ref = [learning_measure(steps) for steps in in_process_steps(seeds)]
     live = []
     for s in seeds:  # one at a time: a second run's load makes the lockstep actor outrun the teacher
-        launch = start_up(tmp_path, f"s{s}", "--episodes", str(EPISODES), "--seed", str(s), "--max-ahead", "0",
-                          "--agent.history-steps", str(HISTORY_STEPS))
+        launch = start_up(
+            tmp_path,
+            f"s{s}",
+            "--episodes",
+            str(EPISODES),
+            "--seed",
+            str(s),
+            "--max-ahead",
+            "0",
+            "--agent.history-steps",
+            str(HISTORY_STEPS),
+        )
         assert launch.wait(timeout=240) == 0, launch.out
         summary = launch.summary()
         # None stale, none ignored: every feedback reached H (the measure alone would pass an agent that ignores
@@ -201,8 +284,10 @@ def test_dqn_tamer_live_learns_like_in_process(tmp_path):
         assert all(e["finished"] for e in summary["episodes"])
         live.append(learning_measure([e["steps"] for e in summary["episodes"]]))
         assert_nothing_left(launch.rundir)
-    msg = (f"mean log steps of episodes 10-19 per seed: live {np.round(live, 2)} (mean {np.mean(live):.2f}), "
-           f"in-process {np.round(ref, 2)} (mean {np.mean(ref):.2f}); limit {MAX_MEAN_LOG_STEPS}")
+    msg = (
+        f"mean log steps of episodes 10-19 per seed: live {np.round(live, 2)} (mean {np.mean(live):.2f}), "
+        f"in-process {np.round(ref, 2)} (mean {np.mean(ref):.2f}); limit {MAX_MEAN_LOG_STEPS}"
+    )
     assert passes(ref), "in process: " + msg  # deterministic: the algorithm itself changed (re-measure the rule)
     assert passes(live), "live: " + msg
 
@@ -260,8 +345,14 @@ def test_killed_recorder_log_is_recovered_up_to_its_last_chunk(tmp_path):
     assert status.truncated and not status.complete
     # Every step flushed before the kill was recovered, in order, and nothing else was lost on the way.
     assert [m.seq for m in steps] == list(range(len(steps))) and len(steps) >= len(flushed) > 20
-    out = subprocess.run([sys.executable, "-m", "services.replay", str(log), "summary", "--no-plot"], cwd=ROOT,
-                         env=env(), capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "services.replay", str(log), "summary", "--no-plot"],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     # read up to the cut, and the cut is named: exit 1 (data lost), not 0
     assert out.returncode == 1 and "recovered" in out.stderr and "lost:" in out.stdout, out.stdout + out.stderr
     assert "truncated" in out.stdout and "(complete)" not in out.stdout

@@ -3,6 +3,7 @@ every JSON message against the schema embedded in the log, protobuf parses every
 FileDescriptorSet embedded in the log, and the scene messages are checked against Foxglove's published schemas
 (the `foxglove-schemas-protobuf` package: same message names, field names, numbers and types, and the bytes
 parse with Foxglove's own compiled classes). Nothing from `common` is imported here."""
+
 from __future__ import annotations
 
 import collections
@@ -73,7 +74,7 @@ def test_every_message_matches_its_embedded_schema_and_the_scene_matches_foxglov
                 else:  # safetensors: the schema is that of its JSON header
                     assert channel.message_encoding == "safetensors"
                     (n,) = struct.unpack("<Q", message.data[:8])
-                    doc = json.loads(message.data[8:8 + n])
+                    doc = json.loads(message.data[8 : 8 + n])
                 validators[schema.id].validate(doc)
             else:
                 assert (schema.encoding, channel.message_encoding) == ("protobuf", "protobuf"), schema.name
@@ -98,8 +99,10 @@ def test_every_message_matches_its_embedded_schema_and_the_scene_matches_foxglov
     ours = _protobuf_class(scene_schema).DESCRIPTOR
     _same_as_published(ours, SceneUpdate.DESCRIPTOR)
     with open(maze_log, "rb") as f:
-        scenes = [(c.topic, m.data) for _, c, m in make_reader(f).iter_messages(topics=[
-            "/scene/layout", "/scene/agent", "/scene/feedback"])]
+        scenes = [
+            (c.topic, m.data)
+            for _, c, m in make_reader(f).iter_messages(topics=["/scene/layout", "/scene/agent", "/scene/feedback"])
+        ]
     walls_seen = False
     for topic, data in scenes:
         msg = SceneUpdate()

@@ -1,5 +1,6 @@
 """Your own task in the live system: a Gymnasium id and a user's module:factory env with a user's rule run in
 `python -m services up`, with an agent hyper-parameter from the command line in the log's first record."""
+
 from __future__ import annotations
 
 import os
@@ -31,13 +32,13 @@ def closer_or_quiet(info):
 
 def _run(tmp_path, run: str, *args: str, pythonpath: str | None = None):
     """`python -m services up` (as tests/services/live.py starts it), with a user's folder on PYTHONPATH."""
-    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false",
-           *args]
+    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false", *args]
     env = live_env()
     if pythonpath:
         env["PYTHONPATH"] = os.pathsep.join([env["PYTHONPATH"], pythonpath])
-    popen = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                             start_new_session=True)
+    popen = subprocess.Popen(
+        cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    )
     launch = Launch(popen, tmp_path / run, time.time())
     try:
         assert launch.wait(timeout=240) == 0, launch.out
@@ -47,8 +48,22 @@ def _run(tmp_path, run: str, *args: str, pythonpath: str | None = None):
 
 
 def test_gymnasium_id_runs_live_with_agent_lr_in_the_first_record(tmp_path):
-    launch = _run(tmp_path, "lake", "--env", "CliffWalking-v1", "--algo", "dqn-tamer", "--episodes", "2",
-                  "--max-steps", "300", "--agent.lr", "5e-4", "--observer.p-feedback", "0.8")
+    launch = _run(
+        tmp_path,
+        "lake",
+        "--env",
+        "CliffWalking-v1",
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "2",
+        "--max-steps",
+        "300",
+        "--agent.lr",
+        "5e-4",
+        "--observer.p-feedback",
+        "0.8",
+    )
     reader = read_log(launch.rundir / "session.mcap")
     records = list(reader)
     config = records[0].message.config
@@ -64,11 +79,25 @@ def test_gymnasium_id_runs_live_with_agent_lr_in_the_first_record(tmp_path):
 def test_user_factory_and_rule_run_live(tmp_path):
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "userworld.py").write_text(USER_MODULE)
-    launch = _run(tmp_path, "user", "--env", "userworld:make_lake", "--teacher-rule", "userworld:closer_or_quiet",
-                  "--algo", "dqn-tamer", "--episodes", "3", "--max-steps", "200", pythonpath=str(tmp_path / "pkg"))
+    launch = _run(
+        tmp_path,
+        "user",
+        "--env",
+        "userworld:make_lake",
+        "--teacher-rule",
+        "userworld:closer_or_quiet",
+        "--algo",
+        "dqn-tamer",
+        "--episodes",
+        "3",
+        "--max-steps",
+        "200",
+        pythonpath=str(tmp_path / "pkg"),
+    )
     records = list(read_log(launch.rundir / "session.mcap"))
-    assert records[0].message.config["services"]["teacher.oracle"]["task"]["teacher_rule"] == \
-        "userworld:closer_or_quiet"
+    assert (
+        records[0].message.config["services"]["teacher.oracle"]["task"]["teacher_rule"] == "userworld:closer_or_quiet"
+    )
     steps = {r.message.seq: r.message for r in records if isinstance(r.message, Step)}
     feedback = [r.message for r in records if isinstance(r.message, Feedback)]
     assert steps and feedback

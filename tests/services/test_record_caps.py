@@ -1,4 +1,5 @@
 """The recorder's caps per sender and per second (a flood of big frames cannot fill the disk)."""
+
 from __future__ import annotations
 
 from services.recorder.caps import RecordCaps

@@ -1,5 +1,6 @@
 """Nothing lost, nobody let in: the live system under SIGKILLs, garbage floods and a slow learner
 (docs/faults.md). `pytest -k chaos`, `-k flood`, `-k backpressure`; run with -s to see the figures."""
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,24 @@ def test_chaos_sigkill_each_service_in_turn_loses_nothing(tmp_path):
     cfg = ChaosConfig(out=str(tmp_path), seed=0, rate=40.0, max_steps=STEPS, first_kill=3.0, gap=2.0, baseline=False)
     assert chaos(cfg) == 0
     report = json.loads(next(tmp_path.glob("chaos-*.json")).read_text())
-    print(json.dumps({k: report[k] for k in ("kills", "steps", "feedback", "rejected_inputs", "log", "retrain",
-                                             "returns", "learner_restore")}, indent=1))
+    print(
+        json.dumps(
+            {
+                k: report[k]
+                for k in (
+                    "kills",
+                    "steps",
+                    "feedback",
+                    "rejected_inputs",
+                    "log",
+                    "retrain",
+                    "returns",
+                    "learner_restore",
+                )
+            },
+            indent=1,
+        )
+    )
     assert [k["service"] for k in report["kills"]] == ["recorder", "learner", "teacher.oracle", "actor"]
     assert all(k.get("back_after_s") is not None for k in report["kills"]), report["kills"]
     st, fb = report["steps"], report["feedback"]
@@ -76,9 +93,27 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     # before the flood had loaded its imports).
     port = free_port()
     report = tmp_path / "flood.json"
-    flood = subprocess.Popen([sys.executable, "-m", "services", "flood", "--connect", f"tcp/127.0.0.1:{port}",
-                              "--run", "noisy", "--rate", "400", "--report", str(report)], cwd=ROOT, env=env(),
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    flood = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "services",
+            "flood",
+            "--connect",
+            f"tcp/127.0.0.1:{port}",
+            "--run",
+            "noisy",
+            "--rate",
+            "400",
+            "--report",
+            str(report),
+        ],
+        cwd=ROOT,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
     calm = start_up(tmp_path, "calm", *args)
     noisy = start_up(tmp_path, "noisy", *args, "--port", str(port))
     try:
@@ -111,6 +146,7 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     assert s["rejected_inputs"].get("learner", {}).get("unknown_incarnation", 0) == 0  # nothing got as far
     # the replay audit of the flooded run agrees with the live learner (no forgery reached the log)
     from services.replay.retrain import retrain
+
     audit = retrain(noisy.rundir / "session.mcap")
     assert audit.compared and audit.identical and audit.outcomes_match and audit.entry_mismatch is None, audit
     for launch in (calm, noisy):
@@ -123,9 +159,26 @@ def test_backpressure_slow_learner_keeps_every_process_bounded(tmp_path):
     behind them), nothing is dropped, the learner's lag stays bounded, and no process grows without bound (RSS
     sampled over the run)."""
     n, lag_bound = 4000, 256
-    launch = start_up(tmp_path, "slow", "--algo", "dqn", "--episodes", "100000", "--max-steps", str(n),
-                      "--max-ahead", "none", "--max-lag", str(lag_bound), "--debug-update-sleep", "0.004",
-                      "--learner-inbox", "128", "--stop-timeout", "60")
+    launch = start_up(
+        tmp_path,
+        "slow",
+        "--algo",
+        "dqn",
+        "--episodes",
+        "100000",
+        "--max-steps",
+        str(n),
+        "--max-ahead",
+        "none",
+        "--max-lag",
+        str(lag_bound),
+        "--debug-update-sleep",
+        "0.004",
+        "--learner-inbox",
+        "128",
+        "--stop-timeout",
+        "60",
+    )
     rss: dict[str, list[tuple[float, float]]] = {}
     t0 = time.time()
     try:
@@ -150,11 +203,14 @@ def test_backpressure_slow_learner_keeps_every_process_bounded(tmp_path):
     # How far behind the actor the learner was: consumption time (Ingest entry) - action time, per step.
     records, _ = load_log(launch.rundir / "session.mcap")
     t_action = {r.message.seq: r.message.t_action for r in records if isinstance(r.message, Step)}
-    t_learned = {e.seq: e.t for r in records if isinstance(r.message, Ingest) for e in r.message.entries
-                 if e.kind == "step"}
+    t_learned = {
+        e.seq: e.t for r in records if isinstance(r.message, Ingest) for e in r.message.entries if e.kind == "step"
+    }
     lag = np.array([t_learned[k] - t_action[k] for k in sorted(t_action)])
-    print(f"\nlearner lag behind the actor (s) at 25/50/75/100% of the run: "
-          f"{[round(float(lag[int(f * (len(lag) - 1))]), 2) for f in (0.25, 0.5, 0.75, 1.0)]}, max {lag.max():.2f}")
+    print(
+        f"\nlearner lag behind the actor (s) at 25/50/75/100% of the run: "
+        f"{[round(float(lag[int(f * (len(lag) - 1))]), 2) for f in (0.25, 0.5, 0.75, 1.0)]}, max {lag.max():.2f}"
+    )
     print("RSS (MiB) at 25% / 50% / end of the run, per process:")
     for name, series in sorted(rss.items()):
         k = len(series)
@@ -167,8 +223,9 @@ def test_backpressure_slow_learner_keeps_every_process_bounded(tmp_path):
     # counted in steps the actor had taken when the learner took each one (in seconds it depends on the machine's
     # load: a loaded run's learner took 15.7 ms a step, not 4, and lagged 4.5 s while 256 steps ahead) ...
     acted = np.sort(np.array(list(t_action.values())))
-    ahead = np.array([np.searchsorted(acted, t_learned[k], side="right") - (i + 1)
-                      for i, k in enumerate(sorted(t_action))])
+    ahead = np.array(
+        [np.searchsorted(acted, t_learned[k], side="right") - (i + 1) for i, k in enumerate(sorted(t_action))]
+    )
     assert ahead.max() <= lag_bound + 32, ahead.max()
     assert s["wall_s"] > n * 0.004
     # ... and once the stream is steady, no process keeps growing: over the second half of the learner's life

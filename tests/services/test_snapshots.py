@@ -1,5 +1,6 @@
 """The learner's snapshot policy: the log gets the first weights, every N steps, episode ends (numbers only),
 requests (rate-limited) and the final weights; raw weights decode back."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -46,9 +47,11 @@ def test_tensor_numbers_are_numpys_own_bit_for_bit():
 
     rng = np.random.default_rng(7)
     for scale in (1e-3, 1.0, 1e3):
-        tensors = {"w": (rng.normal(size=(19, 100)) * scale).astype(np.float32),
-                   "b": (rng.normal(size=(1, 6)) * scale + scale).astype(np.float32),
-                   "none": np.zeros((0, 4), np.float32)}
+        tensors = {
+            "w": (rng.normal(size=(19, 100)) * scale).astype(np.float32),
+            "b": (rng.normal(size=(1, 6)) * scale + scale).astype(np.float32),
+            "none": np.zeros((0, 4), np.float32),
+        }
         for s, (name, t) in zip(tensor_summaries(tensors), tensors.items()):
             a = t.astype(np.float64)
             want = (a.mean(), a.std(), a.min(), a.max(), np.sqrt(np.sum(a * a))) if a.size else (0.0,) * 5

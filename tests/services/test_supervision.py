@@ -2,6 +2,7 @@
 a full or read-only disk ends the run with one line and a summary.json, two launchers never share a run.
 
 `pytest -k hang`, `-k disk` select them."""
+
 from __future__ import annotations
 
 import json
@@ -92,11 +93,14 @@ def in_namespace(tmp_path, mount: str, *up_args: str) -> subprocess.CompletedPro
     out, keep = tmp_path / "mnt", tmp_path / "keep"
     out.mkdir()
     keep.mkdir()
-    script = (f"mount -t tmpfs -o {mount} tmpfs {out} && {sys.executable} -m services up --out {out} --run full "
-              f"--progress false {' '.join(up_args)}; rc=$?; cp -r {out}/. {keep}/ 2>/dev/null; exit $rc")
+    script = (
+        f"mount -t tmpfs -o {mount} tmpfs {out} && {sys.executable} -m services up --out {out} --run full "
+        f"--progress false {' '.join(up_args)}; rc=$?; cp -r {out}/. {keep}/ 2>/dev/null; exit $rc"
+    )
     assert shutil.which("unshare"), "util-linux unshare is needed (apt-get install util-linux)"
-    return subprocess.run(["unshare", "-rm", "sh", "-c", script], cwd=ROOT, env=env(), capture_output=True,
-                          text=True, timeout=400)
+    return subprocess.run(
+        ["unshare", "-rm", "sh", "-c", script], cwd=ROOT, env=env(), capture_output=True, text=True, timeout=400
+    )
 
 
 def test_disk_full_ends_the_run_with_one_line_and_a_summary(tmp_path):
@@ -110,13 +114,25 @@ def test_disk_full_ends_the_run_with_one_line_and_a_summary(tmp_path):
     assert s["outcome"] == "disk_full" and "disk full" in s["error"], s
     # Issue 25, finding 6: every count is in the space reserved for summary.json, and no 0-byte file is left
     # (learning_curve.png, stats/*.json.tmp used to be).
-    for key in ("steps_sent", "steps_logged", "steps_learned", "feedback_sent", "feedback_logged",
-                "feedback_credited", "feedback_rejected", "rejected_inputs", "duplicates_dropped", "log"):
+    for key in (
+        "steps_sent",
+        "steps_logged",
+        "steps_learned",
+        "feedback_sent",
+        "feedback_logged",
+        "feedback_credited",
+        "feedback_rejected",
+        "rejected_inputs",
+        "duplicates_dropped",
+        "log",
+    ):
         assert key in s, (key, sorted(s))
     assert s["steps_sent"] > 0 and s["steps_logged"] > 0, s
-    empty = [str(p.relative_to(tmp_path / "keep")) for p in (tmp_path / "keep").rglob("*")
-             if p.is_file() and p.stat().st_size == 0 and p.name != ".lock"
-             and p.parent.name != "logs"]  # a process's own output log may honestly be empty
+    empty = [
+        str(p.relative_to(tmp_path / "keep"))
+        for p in (tmp_path / "keep").rglob("*")
+        if p.is_file() and p.stat().st_size == 0 and p.name != ".lock" and p.parent.name != "logs"
+    ]  # a process's own output log may honestly be empty
     assert not empty, empty
 
 
@@ -129,8 +145,18 @@ def test_disk_read_only_out_is_one_line(tmp_path):
 
 def test_two_launchers_with_the_same_out_make_two_runs_that_both_complete(tmp_path):
     cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--episodes", "3", "--progress", "false"]
-    procs = [subprocess.Popen(cmd, cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                              start_new_session=True) for _ in range(2)]
+    procs = [
+        subprocess.Popen(
+            cmd,
+            cwd=ROOT,
+            env=env(),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )
+        for _ in range(2)
+    ]
     try:
         outs = [p.communicate(timeout=400)[0] for p in procs]
     finally:  # (a run that hangs leaves nothing behind either)
@@ -173,9 +199,14 @@ def test_a_run_directory_in_use_is_refused(tmp_path):
     launch = start_up(tmp_path, "busy", "--episodes", "200", "--rate", "20")
     try:
         assert wait_for((launch.rundir / "config" / "run.json").exists, 60)
-        second = subprocess.run([sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", "busy",
-                                 "--progress", "false"], cwd=ROOT, env=env(), capture_output=True, text=True,
-                                timeout=120)
+        second = subprocess.run(
+            [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", "busy", "--progress", "false"],
+            cwd=ROOT,
+            env=env(),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert second.returncode == 2 and "in use by another launcher" in second.stderr, second.stderr
     finally:
         launch.popen.send_signal(signal.SIGINT)

@@ -1,6 +1,7 @@
 """A run whose launcher was SIGKILLed (issue 25, finding 6): its summary.json stays `{"outcome": "running"}`
 until `python -m services.replay RUN_DIR summary --write` or the next `services up` in that `--out` writes it
 from the log, outcome `interrupted`, with the counts the log holds."""
+
 from __future__ import annotations
 
 import json
@@ -33,8 +34,14 @@ def killed_run(out, run: str):
 
 
 def replay_summary(rundir, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "services.replay", str(rundir), "summary", "--no-plot", *args],
-                          cwd=ROOT, env=env(), capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "services.replay", str(rundir), "summary", "--no-plot", *args],
+        cwd=ROOT,
+        env=env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def assert_finished_from_log(rundir) -> dict:
