@@ -3,7 +3,9 @@
 Before the held heap, glibc handed the top of the heap back after each step and Taxi's dense [32, 519] temporaries
 faulted it back in: 847 thousand page faults for two batched trials of 4000 steps, against 2.4 thousand held. Since
 Taxi's first layer is computed by row lookups (`common/agents/sparse.py`) those temporaries are gone and the default
-heap faults as little (2,330 against 2,498 in one run), so the check is now on faults per step, held or not."""
+heap often faults as little (2,330 against 2,498 in one run) but not always (349,937 against 2,304 in a full suite run
+on a loaded machine, 28 November): glibc's adaptive trim threshold depends on the process's history. So the check is on
+the held run's faults per step, and on the two runs giving the same trial."""
 
 import json
 import subprocess
@@ -36,5 +38,5 @@ def test_a_held_heap_gives_the_same_taxi_trial_and_no_page_faults_per_step():
     }
     got = {how: json.loads(p.communicate(timeout=120)[0]) for how, p in runs.items()}
     assert got["held"]["digest"] == got["default"]["digest"] and got["held"]["steps"] > 100
-    # measured: about 0.6 faults a step either way (was 212 a step with the default heap before the row lookups)
-    assert all(run["faults"] < 4 * run["steps"] for run in got.values()), got
+    # measured: about 0.6 faults a step held (the default heap: 0.6 to 87 a step, 212 before the row lookups)
+    assert got["held"]["faults"] < 4 * got["held"]["steps"], got
