@@ -31,12 +31,12 @@ import numpy as np
 from common.agents.build import SHARED_FIELDS, AgentParts, build_parts
 from common.agents.config import AgentConfig
 from common.agents.feedback import (
-    CREDITED,
-    IGNORED,
-    STALE,
-    STATUS_NAMES,
+    CREDITED,  # noqa: F401
+    IGNORED,  # noqa: F401
+    STALE,  # noqa: F401
+    STATUS_NAMES,  # noqa: F401
     FeedbackDoor,  # noqa: F401
-    FeedbackOutcome,
+    FeedbackOutcome,  # noqa: F401
 )
 from common.agents.history import BatchCredit
 from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, FitJob, fit_together, row_max, with_ones

@@ -152,8 +152,10 @@ class Credit(Message):
     revision: int | None = fld(
         Nullable(
             Count(
-                "The weights revision that first includes this feedback's H update: a Step whose `weights_revision` is at "
-                "least this acted on it. Null when crediting it updated nothing at once (reward shaping, or not credited)."
+                "The weights revision that first includes this feedback's H update: a Step whose "
+                "`weights_revision` is at "
+                "least this acted on it. Null when crediting it updated nothing at once (reward "
+                "shaping, or not credited)."
             )
         ),
         optional=True,

@@ -130,7 +130,8 @@ def _publishers(w) -> None:
     w("")
     w(
         "An identity is a service name; its role is the part before the first `.`. Every receiver checks a message's "
-        "authentication envelope (`common/wire/auth.py`, docs/security.md) against this table before anything else, and "
+        "authentication envelope (`common/wire/auth.py`, docs/security.md) against this table before "
+        "anything else, and "
         "the secured router's access rules are built from it. `{id}` is the identity's own name (`alice` for "
         "`teacher.alice`); every identity may also publish `status/<identity>` and `log/<identity>`."
     )

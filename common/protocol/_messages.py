@@ -73,7 +73,8 @@ class Step(Message):
             max_items=MAX_INFO_ITEMS,
             key_max_len=MAX_INFO_KEY,
             description=(
-                "The environment's `info` for this step, whole (finite numbers only), for the simulated teacher's rule: "
+                "The environment's `info` for this step, whole (finite numbers only), for the "
+                "simulated teacher's rule: "
                 "e.g. `target_distance_before` / `target_distance_after`, `reward`, and any key the env adds."
             ),
         )
@@ -81,7 +82,8 @@ class Step(Message):
     weights_revision: int | None = fld(
         Nullable(
             Count(
-                "Revision of the weights the actor acted with (Weights' `revision`: moved by every Q or H update); null "
+                "Revision of the weights the actor acted with (Weights' `revision`: moved by every Q "
+                "or H update); null "
                 "before any revised Weights arrived."
             )
         ),
@@ -148,7 +150,8 @@ class Feedback(Message):
             Float(
                 0.0,
                 description=(
-                    "A person's action on the console page: its time on the page's clock (s); `t_reaction` is this time "
+                    "A person's action on the console page: its time on the page's clock (s); "
+                    "`t_reaction` is this time "
                     "mapped to the system clock with the page's estimated offset."
                 ),
             )
@@ -163,7 +166,8 @@ class Feedback(Message):
                 max_items=MAX_SHOWN,
                 description=(
                     "The steps on the person's screen before `t_reaction`, oldest first, each with the system time it "
-                    "appeared; the learner credits the feedback in seconds over these on-screen intervals. Null: credit "
+                    "appeared; the learner credits the feedback in seconds over these on-screen "
+                    "intervals. Null: credit "
                     "by the actor's step times (simulated teachers)."
                 ),
             )
@@ -250,8 +254,10 @@ INGEST_ENTRY_SPEC = Obj(
         "kind": Str(
             enum=INGEST_KINDS,
             description=(
-                "`step` / `feedback`: an input consumed, in consumption order; `end`: the learner stopped taking inputs; "
-                "`outcome`: what became of a feedback (not an input; retrain checks it); `idle`: an extra Q and D_global "
+                "`step` / `feedback`: an input consumed, in consumption order; `end`: the learner "
+                "stopped taking inputs; "
+                "`outcome`: what became of a feedback (not an input; retrain checks it); `idle`: an "
+                "extra Q and D_global "
                 "minibatch step the learner took between two steps of a paced run (retrain repeats it)."
             ),
         ),
@@ -260,7 +266,8 @@ INGEST_ENTRY_SPEC = Obj(
             pattern=TOKEN_PATTERN,
             min_len=1,
             description=(
-                "The input's origin: the actor incarnation (step), the teacher id (feedback, outcome), the learner (end)."
+                "The input's origin: the actor incarnation (step), the teacher id (feedback, "
+                "outcome), the learner (end)."
             ),
         ),
         "seq": Int(0, description="The input's own `seq` (Step.seq, Feedback.seq); 0 for `end`."),
@@ -320,7 +327,8 @@ class Ingest(Message):
                 Embedded(lambda: _credit_type()),
                 max_items=MAX_INGEST_CREDITS,
                 description=(
-                    "What became of feedback from the teachers whose Credits ride here rather than on their own key (the "
+                    "What became of feedback from the teachers whose Credits ride here rather than "
+                    "on their own key (the "
                     "learner's `credits-in-ingest`: a run's own teacher services, one message less per feedback). The "
                     "recorder logs each on `/credit/<teacher_id>` as if it had come alone."
                 ),

@@ -33,12 +33,12 @@ from collections.abc import Callable, Iterator
 import zenoh
 
 from common.wire.inbox import (
-    QUEUE_POLICIES,
+    QUEUE_POLICIES,  # noqa: F401
     Inbox,
     Received,
     default_auth,
     default_policy,  # noqa: F401 (re-exported)
-    set_default_auth,
+    set_default_auth,  # noqa: F401
 )
 from common.config import option
 from common.protocol import parse_key

@@ -10,7 +10,8 @@ run and an in-process run with the same values are the same experiment.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import Any
+from dataclasses import dataclass, fields
 
 from common.agents import ALGOS, AgentConfig
 from common.agents.config import agent_for
@@ -18,50 +19,9 @@ from common.config import nested, option
 from common.core.credit import SCREEN_CREDIT
 from common.core.delay_model import check_delay_estimate_spec
 from common.core.observer import ObserverConfig
-from common.protocol import teacher_service_name, validate_name
+from common.protocol import teacher_service_name
 from common.core.task import Task
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-CLOCKS = ("steps", "wall")
-
-
-def _check_name(value: str, what: str) -> None:
-    try:
-        validate_name(value, what)
-    except Exception as exc:  # ProtocolError -> ValueError for the CLI
-        raise ValueError(f"{what}: {exc}") from None
-
-
-@dataclass(frozen=True)
-class ServiceConfig:
-    """Settings every service has."""
-
-    run: str = option("live", "run name: the second chunk of every key (hitl/<run>/...)")
-    connect: tuple[str, ...] = option((DEFAULT_ENDPOINT,), "Zenoh router endpoint(s) to connect to, comma-separated")
-    parent_pid: int | None = option(None, "exit when this process is gone (the launcher passes its pid)")
-    stats_out: str | None = option(None, "write final counters and latency samples to this JSON file at exit")
-    status_period: float = option(1.0, "seconds between ServiceStatus messages")
-    connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
-    security: str | None = option(
-        None,
-        "security.json of this machine (common/security.py: TLS, user/password, "
-        "access control); connect to the secured router as this service's identity",
-    )
-    credentials: str | None = option(
-        None,
-        "this service's credential file (common/wire/auth.py): signs what it publishes, "
-        "checks what it receives; the launcher writes one per service, "
-        "`python -m services credentials` for services started by hand",
-    )
-
-    def __post_init__(self):
-        _check_name(self.run, "run")
-        if not self.connect:
-            raise ValueError("connect: at least one endpoint")
-        for name in ("status_period", "connect_timeout"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"{name.replace('_', '-')} must be positive, got {v}")
+from services.common.service_config import CLOCKS, _check_name, ServiceConfig
 
 
 @dataclass(frozen=True)
@@ -427,3 +387,11 @@ class FoxgloveConfig(ServiceConfig):
             _check_name(name, "stop-when")
         if not (math.isfinite(self.linger) and self.linger >= 0):
             raise ValueError(f"linger must be >= 0, got {self.linger}")
+
+
+def learner_config_from_record(record: dict) -> LearnerConfig:
+    """Inverse of `LearnerCore.config_record()['learner']`."""
+    known = {f.name for f in fields(LearnerConfig)}
+    data: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in known}
+    data.setdefault("history_s", 0.0)  # a log recorded before history_s held the agent's step count: retrain as it ran
+    return LearnerConfig(**data)

@@ -28,7 +28,8 @@ MAX_STEPS = 200_000  # a longer log is cut to its first steps for the page (said
 def _learner_run(path) -> tuple[dict, dict]:
     """Q, H, alpha_h per (actor, seq) from a learner fed the recorded inputs, and the learner's config record."""
     from services.common.runtime import apply_torch_threads
-    from services.learner.core import LearnerCore, learner_config_from_record
+    from services.common.config import learner_config_from_record
+    from services.learner.core import LearnerCore
     from services.replay.retrain import _entries, _read, _replay
 
     log = _read(path)

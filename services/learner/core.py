@@ -46,34 +46,10 @@ from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
 from services.learner.screen import ScreenCredit, decode_feedback
 from services.learner.teacher_delays import Profiles
+from services.learner.results import FeedbackResult, EpisodeRecord
 
 REJECT_REASONS = ("stale", "too_old", "ignored", "after_end", "actor_restarted")
 ROW = np.zeros(1, np.int64)  # the core's one trial, as the step loop's rows
-
-
-@dataclasses.dataclass
-class FeedbackResult:
-    teacher: str
-    seq: int
-    status: str  # credited | stale | too_old | ignored | after_end | actor_restarted
-    steps: int = 0
-    lost_mass: float = 0.0
-    received_at: int = 0  # position of the feedback in the ingest record (for latency bookkeeping)
-    revision: int | None = None  # the weights revision right after its H update (None: it updated nothing)
-    feedback: Feedback | None = None  # the feedback itself, once resolved by credit (Credit messages)
-    credited: list = dataclasses.field(default_factory=list)  # [(Step.seq, weight)] when credited
-
-
-@dataclasses.dataclass
-class EpisodeRecord:
-    incarnation: str
-    episode: int
-    return_: float
-    steps: int
-    feedback_received: int
-    feedback_credited: int
-    weights_version: int
-    t_end: float
 
 
 class LearnerCore:
@@ -304,17 +280,9 @@ class LearnerCore:
         """{teacher id: {"median_s", "p10_s", "p90_s", "feedbacks"}} of every teacher credited in seconds;
         those on the step clock say what they assume (`assumed`)."""
         out = {t: d.summary() for t, d in sorted(self.delays.items())}
+        assumed = "steps:" + ",".join(f"{p:g}" for p in self.agent_config.assumed_delay_probs)
         for t in sorted(self.teacher_next):
-            out.setdefault(
-                t,
-                {
-                    "median_s": None,
-                    "p10_s": None,
-                    "p90_s": None,
-                    "assumed": "steps:" + ",".join(f"{p:g}" for p in self.agent_config.assumed_delay_probs),
-                    "feedbacks": None,
-                },
-            )
+            out.setdefault(t, dict.fromkeys(("median_s", "p10_s", "p90_s")) | {"assumed": assumed, "feedbacks": None})
         return out
 
     @property
@@ -426,11 +394,3 @@ class LearnerCore:
     @staticmethod
     def _new_episode_accumulator() -> dict[str, Any]:
         return {"episode": None, "return": 0.0, "steps": 0, "received": 0, "credited": 0, "t_end": 0.0}
-
-
-def learner_config_from_record(record: dict) -> LearnerConfig:
-    """Inverse of `LearnerCore.config_record()['learner']`."""
-    known = {f.name for f in dataclasses.fields(LearnerConfig)}
-    data: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in record.items() if k in known}
-    data.setdefault("history_s", 0.0)  # a log recorded before history_s held the agent's step count: retrain as it ran
-    return LearnerConfig(**data)

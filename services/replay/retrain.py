@@ -169,7 +169,8 @@ def _first_mismatch(mine: list, entries: list) -> str | None:
 
 def retrain(path: str | os.PathLike, learner: str | None = None) -> RetrainResult:
     from services.common.runtime import apply_torch_threads
-    from services.learner.core import LearnerCore, learner_config_from_record
+    from services.common.config import learner_config_from_record
+    from services.learner.core import LearnerCore
 
     log = _read(path)
     learner, entries, config = _entries(path, log, learner)

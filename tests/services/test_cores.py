@@ -17,7 +17,8 @@ from common.core.seeding import derive_seed
 from common.core.task import Task
 from services.common.config import LearnerConfig, TeacherConfig
 from services.common.stepclock import StepClock
-from services.learner.core import LearnerCore, learner_config_from_record
+from services.common.config import learner_config_from_record
+from services.learner.core import LearnerCore
 from services.teacher.oracle import OracleTeacher
 
 RUN = "t"
