@@ -1,5 +1,5 @@
 import sys
 
-from services.learner.service import cli
+from services.learner.start import cli
 
 sys.exit(cli())

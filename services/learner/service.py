@@ -32,10 +32,8 @@ import time
 
 from common.pathtrace import traced
 from common.protocol import (
-    KEYS,
     MAX_INGEST_CREDITS,
     kind_of,
-    teacher_id_of,
     Credit,
     EpisodeSummary,
     Feedback,
@@ -44,43 +42,21 @@ from common.protocol import (
     ServiceStatus,
     Step,
     Weights,
-    episode_key,
-    feedback_wildcard,
-    ingest_key,
-    step_key,
-    weights_key,
 )
 from services.common.config import LearnerConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
 from services.common.resend import ResendRing, publish_kept
-from services.common.watches import AliveWatch, IncarnationWatch, decoded_statuses
-from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
+from services.common.watches import decoded_statuses
+from services.common.runtime import ServiceRuntime
 from services.learner import checkpoint
 from services.learner.catchup import catch_up
 from services.learner.credits import credit_message, publish_credit
 from services.learner.core import LearnerCore
+from services.learner.end_rule import EndRule
 from services.learner.snapshots import Snapshots
 from services.learner.teacher_delays import delay_message
 
 REVISION_QUIET = 0.02  # s since the last step before weights changed without a new step go out on their own
-
-
-def restore(config: LearnerConfig, rt: ServiceRuntime, core: LearnerCore, gate: InputGate) -> dict | None:
-    """Restore the core, the gate and the service counters from `config.checkpoint` if there is one;
-    returns what the new Ingest record says it resumed from (None when starting afresh)."""
-    ck = checkpoint.load(config.checkpoint) if config.checkpoint else None
-    if ck is None:
-        return None
-    tensors, meta = ck
-    core.restore(tensors, meta["core"])
-    gate.load(meta["gate"])
-    rt.counters.update(meta["service"]["counters"])
-    return {
-        "learner": meta["service"]["incarnation"],
-        "position": core.position,
-        "steps_learned": core.steps_learned,
-        "t_saved": meta["service"]["t_saved"],
-    }
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,10 +105,7 @@ class Learner:
         self.note_rejected = first_time_logger(rt.event, "input")
         self.last_weights = PublishedWeights(0 if resumed is None else -1, core.revision)
         self.last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
-        self.actor_final: int | None = None
-        self.teachers_final: dict[str, int] = {}
-        self.teachers_known: set[str] = set(config.wait_teachers)
-        self.caught_up_at: float | None = None
+        self.end = EndRule(config.wait_teachers, config.end_grace, rt)
         self.last_step_at = 0.0  # (monotonic) when the last step arrived
 
     # -- outputs ---------------------------------------------------------------------------------------------
@@ -304,7 +277,7 @@ class Learner:
                     ),
                 )
             return False
-        self.teachers_known.add(msg.teacher_id)
+        self.end.teachers_known.add(msg.teacher_id)
         results = self.core.on_feedback(msg, now)
         if not results:  # held: remember when it was sent and when it arrived
             self.sent_at[self.core.position - 1] = (t_sent, now)
@@ -313,15 +286,7 @@ class Learner:
 
     def on_status(self, st: ServiceStatus) -> None:
         self.gate.on_status(st)
-        teacher = teacher_id_of(st.service)
-        if teacher is not None:
-            self.teachers_known.add(teacher)
-        if st.state != "stopped":
-            return
-        if st.service == "actor" and (st.incarnation is None or st.incarnation == self.gate.actor):
-            self.actor_final = int(st.counters.get("steps_published", 0))
-        elif teacher is not None:
-            self.teachers_final[teacher] = int(st.counters.get("feedback_published", 0))
+        self.end.on_status(st, self.gate.actor)
 
     def drain_status(self) -> None:
         for st in decoded_statuses(self.status, self.rt.counters):
@@ -379,30 +344,7 @@ class Learner:
                 self.publish_weights(self.core.steps_learned)
 
     def finished(self) -> bool:
-        """The actor stopped and all its steps are learned, and every known teacher's feedback has arrived
-        (or `end_grace` s have passed waiting for it)."""
-        core, config = self.core, self.config
-        if (
-            self.actor_final is None
-            or len(self.inbox)
-            or core.next_seq < self.actor_final
-            or core.actor != self.gate.actor
-        ):
-            return False
-        if self.caught_up_at is None:
-            self.caught_up_at = time.monotonic()
-        waiting = [
-            t
-            for t in sorted(self.teachers_known)
-            if t not in self.teachers_final or core.teacher_next.get(t, 0) < self.teachers_final[t]
-        ]
-        if not waiting:
-            return True
-        if time.monotonic() - self.caught_up_at > config.end_grace:
-            self.rt.log(f"end: stopped waiting for teacher(s) {waiting} after {config.end_grace} s")
-            self.rt.counters["end_grace_expired"] += 1
-            return True
-        return False
+        return self.end.finished(self.core, len(self.inbox), self.gate.actor)
 
     def run(self) -> None:
         """Catch up (after a restart), then consume live inputs until the end rule or SIGTERM; then end."""
@@ -444,75 +386,3 @@ class Learner:
             pub.close()
         self.rt.counters.update({f"inbox_{k}": v for k, v in self.inbox.snapshot().items()})
         self.rt.counters["resent"] = self.ring.resent
-
-
-def main(config: LearnerConfig) -> int:
-    from common.wire.transport import Inbox, MessagePublisher, subscription
-
-    apply_torch_threads()
-    rt = ServiceRuntime("learner", config)
-    core = LearnerCore(config)
-    gate = InputGate(
-        core.obs_dim,
-        core.n_actions,
-        teachers=config.wait_teachers,
-        max_future=config.max_future,
-        max_past=config.max_past,
-    )
-    resumed = restore(config, rt, core, gate)
-    inbox = Inbox(config.inbox_size, "block", block_timeout=3600)
-    rt.set_counters_source(
-        lambda: {
-            **core.counters,
-            "steps_learned": core.steps_learned,
-            "feedback_held_now": core.held,
-            "inbox_now": len(inbox),
-        }
-    )
-    learner = None
-    with rt.session() as session:
-        subs = [
-            session.declare_subscriber(step_key(config.run), inbox.handler()),
-            session.declare_subscriber(feedback_wildcard(config.run), inbox.handler()),
-        ]
-        watch = AliveWatch(session, config.run, ("recorder", "actor"))
-        actors = IncarnationWatch(session, config.run, "actor")
-        try:
-            with (
-                subscription(session, KEYS["status"].wildcard(config.run), maxsize=256, policy="drop_oldest") as status,
-                MessagePublisher(session, weights_key(config.run)) as wpub,
-                MessagePublisher(session, episode_key(config.run)) as epub,
-                MessagePublisher(session, ingest_key(config.run)) as ipub,
-                MessagePublisher(session, KEYS["snapshot"].key(config.run)) as spub,
-                subscription(session, KEYS["request"].key(config.run), maxsize=4, policy="drop_oldest") as requests,
-            ):
-                learner = Learner(
-                    config,
-                    rt,
-                    core,
-                    gate,
-                    resumed,
-                    session,
-                    inbox,
-                    status,
-                    {"weights": wpub, "episode": epub, "ingest": ipub, "snapshot": spub},
-                    watch,
-                    actors,
-                    requests,
-                )
-                learner.run()
-        finally:
-            inbox.close()
-            watch.close()
-            actors.close()
-            for s in subs:
-                s.undeclare()
-    rt.write_stats(
-        final_version=learner.last_weights.version if learner else 0, resumed=resumed, delay=core.delay_summary()
-    )
-    rt.log(f"stopped: {core.steps_learned} steps learned, {core.counters['feedback_credited']} feedback credited")
-    return 0
-
-
-def cli(argv: list[str] | None = None) -> int:
-    return service_main(LearnerConfig, main, argv, "python -m services.learner")
