@@ -21,6 +21,7 @@ import json
 import os
 import sys
 import time
+from typing import Any
 
 from common.config import config_record
 from common.protocol import KEYS, ProtocolError, RunConfig, ServiceStatus, decode, status_key
@@ -54,6 +55,34 @@ IDLE_PASS = 0.25
 
 def idle_wait(rt: ServiceRuntime) -> float:
     return max(LINGER_PASS, min(IDLE_PASS, rt.status_due_in()))
+
+
+def write_message(item, writer, caps: RecordCaps, scene, rt: ServiceRuntime, note_rejected) -> Any | None:
+    """One received message into the log (within the caps, checked) with the records it derives (Credits, the
+    scene); the decoded message, or None where it was dropped (counted)."""
+    try:
+        st = decode(item.key, item.data)
+        if not caps.admit(item.key, len(item.data)):
+            rt.counters[f"capped_{item.key.split('/')[2]}"] += 1
+            return None
+        t_log = int(item.t_recv * 1e9)
+        writer.write(item.key, item.data, log_time=t_log, publish_time=int((item.t_zenoh or item.t_recv) * 1e9))
+    except ProtocolError as e:
+        rt.counters[f"rejected_{e.reason}"] += 1
+        note_rejected(e.reason, item.key[:80])
+        return None
+    for key, data in derived_records(rt.config.run, st, scene, rt.counters):
+        writer.write(key, data, log_time=t_log)
+    return st
+
+
+def write_own_stop(writer, run: str, rt: ServiceRuntime) -> None:
+    """The recorder's own last word, straight into the file (its subscription is closing)."""
+    counters = dict(sorted(rt.all_counters().items())[:256])
+    stopped = ServiceStatus(
+        run=run, service=rt.name, pid=os.getpid(), state="stopped", t=time.time(), counters=counters
+    )
+    writer.write(status_key(run, rt.name), stopped)
 
 
 def main(config: RecorderConfig) -> int:
@@ -92,30 +121,12 @@ def main(config: RecorderConfig) -> int:
                     if linger_until is not None and time.monotonic() >= linger_until and len(inbox) == 0:
                         break
                     item = inbox.get(timeout=LINGER_PASS if linger_until is not None else idle_wait(rt))
-                    if item is not None:
-                        try:
-                            st = decode(item.key, item.data)
-                            if not caps.admit(item.key, len(item.data)):
-                                rt.counters[f"capped_{item.key.split('/')[2]}"] += 1
-                                continue
-                            t_log = int(item.t_recv * 1e9)
-                            writer.write(
-                                item.key,
-                                item.data,
-                                log_time=t_log,
-                                publish_time=int((item.t_zenoh or item.t_recv) * 1e9),
-                            )
-                        except ProtocolError as e:
-                            rt.counters[f"rejected_{e.reason}"] += 1
-                            note_rejected(e.reason, item.key[:80])
-                            continue
-                        for key, data in derived_records(config.run, st, scene, rt.counters):  # Credits, scene
-                            writer.write(key, data, log_time=t_log)
-                        if config.stop_when and "/status/" in item.key:
-                            if isinstance(st, ServiceStatus) and st.state == "stopped":
-                                stopped.add(st.service)
-                                if linger_until is None and set(config.stop_when) <= stopped:
-                                    linger_until = time.monotonic() + config.linger
+                    st = write_message(item, writer, caps, scene, rt, note_rejected) if item is not None else None
+                    if st is not None:
+                        if config.stop_when and isinstance(st, ServiceStatus) and st.state == "stopped":
+                            stopped.add(st.service)
+                            if linger_until is None and set(config.stop_when) <= stopped:
+                                linger_until = time.monotonic() + config.linger
                     if (
                         others is not None
                         and linger_until is None
@@ -129,18 +140,7 @@ def main(config: RecorderConfig) -> int:
                 if others is not None:
                     others.close()
                 rt.counters.update({f"inbox_{k}": v for k, v in inbox.snapshot().items()})
-                # Its own last word goes straight into the file (its subscription is closing).
-                writer.write(
-                    status_key(config.run, rt.name),
-                    ServiceStatus(
-                        run=config.run,
-                        service=rt.name,
-                        pid=os.getpid(),
-                        state="stopped",
-                        t=time.time(),
-                        counters=dict(sorted(rt.all_counters().items())[:256]),
-                    ),
-                )
+                write_own_stop(writer, config.run, rt)
     finally:
         writer.finish()
     rt.write_stats(paths=[str(p) for p in writer.paths])
