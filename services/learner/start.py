@@ -3,14 +3,7 @@ session, subscribes, restores a checkpoint and runs the `Learner`."""
 
 from __future__ import annotations
 
-from common.protocol import (
-    KEYS,
-    episode_key,
-    feedback_wildcard,
-    ingest_key,
-    step_key,
-    weights_key,
-)
+from common.protocol import KEYS, episode_key, feedback_wildcard, ingest_key, step_key, weights_key
 from services.common.config import LearnerConfig
 from services.common.gate import InputGate
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main

@@ -106,7 +106,7 @@ def _entries(path, log: _Log, learner: str | None) -> tuple[str, list, dict]:
         raise ValueError(f"{path}: no Ingest messages (no learner recorded)")
     if learner is None:
         # The whole record: a learner restored from a checkpoint continues its predecessor's (resumed_from).
-        from services.replay.summary import effective_ingest
+        from services.replay.counts import effective_ingest
 
         merged, chain, _ = effective_ingest(log.ingest)
         learner, origin = chain[-1], chain[0]

@@ -6,7 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from services.console import compare
+from services.console import compare, compare_tests
 
 
 def rows(dqn: list, tamer: list) -> list[dict]:
@@ -21,10 +21,12 @@ def rows(dqn: list, tamer: list) -> list[dict]:
 
 
 def test_primary_test_scores_never_as_one_past_the_last_episode_and_decides_by_wilcoxon():
-    clear = compare.primary_test(rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.DESIGNS["first"])
+    clear = compare_tests.primary_test(
+        rows([None, 9, 8, 10, 7, 9, 6, 8], [2, 3, 2, 4, 3, 2, 3, 2]), compare.DESIGNS["first"]
+    )
     assert clear["differences"][0] == 11 - 2 and clear["wins"] == 8 and clear["verdict"] == "fewer episodes"
     assert clear["wilcoxon_p"] == pytest.approx(1 / 256)
-    mixed = compare.primary_test(
+    mixed = compare_tests.primary_test(
         rows([3, 4, None, 8, 2, 5, 6, 7], [4, 3, None, None, 2, 6, 5, 7]), compare.DESIGNS["first"]
     )
     assert (mixed["wins"], mixed["ties"], mixed["losses"]) == (2, 3, 3) and mixed["verdict"] == "not shown"
@@ -35,16 +37,16 @@ def test_goals_measure_counts_episodes_to_the_tenth_goal_and_decides_at_alpha_ov
     early = {"reached_goal": [True] * 15, "first_good_episode": 1}
     late = {"reached_goal": [False, False, False] + [True] * 12, "first_good_episode": 5}
     short = {"reached_goal": [True, False] * 7 + [True], "first_good_episode": 1}  # 8 goals: 15 + 2 missing
-    assert compare.episodes_to_goal(early, design) == 10
-    assert compare.episodes_to_goal(late, design) == 13
-    assert compare.episodes_to_goal(short, design) == 17
+    assert compare_tests.episodes_to_goal(early, design) == 10
+    assert compare_tests.episodes_to_goal(late, design) == 13
+    assert compare_tests.episodes_to_goal(short, design) == 17
     rows = []
     for (layout, seed), dqn in zip(design.pairs, [late] * 5 + [early] * 7):
         rows += [
             {"arm": "DQN", "layout": layout, "seed": seed, **dqn},
             {"arm": design.primary[1], "layout": layout, "seed": seed, **early},
         ]
-    test = compare.primary_test(rows, design)
+    test = compare_tests.primary_test(rows, design)
     # 5 wins and 7 ties: Wilcoxon p = 1/32 = 0.031 < 0.05, but the fourth look decides at 0.0125
     assert test["wilcoxon_p"] == pytest.approx(1 / 32) and test["alpha"] == pytest.approx(0.0125)
     assert test["verdict"] == "not shown"
@@ -69,8 +71,8 @@ def test_every_design_runs_pairs_no_earlier_design_or_pilot_used_and_counts_its_
 
 def test_holm_steps_down_and_stops_at_the_first_test_that_fails():
     # p sorted: 0.001 (< 0.05/4), 0.01 (< 0.05/3), 0.03 (> 0.05/2: stops), 0.04 (never reached)
-    assert compare.holm([0.03, 0.001, 0.04, 0.01], 0.05) == pytest.approx([0.025, 0.0125, 0.0, 0.05 / 3])
-    assert compare.holm([0.5], 0.05) == [0.05]
+    assert compare_tests.holm([0.03, 0.001, 0.04, 0.01], 0.05) == pytest.approx([0.025, 0.0125, 0.0, 0.05 / 3])
+    assert compare_tests.holm([0.5], 0.05) == [0.05]
 
 
 def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
@@ -104,16 +106,16 @@ def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
                 {"arm": "D", "person": person, "layout": layout, "seed": seed, **dqn},
                 {"arm": "T", "person": person, "layout": layout, "seed": seed, **early},
             ]
-    tests = compare.declared_tests(rows, design)
+    tests = compare_tests.declared_tests(rows, design)
     slow_honest = tests[0]
     assert slow_honest["wins"] == 4 and slow_honest["wilcoxon_p"] == pytest.approx(1 / 16)
     assert slow_honest["alpha"] == pytest.approx(0.05 / 4) and slow_honest["verdict"] == "not shown"
     assert all(t["wilcoxon_p"] == 1.0 for t in tests[1:])
     assert "| slow | 0 | 200 |" in compare.table(rows, design)
-    pooled = compare.declared_tests(rows, dataclasses.replace(design, tests_by="person"))
+    pooled = compare_tests.declared_tests(rows, dataclasses.replace(design, tests_by="person"))
     assert [(t["person"], t["kind"]) for t in pooled] == [("slow", None), ("drifting", None)]
     assert pooled[0]["wins"] == 4 and pooled[0]["ties"] == 2 and pooled[0]["alpha"] == pytest.approx(0.025)
-    assert len(compare.secondary_tests(rows, dataclasses.replace(design, tests_by="person"))) == 4
+    assert len(compare_tests.secondary_tests(rows, dataclasses.replace(design, tests_by="person"))) == 4
 
 
 @pytest.mark.parametrize(
