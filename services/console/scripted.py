@@ -115,14 +115,9 @@ def group_flags(cfg: ScriptedConfig, group: str) -> list[str]:
     return out
 
 
-def run_once(cfg: ScriptedConfig, algo: str) -> dict:
-    """One run taught by the scripted person; returns its summary and the person's numbers."""
-    from playwright.sync_api import sync_playwright
-
-    name = cfg.run or f"{algo}-{cfg.env}-l{cfg.layout}-s{cfg.seed}-{time.strftime('%H%M%S')}"
-    if cfg.compare and cfg.run:
-        name = f"{cfg.run}-{algo}"
-    cmd = [
+def up_command(cfg: ScriptedConfig, algo: str, name: str) -> list[str]:
+    """The `services up` command of one run taught in the page."""
+    return [
         sys.executable,
         "-m",
         "services",
@@ -148,6 +143,16 @@ def run_once(cfg: ScriptedConfig, algo: str) -> dict:
         *group_flags(cfg, "actor"),
         *group_flags(cfg, "learner"),
     ]
+
+
+def run_once(cfg: ScriptedConfig, algo: str) -> dict:
+    """One run taught by the scripted person; returns its summary and the person's numbers."""
+    from playwright.sync_api import sync_playwright
+
+    name = cfg.run or f"{algo}-{cfg.env}-l{cfg.layout}-s{cfg.seed}-{time.strftime('%H%M%S')}"
+    if cfg.compare and cfg.run:
+        name = f"{cfg.run}-{algo}"
+    cmd = up_command(cfg, algo, name)
     up = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: list[str] = []
     out = up.stdout
