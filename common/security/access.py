@@ -23,6 +23,11 @@ def _keys(security: SecurityConfig, kinds: Iterable[str]) -> list[str]:
     return [f"{ROOT}/{security.run}/{k}" for k in kinds]
 
 
+def _allow(rule_id: str, messages: list[str], flows: list[str], key_exprs: list[str]) -> dict[str, Any]:
+    """One `allow` rule of the router's access control."""
+    return {"id": rule_id, "messages": messages, "flows": flows, "permission": "allow", "key_exprs": key_exprs}
+
+
 def access_control(security: SecurityConfig) -> dict[str, Any]:
     """The router's ``access_control`` section: default deny; rules keyed by username.
 
@@ -43,35 +48,16 @@ def access_control(security: SecurityConfig) -> dict[str, Any]:
     read_scope = f"{ROOT}/**" if security.run == "*" else f"{ROOT}/{security.run}/**"
     alive_scope = f"{ROOT}/*/{ALIVE}/**" if security.run == "*" else f"{ROOT}/{security.run}/{ALIVE}/**"
     rules: list[dict[str, Any]] = [
-        {
-            "id": "read-subscribe",
-            "messages": ["declare_subscriber"],
-            "flows": ["ingress", "egress"],
-            "permission": "allow",
-            "key_exprs": [read_scope],
-        },
-        {
-            "id": "read-receive",
-            "messages": ["put"],
-            "flows": ["egress"],
-            "permission": "allow",
-            "key_exprs": [read_scope],
-        },
+        _allow("read-subscribe", ["declare_subscriber"], ["ingress", "egress"], [read_scope]),
+        _allow("read-receive", ["put"], ["egress"], [read_scope]),
         # Who is alive: anyone may watch the tokens (with history: a liveliness query and its replies).
-        {
-            "id": "alive-watch",
-            "messages": ["declare_liveliness_subscriber", "liveliness_query", "liveliness_token", "reply"],
-            "flows": ["egress"],
-            "permission": "allow",
-            "key_exprs": [alive_scope],
-        },
-        {
-            "id": "alive-ask",
-            "messages": ["declare_liveliness_subscriber", "liveliness_query"],
-            "flows": ["ingress"],
-            "permission": "allow",
-            "key_exprs": [alive_scope],
-        },
+        _allow(
+            "alive-watch",
+            ["declare_liveliness_subscriber", "liveliness_query", "liveliness_token", "reply"],
+            ["egress"],
+            [alive_scope],
+        ),
+        _allow("alive-ask", ["declare_liveliness_subscriber", "liveliness_query"], ["ingress"], [alive_scope]),
     ]
     subjects: list[dict[str, Any]] = [{"id": "everyone", "usernames": users, "link_protocols": ["tls"]}]
     policies: list[dict[str, Any]] = [
@@ -83,24 +69,9 @@ def access_control(security: SecurityConfig) -> dict[str, Any]:
     ]
     for user in users:
         service = security.service_of(user)
-        rules.append(
-            {
-                "id": f"publish-{user}",
-                "messages": ["put"],
-                "flows": ["ingress"],
-                "permission": "allow",
-                "key_exprs": _keys(security, publish_kinds(service)),
-            }
-        )
-        rules.append(
-            {
-                "id": f"alive-{user}",
-                "messages": ["liveliness_token"],
-                "flows": ["ingress"],
-                "permission": "allow",
-                "key_exprs": _keys(security, [f"{ALIVE}/{service}", f"{ALIVE}/{service}/*"]),
-            }
-        )
+        rules.append(_allow(f"publish-{user}", ["put"], ["ingress"], _keys(security, publish_kinds(service))))
+        alive = _keys(security, [f"{ALIVE}/{service}", f"{ALIVE}/{service}/*"])
+        rules.append(_allow(f"alive-{user}", ["liveliness_token"], ["ingress"], alive))
         subjects.append({"id": f"user-{user}", "usernames": [user], "link_protocols": ["tls"]})
         policies.append(
             {"id": f"{user}-publishes", "rules": [f"publish-{user}", f"alive-{user}"], "subjects": [f"user-{user}"]}

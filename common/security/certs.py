@@ -30,6 +30,30 @@ from common.wire.transport import LOOPBACK
 # -- certificates ----------------------------------------------------------------------------------------------
 
 
+def _subject_alt_names(hosts: Iterable[str]) -> list:
+    """The router certificate's names: localhost, 127.0.0.1 and `hosts` (IP addresses or DNS names)."""
+    from cryptography import x509
+
+    sans: list[x509.GeneralName] = []
+    for h in dict.fromkeys(["localhost", LOOPBACK, *hosts]):
+        h = h.strip("[]")
+        try:
+            sans.append(x509.IPAddress(ipaddress.ip_address(h)))
+        except ValueError:
+            sans.append(x509.DNSName(h))
+    return sans
+
+
+def _ca_key_usage() -> Any:
+    """A CA key signs certificates and revocation lists, nothing else."""
+    from cryptography import x509
+
+    no = dict.fromkeys(
+        ("digital_signature", "content_commitment", "key_encipherment", "data_encipherment", "key_agreement"), False
+    )
+    return x509.KeyUsage(**no, key_cert_sign=True, crl_sign=True, encipher_only=False, decipher_only=False)
+
+
 def generate_certificates(
     out_dir: str | os.PathLike, hosts: Iterable[str] = (), *, days: int = 365, common_name: str = "hitl-router"
 ) -> dict[str, Path]:
@@ -64,31 +88,12 @@ def generate_certificates(
         .not_valid_before(now)
         .not_valid_after(until)
         .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
-        .add_extension(
-            x509.KeyUsage(
-                digital_signature=False,
-                content_commitment=False,
-                key_encipherment=False,
-                data_encipherment=False,
-                key_agreement=False,
-                key_cert_sign=True,
-                crl_sign=True,
-                encipher_only=False,
-                decipher_only=False,
-            ),
-            critical=True,
-        )
+        .add_extension(_ca_key_usage(), critical=True)
         .add_extension(x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), critical=False)
         .sign(ca_key, hashes.SHA256())
     )
 
-    sans: list[x509.GeneralName] = []
-    for h in dict.fromkeys(["localhost", LOOPBACK, *hosts]):
-        h = h.strip("[]")
-        try:
-            sans.append(x509.IPAddress(ipaddress.ip_address(h)))
-        except ValueError:
-            sans.append(x509.DNSName(h))
+    sans = _subject_alt_names(hosts)
     key = ec.generate_private_key(ec.SECP256R1())
     cert = (
         x509.CertificateBuilder()
