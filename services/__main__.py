@@ -16,7 +16,7 @@ def commands() -> dict:
     from common.protocol._cli import ProtocolConfig, protocol_main
     from common.security.router import SecuredRouterConfig, SecurityInitConfig, secured_router, security_init
     from common.security.router import zenohd_config
-    from common.wire.auth import AuthBenchConfig, bench_main
+    from common.wire.auth_bench import AuthBenchConfig, bench_main
     from common.wire.transport import RouterConfig, router_main
     from services.bench import BenchConfig, bench
     from services.chaos import ChaosConfig, chaos

@@ -39,7 +39,8 @@ from common.agents.feedback import (
     FeedbackOutcome,  # noqa: F401
 )
 from common.agents.history import BatchCredit
-from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, FitJob, fit_together, row_max, with_ones
+from common.agents.mlp import row_max, with_ones
+from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, FitJob, fit_together
 from common.agents.streams import to_integers
 from common.core.util import RowConstants, nz
 

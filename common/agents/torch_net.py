@@ -27,7 +27,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from common.agents.config import NETWORKS, resolve_network  # noqa: F401 (resolve_network: re-exported)
-from common.agents.networks import ValueNetworks, init_mlp
+from common.agents.mlp import init_mlp
+from common.agents.networks import ValueNetworks
 
 
 class PaperMLP(nn.Module):

@@ -9,18 +9,8 @@ import torch
 
 from common.agents import AgentParts, TrialBatchAgent, agent_config, build_parts
 from common.agents.explorer import EpsilonGreedy, Mixture
-from common.agents.networks import (
-    HUBER_MEAN,
-    SQUARED_MEAN,
-    SQUARED_SUM,
-    FitJob,
-    StackedMLP,
-    fit_together,
-    init_mlp,
-    mlp_backward,
-    mlp_forward,
-    with_ones,
-)
+from common.agents.mlp import init_mlp, mlp_backward, mlp_forward, with_ones
+from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, StackedMLP, fit_together
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import TransitionReplay
 from common.agents.streams import UniformBlocks, to_integers, uniforms

@@ -1,0 +1,159 @@
+"""The numpy MLP's arithmetic, written out by hand (see networks.py): torch's initialisation without torch, the
+parameters as views of one flat row per trial, the batched forward pass and the exact gradient (also by row
+lookups for wide one-hot inputs: sparse.py)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from common.agents.sparse import NonzeroInputs, rows_backward, rows_forward, takes_rows
+
+PARAM_NAMES = ("w1", "b1", "w2", "b2")
+
+
+def torch_uniform(seed: int, n: int) -> np.ndarray:
+    """The first n numbers of `torch.rand(n, generator=torch.Generator().manual_seed(seed))` (float32), without
+    torch: its CPU generator is a 32-bit Mersenne Twister seeded with the seed's low 32 bits, the same as
+    numpy's legacy seeding, and a float is the low 24 bits of one draw over 2**24. Importing torch costs a
+    service about 1.3 s of CPU at start; tests/core/test_parts.py checks this against torch."""
+    legacy = np.random.RandomState(int(seed) % (2**63) & 0xFFFFFFFF)
+    raw = legacy.randint(0, 2**32, size=n, dtype=np.uint32)  # (the full 32-bit range: one raw draw each)
+    return (raw & 0xFFFFFF).astype(np.float32) * np.float32(2.0**-24)
+
+
+def init_mlp(in_dim: int, hidden: int, out_dim: int, seed: int) -> dict[str, np.ndarray]:
+    """PyTorch's nn.Linear default initialisation (uniform +-1/sqrt(fan_in)) for one trial, as float32 arrays
+    equal to what torch's generator gives (the draws in the order torch makes them)."""
+    shapes = param_shapes(in_dim, hidden, out_dim)
+    draws = torch_uniform(seed, sum(a * b for a, b in shapes.values()))
+    out, at = {}, 0
+    for name in PARAM_NAMES:
+        size = shapes[name][0] * shapes[name][1]
+        bound = np.float32(1.0 / math.sqrt(in_dim if name in ("w1", "b1") else hidden))  # 1/sqrt(fan_in)
+        out[name] = (draws[at : at + size].reshape(shapes[name]) * np.float32(2) - np.float32(1)) * bound
+        at += size
+    return out
+
+
+def param_shapes(in_dim: int, hidden: int, out_dim: int) -> dict[str, tuple[int, int]]:
+    return {"w1": (in_dim, hidden), "b1": (1, hidden), "w2": (hidden, out_dim), "b2": (1, out_dim)}
+
+
+def views(flat: np.ndarray, shapes: dict[str, tuple[int, int]], names: bool = False) -> dict[str, np.ndarray]:
+    """Views into the rows of a flat [n, P] parameter array: the augmented first-layer matrix
+    a1 = [w1; b1] ([n, in + 1, hidden]), w2 and b2 (what `mlp_forward` and `mlp_backward` use), and
+    with names=True also w1 and b1."""
+    n = flat.shape[0]
+    (i, h), (_, k) = shapes["w1"], shapes["w2"]
+    o = (i + 1) * h
+    out = {
+        "a1": flat[:, :o].reshape(n, i + 1, h),
+        "w2": flat[:, o : o + h * k].reshape(n, h, k),
+        "b2": flat[:, o + h * k :].reshape(n, 1, k),
+    }
+    if names:
+        out["w1"] = flat[:, : i * h].reshape(n, i, h)
+        out["b1"] = flat[:, i * h : o].reshape(n, 1, h)
+    return out
+
+
+_CONSTANTS: dict[tuple, np.ndarray] = {}
+
+
+def _constant(kind: str, *shape: int) -> np.ndarray:
+    """A read-only np.ones (float32) or np.arange of this shape, or ("offsets", n, A) the flat positions of n
+    rows of A values, made once (they were made at every step)."""
+    got = _CONSTANTS.get((kind, shape))
+    if got is None:
+        got = (
+            np.ones(shape, np.float32)
+            if kind == "ones"
+            else np.arange(shape[0]) * shape[1]
+            if kind == "offsets"
+            else np.arange(*shape)
+        )
+        got.flags.writeable = False
+        _CONSTANTS[(kind, shape)] = got
+    return got
+
+
+def with_ones(x: np.ndarray) -> np.ndarray:
+    """x [n, N, k] with a column of ones appended (the bias input): [n, N, k + 1]."""
+    out = np.empty((*x.shape[:-1], x.shape[-1] + 1), np.float32)
+    out[..., :-1] = x
+    out[..., -1] = 1.0
+    return out
+
+
+def mlp_forward(
+    p: dict[str, np.ndarray], x: np.ndarray, x1: np.ndarray | None = None, nz: NonzeroInputs | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """(hidden activations, outputs) for x: [n, N, in] -> [n, N, hidden], [n, N, out]. x1: `with_ones(x)`
+    if the caller has it already; nz: its nonzero entries, for a wide first layer (`sparse.takes_rows`)."""
+    x1 = with_ones(x) if x1 is None else x1
+    if takes_rows(p["a1"]):
+        h = rows_forward(p["a1"], NonzeroInputs.of(x1) if nz is None else nz)
+    else:
+        h = x1 @ p["a1"]
+    np.tanh(h, out=h)
+    out = h @ p["w2"]
+    out += p["b2"]
+    return h, out
+
+
+def row_max(q: np.ndarray) -> np.ndarray:
+    """max over the last (small) axis, column by column: much faster than q.max(-1) for a few actions."""
+    m = q[..., 0].copy()
+    for a in range(1, q.shape[-1]):
+        np.maximum(m, q[..., a], out=m)
+    return m
+
+
+def mlp_backward(
+    p: dict[str, np.ndarray],
+    x: np.ndarray,
+    h: np.ndarray,
+    d_out: np.ndarray,
+    x1: np.ndarray | None = None,
+    nz: NonzeroInputs | None = None,
+) -> np.ndarray:
+    """`mlp_backward_rows`' gradient alone."""
+    return mlp_backward_rows(p, x, h, d_out, x1, nz)[0]
+
+
+def mlp_backward_rows(
+    p: dict[str, np.ndarray],
+    x: np.ndarray,
+    h: np.ndarray,
+    d_out: np.ndarray,
+    x1: np.ndarray | None = None,
+    nz: NonzeroInputs | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(grad, touched): gradient of sum(d_out * out) with respect to each trial's weights, flat [n, P] (w1, b1, w2, b2).
+
+    h is `mlp_forward`'s first output (x1: `with_ones(x)` if the caller has it). Bias gradients are sums over
+    the N rows, written as products (with the ones column of the augmented input, or a row of ones) so that
+    every reduction is a per-trial matrix product. A wide first layer's gradient is a scatter-add of d_pre into
+    the rows of its nonzero inputs (`sparse.rows_backward`; nz: `NonzeroInputs.of(x1)` where the caller has it):
+    then `touched` are the first-layer rows it touched (flat keys trial * (in + 1) + input; every other row's
+    gradient is zero), else None."""
+    n, N = x.shape[:2]
+    g_w2 = h.transpose(0, 2, 1) @ d_out  # [n, hidden, out]
+    g_b2 = _constant("ones", n, 1, N) @ d_out  # [n, 1, out]
+    d_pre = d_out @ p["w2"].transpose(0, 2, 1)  # [n, N, hidden]
+    slope = h * h
+    np.subtract(np.float32(1), slope, out=slope)  # tanh' = 1 - tanh^2
+    d_pre *= slope
+    x1 = with_ones(x) if x1 is None else x1
+    if not takes_rows(p["a1"]):
+        g1 = x1.transpose(0, 2, 1) @ d_pre  # [n, in + 1, hidden] = (w1; b1)
+        return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1), None
+    in1, hidden = p["a1"].shape[1:]
+    grad = np.zeros((n, in1 * hidden + g_w2[0].size + g_b2[0].size), np.float32)
+    keys, sums = rows_backward(d_pre, NonzeroInputs.of(x1) if nz is None else nz, in1)
+    grad[:, : in1 * hidden].reshape(n, in1, hidden)[keys // in1, keys % in1] = sums  # (a view: splits one axis)
+    grad[:, in1 * hidden : -g_b2[0].size] = g_w2.reshape(n, -1)
+    grad[:, -g_b2[0].size :] = g_b2.reshape(n, -1)
+    return grad, keys
