@@ -45,19 +45,14 @@ from ._keys import (
     validate_name,
     weights_key,
 )
+from ._media import Box, CompressedImage, ExpressionPrediction, LOG_LEVELS, Log, Time
+from ._fields import NAME_PATTERN, TOKEN_PATTERN
 from ._messages import (
-    NAME_PATTERN,
     SERVICE_STATES,
-    TOKEN_PATTERN,
-    Box,
-    CompressedImage,
     EpisodeSummary,
-    ExpressionPrediction,
     Feedback,
     Ingest,
     IngestEntry,
-    LOG_LEVELS,
-    Log,
     MAX_INGEST_CREDITS,
     MAX_SHOWN,
     ObserverReaction,
@@ -65,7 +60,6 @@ from ._messages import (
     ServiceStatus,
     ShownStep,
     Step,
-    Time,
 )
 from ._roles import (
     ALIVE,

@@ -8,7 +8,7 @@ from ._base import PROTOCOL_VERSION
 from ._foxglove import FoxgloveProto
 from ._topics import topics_table
 from ._keys import KEYS, ROOT
-from ._messages import NAME_PATTERN, TOKEN_PATTERN
+from ._fields import NAME_PATTERN, TOKEN_PATTERN
 from ._roles import NAMED_ROLES, PUBLISHES
 from ._spec import REASONS, SAFE_INT
 from ._weights import MAX_NDIM, MAX_TENSORS, METADATA_FIELDS, OPTIONAL_METADATA_FIELDS, TENSOR_NAME_PATTERN, Weights

@@ -11,19 +11,9 @@ import functools
 import re
 from typing import Any
 
-from ._messages import (
-    NAME_PATTERN,
-    CompressedImage,
-    EpisodeSummary,
-    ExpressionPrediction,
-    Feedback,
-    Ingest,
-    ObserverReaction,
-    Log,
-    RunConfig,
-    ServiceStatus,
-    Step,
-)
+from ._media import CompressedImage, ExpressionPrediction, Log
+from ._fields import NAME_PATTERN
+from ._messages import EpisodeSummary, Feedback, Ingest, ObserverReaction, RunConfig, ServiceStatus, Step
 from ._console import Control, Credit, Shown
 from ._foxglove import SceneUpdate
 from ._observe import Request, WeightsSnapshot

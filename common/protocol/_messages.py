@@ -7,37 +7,12 @@ from typing import Any, ClassVar
 
 from ._base import PROTOCOL_VERSION, Message, fld
 from ._containers import AnyJSON, Embedded, List, Map, Nullable, Obj
-from ._spec import Bool, Bytes64, Float, Int, ProtocolError, Str
-
-#: Names that become one chunk of a key expression (run, teacher_id, service, camera id): letters, digits,
-#: `_ . : -`, starting with a letter or digit, at most 64 characters. This excludes every character that
-#: Zenoh gives a meaning (`* $ / # ?`) and whitespace.
-NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.:-]{0,63}$"
-#: Free-form identifiers that never become part of a key (incarnation): printable ASCII, no spaces.
-TOKEN_PATTERN = r"^[!-~]{1,128}$"
+from ._fields import RUN, TOKEN_PATTERN, Count, Name, Seconds, Token
+from ._spec import Bool, Float, Int, ProtocolError, Str
 
 MAX_OBS = 1024  # observation length limit (the paper's largest is Taxi's one-hot of 19)
 MAX_INFO_ITEMS = 16  # Step.info entries: the env's numeric extras a teacher rule reads
 MAX_INFO_KEY = 64  # characters in one Step.info key
-
-
-def Name(description: str) -> Str:
-    return Str(64, pattern=NAME_PATTERN, min_len=1, description=description)
-
-
-def Token(description: str) -> Str:
-    return Str(128, pattern=TOKEN_PATTERN, min_len=1, description=description)
-
-
-def Seconds(description: str) -> Float:
-    return Float(0.0, description=description)
-
-
-def Count(description: str) -> Int:
-    return Int(0, description=description)
-
-
-RUN = "Run name; also the second chunk of every key expression."
 
 
 @dataclasses.dataclass(frozen=True)
@@ -377,106 +352,6 @@ class ServiceStatus(Message):
             )
         ),
         optional=True,
-    )
-
-
-LOG_LEVELS = {0: "UNKNOWN", 1: "DEBUG", 2: "INFO", 3: "WARNING", 4: "ERROR", 5: "FATAL"}
-
-
-@dataclasses.dataclass(frozen=True)
-class Time:
-    """foxglove.Time: seconds and nanoseconds since the Unix epoch."""
-
-    sec: int
-    nsec: int
-
-    @classmethod
-    def from_seconds(cls, t: float) -> Time:
-        ns = int(round(t * 1e9))
-        return cls(ns // 1_000_000_000, ns % 1_000_000_000)
-
-    def to_seconds(self) -> float:
-        return self.sec + self.nsec * 1e-9
-
-
-TIME_SPEC = Obj(
-    {"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)}, cls=Time, description="Capture time (foxglove.Time)."
-)
-
-
-@dataclasses.dataclass(frozen=True)
-class Log(Message):
-    """A human-readable event, exactly Foxglove's `foxglove.Log` in its JSON form (published on
-    `hitl/<run>/log/<name>`): the launcher's supervision (a service died, was restarted, gave up), a learner's
-    restore and catch-up, the first rejected input of each reason. Foxglove lists them in its Log panel."""
-
-    TYPE_NAME: ClassVar[str] = "foxglove.Log"
-    MAX_BYTES: ClassVar[int] = 16 * 1024
-
-    timestamp: Time = fld(
-        Obj(
-            {"sec": Int(0, 2**32 - 1), "nsec": Int(0, 999_999_999)},
-            cls=Time,
-            description="Time of the event (foxglove.Time).",
-        )
-    )
-    level: int = fld(
-        Int(
-            enum=tuple(LOG_LEVELS),
-            description=("0 unknown, 1 debug, 2 info, 3 warning, 4 error, 5 fatal (foxglove.LogLevel)."),
-        )
-    )
-    message: str = fld(Str(8192, description="What happened."))
-    name: str = fld(Str(64, description="Who says it: the service name (the key's last chunk)."))
-    file: str = fld(Str(256, description="Source file (may be empty)."))
-    line: int = fld(Int(0, 2**32 - 1, description="Source line (0 if unknown)."))
-
-
-@dataclasses.dataclass(frozen=True)
-class CompressedImage(Message):
-    """A camera frame, exactly Foxglove's `foxglove.CompressedImage` in its JSON form (published on
-    `hitl/<run>/camera/<id>`), so Foxglove shows the recorded stream as an image."""
-
-    TYPE_NAME: ClassVar[str] = "foxglove.CompressedImage"
-    MAX_BYTES: ClassVar[int] = 8 * 1024 * 1024
-
-    timestamp: Time = fld(TIME_SPEC)
-    frame_id: str = fld(Str(256, description="Frame of reference (the camera id)."))
-    data: bytes = fld(Bytes64(6 * 1024 * 1024, description="Compressed image bytes (base64 in JSON)."))
-    format: str = fld(Str(enum=("jpeg", "png", "webp"), description="Image format."))
-
-
-@dataclasses.dataclass(frozen=True)
-class Box:
-    """A face box in pixels."""
-
-    x: int
-    y: int
-    w: int
-    h: int
-
-
-BOX_SPEC = Obj(
-    {"x": Int(0, 65535), "y": Int(0, 65535), "w": Int(0, 65535), "h": Int(0, 65535)},
-    cls=Box,
-    description="Face box in pixels (x, y of the top-left corner, width, height).",
-)
-
-
-@dataclasses.dataclass(frozen=True)
-class ExpressionPrediction(Message):
-    """What the perception service read from one camera frame (published on `hitl/<run>/perception/<id>`)."""
-
-    TYPE_NAME: ClassVar[str] = "hitl.ExpressionPrediction"
-    MAX_BYTES: ClassVar[int] = 8192
-
-    t_capture: float = fld(Seconds("Wall-clock time (s) when the frame was captured."))
-    frame: int = fld(Count("Frame index in the camera stream."))
-    box: Box | None = fld(Nullable(BOX_SPEC, description="Face box, or null when no face was found."))
-    label: str = fld(Str(32, description="Most probable expression label (empty when no face)."))
-    confidence: float = fld(Float(0.0, 1.0, description="Probability of `label`."))
-    probabilities: dict = fld(
-        Map(Float(0.0, 1.0), max_items=16, key_max_len=32, description="Probability of each label.")
     )
 
 

@@ -6,7 +6,7 @@ import dataclasses
 from typing import ClassVar
 
 from ._base import Message, fld
-from ._messages import RUN, Count, Name, Seconds, Token
+from ._fields import RUN, Count, Name, Seconds, Token
 from ._containers import List, Nullable, Obj
 from ._spec import Bytes64, Float, Int, Str
 

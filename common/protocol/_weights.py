@@ -18,7 +18,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ._base import PROTOCOL_VERSION, parse_json
-from ._messages import NAME_PATTERN, TOKEN_PATTERN
+from ._fields import NAME_PATTERN, TOKEN_PATTERN
 from ._spec import SAFE_INT, ProtocolError
 
 TENSOR_NAME_PATTERN = r"^[A-Za-z0-9_.]{1,128}$"
