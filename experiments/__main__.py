@@ -35,7 +35,8 @@ def cmd_run(config: RunConfig) -> int:
     from tqdm import tqdm
 
     from experiments.plots import plot_curves
-    from experiments.runner import EPISODE_FIELDS, TrialSpec, run_trials
+    from experiments.runner import TrialSpec, run_trials
+    from experiments.trial_types import EPISODE_FIELDS
 
     os.makedirs(config.out, exist_ok=True)
     task = config.task

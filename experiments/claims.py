@@ -41,7 +41,7 @@ Maze MDP, the Maze POMDP and Gymnasium's Taxi, all nine comparisons in one inter
 
 A1 has a control: the fixed schedule `dqn-tamer/matched` (the paper's alpha_h x 0.9999^t times MATCH_K),
 MATCH_K = the adaptive arm's mean alpha_h over the paper arm's, measured on a pilot (pilot layouts 44-59,
-seeds 9000+: `python -m experiments pilot alpha`, experiments/conditions.py says the command and values),
+seeds 9000+: `python -m experiments pilot alpha`, experiments/arms.py says the command and values),
 so "adaptive" is tested against "less H" of the same mean.
 
 M1 (beyond the paper): on misleading layouts DQN-TAMER with the teacher's reliability
@@ -64,7 +64,7 @@ the tests, metrics, margins, populations and multiplicity rule are those of ae50
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from experiments.claim_parts import AGENT_NAMES, Effect, better, degradation_gap, averaged, Test, Claim
 
 ALPHA = 0.05
 MARGIN = math.log(1.1)
@@ -72,81 +72,22 @@ RETURN_MARGIN = {"maze": 0.05, "taxi": 1.0}
 """The return's margin per episode: Maze five -0.01 steps, Taxi one -1 step."""
 METRICS = ("ln steps", "return")
 """The co-primary metrics."""
-AGENT_NAMES = {
-    "dqn": "DQN",
-    "dqn-rs": "DQN+RS",
-    "deep-tamer": "Deep TAMER",
-    "dqn-tamer": "DQN-TAMER",
-    "dqn-tamer/adaptive": "DQN-TAMER (adaptive alpha_h)",
-    "dqn-tamer/matched": "DQN-TAMER (fixed alpha_h matched on the adaptive mean)",
-    "dqn-tamer/trusted": "DQN-TAMER (teacher's reliability)",
-    "deep-tamer/uniform": "Deep TAMER (uniform lags)",
-    "deep-tamer/true": "Deep TAMER (true lags)",
-    "deep-tamer/learned": "Deep TAMER (learned lags)",
-    "dqn-tamer/uniform": "DQN-TAMER (uniform lags)",
-    "dqn-tamer/true": "DQN-TAMER (true lags)",
-    "dqn-tamer/learned": "DQN-TAMER (learned lags)",
-}
-Term = tuple[float, str, str]  # (coefficient, condition, arm) of the metric
 
 
-@dataclass(frozen=True)
-class Effect:
-    label: str
-    terms: tuple[Term, ...]
-
-
-def better(cond: str, good: str, other: str, cond_other: str | None = None) -> Effect:
-    """`good` does better than `other` (fewer steps, more return): metric(other) - metric(good), the metric
-    oriented so that lower is better."""
-    co = cond_other or cond
-    return Effect(
-        f"{AGENT_NAMES.get(other, other)} ({co}) - {AGENT_NAMES.get(good, good)} ({cond})",
-        ((1.0, co, other), (-1.0, cond, good)),
-    )
-
-
-def degradation_gap(low: str, high: str, robust: str, other: str) -> Effect:
-    """`robust` loses less than `other` from `high` to `low`: [m(low,o)-m(high,o)] - [m(low,r)-m(high,r)]."""
-    return Effect(
-        f"loss {high}->{low}: {AGENT_NAMES[other]} - {AGENT_NAMES[robust]}",
-        ((1.0, low, other), (-1.0, high, other), (-1.0, low, robust), (1.0, high, robust)),
-    )
-
-
-def averaged(label: str, effects: list[Effect]) -> Effect:
-    n = len(effects)
-    return Effect(label, tuple((c / n, cond, arm) for e in effects for c, cond, arm in e.terms))
-
-
-@dataclass(frozen=True)
-class Test:
-    claim: str
-    text: str
-    effects: tuple[Effect, ...]
-    """All must hold (intersection-union when more than one)."""
-    layouts: str = "honest"
-    """honest | misleading | pooled: the primary population (Taxi: all its trials under honest or pooled)."""
-    window: str = "all"
-    """all | after-stop | before-stop | last: which episodes the metric averages."""
-    kind: str = "greater"
-    """greater (H1: effect > 0) | noninferior (H1: effect > -margin)."""
-
-
-@dataclass(frozen=True)
-class Claim:
-    cid: str
-    family: str
-    text: str
-    primary: Test
-    secondary: tuple[Test, ...] = field(default_factory=tuple)
+OTHERS = ("dqn", "dqn-rs", "deep-tamer")
+"""The agents DQN-TAMER is compared with."""
 
 
 def _paper_claims() -> list[Claim]:
+    return _learning_claims() + _stop_and_flip_claims()
+
+
+def _learning_claims() -> list[Claim]:
+    """C1-C4: feedback with and without delay, at two frequencies."""
     hnd, hd, lnd, ld = "maze-high-nodelay", "maze-high-delay", "maze-low-nodelay", "maze-low-delay"
     fb = ("dqn-rs", "deep-tamer", "dqn-tamer")
-    others = ("dqn", "dqn-rs", "deep-tamer")
-    out = [
+    others = OTHERS
+    return [
         Claim(
             "C1",
             "paper",
@@ -220,6 +161,12 @@ def _paper_claims() -> list[Claim]:
             ),
         ),
     ]
+
+
+def _stop_and_flip_claims() -> list[Claim]:
+    """C5 (the feedback stops) and C6 (misread feedback)."""
+    others = OTHERS
+    out: list[Claim] = []
     stop = tuple(better(cond, "dqn-tamer", a) for cond in ("maze-stop", "pomdp-stop", "taxi-stop") for a in others)
     out.append(
         Claim(
@@ -283,6 +230,11 @@ def _paper_claims() -> list[Claim]:
 
 
 def _beyond_claims() -> list[Claim]:
+    return _delay_claims() + _teacher_claims()
+
+
+def _delay_claims() -> list[Claim]:
+    """D1-D3: the delay learned online, against assumed and true lags, on four observers."""
     from experiments.conditions import DELAY_CONDITIONS as D
 
     def pooled(algo: str, good: str, other: str) -> Effect:
@@ -302,7 +254,6 @@ def _beyond_claims() -> list[Claim]:
             for c in D
         )
 
-    hd = "maze-high-delay"
     return [
         Claim(
             "D1",
@@ -342,6 +293,13 @@ def _beyond_claims() -> list[Claim]:
             + per_observer("dqn-tamer", "learned", "true", "noninferior")
             + per_observer("deep-tamer", "true", "uniform"),
         ),
+    ]
+
+
+def _teacher_claims() -> list[Claim]:
+    """A1 (alpha_h that follows H/Q agreement) and M1 (the teacher's reliability), on misleading teachers."""
+    hd = "maze-high-delay"
+    return [
         Claim(
             "A1",
             "beyond",

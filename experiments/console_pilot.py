@@ -34,7 +34,7 @@ from common.config import option, parse_config
 from common.envs.maze import LAYOUT_COUNT, MazeEnv, make_layout
 from common.envs.registry import ENVS
 from common.core.observer import ObserverConfig
-from experiments.conditions import ADAPT_RATE, agent_for
+from experiments.arms import ADAPT_RATE, agent_for
 from experiments.taxi_pilot import PILOT_SEED0
 
 PILOT_LAYOUTS = tuple(range(0, 60, 2))

@@ -113,6 +113,22 @@ def analyse(conds: list[Condition], data: dict, extras: dict, out: str, n_boot: 
     return result
 
 
+def _where_and_when(workers: int, ray: str | None, load_start: list[float], load_max: float, started: str) -> dict:
+    """timing.json's facts of the machine, the code and the load a run had (in the file's key order)."""
+    return {
+        "workers": workers,
+        "ray": ray,
+        "cpus": os.cpu_count(),
+        "machine": machine(),
+        "python": platform.python_version(),
+        "commit": git_commit(),
+        "load_average_at_start": load_start,
+        "load_average_at_end": list(os.getloadavg()),
+        "load_average_max": load_max,
+        "started_utc": started,
+    }
+
+
 def reproduce(
     conds: list[Condition],
     scale: Scale,
@@ -151,16 +167,7 @@ def reproduce(
         "trials_computed": len(todo),
         "trials_cached": done0 - reused,
         "trials_shared": reused + (slots_todo - len(todo)),
-        "workers": workers,
-        "ray": ray,
-        "cpus": os.cpu_count(),
-        "machine": machine(),
-        "python": platform.python_version(),
-        "commit": git_commit(),
-        "load_average_at_start": load_start,
-        "load_average_at_end": list(os.getloadavg()),
-        "load_average_max": load.max,
-        "started_utc": started,
+        **_where_and_when(workers, ray, load_start, load.max, started),
         "worker_end_spread_s": _end_spread(infos),
         "cpu_s_per_worker": _cpu_per_worker(infos),
         "scale": scale.__dict__,

@@ -19,7 +19,6 @@ from __future__ import annotations
 import ctypes
 import functools
 import time
-from dataclasses import dataclass, field
 from collections.abc import Callable
 
 import numpy as np
@@ -30,11 +29,12 @@ from common.agents import AgentConfig, TrialBatchAgent, make_agent
 from common.agents.agent import CREDITED, STALE
 from common.envs import make_env, obs_shape
 from common.core.delay_model import FixedDelay
-from common.core.observer import MAX_REACTION_S, REACTION_OFFSET, ObserverBatch, ObserverConfig
+from common.core.observer import MAX_REACTION_S, REACTION_OFFSET, ObserverBatch
 from common.core.seeding import derive_seed
 from common.core.steploop import StepLoop
 from common.core.util import nz
 from experiments.envbatch import LoopEnvs, TableEnvs
+from experiments.trial_types import TrialSpec, TrialResult
 
 # glibc's malloc options (mallopt(3)): keep this much freed memory at the top of the heap, and grow it by this much.
 M_TRIM_THRESHOLD, M_TOP_PAD = -1, -2
@@ -55,50 +55,6 @@ def hold_freed_heap() -> bool:
     except (OSError, AttributeError):
         return False
     return mallopt(M_TRIM_THRESHOLD, HEAP_KEPT_BYTES) == 1 and mallopt(M_TOP_PAD, HEAP_PAD_BYTES) == 1
-
-
-EPISODE_FIELDS = (
-    "episode",
-    "return",
-    "steps",
-    "feedback_given",
-    "feedback_credited",
-    "feedback_stale",
-    "epsilon",
-    "alpha_h",
-    "h_decided",
-    "greedy",
-    "mean_lag",
-    "delay_median_s",
-)
-
-
-@dataclass(frozen=True)
-class TrialSpec:
-    """One trial: an environment (and layout), an agent, an observer, a seed and a length."""
-
-    env: str
-    agent: AgentConfig
-    observer: ObserverConfig
-    seed: int = 0
-    layout: int = 0
-    episodes: int = 100
-    teacher_rule: str | None = None  # None: the env's own rule (common/envs/rules.py)
-    step_seconds: float = 0.5  # seconds per step of the virtual clock (a learned delay's clock)
-
-
-@dataclass
-class TrialResult:
-    spec: TrialSpec
-    episodes: list[dict] = field(default_factory=list)
-    actions: list[int] = field(default_factory=list)
-    total_steps: int = 0
-    weights: dict[str, np.ndarray] = field(default_factory=dict)  # final policy weights (Q and H)
-    delay: dict | None = None  # the teacher's delay the agent credits with at the end (`delay_summary`)
-
-    @property
-    def returns(self) -> np.ndarray:
-        return np.array([e["return"] for e in self.episodes])
 
 
 def greedy_steps(agent: TrialBatchAgent, i: int, spec: TrialSpec, limit: int = 100) -> int | None:

@@ -27,7 +27,7 @@ import numpy as np
 
 from common.config import option, parse_config
 
-from experiments.conditions import AGENT_OVERRIDES
+from experiments.arms import AGENT_OVERRIDES
 from experiments.panels import CONVERGED_STEPS
 
 PILOT_SEED0 = 9000

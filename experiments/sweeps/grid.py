@@ -31,7 +31,8 @@ from common.envs import LAYOUT_COUNT
 from common.envs.registry import resolve_env
 from common.core.observer import ObserverConfig
 from common.core.task import Task
-from experiments.conditions import AGENT_OVERRIDES, FULL, MAZE_EPISODES, TAXI_EPISODES, trial_seed
+from experiments.arms import AGENT_OVERRIDES
+from experiments.conditions import FULL, MAZE_EPISODES, TAXI_EPISODES, trial_seed
 from experiments.run_config import RunConfig
 from experiments.runner import TrialSpec
 
