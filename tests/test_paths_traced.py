@@ -47,7 +47,7 @@ PIECES = {
         ACTED,
     ],
     "press": [
-        ("console.page", ("Hub.feedback",)),
+        ("console.page", ("PageInputs.feedback",)),
         ("learner.input", ("Learner.consume_feedback", "feedback_rounds", *UPDATED)),
         ADOPTED,
         ACTED,
