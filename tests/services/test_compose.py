@@ -75,10 +75,17 @@ def test_a_changed_graph_is_caught(tmp_path):
 
 @pytest.mark.parametrize(
     "module",
-    ["services.actor", "services.learner", "services.teacher", "services.recorder", "services.replay", "services"],
+    [
+        "services.actor.service",
+        "services.learner.start",
+        "services.teacher.service",
+        "services.recorder.service",
+        "services.replay.service",
+        "services.__main__",
+    ],
 )
 def test_every_service_has_help(module, capsys):
-    cli = importlib.import_module(f"{module}.service" if module != "services" else "services.__main__")
+    cli = importlib.import_module(module)
     entry = getattr(cli, "cli", None) or cli.main
     with pytest.raises(SystemExit) as exc:
         entry(["--help"])
