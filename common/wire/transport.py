@@ -98,6 +98,9 @@ def make_config(
     # link must outwait them, or a receiver stalled under load loses messages that nobody counts (seen once:
     # three Ingest batches missing from a flooded, loaded run's log).
     c.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", str(BLOCK_WAIT_US))
+    # Zenoh's shared memory is on by default; its thread wakes about 20 times a second in every process even when
+    # nothing moves (measured: docs/notes/2026-11-28-idle-cost.md). Our messages are small and go over TCP.
+    c.insert_json5("transport/shared_memory/enabled", "false")
     return c
 
 

@@ -228,7 +228,8 @@ class LearnerSettings:
         16, "publish weights whenever the learner has caught up, and at least every N learned steps while it is behind"
     )
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
-    checkpoint_period: float = option(2.0, "seconds between checkpoints (when something was learned)")
+    checkpoint_period: float = option(2.0, "seconds between checkpoints at most (when something was learned)")
+    checkpoint_steps: int = option(100, "new steps learned before the next checkpoint (a paced run's rarer ones)")
     inbox_size: int = option(
         1 << 16,
         "the learner's bounded input queue (steps + feedback); when full, Zenoh's BLOCK "
@@ -260,6 +261,8 @@ class LearnerSettings:
             raise ValueError(f"end-grace must be >= 0, got {self.end_grace}")
         if not (math.isfinite(self.checkpoint_period) and self.checkpoint_period > 0):
             raise ValueError(f"checkpoint-period must be positive, got {self.checkpoint_period}")
+        if self.checkpoint_steps < 1:
+            raise ValueError(f"checkpoint-steps must be >= 1, got {self.checkpoint_steps}")
         if self.inbox_size < 1:
             raise ValueError(f"inbox-size must be >= 1, got {self.inbox_size}")
         if not (math.isfinite(self.debug_update_sleep) and self.debug_update_sleep >= 0):

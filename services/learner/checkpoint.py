@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -100,3 +101,29 @@ def load(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
         raise ValueError(f"{path}: not a learner checkpoint ({header.get('format')!r})")
     arrays = {k[len("agent.") :]: v for k, v in safetensors.numpy.load_file(str(path)).items()}
     return unflatten(arrays, json.loads(header["skeleton"])), json.loads(header["meta"])
+
+
+class CheckpointSchedule:
+    """When the learner writes its checkpoint: every `checkpoint_period` s at most, once `checkpoint_steps` new
+    steps are learned. A paced run does not rewrite its whole state every few seconds for a step or two (362 ms a
+    checkpoint in one measured run); a learner restarted from an older checkpoint catches up from the log."""
+
+    def __init__(self, config: Any, steps: int):
+        self.path, self.period, self.steps_between = (
+            config.checkpoint,
+            config.checkpoint_period,
+            config.checkpoint_steps,
+        )
+        self.t, self.steps = time.monotonic(), steps
+
+    def due(self, steps_learned: int) -> bool:
+        return self.due_in(steps_learned) <= 0
+
+    def due_in(self, steps_learned: int, never: float = 3600.0) -> float:
+        """Seconds until the next checkpoint (`never` while too few new steps are learned)."""
+        if not self.path or steps_learned - self.steps < self.steps_between:
+            return never
+        return self.t + self.period - time.monotonic()
+
+    def written(self, steps_learned: int) -> None:
+        self.t, self.steps = time.monotonic(), steps_learned

@@ -1,5 +1,5 @@
 """What the learner's core says of each input: a feedback's outcome (`FeedbackResult`) and a finished episode
-(`EpisodeRecord`)."""
+(`EpisodeRecord`); and the weights the service last published (`PublishedWeights`)."""
 
 from __future__ import annotations
 
@@ -31,3 +31,12 @@ class EpisodeRecord:
     feedback_credited: int
     weights_version: int
     t_end: float
+
+
+@dataclasses.dataclass(frozen=True)
+class PublishedWeights:
+    """The weights last published: the step count they are at (their version), the revision, the message sent."""
+
+    version: int
+    revision: int
+    data: bytes | None = None

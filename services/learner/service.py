@@ -10,7 +10,7 @@ Every input passes the `InputGate` first (docs/faults.md): undecodable bytes, wr
 off, unannounced actor incarnations, unknown teachers, seq jumps are dropped and counted
 (`rejected_<reason>`); inputs already consumed (re-sent after a restart) are dropped as duplicates.
 
-Recovery: with `checkpoint`, the whole learning state is saved atomically every `checkpoint_period` s; a
+Recovery: with `checkpoint`, the whole learning state is saved atomically (`CheckpointSchedule`); a
 learner started on an existing checkpoint restores it, then consumes from `catchup_log` (the recorder's
 MCAP log, segments and a live file included) every step and feedback beyond it, then what the actor and
 teachers re-send on seeing it alive (their last `resend_window` s), then the live inputs; duplicates are
@@ -27,7 +27,6 @@ publish weights, flush Ingest, checkpoint, stop waiting) never touch the learner
 
 from __future__ import annotations
 
-import dataclasses
 import time
 
 from common.pathtrace import traced
@@ -49,23 +48,18 @@ from services.common.resend import ResendRing, publish_kept
 from services.common.watches import decoded_statuses
 from services.common.runtime import ServiceRuntime
 from services.learner import checkpoint
+from services.learner.checkpoint import CheckpointSchedule
 from services.learner.catchup import catch_up
 from services.learner.credits import credit_message, publish_credit
 from services.learner.core import LearnerCore
 from services.learner.end_rule import EndRule
+from services.learner.results import PublishedWeights
 from services.learner.snapshots import Snapshots
 from services.learner.teacher_delays import delay_message
 
 REVISION_QUIET = 0.02  # s since the last step before weights changed without a new step go out on their own
-
-
-@dataclasses.dataclass(frozen=True)
-class PublishedWeights:
-    """The weights last published: the step count they are at (their version), the revision, the message sent."""
-
-    version: int
-    revision: int
-    data: bytes | None = None
+IDLE_AFTER = 0.05  # s without an input before the learner counts itself idle (idle updates, held weights go out)
+QUIET_WAIT = 0.25  # s the learner waits for an input at most when nothing is pending
 
 
 class Learner:
@@ -104,7 +98,7 @@ class Learner:
         )
         self.note_rejected = first_time_logger(rt.event, "input")
         self.last_weights = PublishedWeights(0 if resumed is None else -1, core.revision)
-        self.last_ckpt = {"t": time.monotonic(), "steps": core.steps_learned if resumed else -1}
+        self.ckpt = CheckpointSchedule(config, core.steps_learned if resumed else 0)
         self.end = EndRule(config.wait_teachers, config.end_grace, rt)
         self.last_step_at = 0.0  # (monotonic) when the last step arrived
 
@@ -173,7 +167,7 @@ class Learner:
         checkpoint.save(path, tensors, meta)
         self.rt.counters["checkpoints"] += 1
         self.rt.samples["checkpoint_cost_s"].append(time.perf_counter() - t0)
-        self.last_ckpt.update(t=time.monotonic(), steps=self.core.steps_learned)
+        self.ckpt.written(self.core.steps_learned)
 
     def note_latency(self, results, t_sent: float | None = None) -> None:
         """Latency samples: send -> H updated, and how much of it was the wait for a newer step."""
@@ -296,11 +290,15 @@ class Learner:
     @traced("learner.input")
     def take_input(self) -> None:
         """One input from the inbox (if any) into the core; publish weights and flush Ingest when due."""
-        got = self.inbox.get(timeout=0.05)
+        got = self.inbox.get(timeout=self.wait_s())
         if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
             if self.idle_left > 0 and self.core.idle(time.time()):
                 self.idle_left -= 1
-            self.publish_weights_if_due(idle=True)  # (an idle update, or a press held back as steps streamed)
+                if self.idle_left > 0:  # a burst under way: its weights and Ingest go out once, at its end
+                    return
+            else:
+                self.idle_left = 0  # (no update applies: before the first step, after the end)
+            self.publish_weights_if_due(idle=True)  # (the burst's end, or a press held back as steps streamed)
             self.flush_ingest()  # (what waited for the period goes now: nothing else is coming)
             return
         if got.key.endswith("/step"):  # a new step: a new budget of idle-time updates before the next one
@@ -321,6 +319,17 @@ class Learner:
             or time.monotonic() - self.last_ingest >= self.config.ingest_period
         ):
             self.flush_ingest()
+
+    def wait_s(self) -> float:
+        """How long to wait for an input: between two updates of an idle burst, only a look; 50 ms with something
+        pending (a burst to start, weights or Ingest to send); else until a status or checkpoint is due."""
+        if 0 < self.idle_left < self.config.idle_updates:
+            return 0.0
+        last = self.last_weights
+        pending = self.core.steps_learned != last.version or self.core.revision != last.revision
+        if self.idle_left or pending or self.core.entries or self.ingest_credits:
+            return IDLE_AFTER
+        return max(0.0, min(QUIET_WAIT, self.rt.status_due_in(), self.ckpt.due_in(self.core.steps_learned)))
 
     def publish_weights_if_due(self, idle: bool) -> None:
         """New weights go out when they changed and nothing else is waiting, or after `weights_every` steps while
@@ -363,11 +372,7 @@ class Learner:
                     self.requests.drain(), core.steps_learned, lambda: self.current_weights(core.steps_learned)
                 )
             self.on_restarts()
-            if (
-                config.checkpoint
-                and core.steps_learned != self.last_ckpt["steps"]
-                and time.monotonic() - self.last_ckpt["t"] >= config.checkpoint_period
-            ):
+            if self.ckpt.due(core.steps_learned):
                 self.save_checkpoint()
             self.core.profiles.save(self.core.delays)  # returning people's profiles, every 10 s while they move
             if self.finished():
