@@ -48,6 +48,8 @@ from services.common.runtime import ServiceRuntime, TerminalError, apply_torch_t
 
 RECORDER_WAIT = 20.0  # s to wait at the end for a recorder that is restarting (it must get what it missed)
 
+CONTROL_LOOK = 0.25  # s between two looks at the controls (pause, rate, end) while waiting for a tick
+
 
 class Actor:
     """One incarnation of the actor: its environment, acting agent, weights slot and resend ring.
@@ -165,7 +167,7 @@ class Actor:
         period = control.period
         next_tick += period
         while (delay := next_tick - time.perf_counter()) > 0 and not self.rt.stop.is_set():
-            self.adopt_weights(timeout=min(delay, 0.05))
+            self.adopt_weights(timeout=min(delay, CONTROL_LOOK))
             if control.take(self.control_in):
                 if control.paused or control.end:
                     break

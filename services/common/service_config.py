@@ -28,7 +28,7 @@ class ServiceConfig:
     connect: tuple[str, ...] = option((DEFAULT_ENDPOINT,), "Zenoh router endpoint(s) to connect to, comma-separated")
     parent_pid: int | None = option(None, "exit when this process is gone (the launcher passes its pid)")
     stats_out: str | None = option(None, "write final counters and latency samples to this JSON file at exit")
-    status_period: float = option(1.0, "seconds between ServiceStatus messages")
+    status_period: float = option(2.0, "seconds between ServiceStatus messages")
     connect_timeout: float = option(15.0, "seconds to keep trying to reach the router at start")
     security: str | None = option(
         None,

@@ -39,6 +39,8 @@ from services.console.sockets import SocketGuard
 STATIC = Path(__file__).resolve().parent / "static"
 SEND_QUEUE = 256  # messages waiting for a slow page before the oldest are dropped
 
+LOOP_PASS = 0.25  # s between two passes of the console's own loop (status, announce, starting the actor)
+
 
 class Page:
     """One WebSocket: a person. Outgoing messages go through a bounded queue (a slow page loses the oldest)."""
@@ -263,7 +265,7 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
     try:
         last_announce = 0.0
         while not rt.stop.is_set():
-            await asyncio.sleep(0.1)
+            await asyncio.sleep(LOOP_PASS)
             rt.tick()
             hub.start_when_watched()
             if time.monotonic() - last_announce >= config.status_period:

@@ -21,6 +21,7 @@ from services.common.runtime import set_from_handler
 from services.launcher.unfinished import finish_unfinished_runs
 
 DISK_CHECK_PERIOD = 1.0  # s between free-space checks
+STATUS_PERIOD = 2.0  # s between the launcher's own statuses (as the services' default status-period)
 DISK_FULL_TEXT = "No space left on device"
 
 
@@ -194,7 +195,7 @@ class Run:
     def step(self) -> bool:
         """One pass; True when the run is over."""
         if time.monotonic() >= self.next_status and self.graceful_deadline is None:
-            self.next_status = time.monotonic() + 1.0
+            self.next_status = time.monotonic() + STATUS_PERIOD
             self.announce("ready")  # services know a launcher supervises them (a stray SIGTERM is then a death)
         try:
             self.sup.pump()
