@@ -60,6 +60,7 @@ class UpConfig(Groups):
     start_timeout: float = option(60.0, "seconds for all services to come up")
     stop_timeout: float = option(10.0, "seconds after the actor ends (or Ctrl-C) before stragglers are terminated")
     progress: bool = option(True, "show a progress bar")
+    curve: bool = option(True, "draw learning_curve.png at the end (matplotlib: about 1 s of CPU)")
     restart_limit: int = option(3, "restarts per service before the run is given up (0: a dead service stops the run)")
     restart_backoff: float = option(
         0.5, "seconds before the first restart of a service; doubles per restart, at most 8 s"

@@ -83,9 +83,8 @@ def finish(
     }
     if error:
         summary["error"] = error
-    drawn = write_summary_from_log(
-        summary, rundir, f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})"
-    )
+    title = f"{cfg.algo} on {cfg.env} (live, teacher {cfg.teacher}, seed {cfg.seed})"
+    drawn = write_summary_from_log(summary, rundir, title, cfg.curve)
     figure = ", learning_curve.png" if drawn else ""
     if "returns" in summary:
         print(format_summary(summary), file=sys.stderr)
@@ -95,7 +94,7 @@ def finish(
     return EXIT_CODES.get(outcome, 1)
 
 
-def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str) -> bool:
+def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str, curve: bool = True) -> bool:
     """Add the log's counts to `summary` (its outcome and restarts stay), plot the learning curve, add the
     latencies, and write summary.json: whatever the disk allows (the counts fit the space reserved for it).
     Whether learning_curve.png was drawn (not without matplotlib, the `experiments` extra)."""
@@ -111,7 +110,7 @@ def write_summary_from_log(summary: dict[str, Any], rundir: RunDir, title: str) 
         except Exception as exc:  # a damaged log still gets a summary.json saying so
             summary["summary_error"] = f"{type(exc).__name__}: {exc}"
     drawn = False
-    if "returns" in summary:
+    if "returns" in summary and curve:
         try:
             drawn = plot_summary(summary, rundir.path / "learning_curve.png", title)
         except Exception as exc:  # a full disk: no plot (and no 0-byte file), the counts still go out

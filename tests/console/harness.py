@@ -55,6 +55,7 @@ class WebRun:
             run,
             "--progress",
             "false",
+            *([] if "--curve" in args else ["--curve", "false"]),  # (no test of the page reads the curve)
             *args,
         ]
         self.rundir = tmp_path / run

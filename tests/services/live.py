@@ -46,7 +46,10 @@ class Launch:
 
 def start_up(tmp_path: Path, run: str, *args: str) -> Launch:
     """`python -m services up` in its own session (so a test can send it SIGINT like a terminal would)."""
-    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false", *args]
+    # no learning_curve.png unless a test asks for it (`--curve true`): matplotlib costs each run about 1 s of CPU
+    curve = [] if "--curve" in args else ["--curve", "false"]
+    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false"]
+    cmd += [*curve, *args]
     popen = subprocess.Popen(
         cmd, cwd=ROOT, env=env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
     )

@@ -30,7 +30,7 @@ REJECT_REASONS = {"stale", "too_old", "ignored", "after_end", "actor_restarted"}
 def live_run(tmp_path_factory):
     """One 25-episode run of the main job (maze, DQN-TAMER, oracle teacher, as fast as possible in lockstep)."""
     out = tmp_path_factory.mktemp("live")
-    launch = start_up(out, "it", "--episodes", "25", "--seed", "0")
+    launch = start_up(out, "it", "--episodes", "25", "--seed", "0", "--curve", "true")
     rc = launch.wait(timeout=240)
     assert rc == 0, launch.out
     yield launch

@@ -32,7 +32,8 @@ def closer_or_quiet(info):
 
 def _run(tmp_path, run: str, *args: str, pythonpath: str | None = None):
     """`python -m services up` (as tests/services/live.py starts it), with a user's folder on PYTHONPATH."""
-    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false", *args]
+    cmd = [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--run", run, "--progress", "false"]
+    cmd += ["--curve", "false", *args]
     env = live_env()
     if pythonpath:
         env["PYTHONPATH"] = os.pathsep.join([env["PYTHONPATH"], pythonpath])
