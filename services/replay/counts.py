@@ -30,7 +30,7 @@ def counts_sent_and_learned(
     teacher_services = sorted(s for s in c.statuses if teacher_id_of(s))
     sent = [status_counter(c, svc, "feedback_published") for svc in teacher_services]
     sent = [
-        x if svc not in stale else max(x or 0, len(feedback.get(teacher_id_of(svc), [])))
+        x if svc not in stale else max(x or 0, len(feedback.get(teacher_id_of(svc) or "", [])))
         for svc, x in zip(teacher_services, sent)
     ]
     steps_learned = status_counter(c, "learner", "steps_learned")
@@ -48,7 +48,7 @@ def effective_ingest(ingest: dict[str, list[Ingest]]) -> tuple[list, list[str], 
     learner started without a checkpoint (it replayed the whole log) has a record of its own."""
     records: dict[str, dict[int, Any]] = {}
     links: dict[str, tuple[str, int] | None] = {}
-    for inc, batches in ingest.items():
+    for learner, batches in ingest.items():
         rec: dict[int, Any] = {}
         link = None
         for b in sorted(batches, key=lambda b: b.seq):
@@ -57,12 +57,13 @@ def effective_ingest(ingest: dict[str, list[Ingest]]) -> tuple[list, list[str], 
                 link = (str(r.get("learner")), int(r.get("position", 0)))
             for i, e in enumerate(b.entries):
                 rec[b.index + i] = e
-        records[inc], links[inc] = rec, link
+        records[learner], links[learner] = rec, link
     if not records:
         return [], [], 0
     last = list(records)[-1]
     chain, merged, seen = [], {}, set()
-    inc, upto = last, None
+    inc: str | None = last
+    upto: int | None = None
     while inc is not None and inc in records and inc not in seen:
         seen.add(inc)
         chain.append(inc)
