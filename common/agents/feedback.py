@@ -52,6 +52,16 @@ class Screen:
     ends: np.ndarray
 
 
+def within_reach(starts: np.ndarray, ends: np.ndarray, t_feedback: float, reach_s: float) -> slice:
+    """The candidate steps (ascending starts and ends) that a feedback at t_feedback can be about with a delay of
+    at most reach_s: shown before t_feedback and not ended before t_feedback - reach_s. The others get no weight
+    under the delay, so leaving them out changes no credit. All of them when the times are not ascending."""
+    if np.count_nonzero(starts[1:] < starts[:-1]) or np.count_nonzero(ends[1:] < ends[:-1]):
+        return slice(0, len(starts))
+    first = int(np.searchsorted(ends, t_feedback - reach_s, side="right"))
+    return slice(first, max(first, int(np.searchsorted(starts, t_feedback, side="right"))))
+
+
 class FeedbackDoor:
     """The feedback methods of `TrialBatchAgent` (they use its parts: history, replay, h, feedback_memory)."""
 
@@ -202,9 +212,12 @@ class FeedbackDoor:
             return FeedbackOutcome("ignored"), weights
         if not held.any():
             return FeedbackOutcome("stale", 0, 1.0), weights
-        weights = np.where(held, delay.weights(t_feedback, starts, ends), 0.0)
-        polarity = np.where(held, self.history.polarity[row, np.maximum(positions, 0)], 0)
-        delay.observe(t_feedback, starts, ends, polarity_likelihood(value, polarity))
+        # Only the steps the delay can reach: at a high rate the history holds thousands, all weightless.
+        near = within_reach(starts, ends, t_feedback, delay.reach_s())
+        held_near, positions_near = held[near], positions[near]
+        weights[near] = np.where(held_near, delay.weights(t_feedback, starts[near], ends[near]), 0.0)
+        polarity = np.where(held_near, self.history.polarity[row, np.maximum(positions_near, 0)], 0)
+        delay.observe(t_feedback, starts[near], ends[near], polarity_likelihood(value, polarity))
         k = np.flatnonzero(weights > 0)
         lost = max(0.0, 1.0 - float(weights.sum()))
         if not len(k):

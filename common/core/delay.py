@@ -93,6 +93,51 @@ class MixtureDelay:
         return float(out) if out.ndim == 0 else out
 
 
+class UniformDelay:
+    """The uniform delay on [loc, loc + scale] with the numbers scipy.stats.uniform gives, bit for bit
+    (tests/core/test_delay.py), without importing scipy: that import costs each learner and console 1.5 s of CPU at
+    start, for the default delay. Anything else scipy's frozen uniform has is read from it."""
+
+    def __init__(self, loc: float, scale: float):
+        if not (scale > 0 and math.isfinite(loc) and math.isfinite(scale)):
+            raise ValueError(f"uniform delay needs a finite loc and scale > 0, got {loc}, {scale}")
+        self.loc, self.scale = float(loc), float(scale)
+
+    def _standard(self, x) -> np.ndarray:
+        return np.asarray((np.asarray(x, np.float64) - self.loc) / self.scale, np.float64)
+
+    @staticmethod
+    def _out(values: np.ndarray):
+        return values[()] if values.ndim == 0 else values
+
+    def cdf(self, x):
+        z = self._standard(x)
+        return self._out(np.where(np.isnan(z), np.nan, np.clip(z, 0.0, 1.0)))
+
+    def pdf(self, x):
+        z = self._standard(x)
+        return self._out(np.where(np.isnan(z), np.nan, np.where((z >= 0) & (z <= 1), 1.0 / self.scale, 0.0)))
+
+    def ppf(self, q):
+        q = np.asarray(q, np.float64)
+        return self._out(np.where((q >= 0) & (q <= 1), q * self.scale + self.loc, np.nan))
+
+    def rvs(self, size=None, random_state=None):
+        if not isinstance(random_state, (np.random.Generator, np.random.RandomState)):  # a seed: scipy's own rules
+            return self.__getattr__("rvs")(size=size, random_state=random_state)
+        return random_state.uniform(0.0, 1.0, size) * self.scale + self.loc
+
+    def support(self) -> tuple[float, float]:
+        return self.loc, self.scale + self.loc
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        import scipy.stats
+
+        return getattr(scipy.stats.uniform(loc=self.loc, scale=self.scale), name)
+
+
 def _mixture_from_spec(spec: str) -> MixtureDelay:
     """``mix:W1*SPEC1+W2*SPEC2+...``: weights (normalised) of distributions in seconds."""
     weights, parts = [], []
@@ -145,10 +190,10 @@ def delay_from_spec(spec: str, unit: float = 1.0):
         return DelayModel(parse_probs(args, "delay steps"), unit)
     if name == "mix":
         return _mixture_from_spec(spec)
+    if name == "uniform":
+        return UniformDelay(loc=values[0], scale=values[1] - values[0])
     import scipy.stats
 
-    if name == "uniform":
-        return scipy.stats.uniform(loc=values[0], scale=values[1] - values[0])
     dist = getattr(scipy.stats, name, None)
     if not isinstance(dist, scipy.stats.rv_continuous):
         raise ValueError(f"delay {spec!r}: unknown distribution {name!r} (steps, uniform or a scipy.stats name)")

@@ -212,6 +212,10 @@ class LearnedDelay:
         cdf = np.concatenate([[0.0], np.cumsum(self.probs)])
         return float(np.interp(q * cdf[-1], cdf, self.edges))
 
+    def reach_s(self) -> float:
+        """The longest delay with any density: a step shown only before t_f - reach_s gets no credit."""
+        return float(self.config.max_s)
+
     def mean(self) -> float:
         """The mean delay (s)."""
         return float(self.probs @ (self.edges[:-1] + self.edges[1:]) / 2)
@@ -276,6 +280,19 @@ class LearnedDelay:
         return model
 
 
+def support_end(distribution) -> float:
+    """The largest delay a distribution can give: its last point mass, the largest of a mixture's parts, a
+    scipy.stats distribution's upper support; inf when it is not known."""
+    if hasattr(distribution, "point_masses"):
+        lags, probs = distribution.point_masses()
+        return float(lags[np.flatnonzero(probs > 0)[-1]]) if np.any(probs > 0) else 0.0
+    if hasattr(distribution, "parts"):
+        return max(support_end(part) for part in distribution.parts)
+    if hasattr(distribution, "support"):
+        return float(distribution.support()[1])
+    return math.inf
+
+
 class FixedDelay:
     """A delay that is not learned (a fixed distribution from `delay_from_spec`), with `LearnedDelay`'s
     interface: weights are `common.core.credit`'s (not normalised: mass on steps not held is lost)."""
@@ -295,6 +312,10 @@ class FixedDelay:
     def observe(self, t_feedback: float, starts, ends=None, likelihood=None) -> bool:
         self.feedbacks += 1
         return False
+
+    def reach_s(self) -> float:
+        """The end of the distribution's support (inf when unbounded): steps shown before t_f - reach_s get none."""
+        return support_end(self.distribution)
 
     def quantile(self, q: float) -> float:
         if hasattr(self.distribution, "ppf"):

@@ -22,6 +22,7 @@ pytestmark = [pytest.mark.live, pytest.mark.browser, pytest.mark.timeout(500)]
 
 IDLE = int(os.environ.get("HITL_IDLE_SOCKETS", "1000"))
 CREDITED = "[...hitl.mine.values()].filter(f => f.credit && f.credit.status === 'credited').length"
+STATUSES = "[...hitl.mine.values()].map(f => f.credit ? f.credit.status : 'none')"
 
 
 def hold_idle(port: int, n: int) -> list[socket.socket]:
@@ -94,7 +95,13 @@ def test_a_person_teaches_through_thousands_of_idle_sockets(tmp_path):
             late.wait_for_function("hitl.shownLog.length >= 6", timeout=60_000)
             teach(late, 10)
             for p in (page, late):
-                p.wait_for_function(f"{CREDITED} === 10 && hitl.held.length === 0", timeout=60_000)
+                try:
+                    p.wait_for_function(f"{CREDITED} === 10 && hitl.held.length === 0", timeout=60_000)
+                except Exception as e:  # what became of each press says why
+                    state = p.evaluate(
+                        f"({{statuses: {STATUSES}, held: hitl.held.length, shown: hitl.shownLog.length}})"
+                    )
+                    raise AssertionError(f"{'late' if p is late else 'first'} page: {state}; {run.out[-2000:]}") from e
                 assert p.evaluate("hitl.dropped") == []
             slow.join(30)
             assert closed and closed[0] <= 12.0, closed  # the header timeout (10 s) and one sweep

@@ -43,19 +43,25 @@ def test_scripted_person_teaches_dqn_tamer(tmp_path):
 
     summary = run.rundir / "summary.json"
     assert summary.exists()
-    feedback, credits, episode_of = {}, {}, {}
+    feedback, credits, episode_of, logged = {}, {}, {}, {}
+    last_step = 0
     for rec in read_log(run.rundir / "session.mcap"):
         m = rec.message
         if isinstance(m, Step):
             episode_of[m.seq] = m.episode
+            last_step = max(last_step, rec.log_time)
         elif isinstance(m, Feedback) and m.teacher_id == "web-1":
             feedback[m.seq] = m
+            logged[m.seq] = rec.log_time
         elif isinstance(m, Credit) and m.teacher_id == "web-1":
             credits[m.seq] = m
     assert len(presses) >= 40 and len(feedback) == len(presses)
-    # A press planned after the actor's last step may land after the end (`after_end`); all others are credited.
+    # A press that reaches the log after the actor's last step may come after the learner has ended (no Credit, or
+    # `after_end`: how many depends on the machine's load); every press before it is credited.
     credited = [c for c in credits.values() if c.status == "credited"]
-    assert len(credited) >= len(feedback) - 3, sorted({c.status for c in credits.values()})
+    uncredited = [q for q in feedback if q not in credits or credits[q].status != "credited"]
+    early = [(q, credits[q].status if q in credits else None) for q in uncredited if logged[q] <= last_step]
+    assert not early and len(credited) >= len(feedback) - 10, (early, len(credited), len(feedback))
     checked = 0
     for c in credited:
         fb = feedback[c.seq]
