@@ -64,6 +64,8 @@ class ServiceRuntime:
         self._log_pub: MessagePublisher | None = None
         self._token: Any = None  # zenoh liveliness tokens
         self._inc_token: Any = None
+        self._recorder_sub: Any = None  # the recorder's liveliness: a status for each recorder that comes
+        self._recorder_came = threading.Event()
         self._last_status = 0.0
         self._extra_counters: Callable[[], dict[str, int]] | None = None
         self._cpu_at_ready: float | None = None
@@ -71,6 +73,9 @@ class ServiceRuntime:
             for sig in (signal.SIGTERM, signal.SIGINT):
                 signal.signal(sig, self._on_signal)
         parent = getattr(config, "parent_pid", None)
+        # Started by a launcher (it passes its pid): supervised from the start, not only from its first status
+        # (a stray SIGTERM in the first second, before that status came, was taken for the end of the run).
+        self._supervised = bool(parent)
         if parent:
             threading.Thread(target=self._watch_parent, args=(int(parent),), name="parent-watch", daemon=True).start()
 
@@ -118,7 +123,7 @@ class ServiceRuntime:
                     self.publish_status(self.final_state)
                 with contextlib.suppress(Exception):
                     run_end_sub.undeclare()
-                for token in (self._token, self._inc_token):
+                for token in (self._recorder_sub, self._token, self._inc_token):
                     if token is not None:
                         with contextlib.suppress(Exception):
                             token.undeclare()
@@ -212,6 +217,16 @@ class ServiceRuntime:
         )
         self._cpu_at_ready = time.process_time()
         self.publish_status("ready")
+        if self.name != "recorder":  # (a recorder that starts after this one missed 'ready': tick() says it again)
+            self._recorder_sub = self._session.liveliness().declare_subscriber(
+                alive_key(self.config.run, "recorder"), self._on_recorder, history=True
+            )
+
+    def _on_recorder(self, sample: Any) -> None:
+        import zenoh
+
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._recorder_came.set()
 
     def set_counters_source(self, fn: Callable[[], dict[str, int]]) -> None:
         """Extra counters (e.g. a core's) merged into every status and the stats file."""
@@ -248,8 +263,12 @@ class ServiceRuntime:
         return max(0.0, self._last_status + self.config.status_period - time.monotonic())
 
     def tick(self) -> None:
-        """Publish the periodic status when due."""
-        if time.monotonic() - self._last_status >= self.config.status_period:
+        """Publish the periodic status when due, and at once for a recorder that has just come (it records the
+        service's state from then on: a run killed before the next periodic status still shows who was running)."""
+        if self._recorder_came.is_set():
+            self._recorder_came.clear()
+            self.publish_status()
+        elif time.monotonic() - self._last_status >= self.config.status_period:
             self.publish_status()
 
     # -- end ---------------------------------------------------------------------------------------------------
