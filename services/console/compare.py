@@ -37,6 +37,7 @@ import numpy as np
 
 from common.config import option, parse_config
 from services.console.design import Arm, Design, checkout_key, load_designs
+from services.console.scripted import DEFAULT
 from services.console.compare_tests import episodes_to_goal, MEASURE_TITLES, declared_tests, secondary_tests
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -88,10 +89,6 @@ def scripted_command(
         str(design.rate),
         "--episode-steps",
         str(design.episode_steps),
-        "--screen-delay",
-        arm.screen_delay,
-        "--screen-credit",
-        arm.screen_credit,
         "--p",
         str(design.p_press),
         "--good-factor",
@@ -105,6 +102,8 @@ def scripted_command(
         "--result",
         str(base / "results" / f"{tag}.json"),
     ]
+    for flag, value in (("--screen-delay", arm.screen_delay), ("--screen-credit", arm.screen_credit)):
+        cmd += [flag, value] if value != DEFAULT else []  # (default: the run's own setting, as preflight checks)
     return cmd + (["--lag", design.people[person]] if person is not None else [])
 
 
@@ -252,7 +251,6 @@ def preflight(design: Design) -> str | None:
     None: checked before any run starts, so that a design never runs half."""
     from services.common.config import LearnerConfig
     from services.console.config import ConsoleConfig
-    from services.console.scripted import DEFAULT
     from services.launcher.config import UpConfig
 
     for arm in design.arms:

@@ -163,3 +163,21 @@ def test_the_unknown_teacher_design_is_declared_as_issue_24_asks():
     assert np.percentile(tail, 99) > 3 * np.median(tail)  # long-tailed
     bimodal = np.histogram(plans["bimodal"], bins=np.arange(0, 3.01, 0.2))[0]
     assert bimodal[2:4].sum() > bimodal[5] and bimodal[8:10].sum() > bimodal[5]  # two modes, about 0.6 and 1.8 s
+
+
+def test_every_declared_runs_command_is_one_the_scripted_person_takes(tmp_path):
+    """The command compare starts for each arm and person of every design parses as `services.console scripted`
+    flags (a design whose arm said `default` once passed the word itself, which scripted refused: no run started)."""
+    from common.config import parse_config
+    from services.console.scripted import ScriptedConfig
+
+    for design in compare.DESIGNS.values():
+        lay, seed = design.pairs[0]
+        for arm in design.arms:
+            for person in design.persons():
+                cmd = compare.scripted_command(design, arm, person, lay, seed, tmp_path, "t", 60.0)
+                assert cmd[1:4] == ["-m", "services.console", "scripted"]
+                cfg = parse_config(ScriptedConfig, cmd[4:])
+                assert (cfg.algo, cfg.layout, cfg.seed) == (arm.algo, lay, seed)
+                if arm.screen_delay != "default":
+                    assert cfg.learner.screen_delay == arm.screen_delay
