@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 from ._containers import check_object
 from ._spec import ProtocolError, Spec
@@ -73,6 +73,9 @@ class Message:
     CONTENT_TYPE: ClassVar[str] = "application/json"
     MESSAGE_ENCODING: ClassVar[str] = "json"  # MCAP message encoding
     CROSS_RULES: ClassVar[tuple[str, ...]] = ()  # documentation of _cross_check
+    # Per-class caches, made on first use (read through cls.__dict__, so a subclass never sees its base's).
+    _wire_fields_cache: ClassVar[list[WireField]]
+    _decode_tables_cache: ClassVar[tuple[dict[str, str], dict[str, Spec], set[str]]]
 
     # -- field table ---------------------------------------------------------------------------------
     @classmethod
@@ -81,8 +84,8 @@ class Message:
         if cached is None:
             cached = [
                 WireField(f.name, f.metadata.get("wire") or f.name, f.metadata["spec"], f.metadata["optional"])
-                for f in dataclasses.fields(cls)
-            ]  # type: ignore[arg-type]
+                for f in dataclasses.fields(cast(Any, cls))  # (every subclass is a dataclass; Message is not)
+            ]
             cls._wire_fields_cache = cached
         return cached
 
@@ -131,7 +134,7 @@ class Message:
             raise ProtocolError("wrong_type", f"top level: expected object, got {type(obj).__name__}")
         attrs, specs, required = cls._decode_tables()
         values = check_object(obj, specs, required=required, path="")
-        msg = cls(**{attrs[w]: v for w, v in values.items()})  # type: ignore[call-arg]
+        msg = cls(**{attrs[w]: v for w, v in values.items()})
         msg._cross_check()
         return msg
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from typing import Protocol
 
 from ._base import PROTOCOL_VERSION
 from ._foxglove import FoxgloveProto
@@ -243,7 +244,14 @@ def _weights_section(w) -> None:
     _schema_block(w, Weights, "JSON Schema of the header")
 
 
-def _schema_block(w, cls: type, title: str = "JSON Schema") -> None:
+class _HasSchema(Protocol):
+    """A message class, or any type with its JSON Schema."""
+
+    @classmethod
+    def json_schema(cls) -> dict: ...
+
+
+def _schema_block(w, cls: type[_HasSchema], title: str = "JSON Schema") -> None:
     w("")
     w("<details><summary>" + title + "</summary>")
     w("")
