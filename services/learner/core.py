@@ -44,6 +44,7 @@ from common.core.delay_model import FixedDelay, LearnedDelay, delay_estimate, es
 from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.common.stepclock import StepClock
+from services.learner.credits import listed_steps
 from services.learner.screen import ScreenCredit, decode_feedback
 from services.learner.teacher_delays import Profiles
 from services.learner.results import FeedbackResult, EpisodeRecord
@@ -366,9 +367,8 @@ class LearnerCore:
         result.feedback = fb
         if result.status == "credited":
             positions, weights = self.agent.credited(0)
-            seq_of = self.screen.seq_of  # step-clock index -> Step.seq (recent steps)
             times = self.agent.history.times_at(0, positions)
-            result.credited = [(seq_of[int(i)], float(w)) for i, w in zip(times, weights) if int(i) in seq_of]
+            result.credited = listed_steps(self.screen.seq_of, times, weights)  # (seq_of: recent steps only)
         return result
 
     def _reject_held(self, reason: str, t: float) -> list[FeedbackResult]:

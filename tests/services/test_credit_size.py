@@ -67,3 +67,19 @@ def test_a_carried_credit_too_big_to_stand_alone_is_counted_and_dropped():
     alone = Credit.decode(out[0][1])
     assert isinstance(alone, Credit) and alone.seq == 1
     assert dropped == {"derived_dropped_oversized": 1}
+
+
+def test_the_listed_steps_are_heaviest_of_the_known_ones_chosen_in_numpy():
+    """`listed_steps` (numpy, for a feedback over a thousand steps) lists what `heaviest` lists from all the pairs:
+    ties of equal weights (a uniform delay's) resolved to the newer, steps the learner no longer knows left out."""
+    import numpy as np
+
+    from services.learner.credits import heaviest, listed_steps
+
+    rng = np.random.default_rng(3)
+    for n in (0, 5, 128, 129, 1500):
+        index = np.arange(1000, 1000 + n)
+        weights = rng.choice([0.25, 0.5, 0.125, 1e-3], size=n) * rng.choice([1.0, 1.0 + 1e-12], size=n)
+        seq_of = {int(i): int(i) + 7 for i in index if i % 11}  # some steps forgotten
+        everything = [(seq_of[int(i)], float(w)) for i, w in zip(index, weights) if int(i) in seq_of]
+        assert listed_steps(seq_of, index.astype(np.float64), weights) == heaviest(everything)
