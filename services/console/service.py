@@ -308,20 +308,22 @@ def main(config: ConsoleConfig) -> int:
     return 0
 
 
-STUDIES = ("scripted", "compare", "measure")
+STUDIES = ("scripted", "compare", "people", "measure")
 
 
 def cli(argv: list[str] | None = None) -> int:
-    """`python -m services.console --flags` serves the page; `python -m services.console scripted|compare|measure`
-    runs a scripted person through it, the declared comparisons of that person, or the console's timing figures."""
+    """`python -m services.console --flags` serves the page; `python -m services.console
+    scripted|compare|people|measure` runs a scripted person through it, the declared comparisons of that person, the
+    check of those runs' pace and presses, or the console's timing figures."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] and argv[0] in STUDIES:
         from common.config import Command, run_commands
-        from services.console import compare, measure, scripted
+        from services.console import compare, compare_people, measure, scripted
 
         studies = {
             "scripted": Command(scripted.ScriptedConfig, scripted.main),
             "compare": Command(compare.CompareConfig, compare.main),
+            "people": Command(compare_people.PeopleConfig, compare_people.main),
             "measure": Command(measure.MeasureConfig, measure.main),
         }
         return run_commands("python -m services.console", cli.__doc__ or "", studies, argv)
@@ -330,5 +332,5 @@ def cli(argv: list[str] | None = None) -> int:
         main,
         argv,
         "python -m services.console",
-        also="Also: python -m services.console scripted|compare|measure --help.",
+        also="Also: python -m services.console scripted|compare|people|measure --help.",
     )

@@ -181,3 +181,37 @@ def test_every_declared_runs_command_is_one_the_scripted_person_takes(tmp_path):
                 assert (cfg.algo, cfg.layout, cfg.seed) == (arm.algo, lay, seed)
                 if arm.screen_delay != "default":
                     assert cfg.learner.screen_delay == arm.screen_delay
+
+
+def test_people_reports_a_run_whose_person_pressed_little_or_that_went_slow(tmp_path, capsys):
+    """`python -m services.console people`: each finished run's pace and presses a step, read from its summary; a
+    run whose person pressed at under half the design's rate, or slower than 3/4 of its pace, is reported with why."""
+    import json
+
+    from services.console import compare_people
+    from services.console.service import cli
+
+    design = compare.DESIGNS["unknown-teacher"]
+    key = tmp_path / design.name / "abc123"
+    people = {
+        "fine": (400, 210.0, 200, 200, "ok"),  # 1.9 steps/s, 0.5 presses a step
+        "quiet": (400, 210.0, 20, 20, "ok"),  # the page hardly pressed
+        "lossy": (400, 210.0, 90, 60, "ok"),  # presses published and never logged
+        "slow": (400, 400.0, 200, 200, "timeout"),
+    }
+    for tag, (steps, wall, published, logged, outcome) in people.items():
+        (key / "runs" / tag).mkdir(parents=True)
+        (key / "results").mkdir(exist_ok=True)
+        (key / "results" / f"{tag}.done.json").write_text("{}")
+        person = {"web-1": {"received": logged, "published": published, "logged": logged}}
+        summary = {"steps_sent": steps, "wall_s": wall, "outcome": outcome, "people": person}
+        (key / "runs" / tag / "summary.json").write_text(json.dumps(summary))
+    assert cli(["people", "--design", design.name, "--out", str(tmp_path)]) == 0
+    rows = json.loads((key / "people.json").read_text())["runs"]
+    assert [t for t, r in rows.items() if r["reported"]] == ["lossy", "quiet", "slow"]
+    assert rows["fine"]["pace"] == round(400 / 210, 3) and rows["fine"]["presses_per_step"] == 0.5
+    assert "30 presses published and not logged" in rows["lossy"]["why"]
+    assert "outcome timeout" in rows["slow"]["why"]
+    printed = capsys.readouterr().out
+    assert "4 finished runs" in printed and "3 runs reported" in printed
+    assert compare_people.main(compare_people.PeopleConfig(design="unknown-teacher", out=str(tmp_path / "x"))) == 2
