@@ -108,6 +108,7 @@ def commands() -> dict:
     from experiments.maze_pilot import MazePilotConfig, main as maze_pilot
     from experiments.minigrid import MinigridConfig, main as minigrid
     from experiments.power import PowerConfig, main as power
+    from experiments.report_runs import SettleConfig, settle_main
     from experiments.sweeps.bench import SweepBenchConfig, main as sweep_bench
     from experiments.sweeps.cli import SweepConfig, main as sweep
     from experiments.taxi_pilot import TaxiPilotConfig, main as taxi_pilot
@@ -117,6 +118,7 @@ def commands() -> dict:
         "sweep": Command(SweepConfig, sweep, argv=True),
         "reproduce": Command(ReproduceConfig, reproduce_main, argv=True),
         "report": Command(ReportConfig, report_main, argv=True),
+        "settle": Command(SettleConfig, settle_main),
         "pilot": {
             "": "how a setting was chosen on pilot seeds, never the trials that use it",
             "maze": Command(MazePilotConfig, maze_pilot),

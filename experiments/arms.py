@@ -19,6 +19,9 @@ FLIP = 0.15
 WINDOW = 7
 LATE_DELAY = (0.0, 0.05, 0.15, 0.5, 0.3)
 LONG_DELAY = (0.05, 0.1, 0.15, 0.2, 0.2, 0.15, 0.15)
+PAPER_PRIOR = (1 / 3, 1 / 3, 1 / 3)
+"""The paper's learner's assumption: lags uniform over 0, 1, 2 steps (the `<algo>/uniform2` arms, declared 28
+November 2026: the prior D1-D3 are tested against; `<algo>/uniform` is uniform over the whole window 0..6)."""
 ADAPT_RATE = 0.01
 MATCH_K = 0.3386
 """A1's control `dqn-tamer/matched`: the paper's alpha_h schedule times MATCH_K, the adaptive arm's mean
@@ -52,6 +55,8 @@ def agent_for(arm: str, env: str = "maze", true_delay: tuple[float, ...] = PAPER
     cfg = agent_config(algo, **AGENT_OVERRIDES.get(env, {}))
     if how == "uniform":
         return replace(cfg, assumed_delay_probs=(1.0 / WINDOW,) * WINDOW)
+    if how == "uniform2":
+        return replace(cfg, assumed_delay_probs=_padded(PAPER_PRIOR))
     if how == "true":
         return replace(cfg, assumed_delay_probs=_padded(true_delay))
     if how == "learned":

@@ -17,6 +17,8 @@ AGENT_NAMES = {
     "deep-tamer/true": "Deep TAMER (true lags)",
     "deep-tamer/learned": "Deep TAMER (learned lags)",
     "dqn-tamer/uniform": "DQN-TAMER (uniform lags)",
+    "deep-tamer/uniform2": "Deep TAMER (the paper's uniform lags 0..2)",
+    "dqn-tamer/uniform2": "DQN-TAMER (the paper's uniform lags 0..2)",
     "dqn-tamer/true": "DQN-TAMER (true lags)",
     "dqn-tamer/learned": "DQN-TAMER (learned lags)",
 }

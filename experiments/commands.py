@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 
 from common.config import option
 from experiments.conditions import BY_NAME
+from experiments.declarations import DECLARATIONS, NEWEST
 
 
 @dataclass(frozen=True)
@@ -23,8 +24,26 @@ class ReproduceConfig:
         "4 Taxi trials x 40 episodes), about 2 minutes on 2 free cores, written to "
         "runs/reproduce-quick unless --out is given",
     )
-    layouts: int | None = option(None, "maze layouts (default 60: 30 honest, 30 misleading, all generated)")
-    reps: int | None = option(None, "seeds per layout (default 1)")
+    declaration: str = option(
+        NEWEST,
+        "the declaration whose arms are run and whose claims decide (experiments/declarations.py)",
+        choices=tuple(DECLARATIONS),
+        metavar="ID",
+    )
+    replicate: int | None = option(
+        None,
+        "which of the declaration's runs (default 1; 2026-11-28 declares two, on fresh layouts and seeds each), "
+        "written to its directory (docs/results/confirm/run-N; 2026-11-25: docs/results) unless --out is given",
+        metavar="N",
+    )
+    against: str | None = option(
+        None,
+        "the other run's claims.json, for REPORT.md's settlement table (default: the other declared run's, "
+        "where it exists)",
+        metavar="CLAIMS_JSON",
+    )
+    layouts: int | None = option(None, "maze layouts (default: the declared run's; half honest, half misleading)")
+    reps: int | None = option(None, "seeds per layout (default: the declared run's)")
     maze_episodes: int | None = option(None, "episodes per maze trial")
     taxi_episodes: int | None = option(None, "episodes per Taxi trial (both Taxi variants)")
     taxi_random_episodes: int | None = option(
@@ -47,16 +66,25 @@ class ReproduceConfig:
     def __post_init__(self):
         if self.layouts is not None and self.layouts < 4:
             raise ValueError("--layouts must be at least 4 (intervals resample layouts)")
+        runs = len(DECLARATIONS[self.declaration].runs)
+        if self.replicate is not None and not 1 <= self.replicate <= runs:
+            raise ValueError(f"--replicate: the declaration {self.declaration} declares runs 1-{runs}")
+        if self.quick and self.replicate is not None:
+            raise ValueError(
+                "--quick runs the old trials (layouts 0-7, seed block 1), not a declared run: no --replicate"
+            )
 
 
 def reproduce_main(args: ReproduceConfig, argv: list[str]) -> int:
-    from experiments.conditions import FULL, QUICK, select
+    from experiments.conditions import QUICK, select
+    from experiments.declarations import get, missing_layouts
     from experiments.reproduce import reproduce
 
     conds = select(list(args.only))
     if args.quick and not args.only:  # Taxi's 1000-step episodes alone cost more than the quick form's minutes
         conds = [c for c in conds if not c.is_taxi]
-    scale = QUICK if args.quick else FULL
+    decl, replicate = get(args.declaration), (None if args.quick else args.replicate or 1)
+    scale = QUICK if replicate is None else decl.scale(replicate)
     changes = {
         k: v
         for k, v in (
@@ -71,10 +99,23 @@ def reproduce_main(args: ReproduceConfig, argv: list[str]) -> int:
         if v is not None
     }
     scale = replace(scale, **changes)
-    out = args.out or ("runs/reproduce-quick" if args.quick else "docs/results")
+    if not all(c.is_taxi for c in conds) and (why := missing_layouts(scale)):
+        print(f"error: {why}", file=sys.stderr)
+        return 1
+    out = args.out or ("runs/reproduce-quick" if replicate is None else decl.outs[replicate - 1])
+    against = args.against or _other_run(decl, replicate, args.out)
     try:
         stats = reproduce(
-            conds, scale, out, workers=args.workers, progress=not args.no_progress, argv=argv, ray=args.ray
+            conds,
+            scale,
+            out,
+            workers=args.workers,
+            progress=not args.no_progress,
+            argv=argv,
+            ray=args.ray,
+            declaration=decl.id,
+            replicate=replicate,
+            against=against,
         )
     except RuntimeError as exc:  # a worker or Ray failed: finished trials are cached, re-run resumes
         print(f"error: {exc}", file=sys.stderr)
@@ -90,6 +131,15 @@ def reproduce_main(args: ReproduceConfig, argv: list[str]) -> int:
     return 0
 
 
+def _other_run(decl, replicate: int | None, out: str | None) -> str | None:
+    """The claims.json of the declaration's other run in its default directory, where this run is a declared one
+    written to its own default directory and the other exists."""
+    if replicate is None or out is not None or len(decl.runs) != 2:
+        return None
+    path = os.path.join(decl.outs[2 - replicate], "claims.json")
+    return path if os.path.exists(path) else None
+
+
 @dataclass(frozen=True)
 class ReportConfig:
     """Every verdict, interval and figure recomputed from a per-trial table (docs/results/trials.csv.xz) without
@@ -103,6 +153,9 @@ class ReportConfig:
     )
     out: str = option("", "directory for claims.json, REPORT.md and the figures")
     n_boot: int | None = option(None, "bootstrap resamples (default: the declared number, as the reproduction)")
+    against: str | None = option(
+        None, "the other run's claims.json, for REPORT.md's settlement table", metavar="CLAIMS_JSON"
+    )
 
     def __post_init__(self):
         if not self.source or not self.out:
@@ -126,7 +179,7 @@ def report_main(args: ReportConfig, argv: list[str]) -> int:
     previous = (read_json_or_none(os.path.join(src, "claims.json")) or {}).get("previous", {})
     try:
         n_boot = N_BOOT if args.n_boot is None else args.n_boot
-        result = report_from_table(args.source, args.out, timing, argv, n_boot, previous)
+        result = report_from_table(args.source, args.out, timing, argv, n_boot, previous, args.against)
     except (OSError, ValueError, EOFError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

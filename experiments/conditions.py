@@ -15,7 +15,8 @@ destination: one "layout", trials are seeds) or `taxi-fixed` (layout = one of 12
 destination pairs).
 
 An arm is an agent variant: the paper's four (`dqn`, `dqn-rs`, `deep-tamer`, `dqn-tamer`) or ours:
-`<algo>/uniform` (lags assumed uniform over the learner's window 0..6), `<algo>/true` (the observer's
+`<algo>/uniform` (lags assumed uniform over the learner's window 0..6), `<algo>/uniform2` (the paper's
+assumption, uniform over 0..2; added 28 November 2026), `<algo>/true` (the observer's
 true distribution), `<algo>/learned` (the delay learned online in seconds, common.core.delay_model, on the
 runner's clock of 0.5 s per step), `dqn-tamer/adaptive` (alpha_h also follows H/Q agreement),
 `dqn-tamer/matched` (A1's control: a fixed schedule with the adaptive arm's mean alpha_h),
@@ -156,7 +157,11 @@ def _mix(a, b) -> tuple[float, ...]:
     return tuple(float(x) for x in (pa + pb) / 2)
 
 
-_DELAY_ARMS = tuple(f"{algo}/{how}" for algo in ("deep-tamer", "dqn-tamer") for how in ("uniform", "true", "learned"))
+_DELAY_ARMS = tuple(
+    f"{algo}/{how}" for algo in ("deep-tamer", "dqn-tamer") for how in ("uniform", "uniform2", "true", "learned")
+)
+"""Each declaration runs the arms its claims need (experiments/declarations.py): 25 November `uniform` (0..6 steps),
+28 November `uniform2` (the paper's 0..2 steps)."""
 _STOP = dict(stop_episode=STOP_EPISODE)
 
 CONDITIONS: tuple[Condition, ...] = (

@@ -15,7 +15,8 @@ from scipy import stats as sps
 
 from common.envs.maze import layout_kind
 from experiments import stats
-from experiments.claims import ALPHA, CLAIMS, FAMILIES, MARGIN, METRICS, RETURN_MARGIN, Effect, Test
+from experiments.claims import ALPHA, MARGIN, METRICS, RETURN_MARGIN, Effect, Test
+from experiments.declarations import Declaration, UNRECORDED, get
 
 N_BOOT = 2000
 SUBSETS = ("pooled", "honest", "misleading")
@@ -225,71 +226,79 @@ def _metric_record(data: Data, c, metric: str, r: dict, p_adj: float, factor: in
     return rec
 
 
-def _extension(data: Data, t: Test, n_boot: int) -> dict:
+def _extension(data: Data, t: Test, n_boot: int, metrics: tuple[str, ...] = METRICS) -> dict:
     """The other populations and the interaction, per metric (never deciding)."""
     return {
         "populations": {
-            s: {metric: run_test(data, t, s, metric, n_boot) for metric in METRICS} for s in SUBSETS if s != t.layouts
+            s: {metric: run_test(data, t, s, metric, n_boot) for metric in metrics} for s in SUBSETS if s != t.layouts
         },
-        "interaction": {metric: interaction(data, t, metric, n_boot) for metric in METRICS},
+        "interaction": {metric: interaction(data, t, metric, n_boot) for metric in metrics},
     }
 
 
-def evaluate_claims(data: Data, n_boot: int = N_BOOT) -> dict:
-    """Every claim: both co-primary metrics (Holm within its family, per metric), the claim's verdict,
-    robustness, the extension (other layout classes, interaction) and the secondary tests."""
+def evaluate_claims(data: Data, n_boot: int = N_BOOT, declaration: Declaration | None = None) -> dict:
+    """Every claim of the declaration (default: 25 November's): each metric (Holm within its family, per metric),
+    the claim's verdict from the deciding metrics, robustness, the extension (other layout classes, interaction)
+    and the secondary tests."""
+    decl = declaration or get(UNRECORDED)
     out: dict = {}
-    for family in FAMILIES:
-        claims = [c for c in CLAIMS if c.family == family]
+    for family in decl.families:
+        claims = [c for c in decl.claims if c.family == family]
         results = {
             metric: {
                 c.cid: run_test(data, c.primary, metric=metric, n_boot=n_boot) if available(data, c.primary) else None
                 for c in claims
             }
-            for metric in METRICS
+            for metric in decl.metrics
         }
         for c in claims:
-            rec = {
-                "family": family,
-                "text": c.text,
-                "primary_test": c.primary.text,
-                "kind": c.primary.kind,
-                "layouts": c.primary.layouts,
-                "window": c.primary.window,
-            }
-            out[c.cid] = rec
-            if results[METRICS[0]][c.cid] is None:
-                rec["verdict"] = NOT_EVALUATED
-                continue
-            rec["metrics"] = {}
-            for metric in METRICS:
-                pvals = {cid: r["p"] for cid, r in results[metric].items() if r is not None}
-                ranked = sorted(pvals, key=lambda k: pvals[k])
-                rec["metrics"][metric] = _metric_record(
-                    data,
-                    c,
-                    metric,
-                    results[metric][c.cid],
-                    stats.holm(pvals)[c.cid],
-                    len(ranked) - ranked.index(c.cid),
-                    len(ranked),
-                    n_boot,
-                )
-            rec["verdict"] = combine({m: r["verdict"] for m, r in rec["metrics"].items()})
-            ln = rec["metrics"]["ln steps"]
-            rec["fragile"] = any(a["reproduced"] != (ln["verdict"] == REPRODUCED) for a in ln["robustness"].values())
-            rec["extension"] = _extension(data, c.primary, n_boot)
-            rec["secondary"] = [
-                {
-                    "test": t.text,
-                    "kind": t.kind,
-                    "window": t.window,
-                    "layouts": t.layouts,
-                    "by_layouts": {
-                        s: {metric: run_test(data, t, s, metric, n_boot) for metric in METRICS} for s in SUBSETS
-                    },
-                }
-                for t in c.secondary
-                if available(data, t)
-            ]
+            out[c.cid] = _claim_record(data, decl, c, results, n_boot)
     return out
+
+
+def _claim_record(data: Data, decl: Declaration, c, results: dict, n_boot: int) -> dict:
+    rec: dict = {
+        "family": c.family,
+        "text": c.text,
+        "primary_test": c.primary.text,
+        "kind": c.primary.kind,
+        "layouts": c.primary.layouts,
+        "window": c.primary.window,
+    }
+    if c.cid in decl.expected_unsettled:
+        rec["expected_unsettled"] = True
+    if results[decl.metrics[0]][c.cid] is None:
+        rec["verdict"] = NOT_EVALUATED
+        return rec
+    rec["metrics"] = {}
+    for metric in decl.metrics:
+        pvals = {cid: r["p"] for cid, r in results[metric].items() if r is not None}
+        ranked = sorted(pvals, key=lambda k: pvals[k])
+        rec["metrics"][metric] = _metric_record(
+            data,
+            c,
+            metric,
+            results[metric][c.cid],
+            stats.holm(pvals)[c.cid],
+            len(ranked) - ranked.index(c.cid),
+            len(ranked),
+            n_boot,
+        )
+    rec["verdict"] = combine({m: r["verdict"] for m, r in rec["metrics"].items() if m in decl.deciding})
+    ln = rec["metrics"]["ln steps"]
+    rec["fragile"] = any(a["reproduced"] != (ln["verdict"] == REPRODUCED) for a in ln["robustness"].values())
+    rec["extension"] = _extension(data, c.primary, n_boot, decl.metrics)
+    rec["secondary"] = [
+        {
+            "test": t.text,
+            "kind": t.kind,
+            "window": t.window,
+            "layouts": t.layouts,
+            "by_layouts": {
+                s: {metric: run_test(data, t, s, metric, n_boot) for metric in decl.metrics} for s in SUBSETS
+            },
+        }
+        for t in c.secondary
+        if available(data, t)
+    ]
+    return rec

@@ -20,6 +20,7 @@ import numpy as np
 from common.config import option
 
 from experiments.conditions import BY_NAME, FULL, Scale
+from experiments.declarations import of_run
 from experiments.evaluate import evaluate_claims
 from experiments.reproduce import collect
 from experiments.trialcache import plan
@@ -39,10 +40,12 @@ def _scale_of(out: str) -> Scale:
 
 
 def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
-    scale = _scale_of(dir_a) if os.path.exists(os.path.join(dir_a, "timing.json")) else FULL
+    timing = os.path.join(dir_a, "timing.json")
+    scale = _scale_of(dir_a) if os.path.exists(timing) else FULL
+    decl = of_run(json.load(open(timing)) if os.path.exists(timing) else {})  # its arms and claims
     names_a, names_b = _conditions_in(dir_a), _conditions_in(dir_b)
-    conds_a = [BY_NAME[n] for n in names_a]
-    conds_b = [BY_NAME[n] for n in names_b if n in names_a]
+    conds_a = decl.conditions([BY_NAME[n] for n in names_a])
+    conds_b = decl.conditions([BY_NAME[n] for n in names_b if n in names_a])
     cached_a, todo_a, _ = plan(conds_a, scale, os.path.join(dir_a, "cache"))
     cached_b, todo_b, _ = plan(conds_b, scale, os.path.join(dir_b, "cache"))
     if todo_a or todo_b:
@@ -79,7 +82,7 @@ def compare(dir_a: str, dir_b: str, n_boot: int = 2000) -> dict:
     swapped = dict(cached_a)
     swapped.update(cached_b)
     data_b, _ = collect(conds_a, scale, swapped)
-    va, vb = evaluate_claims(data_a, n_boot), evaluate_claims(data_b, n_boot)
+    va, vb = evaluate_claims(data_a, n_boot, decl), evaluate_claims(data_b, n_boot, decl)
     changed = {cid: [va[cid]["verdict"], vb[cid]["verdict"]] for cid in va if va[cid]["verdict"] != vb[cid]["verdict"]}
     est = {cid: [va[cid].get("estimate"), vb[cid].get("estimate")] for cid in va}
     n_diff, n_all = sum(r["differ"] for r in rows), sum(r["trials"] for r in rows)

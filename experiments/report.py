@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from experiments.conditions import RANDOM_TAXI
-from experiments.claims import AGENT_NAMES, MARGIN
+from experiments.claims import AGENT_NAMES, MARGIN, METRICS
+from experiments.declarations import of_run
 from experiments.report_claims import claim_section, iv as _iv, method_lines, verdict_table
+from experiments.report_runs import method_lines as declared_method_lines, settlement_lines
 
 
 def panel_lines(name: str, title: str, figure: str, panels: dict, hz: dict) -> list[str]:
@@ -240,8 +242,12 @@ def taxi_scale(sc: dict, conds) -> str:
     return " and ".join(parts) if any(c.is_taxi for c in conds) else "no Taxi"
 
 
-def body(result: dict, conds, timing: dict, argv: list[str], drawn: dict, out: str) -> list[str]:
+def body(
+    result: dict, conds, timing: dict, argv: list[str], drawn: dict, out: str, settle: list[dict] | None = None
+) -> list[str]:
     claims, prev = result["claims"], result.get("previous", {})
+    decl = of_run(result)
+    declared_in = "`experiments/claims.py`" if decl.module == "experiments/claims.py" else f"`{decl.module}`"
     sc = timing.get("scale", {})
     lines = [
         "# Reproduction of the paper's claims (generated)",
@@ -253,16 +259,19 @@ def body(result: dict, conds, timing: dict, argv: list[str], drawn: dict, out: s
         + ". "
         + timing_sentence(timing)
         + " Every verdict is computed by `experiments/evaluate.py` from the tests "
-        "declared in `experiments/claims.py`; nothing here is written by hand.",
+        f"declared in {declared_in}; nothing here is written by hand.",
         "",
         "## Verdicts: the paper's claims (one Holm family)",
         "",
     ]
-    lines += verdict_table(claims, "paper", prev) + ["", "## Verdicts: beyond the paper (its own Holm family)", ""]
-    lines += verdict_table(claims, "beyond", prev) + [""]
-    lines += method_lines(result) + ["## Claims", ""]
+    lines += verdict_table(claims, "paper", prev, decl.deciding)
+    lines += ["", "## Verdicts: beyond the paper (its own Holm family)", ""]
+    lines += verdict_table(claims, "beyond", prev, decl.deciding) + [""]
+    lines += settlement_lines(settle) if settle else []
+    lines += method_lines(result) if decl.deciding == METRICS else declared_method_lines(decl, result)
+    lines += ["## Claims", ""]
     for cid, c in claims.items():
-        lines += claim_section(cid, c)
+        lines += claim_section(cid, c, decl.deciding)
     lines += layouts_lines(drawn) + horizon_lines(result, conds) + who_lines(result) + lag_lines(result)
     lines += machines_lines(out, timing) + ["## Conditions", ""]
     for c in conds:

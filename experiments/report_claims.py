@@ -14,18 +14,26 @@ def iv(r: dict | None, d: int = 3) -> str:
     return f"{r['estimate']:+.{d}f} [{r['ci'][0]:+.{d}f}, {r['ci'][1]:+.{d}f}]"
 
 
+UNSETTLED = " (expected unsettled, declared before the runs)"
+
+
 def verdict_text(c: dict) -> str:
     """The claim's verdict, and where the metrics differ, each metric's."""
-    text = f"**{c['verdict']}**" + (" (fragile)" if c.get("fragile") else "")
+    text = (
+        f"**{c['verdict']}**"
+        + (" (fragile)" if c.get("fragile") else "")
+        + (UNSETTLED if c.get("expected_unsettled") else "")
+    )
     if c["verdict"] == "mixed":
         text += " (" + "; ".join(f"{m}: {r['verdict']}" for m, r in c["metrics"].items()) + ")"
     return text
 
 
-def verdict_table(claims: dict, family: str, previous: dict) -> list[str]:
+def verdict_table(claims: dict, family: str, previous: dict, deciding: tuple[str, ...] = METRICS) -> list[str]:
+    shown = " (shown, never decides)" if "return" not in deciding else ""
     lines = [
         "| claim | verdict | previous | primary test | ln steps: estimate [95% CI], Holm p | "
-        "return: estimate [95% CI], Holm p | statement |",
+        f"return{shown}: estimate [95% CI], Holm p | statement |",
         "|---|---|---|---|---|---|---|",
     ]
     for cid, c in claims.items():
@@ -83,8 +91,9 @@ def _metric_rows(label: str, by_metric: dict) -> list[str]:
     return rows
 
 
-def claim_section(cid: str, c: dict) -> list[str]:
-    lines = [f"### {cid}: {c['verdict']}{' (fragile)' if c.get('fragile') else ''}", "", c["text"], ""]
+def claim_section(cid: str, c: dict, deciding: tuple[str, ...] = METRICS) -> list[str]:
+    mark = (" (fragile)" if c.get("fragile") else "") + (UNSETTLED if c.get("expected_unsettled") else "")
+    lines = [f"### {cid}: {c['verdict']}{mark}", "", c["text"], ""]
     if c["verdict"] == "not evaluated":
         return lines + ["(its conditions were not run)", ""]
     lines += [
@@ -96,7 +105,8 @@ def claim_section(cid: str, c: dict) -> list[str]:
     for m in METRICS:
         r = c["metrics"][m]
         lines.append(
-            f"| {c['layouts']} (primary) | {m} | {iv(r)} | {fmt_p(r['p'])} (Holm {fmt_p(r['p_holm'])}, x"
+            f"| {c['layouts']} (primary{'' if m in deciding else '; never decides'}) | {m} | {iv(r)} | "
+            f"{fmt_p(r['p'])} (Holm {fmt_p(r['p_holm'])}, x"
             f"{r['holm_factor']}): **{r['verdict']}**; {r['trials']} trials in {r['clusters']} clusters, "
             f"MDE {r['mde']:.3f} against the margin {r['margin']:.3f} |"
         )

@@ -23,8 +23,9 @@ from collections.abc import Callable
 import numpy as np
 
 from common.envs.maze import layout_pool
-from experiments import figures, panels, report
+from experiments import figures, panels, report, report_runs
 from experiments.conditions import DELAY_CONDITIONS, Condition, Scale, cluster_of, n_trials
+from experiments.declarations import Declaration, get, of_run
 from experiments.evaluate import N_BOOT, ArmData, evaluate_claims
 from experiments.sweeps.execute import run_slots
 from experiments.sweeps.named import paper_paths, paper_slots
@@ -80,12 +81,15 @@ def collect(conds: list[Condition], scale: Scale, cached: dict) -> tuple[dict, d
     return data, extras
 
 
-def analyse(conds: list[Condition], data: dict, extras: dict, out: str, n_boot: int) -> dict:
-    """Claims, panels, horizons, who-decides curves, learned lags; writes the figures."""
+def analyse(
+    conds: list[Condition], data: dict, extras: dict, out: str, n_boot: int, declaration: Declaration | None = None
+) -> dict:
+    """Claims (of the declaration; default 25 November's), panels, horizons, who-decides curves, learned lags;
+    writes the figures."""
     by_name = {c.name: c for c in conds}
     result = {
         "n_boot": n_boot,
-        "claims": evaluate_claims(data, n_boot),
+        "claims": evaluate_claims(data, n_boot, declaration),
         "panels": {},
         "horizons": {},
         "who_decides": {},
@@ -102,10 +106,10 @@ def analyse(conds: list[Condition], data: dict, extras: dict, out: str, n_boot: 
         if name not in data:
             continue
         c = by_name[name]
-        E = data[name][c.arms[0]].steps.shape[1]
+        E = next(iter(data[name].values())).steps.shape[1]
         true = [float((1.0 - c.observer.lag_cdf(e)).sum()) for e in range(E)]  # E[lag] = sum of 1 - CDF
         learned = {
-            arm: extras[name][arm]["mean_lag"].mean(axis=0).tolist() for arm in c.arms if arm.endswith("/learned")
+            arm: extras[name][arm]["mean_lag"].mean(axis=0).tolist() for arm in data[name] if arm.endswith("/learned")
         }
         result["learned_lags"][name] = {"true": true, "learned": learned}
     figures.plot_who_decides(result["who_decides"], os.path.join(out, "who-decides.png"))
@@ -139,13 +143,18 @@ def reproduce(
     argv: list[str] | None = None,
     n_boot: int = N_BOOT,
     ray: str | None = None,
+    declaration: str | None = None,
+    replicate: int | None = None,
+    against: str | None = None,
 ) -> ReproduceStats:
     """Run (or read from the cache) every trial, then write figures, claims.json, REPORT.md, timing.json.
-
-    `on_progress(trials_done, trials_total)` is called in this process whenever a trial finishes (an
-    exception raised from it stops the run; finished trials stay cached). `ray`: run the trials as Ray
-    tasks on that cluster (auto, local or HOST:PORT) instead of `workers` local processes."""
+    `declaration`: its id (default: the newest), whose arms are run and claims decided; timing.json records it and
+    `replicate` (which of its runs `scale` is; None: none, as --quick). `against`: the other run's claims.json.
+    `on_progress(trials_done, trials_total)` is called in this process whenever a trial finishes (an exception
+    raised from it stops the run; finished trials stay cached). `ray`: run the trials as Ray tasks on that cluster
+    (auto, local or HOST:PORT) instead of `workers` local processes."""
     t_start = time.perf_counter()
+    conds = get(declaration).conditions(conds)
     os.makedirs(out, exist_ok=True)
     cache_dir = os.path.join(out, "cache")
     load_start = list(os.getloadavg())
@@ -171,6 +180,8 @@ def reproduce(
         "worker_end_spread_s": _end_spread(infos),
         "cpu_s_per_worker": _cpu_per_worker(infos),
         "scale": scale.__dict__,
+        "declaration": get(declaration).id,
+        "replicate": replicate,
         "env": {k: os.environ.get(k) for k in ("OPENBLAS_CORETYPE", "OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")},
         "trial_steps": int(sum(info["trial_steps"] for info in infos)),
         "jobs": [{k: v for k, v in info.items() if k != "steps"} for info in infos],
@@ -186,9 +197,8 @@ def reproduce(
     with open(timing_path, "w") as fh:
         json.dump(timing, fh, indent=1)
     old = read_json_or_none(os.path.join(out, "claims.json")) or {}
-    report_from_table(
-        table_path, out, timing, argv or ["reproduce"], n_boot, _previous_verdicts(old, computed=slots_todo > 0)
-    )
+    previous = _previous_verdicts(old, computed=slots_todo > 0)
+    report_from_table(table_path, out, timing, argv or ["reproduce"], n_boot, previous, against)
     # The analysis after total_s (REPORT.md states total_s; the whole command took total_s + analysis_s).
     timing["analysis_s"] = time.perf_counter() - t_start - timing["total_s"]
     with open(timing_path, "w") as fh:
@@ -206,20 +216,31 @@ def reproduce(
 
 
 def report_from_table(
-    table_path: str, out: str, timing: dict, argv: list[str], n_boot: int = N_BOOT, previous: dict | None = None
+    table_path: str,
+    out: str,
+    timing: dict,
+    argv: list[str],
+    n_boot: int = N_BOOT,
+    previous: dict | None = None,
+    against: str | None = None,
 ) -> dict:
-    """Every verdict, interval and figure from the per-trial table alone (no trial is run): writes
-    `out`/claims.json, REPORT.md and the figures; returns claims.json's content."""
+    """Every verdict, interval and figure from the per-trial table alone (no trial is run), decided under the
+    declaration its run recorded in `timing` (none recorded: 25 November's): writes `out`/claims.json, REPORT.md
+    and the figures; returns claims.json's content. `against`: the other run's claims.json (settlement table)."""
     os.makedirs(out, exist_ok=True)
     table = read_table(table_path)
-    result = analyse(table.conditions, table.data, table.extras, out, n_boot)
+    decl = of_run(timing)
+    result = analyse(table.conditions, table.data, table.extras, out, n_boot, decl)
+    if decl.id != of_run({}).id:  # (claims.json of the first declaration's runs keep their form)
+        result["declaration"] = decl.id
     result["previous"] = previous or {}
     with open(table_path, "rb") as fh:  # which table these numbers come from
         result["table"] = {"file": os.path.basename(table_path), "sha256": hashlib.sha256(fh.read()).hexdigest()}
     with open(os.path.join(out, "claims.json"), "w") as fh:
         json.dump(result, fh, indent=1)
     _, drawn = layout_pool()
-    write_report(os.path.join(out, "REPORT.md"), result, table.conditions, timing, argv, drawn, out)
+    settle = report_runs.settlement_against(result, against, timing.get("replicate")) if against else None
+    write_report(os.path.join(out, "REPORT.md"), result, table.conditions, timing, argv, drawn, out, settle)
     return result
 
 
@@ -307,8 +328,15 @@ def _cpu_per_worker(infos: list[dict]) -> dict[str, float]:
 
 
 def write_report(
-    path: str, result: dict, conds: list[Condition], timing: dict, argv: list[str], drawn: dict, out: str
+    path: str,
+    result: dict,
+    conds: list[Condition],
+    timing: dict,
+    argv: list[str],
+    drawn: dict,
+    out: str,
+    settle: list[dict] | None = None,
 ) -> None:
-    lines = report.body(result, conds, timing, argv, drawn, out)
+    lines = report.body(result, conds, timing, argv, drawn, out, settle)
     with open(path, "w") as fh:
         fh.write("\n".join(lines) + "\n")

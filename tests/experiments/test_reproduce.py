@@ -97,7 +97,16 @@ def test_dqn_trials_are_shared_between_observers_and_teacher_rules(tmp_path):
 
 def test_report_outputs(tmp_path):
     conds = tiny(("maze-flip", "maze-high-delay"))
-    rep.reproduce(conds, TINY, str(tmp_path), workers=1, progress=False, n_boot=50, argv=["reproduce", "--test"])
+    rep.reproduce(
+        conds,
+        TINY,
+        str(tmp_path),
+        workers=1,
+        progress=False,
+        n_boot=50,
+        argv=["reproduce", "--test"],
+        declaration="2026-11-25",  # its form: two co-primary metrics, honest layouts (the newest: test_declarations)
+    )
     for c in conds:
         assert (tmp_path / f"{c.name}.png").stat().st_size > 5000
     assert (tmp_path / "who-decides.png").stat().st_size > 5000
