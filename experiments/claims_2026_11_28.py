@@ -62,10 +62,10 @@ experiments/report_runs.py):
   run 1 (the confirmatory run)  layouts 180-659, seed block 4   `python -m experiments reproduce --replicate 1`
   run 2 (the second run)        layouts 660-1139, seed block 5  `python -m experiments reproduce --replicate 2`
 Every layout is fresh (0-179 were used by every earlier run and pilot) and so is every seed (blocks 1-3 and the
-pilots' 9000+ were used). The maze generator (common/envs/maze.py) has LAYOUT_COUNT = 180 layouts today: neither
-run can start until it is extended to 1140 (LAYOUT_KIND_COUNT 570; the stream is prefix-stable, so layouts 0-179
-stay as they are). That is a change under common/, outside this declaration; `reproduce` refuses a run whose
-layouts the generator does not have (experiments/declarations.py, `missing_layouts`).
+pilots' 9000+ were used). The maze generator (common/envs/maze.py) had 180 layouts when this was declared; it
+was extended to 1,140 before any run (the stream is prefix-stable: layouts 0-179 stay as they are, pinned in
+tests/core/test_layouts.py). `reproduce` refuses a run whose layouts the generator does not have
+(experiments/declarations.py, `missing_layouts`).
 """
 
 from __future__ import annotations

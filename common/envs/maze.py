@@ -8,17 +8,19 @@ search and classified for the paper's Manhattan teacher rule (`misleading_dead_e
               approved path): a teacher who follows the rule leads the agent into it.
 Draws come from one stream (seed base + j, j = 0, 1, ...), distinct layouts only; layout L is the
 (L // 2)-th honest draw for even L and the (L // 2)-th misleading draw for odd L, so any prefix of the
-layouts is balanced. LAYOUT_COUNT = 180: 90 of each kind. Layout 0 is the stream's first draw. Layouts 0-59
+layouts is balanced. LAYOUT_COUNT = 1,140: 570 of each kind. Layout 0 is the stream's first draw. Layouts 0-59
 (the first 30 draws of each kind) are those of every run and pilot before 25 November 2026; layouts 60-119
 (the next 30 of each kind, the same stream continued) were fresh for the run declared that day (ae50572);
-layouts 120-179 (the stream continued again) are fresh for the run re-declared late on 25 November 2026.
+layouts 120-179 (the stream continued again) are fresh for the run re-declared late on 25 November 2026; layouts
+180-659 and 660-1139 (the stream continued, 28 November 2026, before any run used them) are the two runs of the
+declaration of 28 November (experiments/claims_2026_11_28.py). Extending the stream changes no earlier layout.
 """
 
 from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 
 import gymnasium as gym
 import numpy as np
@@ -29,7 +31,7 @@ MAX_STEPS = 1000
 STEP_REWARD = -0.01
 GOAL_REWARD = 1.0
 WALL_DENSITY = 0.2
-LAYOUT_KIND_COUNT = 90
+LAYOUT_KIND_COUNT = 570
 LAYOUT_COUNT = 2 * LAYOUT_KIND_COUNT
 HONEST, MISLEADING = "honest", "misleading"
 _LAYOUT_SEED_BASE = 20190128  # fixed so that layout L is the same on every machine
@@ -150,27 +152,47 @@ def _draw(j: int) -> MazeLayout | None:
     return layout if layout.shortest_path() is not None else None
 
 
-@lru_cache(maxsize=1)
-def layout_pool() -> tuple[tuple[MazeLayout, ...], dict[str, int]]:
-    """(the LAYOUT_COUNT layouts in index order, how many distinct solvable draws of each kind the stream
-    needed: the natural frequency of misleading layouts)."""
-    kinds: dict[str, list[MazeLayout]] = {HONEST: [], MISLEADING: []}
-    seen = set()
-    drawn = {HONEST: 0, MISLEADING: 0}
-    j = 0
-    while min(len(v) for v in kinds.values()) < LAYOUT_KIND_COUNT:
-        layout = _draw(j)
-        j += 1
-        if layout is None or (layout.walls, layout.start, layout.goal) in seen:
-            continue
-        seen.add((layout.walls, layout.start, layout.goal))
-        drawn[layout.kind] += 1
-        kinds[layout.kind].append(layout)
-    pool = []
-    for index in range(LAYOUT_COUNT):
-        base = kinds[HONEST if index % 2 == 0 else MISLEADING][index // 2]
-        pool.append(MazeLayout(index, base.walls, base.start, base.goal))
-    return tuple(pool), drawn
+class _LayoutStream:
+    """The stream of distinct solvable draws, sorted by kind, drawn only as far as a layout asked for needs (all
+    1,140 take about 0.3 s, which every process that makes one maze would otherwise pay)."""
+
+    def __init__(self) -> None:
+        self.kinds: dict[str, list[MazeLayout]] = {HONEST: [], MISLEADING: []}
+        self.seen: set = set()
+        self.drawn = {HONEST: 0, MISLEADING: 0}
+        self.complete: list[dict[str, int]] = []  # [k]: the draws of each kind when both kinds first held k + 1
+        self.j = 0
+
+    def until(self, per_kind: int) -> None:
+        while min(len(v) for v in self.kinds.values()) < per_kind:
+            layout = _draw(self.j)
+            self.j += 1
+            if layout is None or (layout.walls, layout.start, layout.goal) in self.seen:
+                continue
+            self.seen.add((layout.walls, layout.start, layout.goal))
+            self.drawn[layout.kind] += 1
+            self.kinds[layout.kind].append(layout)
+            while len(self.complete) < min(len(v) for v in self.kinds.values()):
+                self.complete.append(dict(self.drawn))
+
+    def layout(self, index: int) -> MazeLayout:
+        self.until(index // 2 + 1)
+        base = self.kinds[layout_kind(index)][index // 2]
+        return MazeLayout(index, base.walls, base.start, base.goal)
+
+
+_STREAM = _LayoutStream()
+REPORTED_LAYOUTS = 180
+"""The layouts `layout_pool()` gives by default: those of every run to 25 November 2026 (REPORT.md describes them)."""
+
+
+def layout_pool(count: int = REPORTED_LAYOUTS) -> tuple[tuple[MazeLayout, ...], dict[str, int]]:
+    """(the first `count` layouts in index order, how many distinct solvable draws of each kind the stream needed
+    for them: the natural frequency of misleading layouts)."""
+    if not 0 < count <= LAYOUT_COUNT or count % 2:
+        raise ValueError(f"a pool is an even number of layouts in 2..{LAYOUT_COUNT}, got {count}")
+    pool = tuple(_STREAM.layout(index) for index in range(count))
+    return pool, dict(_STREAM.complete[count // 2 - 1])
 
 
 def layout_kind(index: int) -> str:
@@ -178,11 +200,12 @@ def layout_kind(index: int) -> str:
     return HONEST if index % 2 == 0 else MISLEADING
 
 
+@cache
 def make_layout(index: int) -> MazeLayout:
     """Layout `index` (0..LAYOUT_COUNT-1): honest for even, misleading for odd indices."""
     if not 0 <= index < LAYOUT_COUNT:
         raise ValueError(f"layout must be in 0..{LAYOUT_COUNT - 1}, got {index}")
-    return layout_pool()[0][index]
+    return _STREAM.layout(index)
 
 
 class MazeEnv(gym.Env):
