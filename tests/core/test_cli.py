@@ -23,7 +23,7 @@ from experiments.__main__ import main
         (["--agent.lr", "-1"], "agent: lr must be positive"),
         (["--episodes", "-3"], "episodes must be >= 0"),
         (["--observer.p-feedback", "2"], "p-feedback must be in [0, 1]"),
-        (["--layout", "1000"], "layout must be in 0..179"),
+        (["--layout", "5000"], "layout must be in 0..1139"),
         (["--seed", "x"], "--seed expects int"),
         (["--step-seconds", "0"], "step-seconds must be positive"),
         (["--observer.delay-s", "nosuch:1"], "unknown distribution 'nosuch'"),

@@ -2,6 +2,7 @@
 
 import pytest
 
+from common.envs.maze import LAYOUT_COUNT
 from experiments import console_pilot as cp
 from experiments.taxi_pilot import PILOT_SEED0
 
@@ -28,4 +29,4 @@ def test_bad_settings_are_one_line_errors():
     with pytest.raises(ValueError, match="unknown arm"):
         cp.ConsolePilotConfig(arms=("dqn-tamer/nope",))
     with pytest.raises(ValueError, match="layouts"):
-        cp.ConsolePilotConfig(layouts=(1000,))
+        cp.ConsolePilotConfig(layouts=(LAYOUT_COUNT,))

@@ -113,15 +113,14 @@ def test_the_declared_runs_are_fresh_and_sized_by_the_power_analysis():
     assert r2.__dict__ | {"first_layout": 0, "seed_block": 0} == r1.__dict__ | {"first_layout": 0, "seed_block": 0}
     assert confirm.EXPECTED_UNSETTLED == ("C1", "A1") and CONFIRM.scale(2) is r2
     assert missing_layouts(FULL) is None
-    why = missing_layouts(r1)  # the generator has 180 layouts today: the runs wait for it to be extended
-    assert why is None or "0-179" in why
+    assert missing_layouts(r1) is None and missing_layouts(r2) is None  # the generator has 0-1139 since 28 Nov
 
 
-def test_a_declared_run_the_generator_cannot_supply_is_refused(tmp_path, capsys):
-    if missing_layouts(confirm.RUN_1) is None:
-        return
-    assert main(["reproduce", "--replicate", "1", "--out", str(tmp_path / "r"), "--no-progress"]) == 1
-    assert "180-659" in capsys.readouterr().err and not (tmp_path / "r").exists()
+def test_a_run_the_generator_cannot_supply_is_refused():
+    from dataclasses import replace
+
+    why = missing_layouts(replace(confirm.RUN_2, first_layout=900))
+    assert why is not None and "900-1379" in why and "0-1139" in why
 
 
 def test_expected_unsettled_claims_are_marked():

@@ -212,7 +212,7 @@ def load_yaml_text(tmp_path, text):
         (["--grid", "agent.algo=dqn,dqn-tamer", "--contrast", "agent.algo=dqn-tamer-agent.algo=dqn"], "a minus"),
         (["--grid", "agent.lr=fast"], "agent.lr expects float"),
         (["--set", "observer.delay_probs=[0.5,0.6]"], "must sum to 1"),
-        (["--grid", "env.layout=3,1000"], "layout must be in 0..179"),
+        (["--grid", "env.layout=3,5000"], "layout must be in 0..1139"),
         (["--set", "env=NoSuchEnv-v0"], "unknown env"),
     ],
 )
