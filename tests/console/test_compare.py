@@ -125,7 +125,7 @@ def test_a_holm_design_tests_each_person_on_each_layout_kind(tmp_path):
         ({"primary": ["D", "X"]}, "primary"),
         ({"people": {"p": "drift:1"}}, "drift"),
         ({"pairs": [[0, 1], [0, 1]]}, "distinct"),
-        ({"pairs": [[1000, 1]]}, "layouts"),
+        ({"pairs": [[5000, 1]]}, "layouts"),
         ({"multiplicity": "holm"}, "holm tests one hypothesis per declared person"),
     ],
 )
