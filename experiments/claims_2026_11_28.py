@@ -161,6 +161,7 @@ def _delay_claims() -> list[Claim]:
 def _reliability_claim() -> Claim:
     """M1: the teacher's reliability against the paper's DQN-TAMER, on misleading layouts."""
     hd = "maze-high-delay"
+    old = next(c for c in before.CLAIMS if c.cid == "M1")
     return Claim(
         "M1",
         "beyond",
@@ -173,30 +174,7 @@ def _reliability_claim() -> Claim:
             (better(hd, "dqn-tamer/trusted", "dqn-tamer"),),
             "misleading",
         ),
-        (
-            Test(
-                "M1",
-                "DQN-TAMER with the teacher's reliability not worse than DQN by more than the margin (25 November's "
-                "M1)",
-                (better(hd, "dqn-tamer/trusted", "dqn"),),
-                "misleading",
-                kind="noninferior",
-            ),
-            Test(
-                "M1",
-                "the paper's DQN-TAMER not worse than DQN by more than the margin",
-                (better(hd, "dqn-tamer", "dqn"),),
-                "misleading",
-                kind="noninferior",
-            ),
-            Test(
-                "M1",
-                "the teacher's reliability does not cost the honest teacher's help: not worse than the paper's "
-                "DQN-TAMER",
-                (better(hd, "dqn-tamer/trusted", "dqn-tamer"),),
-                kind="noninferior",
-            ),
-        ),
+        (old.primary, *old.secondary),  # 25 November's M1 and its secondaries, shown
     )
 
 

@@ -9,26 +9,17 @@ import numpy as np
 
 from experiments import claims as first, claims_2026_11_28 as confirm, reproduce as rep
 from experiments.__main__ import main
-from experiments.conditions import BY_NAME, DELAY_CONDITIONS, FULL, Scale
+from experiments.conditions import BY_NAME, DELAY_CONDITIONS, FULL
 from experiments.declarations import CONFIRM, DECLARATIONS, FIRST, NEWEST, get, missing_layouts, of_run
 from experiments.evaluate import evaluate_claims
 from experiments.report_claims import verdict_table
 from experiments.report_runs import settlement, settlement_lines, write_settlement
 from tests.experiments.test_claims import paper_levels, world
+from tests.experiments.test_reproduce import TINY
 
 FIRST_CLAIMS_SHA256 = "54c6e1d874010cb26bd626e35134e70c16fcf85d91cc7549378ecbf6171a02d3"
 """sha256 of repr(experiments.claims.CLAIMS) as declared on 25 November (at 93b5cd7): its committed results are
 decided by exactly these tests."""
-TINY = Scale(
-    layouts=4,
-    reps=1,
-    maze_episodes=3,
-    taxi_episodes=2,
-    taxi_random_episodes=2,
-    taxi_trials=2,
-    first_layout=0,
-    seed_block=1,
-)
 
 
 def by_id(claims):
