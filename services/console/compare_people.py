@@ -32,7 +32,9 @@ LOW_PACE = 0.75  # of the design's rate: a run slower than this is reported
 class PeopleConfig:
     """Check the pace and the people's presses of a comparison's finished runs."""
 
-    design: str = option("unknown-teacher", "which declared design (services/console/designs/NAME.yaml)")
+    design: str = option(
+        "unknown-teacher", "which declared design (services/console/designs/NAME.yaml)", choices=tuple(load_designs())
+    )
     out: str = option("runs/compare", "the directory compare kept its runs in (its --out)")
     commit: str | None = option(None, "the runs of this code key (default: the design's commit, or the only one kept)")
 
