@@ -30,7 +30,7 @@ from experiments.evaluate import N_BOOT, ArmData, evaluate_claims
 from experiments.sweeps.execute import run_slots
 from experiments.sweeps.named import paper_paths, paper_slots
 from experiments.trialcache import EXTRA_FIELDS, read_json_or_none
-from experiments.trials import TABLE, read_table, write_table
+from experiments.trials import TABLE, read_table, table_bytes, write_table
 
 
 @dataclass
@@ -234,8 +234,8 @@ def report_from_table(
     if decl.id != of_run({}).id:  # (claims.json of the first declaration's runs keep their form)
         result["declaration"] = decl.id
     result["previous"] = previous or {}
-    with open(table_path, "rb") as fh:  # which table these numbers come from
-        result["table"] = {"file": os.path.basename(table_path), "sha256": hashlib.sha256(fh.read()).hexdigest()}
+    digest = hashlib.sha256(table_bytes(table_path)).hexdigest()  # which table these numbers come from
+    result["table"] = {"file": os.path.basename(table_path), "sha256": digest}
     with open(os.path.join(out, "claims.json"), "w") as fh:
         json.dump(result, fh, indent=1)
     _, drawn = layout_pool()

@@ -1,8 +1,8 @@
 """The reproduction's per-trial data as one tidy table: one row per (condition, arm, trial, episode).
 
-`docs/results/trials.csv.xz` is committed beside REPORT.md, so anyone can recompute every verdict,
-interval and figure without running a trial: `python -m experiments report --from
-docs/results/trials.csv.xz --out DIR`. `reproduce` writes the table and then analyses the table it wrote
+`docs/results/trials.csv.xz` is committed beside REPORT.md (a table past PART_BYTES in pieces, read the same
+way), so anyone can recompute every verdict, interval and figure without running a trial: `python -m experiments
+report --from docs/results/trials.csv.xz --out DIR`. `reproduce` writes the table and then analyses the table it wrote
 (`read_table`), so the committed report and a recomputation read the same numbers.
 
 Columns (COLUMNS): condition, arm, trial (k: the same layout and seed under every arm of a condition's
@@ -20,7 +20,9 @@ import csv
 import gzip
 import lzma
 import io
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -83,16 +85,52 @@ def table_rows(conds: list[Condition], scale: Scale, records: dict) -> list[list
     return rows
 
 
+PART_BYTES = 1_900_000
+"""A table whose xz stream would pass this is written as pieces `trials.csv.xz.part-001`, ... of at most this many
+bytes each (the repository keeps files under 2 MB): the pieces joined in order are the one xz stream, so
+`cat trials.csv.xz.part-* > trials.csv.xz` gives the whole file, and `read_table` reads either form."""
+
+
+def table_parts(path: str | Path) -> list[Path]:
+    """The pieces of a table written in parts, in order (none if it was written whole)."""
+    p = Path(path)
+    return sorted(p.parent.glob(f"{p.name}.part-*"))
+
+
 def write_table(path: str, conds: list[Condition], scale: Scale, records: dict) -> int:
-    """Write the table (xz: under the repository's 2 MB per file where gzip was not); returns its number of rows."""
+    """Write the table (xz, in pieces past PART_BYTES); returns its number of rows."""
     rows = table_rows(conds, scale, records)
     text = io.StringIO()
     writer = csv.writer(text, lineterminator="\n")
     writer.writerow(COLUMNS)
     writer.writerows(rows)
-    with lzma.open(path, "wb", preset=9) as fh:
+    stream = io.BytesIO()
+    with lzma.open(stream, "wb", preset=9) as fh:
         fh.write(text.getvalue().encode())
+    data = stream.getvalue()
+    for stale in [Path(path), *table_parts(path)]:  # a run written again replaces both forms
+        stale.unlink(missing_ok=True)
+    if len(data) <= PART_BYTES:
+        Path(path).write_bytes(data)
+    else:
+        for i, start in enumerate(range(0, len(data), PART_BYTES)):
+            Path(f"{path}.part-{i + 1:03d}").write_bytes(data[start : start + PART_BYTES])
     return len(rows)
+
+
+def table_bytes(path: str) -> bytes:
+    """The table's compressed bytes, from the file or joined from its pieces (the same bytes either way)."""
+    parts = table_parts(path)
+    if not os.path.exists(path) and parts:
+        return b"".join(p.read_bytes() for p in parts)
+    return Path(path).read_bytes()
+
+
+def _open_text(path: str):
+    """The table's text, from the file or from its pieces."""
+    if str(path).endswith(".gz"):  # tables written before 26 November
+        return gzip.open(path, "rt", newline="")
+    return lzma.open(io.BytesIO(table_bytes(path)), "rt", newline="")
 
 
 def _arrays(rows: list[dict], field: str, n: int, E: int, dtype=np.float64) -> np.ndarray:
@@ -105,8 +143,7 @@ def _arrays(rows: list[dict], field: str, n: int, E: int, dtype=np.float64) -> n
 def read_table(path: str) -> Table:
     """The table at `path` as the analysis's arrays; the conditions come from their names (declared in
     experiments/conditions.py). A malformed table is a ValueError naming what is wrong."""
-    opener = gzip.open if str(path).endswith(".gz") else lzma.open  # (tables written before 26 November: gzip)
-    with opener(path, "rt", newline="") as fh:
+    with _open_text(path) as fh:
         reader = csv.DictReader(fh)
         missing = [c for c in KEYS if c not in (reader.fieldnames or [])]
         if missing:

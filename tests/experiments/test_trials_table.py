@@ -1,15 +1,21 @@
 """The per-trial table: reproduce writes it, `report --from` recomputes the same claims.json from it alone,
 and the committed table reproduces the committed docs/results/claims.json exactly."""
 
-import lzma
 import json
+import lzma
 import os
 import time
 
 from experiments import reproduce as rep
 from experiments.__main__ import main
 from experiments.conditions import BY_NAME, Scale
-from experiments.trials import COLUMNS, read_table
+import hashlib
+
+import numpy as np
+
+from experiments import trials
+from experiments.conditions import n_trials
+from experiments.trials import COLUMNS, read_table, table_bytes, table_parts, write_table
 
 TINY = Scale(
     layouts=4,
@@ -65,9 +71,42 @@ def test_the_committed_table_reproduces_the_committed_claims(tmp_path):
         assert "M1" not in committed["claims"] and not os.path.exists(os.path.join(RESULTS, "trials.csv.xz"))
         return
     table = os.path.join(RESULTS, committed["table"]["file"])
-    assert os.path.getsize(table) < 8 * 2**20  # a few MB at most
+    assert len(table_bytes(table)) < 8 * 2**20  # a few MB at most
     t0 = time.perf_counter()
     assert main(["report", "--from", table, "--out", str(tmp_path)]) == 0
     assert json.loads((tmp_path / "claims.json").read_text()) == committed
     assert "M1" in committed["claims"]
     print(f"recomputed in {time.perf_counter() - t0:.1f} s")
+
+
+def test_a_table_past_the_file_limit_is_written_in_pieces_that_read_back_the_same(tmp_path, monkeypatch):
+    """A table whose xz stream passes PART_BYTES goes out as pieces; joined they are the whole file's bytes, and
+    read_table gives the same arrays from either form (report --from names trials.csv.xz in both cases)."""
+    cond = BY_NAME["maze-flip"]
+    rng = np.random.default_rng(0)
+    records = {
+        (cond.name, arm, k): {
+            "spec": {"layout": k, "seed": 100 + k},
+            "steps": rng.integers(5, 300, 3),
+            "return": rng.normal(size=3),
+        }
+        for arm in cond.arms
+        for k in range(n_trials(cond, TINY))
+    }
+    whole, split = tmp_path / "whole" / "trials.csv.xz", tmp_path / "split" / "trials.csv.xz"
+    whole.parent.mkdir(), split.parent.mkdir()
+    rows = write_table(str(whole), [cond], TINY, records)
+    assert rows == len(cond.arms) * 4 * 3 and not table_parts(whole)
+    monkeypatch.setattr(trials, "PART_BYTES", 300)
+    assert write_table(str(split), [cond], TINY, records) == rows
+    parts = table_parts(split)
+    assert not split.exists() and len(parts) >= 2 and all(p.stat().st_size <= 300 for p in parts)
+    assert [p.name for p in parts][:2] == ["trials.csv.xz.part-001", "trials.csv.xz.part-002"]
+    assert hashlib.sha256(table_bytes(str(split))).digest() == hashlib.sha256(whole.read_bytes()).digest()
+    a, b = read_table(str(whole)), read_table(str(split))
+    for arm in cond.arms:
+        assert np.array_equal(a.data[cond.name][arm].steps, b.data[cond.name][arm].steps)
+        assert np.array_equal(a.data[cond.name][arm].returns, b.data[cond.name][arm].returns)
+    monkeypatch.setattr(trials, "PART_BYTES", 10**9)  # written whole again: the pieces go
+    write_table(str(split), [cond], TINY, records)
+    assert split.exists() and not table_parts(split)
