@@ -41,10 +41,19 @@ def panel_lines(name: str, title: str, figure: str, panels: dict, hz: dict) -> l
     return lines
 
 
-def layouts_lines(drawn: dict) -> list[str]:
-    from common.envs.maze import layout_pool
+def layouts_lines(drawn: dict, scale: dict | None = None) -> list[str]:
+    """The maze layouts the run used (from its scale: `layouts` from `first_layout` on), how many of each kind,
+    and how often the generator's stream drew a misleading one up to them. `drawn`: the stream's draws for the
+    first 180 layouts, for a run that recorded no scale."""
+    from common.envs.maze import LAYOUT_COUNT, layout_pool
 
-    pool, _ = layout_pool()
+    first = int((scale or {}).get("first_layout", 0))
+    end = min(first + int((scale or {}).get("layouts", 180)), LAYOUT_COUNT)
+    if scale:
+        pool, drawn = layout_pool(end + end % 2)
+        pool = pool[first:end]
+    else:
+        pool, _ = layout_pool()
     total = sum(drawn.values())
     mis = [
         f"{L.index} (shortest path {L.shortest_path()}, dead end at {', '.join(map(str, L.misleading_dead_ends()))})"
@@ -54,14 +63,12 @@ def layouts_lines(drawn: dict) -> list[str]:
     return [
         "## Layouts",
         "",
-        f"{len(pool)} layouts, {sum(L.kind == 'honest' for L in pool)} honest (even indices) and "
-        f"{sum(L.kind == 'misleading' for L in pool)} misleading (odd indices), drawn from one stream "
-        f"(`common/envs/maze.py`): of its first {total} distinct solvable draws {drawn.get('misleading', 0)} "
-        f"({drawn.get('misleading', 0) / max(total, 1):.0%}) were misleading for the paper's Manhattan rule "
-        "(an agent taking only the moves the rule approves can reach a dead end). Misleading layouts: "
-        + "; ".join(mis[:8])
-        + ("; ..." if len(mis) > 8 else "")
-        + ".",
+        f"{len(pool)} layouts ({pool[0].index}-{pool[-1].index}), {sum(L.kind == 'honest' for L in pool)} honest "
+        f"(even indices) and {sum(L.kind == 'misleading' for L in pool)} misleading (odd indices), drawn from one "
+        f"stream (`common/envs/maze.py`): of its first {total} distinct solvable draws (up to layout "
+        f"{pool[-1].index}) {drawn.get('misleading', 0)} ({drawn.get('misleading', 0) / max(total, 1):.0%}) were "
+        "misleading for the paper's Manhattan rule (an agent taking only the moves the rule approves can reach a "
+        "dead end). Misleading layouts: " + "; ".join(mis[:8]) + ("; ..." if len(mis) > 8 else "") + ".",
         "",
     ]
 
@@ -272,7 +279,8 @@ def body(
     lines += ["## Claims", ""]
     for cid, c in claims.items():
         lines += claim_section(cid, c, decl.deciding)
-    lines += layouts_lines(drawn) + horizon_lines(result, conds) + who_lines(result) + lag_lines(result)
+    lines += layouts_lines(drawn, timing.get("scale")) + horizon_lines(result, conds)
+    lines += who_lines(result) + lag_lines(result)
     lines += machines_lines(out, timing) + ["## Conditions", ""]
     for c in conds:
         lines += panel_lines(c.name, c.title, c.figure, result["panels"][c.name], result["horizons"][c.name])

@@ -50,6 +50,7 @@ def test_report_from_the_table_recomputes_claims_exactly_without_running_a_trial
     assert main(["report", "--from", str(run / "trials.csv.xz"), "--out", str(out), "--n-boot", "50"]) == 0
     assert json.loads((out / "claims.json").read_text()) == json.loads((run / "claims.json").read_text())
     assert (out / "maze-flip.png").stat().st_size > 5000 and "| C6 | **" in (out / "REPORT.md").read_text()
+    assert "4 layouts (0-3), 2 honest" in (out / "REPORT.md").read_text()  # the run's own layouts
 
 
 def test_a_malformed_table_is_a_clear_error(tmp_path, capsys):
