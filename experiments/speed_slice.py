@@ -1,0 +1,119 @@
+"""A slice of the reproduction's trials timed in CPU seconds, this checkout against another, side by side.
+
+    python experiments/speed_slice.py --against ../base --rounds 2 maze-high-delay:16:30 taxi-stop:2:6
+
+Each SLICE is CONDITION:TRIALS:EPISODES: TRIALS trials of each of the paper's four agents under the condition's
+observer (`experiments.conditions.trial_spec`, layouts from 120 on, seed block 4: the interfaces every commit since
+dfd2f6c has), EPISODES episodes each, run as one lockstep batch (`run_trials`), as a reproduction's job runs them.
+Printed per slice and checkout: trial-steps, CPU seconds of the process (`time.process_time()`: less hurt by
+others' load than wall time), trial-steps per CPU second and a sha256 of the episode records (same hash: same
+trajectories). Rounds alternate which checkout goes first; each run is a fresh process with its checkout's code
+first on the path. `--profile FILE` instead runs the slices once here under cProfile and writes its stats.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import replace
+
+ALGOS = ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer")
+# Run as a file, this folder would come first on the path and its modules shadow others: the checkout's code comes
+# from PYTHONPATH instead.
+sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
+
+
+def specs_of(slice_: str) -> list:
+    from experiments.conditions import BY_NAME, Scale, trial_spec
+
+    name, trials, episodes = slice_.split(":")
+    scale = Scale(layouts=max(int(trials), 2), first_layout=120, seed_block=4)
+    cond = BY_NAME[name]
+    return [
+        replace(trial_spec(cond, algo, k, scale), episodes=int(episodes)) for algo in ALGOS for k in range(int(trials))
+    ]
+
+
+def run_slice(slice_: str) -> dict:
+    """One slice in this process: its figures."""
+    from experiments.runner import run_trials
+
+    specs = specs_of(slice_)
+    c0 = time.process_time()
+    results = run_trials(specs)
+    cpu = time.process_time() - c0
+    fields = ("steps", "return", "feedback_given", "feedback_credited")  # (what every commit records)
+    records = json.dumps([[[e[f] for f in fields] for e in r.episodes] for r in results]).encode()
+    steps = sum(r.total_steps for r in results)
+    return {
+        "slice": slice_,
+        "trials": len(specs),
+        "trial_steps": steps,
+        "cpu_s": round(cpu, 3),
+        "steps_per_cpu_s": round(steps / cpu, 1),
+        "sha": hashlib.sha256(records).hexdigest()[:12],
+    }
+
+
+def timed(checkout: str, slice_: str) -> dict:
+    done = subprocess.run(
+        [sys.executable, os.path.abspath(__file__), "--here", slice_],
+        cwd=checkout,
+        env={**os.environ, "PYTHONPATH": checkout},
+        capture_output=True,
+        text=True,
+    )
+    if done.returncode != 0:
+        raise RuntimeError(f"{checkout}: {done.stderr[-800:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def compare(this: str, other: str, slices: list[str], rounds: int) -> None:
+    print(f"this {this} against other {other}; load average {os.getloadavg()[0]:.2f}", flush=True)
+    print(f"{'round':<6}{'slice':<26}{'who':<6}{'steps':>10}{'CPU s':>9}{'steps/CPU s':>13}{'sha':>14}", flush=True)
+    for r in range(rounds):
+        for s in slices:
+            order = [("other", other), ("this", this)] if r % 2 == 0 else [("this", this), ("other", other)]
+            got = {}
+            for who, path in order:
+                got[who] = g = timed(path, s)
+                print(
+                    f"{r + 1:<6}{s:<26}{who:<6}{g['trial_steps']:>10}{g['cpu_s']:>9.2f}{g['steps_per_cpu_s']:>13.0f}"
+                    f"{g['sha']:>14}",
+                    flush=True,
+                )
+            ratio = got["this"]["steps_per_cpu_s"] / got["other"]["steps_per_cpu_s"]
+            print(f"{'':<6}{s:<26}ratio this/other, steps per CPU s: {ratio:.2f}", flush=True)
+    print(f"load average at end {os.getloadavg()[0]:.2f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("slices", nargs="+", help="CONDITION:TRIALS:EPISODES (TRIALS per agent)")
+    ap.add_argument("--against", help="the other checkout's directory")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--here", action="store_true", help="run the slices in this process (with PYTHONPATH's code)")
+    ap.add_argument("--profile", help="run the slices here under cProfile, writing its stats to this file")
+    args = ap.parse_args()
+    if args.profile:
+        import cProfile
+
+        prof = cProfile.Profile()
+        out = prof.runcall(lambda: [run_slice(s) for s in args.slices])
+        prof.dump_stats(args.profile)
+        print(json.dumps(out))
+    elif args.here or not args.against:
+        for s in args.slices:
+            print(json.dumps(run_slice(s)), flush=True)
+    else:
+        this = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        compare(this, os.path.abspath(args.against), args.slices, args.rounds)
+
+
+if __name__ == "__main__":
+    main()
