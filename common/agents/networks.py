@@ -40,6 +40,7 @@ from common.agents.mlp import (
     with_ones,
     mlp_forward,
     mlp_backward_rows,
+    mlp_backward_sparse,
 )
 
 
@@ -242,7 +243,7 @@ def fit_together(jobs: list[FitJob]) -> None:
     if len(jobs) == 1:  # (the common case, with as few calls as possible: the same arithmetic)
         j = jobs[0]
         r = row_index(j.rows, j.net.flat.shape[0])
-        params, x, x1 = j.net.rows(r), j.x, j.x1
+        params, x, x1, idx = j.net.rows(r), j.x, j.x1, [r]
     else:
         idx = [row_index(j.rows, j.net.flat.shape[0]) for j in jobs]
         params = views(
@@ -267,22 +268,20 @@ def fit_together(jobs: list[FitJob]) -> None:
         pred = out[start : start + n].reshape(-1)[at].reshape(n, -1)
         d_out[start : start + n].reshape(-1)[at] = j.loss.grad(pred, j.targets, j.weights).reshape(-1)
         start += n
-    grad, touched = mlp_backward_rows(params, x, hidden, d_out, x1, nz)
-    if len(jobs) == 1:
-        jobs[0].net.opt.step_rows(jobs[0].net.flat, r, grad, _blocks(params, touched, 0, len(jobs[0].rows)))
+    if nz is not None:  # (a first layer that takes rows: its touched rows' gradients, no dense gradient)
+        tail, keys, sums = mlp_backward_sparse(params, hidden, d_out, x1, nz)
+        in1, width = params["a1"].shape[1:]
+        start = 0
+        for j, r in zip(jobs, idx):
+            n = len(j.rows)
+            lo, hi = np.searchsorted(keys, [start * in1, (start + n) * in1])
+            blocks = (in1, width, keys[lo:hi] - start * in1, sums[lo:hi])
+            j.net.opt.step_rows(j.net.flat, r, tail[start : start + n], blocks)
+            start += n
         return
+    grad = mlp_backward_rows(params, x, hidden, d_out, x1)[0]
     start = 0
     for j, r in zip(jobs, idx):
         n = len(j.rows)
-        j.net.opt.step_rows(j.net.flat, r, grad[start : start + n], _blocks(params, touched, start, n))
+        j.net.opt.step_rows(j.net.flat, r, grad[start : start + n])
         start += n
-
-
-def _blocks(params: dict[str, np.ndarray], touched: np.ndarray | None, start: int, n: int):
-    """The optimiser's view of trials start..start+n's touched first-layer rows: (rows per trial, row width,
-    flat keys from 0), or None where every weight may have a gradient."""
-    if touched is None:
-        return None
-    in1, hidden = params["a1"].shape[1:]
-    lo, hi = np.searchsorted(touched, [start * in1, (start + n) * in1])
-    return in1, hidden, touched[lo:hi] - start * in1
