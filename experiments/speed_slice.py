@@ -39,10 +39,40 @@ def specs_of(slice_: str) -> list:
     ]
 
 
-def run_slice(slice_: str) -> dict:
-    """One slice in this process: its figures."""
+def run_ticks(slice_: str, ticks: str) -> dict:
+    """The steady state of one slice's batch: WARM ticks untimed, then TICKS ticks timed (`--ticks WARM:TICKS`)."""
+    from experiments import runner
+
+    warm, timed_ticks = (int(t) for t in ticks.split(":"))
+    runner.threadpool_limits(1, user_api="blas")
+    runner.hold_freed_heap()
+    batch = runner._Batch(specs_of(slice_), True, False, False, None, None, None)
+    steps, c0 = 0, 0.0
+    for k in range(warm + timed_ticks):
+        if k == warm:
+            c0 = time.process_time()
+        steps += int(batch.st["active"].sum()) if k >= warm else 0
+        ended = batch.tick()
+        if len(ended):
+            batch.end_episodes(ended)
+    cpu = time.process_time() - c0
+    return {
+        "slice": slice_,
+        "ticks": ticks,
+        "trial_steps": steps,
+        "cpu_s": round(cpu, 3),
+        "sha": "-",
+        "steps_per_cpu_s": round(steps / cpu, 1),
+        "trials": len(batch.specs),
+    }
+
+
+def run_slice(slice_: str, ticks: str | None = None) -> dict:
+    """One slice in this process: its figures (`run_ticks` with ticks)."""
     from experiments.runner import run_trials
 
+    if ticks:
+        return run_ticks(slice_, ticks)
     specs = specs_of(slice_)
     c0 = time.process_time()
     results = run_trials(specs)
@@ -60,9 +90,9 @@ def run_slice(slice_: str) -> dict:
     }
 
 
-def timed(checkout: str, slice_: str) -> dict:
+def timed(checkout: str, slice_: str, ticks: str | None) -> dict:
     done = subprocess.run(
-        [sys.executable, os.path.abspath(__file__), "--here", slice_],
+        [sys.executable, os.path.abspath(__file__), "--here", slice_] + (["--ticks", ticks] if ticks else []),
         cwd=checkout,
         env={**os.environ, "PYTHONPATH": checkout},
         capture_output=True,
@@ -73,7 +103,7 @@ def timed(checkout: str, slice_: str) -> dict:
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
-def compare(this: str, other: str, slices: list[str], rounds: int) -> None:
+def compare(this: str, other: str, slices: list[str], rounds: int, ticks: str | None) -> None:
     print(f"this {this} against other {other}; load average {os.getloadavg()[0]:.2f}", flush=True)
     print(f"{'round':<6}{'slice':<26}{'who':<6}{'steps':>10}{'CPU s':>9}{'steps/CPU s':>13}{'sha':>14}", flush=True)
     for r in range(rounds):
@@ -81,7 +111,7 @@ def compare(this: str, other: str, slices: list[str], rounds: int) -> None:
             order = [("other", other), ("this", this)] if r % 2 == 0 else [("this", this), ("other", other)]
             got = {}
             for who, path in order:
-                got[who] = g = timed(path, s)
+                got[who] = g = timed(path, s, ticks)
                 print(
                     f"{r + 1:<6}{s:<26}{who:<6}{g['trial_steps']:>10}{g['cpu_s']:>9.2f}{g['steps_per_cpu_s']:>13.0f}"
                     f"{g['sha']:>14}",
@@ -99,20 +129,21 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--here", action="store_true", help="run the slices in this process (with PYTHONPATH's code)")
     ap.add_argument("--profile", help="run the slices here under cProfile, writing its stats to this file")
+    ap.add_argument("--ticks", help="WARM:TICKS: time only ticks WARM+1..WARM+TICKS of each batch (its steady state)")
     args = ap.parse_args()
     if args.profile:
         import cProfile
 
         prof = cProfile.Profile()
-        out = prof.runcall(lambda: [run_slice(s) for s in args.slices])
+        out = prof.runcall(lambda: [run_slice(s, args.ticks) for s in args.slices])
         prof.dump_stats(args.profile)
         print(json.dumps(out))
     elif args.here or not args.against:
         for s in args.slices:
-            print(json.dumps(run_slice(s)), flush=True)
+            print(json.dumps(run_slice(s, args.ticks)), flush=True)
     else:
         this = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        compare(this, os.path.abspath(args.against), args.slices, args.rounds)
+        compare(this, os.path.abspath(args.against), args.slices, args.rounds, args.ticks)
 
 
 if __name__ == "__main__":
