@@ -13,19 +13,20 @@ first on the path. `--profile FILE` instead runs the slices once here under cPro
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
 import subprocess
 import sys
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 ALGOS = ("dqn", "dqn-rs", "deep-tamer", "dqn-tamer")
 # Run as a file, this folder would come first on the path and its modules shadow others: the checkout's code comes
 # from PYTHONPATH instead.
 sys.path[:] = [p for p in sys.path if os.path.abspath(p or ".") != os.path.dirname(os.path.abspath(__file__))]
+
+from common.config import option  # noqa: E402  (after the path is set)
 
 
 def specs_of(slice_: str) -> list:
@@ -92,7 +93,7 @@ def run_slice(slice_: str, ticks: str | None = None) -> dict:
 
 def timed(checkout: str, slice_: str, ticks: str | None) -> dict:
     done = subprocess.run(
-        [sys.executable, os.path.abspath(__file__), "--here", slice_] + (["--ticks", ticks] if ticks else []),
+        [sys.executable, os.path.abspath(__file__), "--here", "true", slice_] + (["--ticks", ticks] if ticks else []),
         cwd=checkout,
         env={**os.environ, "PYTHONPATH": checkout},
         capture_output=True,
@@ -122,28 +123,38 @@ def compare(this: str, other: str, slices: list[str], rounds: int, ticks: str | 
     print(f"load average at end {os.getloadavg()[0]:.2f}")
 
 
+@dataclass(frozen=True)
+class SpeedSliceConfig:
+    """Slices of the reproduction's trials timed in CPU seconds, this checkout against another, side by side."""
+
+    slices: tuple[str, ...] = option(
+        (), "CONDITION:TRIALS:EPISODES (TRIALS per agent)", positional=True, nargs="+", metavar="SLICE"
+    )
+    against: str = option("", "the other checkout's directory (none: run the slices here)")
+    rounds: int = option(2, "rounds; each runs both checkouts, alternating who goes first")
+    here: bool = option(False, "run the slices in this process (with PYTHONPATH's code)")
+    profile: str = option("", "run the slices here under cProfile, writing its stats to this file")
+    ticks: str = option("", "WARM:TICKS: time only ticks WARM+1..WARM+TICKS of each batch (its steady state)")
+
+
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("slices", nargs="+", help="CONDITION:TRIALS:EPISODES (TRIALS per agent)")
-    ap.add_argument("--against", help="the other checkout's directory")
-    ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--here", action="store_true", help="run the slices in this process (with PYTHONPATH's code)")
-    ap.add_argument("--profile", help="run the slices here under cProfile, writing its stats to this file")
-    ap.add_argument("--ticks", help="WARM:TICKS: time only ticks WARM+1..WARM+TICKS of each batch (its steady state)")
-    args = ap.parse_args()
+    from common.config import parse_config
+
+    args = parse_config(SpeedSliceConfig, prog="experiments/speed_slice.py")
+    ticks = args.ticks or None
     if args.profile:
         import cProfile
 
         prof = cProfile.Profile()
-        out = prof.runcall(lambda: [run_slice(s, args.ticks) for s in args.slices])
+        out = prof.runcall(lambda: [run_slice(s, ticks) for s in args.slices])
         prof.dump_stats(args.profile)
         print(json.dumps(out))
     elif args.here or not args.against:
         for s in args.slices:
-            print(json.dumps(run_slice(s, args.ticks)), flush=True)
+            print(json.dumps(run_slice(s, ticks)), flush=True)
     else:
         this = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-        compare(this, os.path.abspath(args.against), args.slices, args.rounds, args.ticks)
+        compare(this, os.path.abspath(args.against), list(args.slices), args.rounds, ticks)
 
 
 if __name__ == "__main__":
