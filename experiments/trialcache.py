@@ -181,7 +181,7 @@ overhead of several trials' arithmetic) would cost more than the balance gains. 
 so a few trials per part lose little."""
 MAX_PART_TRIALS = {"maze": 1024, "maze-pomdp": 1024}
 """Nor above this many: a Maze trial-step costs the same from 64 to 1,024 trials in a batch (30 us) and more beyond
-(4,096 trials: 16% slower, its [n, 32, 100] temporaries leave the cache), and a part holds about 0.7 MB of replay
+(4,096 trials: 16% slower, its [n, 32, 100] temporaries leave the cache), and a part holds up to 0.85 MB of replay
 and D_global per trial, copied when finished trials are dropped: the declaration of 28 November's 30,000 Maze
 trials would otherwise be cut into 5 parts of 6,000 (docs/notes/2026-11-28-runner-speed.md)."""
 
