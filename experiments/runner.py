@@ -122,7 +122,11 @@ class _Batch:
             [s.observer for s in rows_specs], [derive_seed(s.seed, "observer") for s in rows_specs]
         )
         self.agent = make_agent(
-            [s.agent for s in rows_specs], obs_shape(envs[0]), n_actions, [s.seed for s in rows_specs]
+            [s.agent for s in rows_specs],
+            obs_shape(envs[0]),
+            n_actions,
+            [s.seed for s in rows_specs],
+            hot_inputs=getattr(envs[0].unwrapped, "hot_inputs", None),  # (Taxi's one-hot observations: kept as codes)
         )
         self.loop = StepLoop(self.agent)
         self.specs, self.results = specs, [TrialResult(s) for s in specs]

@@ -179,6 +179,11 @@ MIN_PART_TRIALS = {"maze": 100, "maze-pomdp": 100}
 arithmetic per trial), so each part's own tail (a few trials stuck in 1000-step episodes, ticking with a per-tick
 overhead of several trials' arithmetic) would cost more than the balance gains. A Taxi step costs about ten times more,
 so a few trials per part lose little."""
+MAX_PART_TRIALS = {"maze": 1024, "maze-pomdp": 1024}
+"""Nor above this many: a Maze trial-step costs the same from 64 to 1,024 trials in a batch (30 us) and more beyond
+(4,096 trials: 16% slower, its [n, 32, 100] temporaries leave the cache), and a part holds up to 0.85 MB of replay
+and D_global per trial, copied when finished trials are dropped: the declaration of 28 November's 30,000 Maze
+trials would otherwise be cut into 5 parts of 6,000 (docs/notes/2026-11-28-runner-speed.md)."""
 
 
 def trial_cost(spec: TrialSpec) -> float:
@@ -204,7 +209,8 @@ def make_jobs(tasks: list[Task], workers: int, per_worker: int = JOBS_PER_WORKER
     estimate is off), of about total / (workers x per_worker) estimated cost each. The pool hands the next
     job to whichever worker is free (longest-processing-time-first list scheduling), so the workers finish
     within about one small job of each other instead of one running a whole environment kind alone. Larger
-    batches amortise more per-tick overhead, so a Maze part keeps at least MIN_PART_TRIALS trials."""
+    batches amortise more per-tick overhead, so a Maze part keeps at least MIN_PART_TRIALS trials, and at most
+    MAX_PART_TRIALS."""
     groups: dict[tuple, list[Task]] = {}
     for t in tasks:
         groups.setdefault(_batch_group(t.spec), []).append(t)
@@ -225,6 +231,7 @@ def make_jobs(tasks: list[Task], workers: int, per_worker: int = JOBS_PER_WORKER
         # part keeps MIN_PART_TRIALS
         most = max(min(workers, len(ts)), len(ts) // MIN_PART_TRIALS.get(FAMILY.get(ts[0].spec.env, ts[0].spec.env), 1))
         parts = max(1, min(most, int(math.ceil(job_cost(ts) / max(target, 1e-9) - 1e-9))))
+        parts = max(parts, -(-len(ts) // MAX_PART_TRIALS.get(FAMILY.get(ts[0].spec.env, ts[0].spec.env), len(ts))))
         jobs.extend([ts[i::parts] for i in range(parts)])
     jobs.sort(key=lambda j: -job_cost(j))
     return jobs

@@ -87,6 +87,7 @@ class TrialBatchAgent(FeedbackDoor):
         self.replay, self.feedback_memory, self.history = p.replay, p.feedback_memory, p.history
         self.explorer, self.mixture = p.explorer, p.mixture
         self.delays = p.delays
+        self.hot = p.hot  # observations kept and fed to Q and H as codes (`sparse.HotCodes`), or None: dense
         # At most one held step per point mass of the assumed delay can be credited by one feedback.
         self.local_width = min(self.delays.width, base.history_steps)
         self.train_q = np.array([c.train_q for c in configs])
@@ -118,6 +119,10 @@ class TrialBatchAgent(FeedbackDoor):
     def _all(self, rows: np.ndarray | None) -> np.ndarray:
         return np.arange(self.B) if rows is None else rows
 
+    def _kept(self, obs: np.ndarray) -> np.ndarray:
+        """Observations [..., obs_dim] as the agent keeps them and feeds them to Q and H (codes where `hot`)."""
+        return obs if self.hot is None else self.hot.encode(obs)
+
     # ----------------------------------------------------------------------------------- acting
     def epsilons(self, rows: np.ndarray | None = None) -> np.ndarray:
         rows = self._all(rows)
@@ -129,7 +134,7 @@ class TrialBatchAgent(FeedbackDoor):
 
     def _scores(self, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
         """alpha_q Q + alpha_h H for trials `rows`, one observation each (obs: [len(rows), obs_dim])."""
-        x = np.asarray(obs, np.float32).reshape(len(rows), 1, self.obs_dim)
+        x = self._kept(np.asarray(obs, np.float32).reshape(len(rows), 1, self.obs_dim))
         aq, ah = self.mixture.weights(rows, self.steps[rows])
         return (aq * self.q.values(rows, x) + ah * self.h.values(rows, x))[:, 0, :]
 
@@ -140,7 +145,7 @@ class TrialBatchAgent(FeedbackDoor):
     def preferences(self, i: int, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
         """Trial i's Q and H per action for one observation, with alpha_q and alpha_h now (what the console
         shows a person)."""
-        x = np.asarray(obs, np.float32).reshape(1, 1, self.obs_dim)
+        x = self._kept(np.asarray(obs, np.float32).reshape(1, 1, self.obs_dim))
         r = np.array([i])
         q, h = self.q.values(r, x)[0, 0], self.h.values(r, x)[0, 0]
         return q.copy(), h.copy(), float(self.mixture.alpha_q[i]), float(self.alpha_h(r)[0])
@@ -159,7 +164,9 @@ class TrialBatchAgent(FeedbackDoor):
         both, compare = self._learns_both(rows)
         # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
         # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
-        x1 = with_ones(x)  # (made once for both networks)
+        x1 = with_ones(x) if self.hot is None else None  # (made once for both networks)
+        if self.hot is not None:
+            x = self.hot.encode(x)
         q = self.q.values(rows, x, x1) if compare or np.count_nonzero(aq) or not np.count_nonzero(ah) else None
         h = self.h.values(rows, x, x1) if compare or np.count_nonzero(ah) else None
         scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
@@ -195,14 +202,14 @@ class TrialBatchAgent(FeedbackDoor):
         remember steps. Where a delay is learned in seconds the driver also gives `seconds` (the teacher's clock)
         and the task rule's `polarity` of each (+-1, 0 unknown: the model of the rated event it is fitted on)."""
         rows = np.asarray(rows, np.int64)
-        obs = np.asarray(obs, np.float32).reshape(len(rows), self.obs_dim)
+        obs = self._kept(np.asarray(obs, np.float32).reshape(len(rows), self.obs_dim))
         actions = np.asarray(actions, np.int64)
         slots = self.replay.add_rows(
             rows,
             obs=obs,
             action=actions,
             reward=np.asarray(rewards, np.float32),
-            next_obs=np.asarray(next_obs, np.float32).reshape(len(rows), self.obs_dim),
+            next_obs=self._kept(np.asarray(next_obs, np.float32).reshape(len(rows), self.obs_dim)),
             terminated=np.asarray(terminated, np.float32),
         )
         self.history.push(

@@ -7,6 +7,7 @@ can drop rows (`select`), so the agent can shrink its batch.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,6 +18,7 @@ from common.agents.history import BatchStepHistory
 from common.agents.networks import StackedMLP, ValueNetworks
 from common.agents.optim import FlatRMSProp
 from common.agents.replay import FeedbackMemory, TransitionReplay
+from common.agents.sparse import HotCodes, takes_rows
 from common.agents.streams import UniformBlocks
 from common.core.delay_learning import TeacherDelays
 from common.core.seeding import derive_seed
@@ -54,6 +56,7 @@ class AgentParts:
     delays: TeacherDelays  # the teachers' delays: assumed step lags per trial, a delay in seconds per teacher
     q_draws: UniformBlocks  # Q's replay minibatch draws (counter-based, per trial)
     h_draws: UniformBlocks  # H's D_global minibatch draws
+    hot: HotCodes | None = None  # observations are kept (replay, D_global, history) and fed to Q and H as codes
 
     _ROWS = ("q", "q_target", "h", "replay", "feedback_memory", "history", "explorer", "mixture", "q_draws", "h_draws")
     _STATE = ("q", "q_target", "h", "replay", "feedback_memory", "history", "mixture", "delays")
@@ -78,32 +81,58 @@ def _keys(seeds: list[int], purpose: str) -> np.ndarray:
 
 
 def mlp(
-    configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int], purpose: str, trained: bool = True
+    configs: list[AgentConfig],
+    obs_dim: int,
+    n_actions: int,
+    seeds: list[int],
+    purpose: str,
+    trained: bool = True,
+    hot: HotCodes | None = None,
 ) -> StackedMLP:
-    """The paper's network (one hidden layer of `hidden` tanh units) per trial, with RMSProp if trained."""
+    """The paper's network (one hidden layer of `hidden` tanh units) per trial, with RMSProp if trained (fed codes
+    where `hot`)."""
     c = configs[0]
     opt = FlatRMSProp(c.lr, c.rmsprop_alpha, c.rmsprop_eps) if trained else None
-    return StackedMLP(obs_dim, c.hidden, n_actions, [derive_seed(s, purpose) for s in seeds], opt)
+    return StackedMLP(obs_dim, c.hidden, n_actions, [derive_seed(s, purpose) for s in seeds], opt, hot)
+
+
+def hot_codes(obs_dim: int, hot_inputs: int | None, hidden: int) -> HotCodes | None:
+    """Codes for observations of `obs_dim` inputs with exactly `hot_inputs` ones (None: not known), where the
+    numpy MLP takes its first layer as rows (`sparse.takes_rows`): else None (dense)."""
+    if not hot_inputs or not takes_rows(np.empty((0, obs_dim + 1, hidden))):
+        return None
+    return HotCodes(obs_dim, hot_inputs)
 
 
 def build_parts(
-    configs: list[AgentConfig], obs_dim: int, n_actions: int, seeds: list[int], step_unit: float = 1.0, make_network=mlp
+    configs: list[AgentConfig],
+    obs_dim: int,
+    n_actions: int,
+    seeds: list[int],
+    step_unit: float = 1.0,
+    make_network=mlp,
+    hot: HotCodes | None = None,
 ) -> AgentParts:
     """The parts of an agent for these configs. `make_network(configs, obs_dim, n_actions, seeds, purpose,
-    trained)` builds each value network (Q, its target, H; the purpose names its initialisation stream)."""
+    trained)` builds each value network (Q, its target, H; the purpose names its initialisation stream). hot
+    (`hot_codes`; only with the numpy MLP, `mlp`): observations are kept as their codes, with the same numbers."""
     c, B = configs[0], len(configs)
+    if hot is not None:
+        make_network = functools.partial(mlp, hot=hot)
+    width = obs_dim if hot is None else hot.width  # (an observation as kept)
     q = make_network(configs, obs_dim, n_actions, seeds, "q-init")
     q_target = make_network(configs, obs_dim, n_actions, seeds, "q-init", trained=False)  # starts as q
     return AgentParts(
         q=q,
         q_target=q_target,
         h=make_network(configs, obs_dim, n_actions, seeds, "h-init"),
-        replay=TransitionReplay(B, c.replay_size, obs_dim),
-        feedback_memory=FeedbackMemory(B, c.feedback_memory_size, obs_dim),
-        history=BatchStepHistory(B, c.history_steps, obs_dim),
+        replay=TransitionReplay(B, c.replay_size, width, coded=hot is not None),
+        feedback_memory=FeedbackMemory(B, c.feedback_memory_size, width, coded=hot is not None),
+        history=BatchStepHistory(B, c.history_steps, width),
         explorer=EpsilonGreedy(configs, _keys(seeds, "explore"), n_actions),
         mixture=Mixture(configs),
         delays=TeacherDelays(configs, step_unit),
         q_draws=UniformBlocks(_keys(seeds, "q-replay"), c.batch_size),
         h_draws=UniformBlocks(_keys(seeds, "h-replay"), c.h_batch_size),
+        hot=hot,
     )

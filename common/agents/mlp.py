@@ -139,21 +139,43 @@ def mlp_backward_rows(
     the rows of its nonzero inputs (`sparse.rows_backward`; nz: `NonzeroInputs.of(x1)` where the caller has it):
     then `touched` are the first-layer rows it touched (flat keys trial * (in + 1) + input; every other row's
     gradient is zero), else None."""
-    n, N = x.shape[:2]
+    n = x.shape[0]
+    g_w2, g_b2, d_pre = _backward_top(p, h, d_out)
+    x1 = with_ones(x) if x1 is None else x1
+    if not takes_rows(p["a1"]):
+        g1 = x1.transpose(0, 2, 1) @ d_pre  # [n, in + 1, hidden] = (w1; b1)
+        return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1), None
+    in1, hidden = p["a1"].shape[1:]
+    tail, keys, sums = _sparse_first_layer(d_pre, g_w2, g_b2, x1, nz, in1)
+    grad = np.zeros((n, in1 * hidden + tail.shape[1]), np.float32)
+    grad[:, : in1 * hidden].reshape(n, in1, hidden)[keys // in1, keys % in1] = sums  # (a view: splits one axis)
+    grad[:, in1 * hidden :] = tail
+    return grad, keys
+
+
+def mlp_backward_sparse(
+    p: dict[str, np.ndarray], h: np.ndarray, d_out: np.ndarray, x1: np.ndarray, nz: NonzeroInputs
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`mlp_backward_rows` of a first layer that takes rows, without the dense gradient: (tail, keys, sums), the
+    gradient of w2 and b2 [n, hidden * out + out], the touched first-layer rows (flat keys trial * (in + 1) + input,
+    ascending) and their gradients [len(keys), hidden] (every other first-layer row's gradient is zero)."""
+    g_w2, g_b2, d_pre = _backward_top(p, h, d_out)
+    return _sparse_first_layer(d_pre, g_w2, g_b2, x1, nz, p["a1"].shape[1])
+
+
+def _backward_top(p: dict[str, np.ndarray], h: np.ndarray, d_out: np.ndarray):
+    """(g_w2, g_b2, d_pre): the output layer's gradient and d loss / d pre-activation."""
+    n, N = h.shape[:2]
     g_w2 = h.transpose(0, 2, 1) @ d_out  # [n, hidden, out]
     g_b2 = _constant("ones", n, 1, N) @ d_out  # [n, 1, out]
     d_pre = d_out @ p["w2"].transpose(0, 2, 1)  # [n, N, hidden]
     slope = h * h
     np.subtract(np.float32(1), slope, out=slope)  # tanh' = 1 - tanh^2
     d_pre *= slope
-    x1 = with_ones(x) if x1 is None else x1
-    if not takes_rows(p["a1"]):
-        g1 = x1.transpose(0, 2, 1) @ d_pre  # [n, in + 1, hidden] = (w1; b1)
-        return np.concatenate([g1.reshape(n, -1), g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1), None
-    in1, hidden = p["a1"].shape[1:]
-    grad = np.zeros((n, in1 * hidden + g_w2[0].size + g_b2[0].size), np.float32)
+    return g_w2, g_b2, d_pre
+
+
+def _sparse_first_layer(d_pre, g_w2, g_b2, x1, nz, in1: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    n = len(d_pre)
     keys, sums = rows_backward(d_pre, NonzeroInputs.of(x1) if nz is None else nz, in1)
-    grad[:, : in1 * hidden].reshape(n, in1, hidden)[keys // in1, keys % in1] = sums  # (a view: splits one axis)
-    grad[:, in1 * hidden : -g_b2[0].size] = g_w2.reshape(n, -1)
-    grad[:, -g_b2[0].size :] = g_b2.reshape(n, -1)
-    return grad, keys
+    return np.concatenate([g_w2.reshape(n, -1), g_b2.reshape(n, -1)], axis=1), keys, sums

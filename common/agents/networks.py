@@ -30,7 +30,7 @@ from typing import Protocol
 
 import numpy as np
 
-from common.agents.sparse import NonzeroInputs, takes_rows
+from common.agents.sparse import HotCodes, NonzeroInputs, takes_rows
 from common.agents.mlp import (
     PARAM_NAMES,
     init_mlp,
@@ -40,6 +40,7 @@ from common.agents.mlp import (
     with_ones,
     mlp_forward,
     mlp_backward_rows,
+    mlp_backward_sparse,
 )
 
 
@@ -134,8 +135,12 @@ def row_index(rows: np.ndarray | None, total: int):
 class StackedMLP:
     """B MLPs in -> hidden (tanh) -> out, parameters stacked on a leading trial axis (`ValueNetworks`)."""
 
-    def __init__(self, in_dim: int, hidden: int, out_dim: int, seeds: list[int], optimiser=None):
+    def __init__(
+        self, in_dim: int, hidden: int, out_dim: int, seeds: list[int], optimiser=None, hot: HotCodes | None = None
+    ):
+        """hot: inputs come as their codes (`sparse.HotCodes`, a first layer that takes rows), never dense."""
         self.in_dim, self.hidden, self.out_dim = in_dim, hidden, out_dim
+        self.hot = hot
         self.n_actions = out_dim
         self.shapes = param_shapes(in_dim, hidden, out_dim)
         per_trial = [init_mlp(in_dim, hidden, out_dim, s) for s in seeds]
@@ -173,6 +178,8 @@ class StackedMLP:
             if rows is None or len(rows) == self.flat.shape[0]
             else self.rows(row_index(rows, self.flat.shape[0]))
         )
+        if self.hot is not None:
+            return mlp_forward(params, x, x, NonzeroInputs.of_codes(x))[1]
         return mlp_forward(params, np.asarray(x, np.float32), x1)[1]
 
     def fit(self, job: FitJob) -> None:
@@ -232,23 +239,24 @@ def fit_together(jobs: list[FitJob]) -> None:
         for j in jobs:
             j.net.fit(j)
         return
+    hot = jobs[0].net.hot is not None  # (codes: x is what x1 would be, found without a scan)
     if len(jobs) == 1:  # (the common case, with as few calls as possible: the same arithmetic)
         j = jobs[0]
         r = row_index(j.rows, j.net.flat.shape[0])
-        params, x, x1 = j.net.rows(r), j.x, j.x1
+        params, x, x1, idx = j.net.rows(r), j.x, j.x1, [r]
     else:
         idx = [row_index(j.rows, j.net.flat.shape[0]) for j in jobs]
         params = views(
             np.concatenate([j.net.flat if r is None else j.net.flat[r] for j, r in zip(jobs, idx)]), jobs[0].net.shapes
         )
-        if all(j.x1 is not None for j in jobs):
+        if not hot and all(j.x1 is not None for j in jobs):
             x1 = np.concatenate([j.x1 for j in jobs])
             x = x1[..., :-1]
         else:
             x, x1 = np.concatenate([j.x for j in jobs]), None
-    if x1 is None:
-        x1 = with_ones(x)
-    nz = NonzeroInputs.of(x1) if takes_rows(params["a1"]) else None  # (once for the forward and the backward)
+    if hot or x1 is None:
+        x1 = x if hot else with_ones(x)
+    nz = (NonzeroInputs.of_codes(x1) if hot else NonzeroInputs.of(x1)) if takes_rows(params["a1"]) else None
     hidden, out = mlp_forward(params, x, x1, nz)
     # d loss / d out: each row's loss gradient at its action taken, 0 at the other actions (a scatter into
     # zeros at flat positions row * A + action: the same numbers as a mask and np.where, at half the cost).
@@ -260,22 +268,20 @@ def fit_together(jobs: list[FitJob]) -> None:
         pred = out[start : start + n].reshape(-1)[at].reshape(n, -1)
         d_out[start : start + n].reshape(-1)[at] = j.loss.grad(pred, j.targets, j.weights).reshape(-1)
         start += n
-    grad, touched = mlp_backward_rows(params, x, hidden, d_out, x1, nz)
-    if len(jobs) == 1:
-        jobs[0].net.opt.step_rows(jobs[0].net.flat, r, grad, _blocks(params, touched, 0, len(jobs[0].rows)))
+    if nz is not None:  # (a first layer that takes rows: its touched rows' gradients, no dense gradient)
+        tail, keys, sums = mlp_backward_sparse(params, hidden, d_out, x1, nz)
+        in1, width = params["a1"].shape[1:]
+        start = 0
+        for j, r in zip(jobs, idx):
+            n = len(j.rows)
+            lo, hi = np.searchsorted(keys, [start * in1, (start + n) * in1])
+            blocks = (in1, width, keys[lo:hi] - start * in1, sums[lo:hi])
+            j.net.opt.step_rows(j.net.flat, r, tail[start : start + n], blocks)
+            start += n
         return
+    grad = mlp_backward_rows(params, x, hidden, d_out, x1)[0]
     start = 0
     for j, r in zip(jobs, idx):
         n = len(j.rows)
-        j.net.opt.step_rows(j.net.flat, r, grad[start : start + n], _blocks(params, touched, start, n))
+        j.net.opt.step_rows(j.net.flat, r, grad[start : start + n])
         start += n
-
-
-def _blocks(params: dict[str, np.ndarray], touched: np.ndarray | None, start: int, n: int):
-    """The optimiser's view of trials start..start+n's touched first-layer rows: (rows per trial, row width,
-    flat keys from 0), or None where every weight may have a gradient."""
-    if touched is None:
-        return None
-    in1, hidden = params["a1"].shape[1:]
-    lo, hi = np.searchsorted(touched, [start * in1, (start + n) * in1])
-    return in1, hidden, touched[lo:hi] - start * in1

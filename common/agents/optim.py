@@ -31,20 +31,23 @@ class FlatRMSProp:
         only the blocks `keys` (flat: row * count + block, distinct) have a nonzero gradient (a wide first
         layer's touched inputs). A zero gradient leaves a weight as it is and only decays its running average
         (alpha sq + 0, and p - 0 / (...) = p, exactly), so the other blocks get just that: the same bits as the
-        dense step."""
+        dense step. blocks (count, width, keys, sums): the same, with the touched blocks' gradients `sums`
+        [len(keys), width] given apart and `grad` only the columns after the blocks (no dense gradient is made)."""
         inplace = idx is None or isinstance(idx, slice)
         sel = slice(None) if idx is None else idx
         p = flat[sel]
         sq = self.square_avg[sel]
         if blocks is not None:
             sq *= self.alpha
-            count, width, keys = blocks
+            count, width, keys = blocks[:3]
             tail = count * width
-            self._update(p[:, tail:], sq[:, tail:], grad[:, tail:])
+            self._update(p[:, tail:], sq[:, tail:], grad[:, tail:] if len(blocks) == 3 else grad)
             at = keys // count, keys % count
-            p3, sq3, g3 = (a[:, :tail].reshape(len(a), count, width) for a in (p, sq, grad))  # (views)
+            p3, sq3 = (a[:, :tail].reshape(len(a), count, width) for a in (p, sq))  # (views)
             p_b, sq_b = p3[at], sq3[at]
-            self._update(p_b, sq_b, g3[at])
+            self._update(
+                p_b, sq_b, grad[:, :tail].reshape(len(grad), count, width)[at] if len(blocks) == 3 else blocks[3]
+            )
             p3[at], sq3[at] = p_b, sq_b
         else:
             sq *= self.alpha  # sq = alpha sq + (1 - alpha) g^2

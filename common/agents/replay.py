@@ -16,22 +16,28 @@ import numpy as np
 
 
 class _Ring:
-    def __init__(self, trials: int, capacity: int, fields: dict[str, int], ones_after: tuple[str, ...] = ()):
+    def __init__(
+        self, trials: int, capacity: int, fields: dict[str, int], ones_after: tuple[str, ...] = (), coded: bool = False
+    ):
         """fields: name -> width (0 for a scalar field). Each field of `ones_after` is followed by a column of
         ones, written with every record: `with_ones[name]` is the field with it, `at[name]` a field's first
-        column."""
+        column. coded: the fields of `ones_after` are observations' codes (`sparse.HotCodes`), which hold the bias
+        input already: no column is added, `with_ones[name]` is the field itself."""
         self.capacity = capacity
         self.fields = dict(fields)
         self.columns, self.with_ones, o = {}, {}, 0
         for name, width in fields.items():
             self.columns[name] = slice(o, o + max(width, 1))
             o += max(width, 1)
-            if name in ones_after:
+            if name in ones_after and coded:
+                self.with_ones[name] = self.columns[name]
+            elif name in ones_after:
                 self.with_ones[name] = slice(self.columns[name].start, o + 1)
                 o += 1
         self.width = o
         self.at = {name: s.start for name, s in self.columns.items()}
-        self._ones = [s.stop - 1 for s in self.with_ones.values()]
+        self._added = () if coded else tuple(self.with_ones)  # the fields followed by a column of ones
+        self._ones = [self.with_ones[name].stop - 1 for name in self._added]
         self.rec = np.zeros((trials, capacity, o), np.float32)
         self.size = np.zeros(trials, dtype=np.int64)
         self.pos = np.zeros(trials, dtype=np.int64)
@@ -48,7 +54,7 @@ class _Ring:
             parts, ones = [], np.ones((n, 1), np.float32)
             for name in self.fields:
                 parts.append(np.asarray(values[name], np.float32).reshape(n, -1))
-                if name in self.with_ones:
+                if name in self._added:
                     parts.append(ones)
             return np.concatenate(parts, axis=1)
         row = np.zeros((n, self.width), np.float32)
@@ -96,12 +102,14 @@ class _Ring:
 
 
 class TransitionReplay(_Ring):
-    def __init__(self, trials: int, capacity: int, obs_dim: int):
+    def __init__(self, trials: int, capacity: int, obs_dim: int, coded: bool = False):
+        """obs_dim: an observation's width (its codes' where `coded`)."""
         super().__init__(
             trials,
             capacity,
             {"obs": obs_dim, "action": 0, "reward": 0, "next_obs": obs_dim, "terminated": 0},
             ones_after=("obs", "next_obs"),
+            coded=coded,
         )
 
     def add_reward(self, trial, slot, amount) -> None:
@@ -112,7 +120,11 @@ class TransitionReplay(_Ring):
 class FeedbackMemory(_Ring):
     """D_global: every credited (state, action, feedback, weight) so far (FIFO beyond capacity)."""
 
-    def __init__(self, trials: int, capacity: int, obs_dim: int):
+    def __init__(self, trials: int, capacity: int, obs_dim: int, coded: bool = False):
         super().__init__(
-            trials, capacity, {"obs": obs_dim, "action": 0, "feedback": 0, "weight": 0}, ones_after=("obs",)
+            trials,
+            capacity,
+            {"obs": obs_dim, "action": 0, "feedback": 0, "weight": 0},
+            ones_after=("obs",),
+            coded=coded,
         )

@@ -23,6 +23,39 @@ import numpy as np
 # are dense (a product with a handful of rows costs less than the bookkeeping).
 ROWS_MIN_INPUTS = 64
 
+_CODE_ROWS: dict[tuple, tuple] = {}  # (n, N, K) -> the row indices of codes of that shape (`NonzeroInputs.of_codes`)
+_ONES: dict[int, np.ndarray] = {}
+
+
+def _ones(size: int) -> np.ndarray:
+    got = _ONES.get(size)
+    if got is None:
+        got = _ONES[size] = np.ones(size, np.float32)
+        got.flags.writeable = False
+    return got
+
+
+class HotCodes:
+    """Observations of `dim` inputs that are 0 or 1 with exactly `k` ones (Taxi's: one-hot groups), kept as codes:
+    the k columns set, ascending, then `dim` (the column of the bias input, always 1), as float32 (exact). A network
+    that takes rows computes from the codes exactly what it computes from the dense input (the same terms in the
+    same order: `NonzeroInputs.of_codes`), so an agent may store codes (k + 1 numbers instead of dim + 1)."""
+
+    def __init__(self, dim: int, k: int):
+        self.dim, self.k, self.width = int(dim), int(k), int(k) + 1
+
+    def encode(self, obs: np.ndarray) -> np.ndarray:
+        """obs [..., dim] -> codes [..., k + 1]; a ValueError if an observation is not k ones and zeros."""
+        flat = np.asarray(obs).reshape(-1, self.dim)
+        m = len(flat)
+        row, col = np.nonzero(flat)
+        if len(row) != m * self.k or np.any(np.bincount(row, minlength=m) != self.k) or np.any(flat[row, col] != 1):
+            raise ValueError(f"observations are not {self.k} ones among {self.dim} zeros")
+        out = np.empty((m, self.width), np.float32)
+        out[:, : self.k] = col.reshape(m, self.k)
+        out[:, self.k] = self.dim
+        return out.reshape(*np.shape(obs)[:-1], self.width)
+
 
 def takes_rows(a1: np.ndarray) -> bool:
     """Whether a first layer a1 [n, in + 1, hidden] is evaluated by row lookups."""
@@ -43,6 +76,19 @@ class NonzeroInputs:
     val: np.ndarray
     slots: list[np.ndarray]
     ones: bool
+    every_row: bool = False  # every row has each slot (codes): slot k's entries are rows 0..n*N-1 in order
+
+    @classmethod
+    def of_codes(cls, codes: np.ndarray) -> NonzeroInputs:
+        """The same for an input given by its codes (`HotCodes`: [n, N, K], each row's K nonzero columns, all
+        ones, ascending, the bias input's last): no scan, the entries are the codes themselves."""
+        n, N, K = codes.shape
+        got = _CODE_ROWS.get((n, N, K))
+        if got is None:
+            row = np.repeat(np.arange(n * N), K)
+            got = _CODE_ROWS[(n, N, K)] = (row, row // N, [np.arange(n * N) * K + k for k in range(K)])
+        row, trial, slots = got
+        return cls(n, N, row, trial, codes.reshape(-1).astype(np.intp), _ones(n * N * K), slots, True, True)
 
     @classmethod
     def of(cls, x1: np.ndarray) -> NonzeroInputs:
@@ -60,6 +106,12 @@ def rows_forward(a1: np.ndarray, nz: NonzeroInputs) -> np.ndarray:
     """x1 @ a1 for x1 given by its nonzero entries: [n, N, hidden], float32. Row by row, the terms are added in
     column order (the first term of each row starts it)."""
     hidden = a1.shape[2]
+    if nz.every_row:  # (codes: the same additions, without scattering into rows)
+        col, trial = nz.col.reshape(nz.n * nz.N, -1), nz.trial[nz.slots[0]]
+        pre = a1[trial, col[:, 0]]
+        for k in range(1, col.shape[1]):
+            pre += a1[trial, col[:, k]]
+        return pre.reshape(nz.n, nz.N, hidden)
     pre = np.empty((nz.n * nz.N, hidden), np.float32)
     for k, e in enumerate(nz.slots):
         term = a1[nz.trial[e], nz.col[e]]

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from common.agents.agent import TrialBatchAgent
-from common.agents.build import build_parts
+from common.agents.build import build_parts, hot_codes
 from common.agents.config import AgentConfig, resolve_network
 from common.core.seeding import derive_seed
 
@@ -56,13 +56,18 @@ def make_agent(
     n_actions: int,
     seeds: list[int],
     step_unit: float = 1.0,
+    hot_inputs: int | None = None,
 ) -> TrialBatchAgent:
     """The agent for `configs` (one per trial; they share their network): numpy MLP for `mlp` (and `auto`
-    on flat observations), torch modules for anything else (`cnn`, `torch-mlp`, `module:factory`)."""
+    on flat observations), torch modules for anything else (`cnn`, `torch-mlp`, `module:factory`).
+    hot_inputs: every observation is that many ones among zeros (Taxi's one-hot groups): the numpy MLP with a
+    wide first layer then keeps observations as codes (`build.hot_codes`; the same numbers, less memory)."""
     shape = (int(obs_shape),) if isinstance(obs_shape, (int, np.integer)) else tuple(int(s) for s in obs_shape)
     obs_dim = int(np.prod(shape))
-    parts = build_parts(configs, obs_dim, n_actions, seeds, step_unit)
-    if resolve_network(configs[0].network, shape) != "mlp":
+    numpy_mlp = resolve_network(configs[0].network, shape) == "mlp"
+    hot = hot_codes(obs_dim, hot_inputs, configs[0].hidden) if numpy_mlp else None
+    parts = build_parts(configs, obs_dim, n_actions, seeds, step_unit, hot=hot)
+    if not numpy_mlp:
         parts.q = torch_networks(configs, shape, n_actions, seeds, "q-init")
         parts.q_target = torch_networks(configs, shape, n_actions, seeds, "q-init", trained=False)
         parts.h = torch_networks(configs, shape, n_actions, seeds, "h-init")

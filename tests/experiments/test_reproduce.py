@@ -1,5 +1,6 @@
 """The reproduction pipeline: cached resume after an interruption, report generation, trial seeds."""
 
+import collections
 import dataclasses
 import json
 import os
@@ -186,7 +187,20 @@ def test_full_run_jobs_are_small_longest_first_and_never_mix_batch_groups(tmp_pa
         for k, t in enumerate(todo)
     ]
     assert all(len({t.spec.agent.replay_size for t in j}) == 1 for j in trialcache.make_jobs(mixed, workers=2))
-    assert len(trialcache.make_jobs(todo, workers=1)) == len({trialcache._batch_group(t.spec) for t in todo})
+    # one worker: one job per batch group, unless the group is larger than its family's MAX_PART_TRIALS
+    groups = collections.Counter(trialcache._batch_group(t.spec) for t in todo)
+    cap = trialcache.MAX_PART_TRIALS
+    assert len(trialcache.make_jobs(todo, workers=1)) == sum(-(-n // cap.get(g[0], n)) for g, n in groups.items())
+
+
+def test_a_large_maze_group_is_cut_into_parts_of_at_most_max_part_trials(tmp_path, monkeypatch):
+    """A Maze batch stops paying per trial-step above about 1,000 trials (and holds its replay): the declaration of
+    28 November's 30,000 Maze trials are cut into parts of at most MAX_PART_TRIALS, each trial once."""
+    monkeypatch.setitem(trialcache.MAX_PART_TRIALS, "maze", 5)
+    _, todo, _ = trialcache.plan([BY_NAME["maze-high-delay"]], TINY, str(tmp_path / "cache"))
+    jobs = trialcache.make_jobs(todo, workers=2)
+    assert len(todo) > 10 and max(len(j) for j in jobs) <= 5 and len(jobs) == -(-len(todo) // 5)
+    assert sorted(t.key for j in jobs for t in j) == sorted(t.key for t in todo)
 
 
 def test_gymnasium_taxi_runs_its_own_episode_count():
