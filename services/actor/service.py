@@ -40,7 +40,7 @@ from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
 from common.core.seeding import derive_seed
 from services.common.config import ActorConfig
-from services.common.resend import ResendRing, publish_kept
+from common.wire.delivery import ResendRing, publish_kept
 from services.common.watches import AliveWatch, IncarnationWatch
 from services.common.weights import WeightsFollower
 from services.common.progress import ProgressFile

@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterable
 from common.protocol import ProtocolError, ServiceStatus
 
 if TYPE_CHECKING:
-    from services.common.resend import ResendRing
+    from common.wire.delivery import ResendRing
 
 MAX_ANNOUNCED = 64  # incarnations remembered from liveliness tokens (bounded: tokens may be forged)
 

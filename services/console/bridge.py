@@ -50,7 +50,7 @@ from common.protocol import (
     step_key,
     weights_key,
 )
-from common.wire.inbox import Received
+from common.wire.delivery import Received
 from services.console.config import ConsoleConfig
 from services.console.people import Ledger, PageInputs, Person, RateLimit
 from services.common.weights import WeightsFollower

@@ -44,7 +44,7 @@ from common.protocol import (
 )
 from services.common.config import LearnerConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
-from services.common.resend import ResendRing, publish_kept
+from common.wire.delivery import ResendRing, publish_kept
 from services.common.watches import decoded_statuses
 from services.common.runtime import ServiceRuntime
 from services.learner import checkpoint

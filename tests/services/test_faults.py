@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from common.protocol import Feedback, ServiceStatus, Step
 from services.common.config import LearnerConfig
 from services.common.gate import GATE_REASONS, InputGate
-from services.common.resend import ResendRing
+from common.wire.delivery import ResendRing
 from services.common.statefiles import atomic_write, atomic_write_json, read_json
 from services.common.progress import ProgressFile
 from services.learner import checkpoint
