@@ -53,7 +53,7 @@ from common.protocol import (
 from common.wire.delivery import Received
 from services.console.config import ConsoleConfig
 from services.console.people import Ledger, PageInputs, Person, RateLimit
-from services.common.weights import WeightsFollower
+from services.common.gate import WeightsFollower
 
 TEACHER = TEACHER_PREFIX
 
@@ -99,7 +99,7 @@ class Hub(PageInputs):
         """Every key the pages need, through the project's one subscription helper (signatures checked there:
         a forgery never reaches a page or a person's status), each sample handed to the loop."""
         from common.wire.transport import subscriptions
-        from services.common.watches import IncarnationWatch
+        from services.common.gate import IncarnationWatch
 
         run = self.config.run
         keys = [

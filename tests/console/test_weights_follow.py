@@ -17,7 +17,7 @@ from common.wire.delivery import Inbox, Received
 from common.wire.transport import open_session, peer_config
 from services.common.config import ActorConfig
 from services.common.runtime import ServiceRuntime
-from services.common.weights import WeightsFollower
+from services.common.gate import WeightsFollower
 from services.console.bridge import Hub
 from services.console.config import ConsoleConfig
 

@@ -337,7 +337,7 @@ def test_actor_never_goes_back_to_an_older_version():
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
     from common.wire.transport import Inbox, Received
-    from services.common.weights import WeightsFollower
+    from services.common.gate import WeightsFollower
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
 

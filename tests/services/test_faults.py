@@ -409,7 +409,7 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
     from common.wire.transport import Inbox, Received
-    from services.common.weights import WeightsFollower
+    from services.common.gate import WeightsFollower
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
 
