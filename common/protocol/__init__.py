@@ -45,7 +45,7 @@ from ._keys import (
     validate_name,
     weights_key,
 )
-from ._media import Box, CompressedImage, ExpressionPrediction, LOG_LEVELS, Log, Time
+from ._media import Box, CompressedImage, ExpressionPrediction, LOG_LEVELS, Log, ObserverReaction, Time
 from ._fields import NAME_PATTERN, TOKEN_PATTERN
 from ._messages import (
     SERVICE_STATES,
@@ -55,11 +55,12 @@ from ._messages import (
     IngestEntry,
     MAX_INGEST_CREDITS,
     MAX_SHOWN,
-    ObserverReaction,
     RunConfig,
     ServiceStatus,
+    InfoError,
     ShownStep,
     Step,
+    step_info,
 )
 from ._roles import (
     ALIVE,
@@ -82,7 +83,6 @@ from ._roles import (
 )
 from ._spec import REASONS, ProtocolError
 from ._foxglove import FoxgloveProto, SceneUpdate
-from ._info import InfoError, step_info
 from ._observe import Request, TensorSummary, WeightsSnapshot
 from ._topics import key_from_topic, log_topic
 from ._weights import Weights, check_spec

@@ -6,9 +6,8 @@ from __future__ import annotations
 import dataclasses
 from typing import ClassVar
 
-from ._base import Message, fld
+from ._base import List, Message, Nullable, Obj, fld
 from ._fields import RUN, Count, Name, Seconds, Token
-from ._containers import List, Nullable, Obj
 from ._spec import Bool, Float, Int, ProtocolError, Str
 
 CONTROL_COMMANDS = ("pause", "resume", "pace", "end")

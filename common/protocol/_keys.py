@@ -11,9 +11,9 @@ import functools
 import re
 from typing import Any
 
-from ._media import CompressedImage, ExpressionPrediction, Log
+from ._media import CompressedImage, ExpressionPrediction, Log, ObserverReaction
 from ._fields import NAME_PATTERN
-from ._messages import EpisodeSummary, Feedback, Ingest, ObserverReaction, RunConfig, ServiceStatus, Step
+from ._messages import EpisodeSummary, Feedback, Ingest, RunConfig, ServiceStatus, Step
 from ._console import Control, Credit, Shown
 from ._foxglove import SceneUpdate
 from ._observe import Request, WeightsSnapshot

@@ -1,14 +1,13 @@
 """Messages of the camera and perception path and of the services' logs, in Foxglove's JSON schemas (its `Log`,
-`CompressedImage`) and ours (`ExpressionPrediction`)."""
+`CompressedImage`) and ours (`ExpressionPrediction`, and the video observer's `ObserverReaction`)."""
 
 from __future__ import annotations
 
 import dataclasses
 from typing import ClassVar
-from ._base import Message, fld
-from ._containers import Map, Nullable, Obj
-from ._messages import Count, Seconds
-from ._spec import Bytes64, Float, Int, Str
+from ._base import Map, Message, Nullable, Obj, fld
+from ._fields import RUN, Count, Name, Seconds
+from ._spec import Bytes64, Float, Int, ProtocolError, Str
 
 
 LOG_LEVELS = {0: "UNKNOWN", 1: "DEBUG", 2: "INFO", 3: "WARNING", 4: "ERROR", 5: "FATAL"}
@@ -109,3 +108,35 @@ class ExpressionPrediction(Message):
     probabilities: dict = fld(
         Map(Float(0.0, 1.0), max_items=16, key_max_len=32, description="Probability of each label.")
     )
+
+
+@dataclasses.dataclass(frozen=True)
+class ObserverReaction(Message):
+    """Diagnostics of a video-backed observer (the `face-video` teacher): one reaction it showed to the camera.
+
+    Published on `hitl/<run>/reaction/<teacher_id>` when the clip starts. The perception service turns the
+    frames into Feedback on `hitl/<run>/feedback/<teacher_id>`; comparing the two measures the perception
+    path (polarity errors, missed and extra reactions, lag). Never learned from.
+    """
+
+    TYPE_NAME: ClassVar[str] = "hitl.ObserverReaction"
+    MAX_BYTES: ClassVar[int] = 4096
+    CROSS_RULES: ClassVar[tuple[str, ...]] = ("`t_end >= t_start`, else `bad_value`",)
+
+    run: str = fld(Name(RUN))
+    teacher_id: str = fld(
+        Name("The teacher whose Feedback these frames should become; also the last chunk of the key.")
+    )
+    seq: int = fld(Count("Reaction counter per teacher, without gaps."))
+    ref_seq: int = fld(Count("The Step.seq the observer reacted to."))
+    lag_steps: int = fld(Count("The observer's true lag in steps (drawn from its delay distribution)."))
+    value: int = fld(Int(enum=(-1, 1), description="The polarity shown (after a simulated misread, if any)."))
+    intended: int = fld(Int(enum=(-1, 1), description="The observer's judgement before a simulated misread."))
+    t_start: float = fld(Seconds("Capture time (s) of the first frame showing the expression."))
+    t_end: float = fld(Seconds("Capture time (s) of the last frame showing it."))
+    camera: str = fld(Name("Camera id (key chunk) the frames were published on."))
+    clip: str = fld(Str(64, description="The frames shown, e.g. `pexels:256-273`."))
+
+    def _cross_check(self) -> None:
+        if self.t_end < self.t_start:
+            raise ProtocolError("bad_value", f"t_end {self.t_end} is before t_start {self.t_start}")

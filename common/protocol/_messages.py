@@ -1,12 +1,14 @@
-"""The JSON message types. Each is defined once here; its schema, validator and docs derive from it."""
+"""The JSON message types, each defined once here (its schema, validator and docs derive from it), and `step_info`:
+an environment's `info` as a Step carries it."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from ._base import PROTOCOL_VERSION, Message, fld
-from ._containers import AnyJSON, Embedded, List, Map, Nullable, Obj
+from ._base import PROTOCOL_VERSION, AnyJSON, Embedded, List, Map, Message, Nullable, Obj, fld
 from ._fields import RUN, TOKEN_PATTERN, Count, Name, Seconds, Token
 from ._spec import Bool, Float, Int, ProtocolError, Str
 
@@ -157,38 +159,6 @@ class Feedback(Message):
             for a, b in zip(self.shown, self.shown[1:]):
                 if not (b.seq > a.seq and b.t >= a.t):
                     raise ProtocolError("bad_value", "shown must be ascending in seq and time")
-
-
-@dataclasses.dataclass(frozen=True)
-class ObserverReaction(Message):
-    """Diagnostics of a video-backed observer (the `face-video` teacher): one reaction it showed to the camera.
-
-    Published on `hitl/<run>/reaction/<teacher_id>` when the clip starts. The perception service turns the
-    frames into Feedback on `hitl/<run>/feedback/<teacher_id>`; comparing the two measures the perception
-    path (polarity errors, missed and extra reactions, lag). Never learned from.
-    """
-
-    TYPE_NAME: ClassVar[str] = "hitl.ObserverReaction"
-    MAX_BYTES: ClassVar[int] = 4096
-    CROSS_RULES: ClassVar[tuple[str, ...]] = ("`t_end >= t_start`, else `bad_value`",)
-
-    run: str = fld(Name(RUN))
-    teacher_id: str = fld(
-        Name("The teacher whose Feedback these frames should become; also the last chunk of the key.")
-    )
-    seq: int = fld(Count("Reaction counter per teacher, without gaps."))
-    ref_seq: int = fld(Count("The Step.seq the observer reacted to."))
-    lag_steps: int = fld(Count("The observer's true lag in steps (drawn from its delay distribution)."))
-    value: int = fld(Int(enum=(-1, 1), description="The polarity shown (after a simulated misread, if any)."))
-    intended: int = fld(Int(enum=(-1, 1), description="The observer's judgement before a simulated misread."))
-    t_start: float = fld(Seconds("Capture time (s) of the first frame showing the expression."))
-    t_end: float = fld(Seconds("Capture time (s) of the last frame showing it."))
-    camera: str = fld(Name("Camera id (key chunk) the frames were published on."))
-    clip: str = fld(Str(64, description="The frames shown, e.g. `pexels:256-273`."))
-
-    def _cross_check(self) -> None:
-        if self.t_end < self.t_start:
-            raise ProtocolError("bad_value", f"t_end {self.t_end} is before t_start {self.t_start}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -375,3 +345,47 @@ class RunConfig(Message):
         return cls(
             run=run, t_created=time.time() if t_created is None else t_created, protocol=PROTOCOL_VERSION, config=config
         )
+
+
+# -- Step.info from an environment's `info`: the whole mapping, or an error naming the key that cannot be sent --
+
+
+class InfoError(ValueError):
+    """An environment's `info` that a Step cannot carry; the message names the key."""
+
+
+def _number(key: str, value: Any) -> float:
+    if isinstance(value, (str, bytes)) or value is None:
+        raise InfoError(
+            f"env info key {key!r}: {type(value).__name__} {value!r:.60} is not a number (a Step carries numbers only)"
+        )
+    try:
+        number = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InfoError(
+            f"env info key {key!r}: {type(value).__name__} {value!r:.60} is not a number (a Step carries numbers only)"
+        ) from None
+    if not math.isfinite(number):
+        raise InfoError(f"env info key {key!r}: {number} is not a finite number (a Step carries finite numbers only)")
+    return number
+
+
+def step_info(info: Mapping[str, Any]) -> dict[str, float]:
+    """The environment's `info` as Step.info carries it: every key, each a finite number (a bool is 0/1).
+
+    Raises InfoError naming the first key that cannot be sent (not 1..`MAX_INFO_KEY` printable characters, not
+    a finite number) or the keys past `MAX_INFO_ITEMS`: a teacher rule sees what the env said, never a silently
+    shortened copy."""
+    if not isinstance(info, Mapping):
+        raise InfoError(f"env info must be a mapping of names to numbers, got {type(info).__name__}")
+    out: dict[str, float] = {}
+    for key, value in info.items():
+        if not isinstance(key, str) or not 1 <= len(key) <= MAX_INFO_KEY or not key.isprintable():
+            raise InfoError(f"env info key {key!r:.80}: a Step carries keys of 1..{MAX_INFO_KEY} printable characters")
+        out[key] = _number(key, value)
+    if len(out) > MAX_INFO_ITEMS:
+        extra = ", ".join(repr(k) for k in list(out)[MAX_INFO_ITEMS:])
+        raise InfoError(
+            f"env info has {len(out)} keys, a Step carries at most {MAX_INFO_ITEMS}: {extra} cannot be sent"
+        )
+    return out

@@ -6,8 +6,8 @@ machine-readable reason), ``schema()`` a JSON Schema (draft 2020-12) fragment,
 ``to_json``/``from_json`` convert between the Python value and its JSON form, and
 ``describe()`` a short human description for docs/protocol.md.
 
-This module holds the errors, the base ``Spec`` and the scalar specs; the specs that nest others
-(``List``, ``Map``, ``Nullable``, ``Obj``, ``AnyJSON``) and ``check_object`` are in ``_containers.py``.
+This module holds the errors, the base ``Spec`` and the scalar specs; the specs that nest others (``List``,
+``Map``, ``Nullable``, ``Obj``, ``Embedded``, ``AnyJSON``) and ``check_object`` are in ``_base.py``, with ``Message``.
 
 Nothing here imports zenoh or mcap: the protocol is usable by the pure core and by tests.
 """

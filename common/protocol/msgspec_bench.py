@@ -352,7 +352,7 @@ def hostile() -> None:
 
 # --- line counts ------------------------------------------------------------------------------------------------
 HERE = Path(__file__).resolve().parent
-VALIDATION = ("_base.py", "_spec.py", "_containers.py", "_fields.py")
+VALIDATION = ("_base.py", "_spec.py", "_fields.py")  # (_containers.py is in _base.py since 28 November)
 
 
 def code_lines(text: str) -> int:

@@ -1,5 +1,6 @@
-"""Zenoh session helpers for the live services: loopback configs, sessions that always close, publishers
-with the right congestion control, and bounded receive queues fed by callback subscribers.
+"""Zenoh session helpers for the live services: loopback configs, sessions that always close, publishers declared
+with the right congestion control, and callback subscribers feeding bounded inboxes (the publisher and the inbox
+a service uses for each message are in common/wire/delivery.py, re-exported here).
 
 Facts this module relies on (zenoh-python 1.10, measured here; see docs/protocol.md for the keys):
 
@@ -32,12 +33,13 @@ from collections.abc import Callable, Iterator
 
 import zenoh
 
-from common.wire.inbox import (
+from common.wire.delivery import (  # (re-exported: a service opens its session and its publishers here)
     QUEUE_POLICIES,  # noqa: F401
+    Forward,
     Inbox,
+    MessagePublisher,  # noqa: F401
     Received,
-    default_auth,
-    default_policy,  # noqa: F401 (re-exported)
+    default_policy,
     set_default_auth,  # noqa: F401
 )
 from common.config import option
@@ -94,7 +96,7 @@ def make_config(
         c.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 1000, period_increase_factor: 2}")
     c.insert_json5("timestamping/enabled", "true" if timestamping else "false")
     # A BLOCK message that waits this long for room closes Zenoh's link, losing what was queued on it (Zenoh's
-    # default: 5 s). Our inboxes wait up to 5 s themselves and then drop and count (common.wire.inbox): the
+    # default: 5 s). Our inboxes wait up to 5 s themselves and then drop and count (common.wire.delivery): the
     # link must outwait them, or a receiver stalled under load loses messages that nobody counts (seen once:
     # three Ingest batches missing from a flooded, loaded run's log).
     c.insert_json5("transport/link/tx/queue/congestion_control/block/wait_before_close", str(BLOCK_WAIT_US))
@@ -197,56 +199,6 @@ def wait_for_matching(publisher: zenoh.Publisher, timeout: float = 5.0) -> bool:
     return False
 
 
-class MessagePublisher:
-    """Publishes protocol messages on one key: encodes (which validates), signs (with ``auth``, default the
-    process's: :func:`set_default_auth`), counts, and closes cleanly.
-
-    ``put`` accepts a message object or already-encoded bytes."""
-
-    def __init__(
-        self,
-        session: zenoh.Session,
-        key: str,
-        *,
-        congestion: str | None = None,
-        express: bool = False,
-        auth: Any = None,
-    ):
-        self.key = key
-        self.message_type = parse_key(key).spec.message
-        self.publisher = declare_publisher(session, key, congestion=congestion, express=express)
-        self.auth = auth if auth is not None else default_auth()
-        self._lock = threading.Lock()  # counters go out in the order they were drawn
-        self.sent = 0
-
-    def put(self, message: Any) -> None:
-        if isinstance(message, (bytes, bytearray, memoryview)):
-            data = bytes(message)
-        else:
-            if not isinstance(message, self.message_type):
-                raise TypeError(f"{self.key} carries {self.message_type.__name__}, not {type(message).__name__}")
-            data = message.encode()
-        if self.auth is None:
-            self.publisher.put(data)
-        else:
-            with self._lock:
-                self.publisher.put(data, attachment=self.auth.sign(self.key, data))
-        self.sent += 1
-
-    def wait_for_subscribers(self, timeout: float = 5.0) -> bool:
-        return wait_for_matching(self.publisher, timeout)
-
-    def close(self) -> None:
-        with contextlib.suppress(Exception):
-            self.publisher.undeclare()
-
-    def __enter__(self) -> MessagePublisher:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-
 # -- receiving -------------------------------------------------------------------------------------------------------
 
 
@@ -268,25 +220,6 @@ def subscribe(
         inbox = Inbox(maxsize, policy or default_policy(key_expr), block_timeout=block_timeout, auth=auth)
     sub = session.declare_subscriber(key_expr, inbox.handler())
     return sub, inbox
-
-
-class Forward(Inbox):
-    """An Inbox that queues nothing: each authentic sample goes to ``deliver`` at once, on zenoh's thread (for a
-    consumer with its own event loop: ``deliver`` must not block, e.g. ``loop.call_soon_threadsafe``). The checks
-    and counters are the Inbox's (``received``, ``dropped_<auth reason>``, ``dropped_closed``)."""
-
-    def __init__(self, deliver: Callable[[Received], None], *, auth: Any = None):
-        super().__init__(1, "drop_oldest", auth=auth)
-        self.deliver = deliver
-
-    def put(self, item: Received) -> bool:
-        with self._cond:
-            self.counters["received"] += 1
-            if self._closed:
-                self.counters["dropped_closed"] += 1
-                return False
-        self.deliver(item)
-        return True
 
 
 @contextlib.contextmanager

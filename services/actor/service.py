@@ -18,7 +18,7 @@ the learner), waits for the current weights of an announced learner first and co
 from that version on. Weights are accepted only from a learner incarnation that a ServiceStatus announced, with a
 plausible timestamp and the right tensor names and shapes; everything else is dropped and counted. Steps of the last
 `resend_window` s are published again when a learner or recorder (re)starts. The weights are followed by
-`services.common.weights.WeightsFollower`, the console's too.
+`services.common.gate.WeightsFollower`, the console's too.
 
 Pace: `rate` steps per second (a fixed period, for a human watching) or as fast as possible (0). Each Step
 carries the actor's incarnation, a contiguous seq, the wall time of the action (strictly increasing), the
@@ -40,9 +40,9 @@ from services.actor.control import RunControl
 from services.actor.render import FramePublisher, enable_rgb
 from common.core.seeding import derive_seed
 from services.common.config import ActorConfig
-from services.common.resend import ResendRing, publish_kept
-from services.common.watches import AliveWatch, IncarnationWatch
-from services.common.weights import WeightsFollower
+from common.wire.delivery import ResendRing, publish_kept
+from services.common.watches import AliveWatch
+from services.common.gate import IncarnationWatch, WeightsFollower
 from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, TerminalError, apply_torch_threads, service_main, wait_alive
 

@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator
 from services.common.statefiles import atomic_write
 
 if TYPE_CHECKING:
-    from common.wire.inbox import Inbox
+    from common.wire.delivery import Inbox
     from common.wire.transport import MessagePublisher
 from common.protocol import ServiceStatus, alive_key, incarnation_alive_key, status_key, teacher_id_of, validate_name
 from services.common.process import TERMINAL_EXIT, TerminalError, set_from_handler, wait_for_exit, new_incarnation

@@ -1,5 +1,5 @@
-"""Liveliness watches: which incarnations of a service have announced themselves, and which services came
-(back) alive; the statuses waiting in an inbox, decoded."""
+"""Liveliness watches: which services came (back) alive; the statuses waiting in an inbox, decoded. (Which
+incarnations of a service have announced themselves: `services.common.gate.IncarnationWatch`.)"""
 
 from __future__ import annotations
 
@@ -12,55 +12,7 @@ from collections.abc import Callable, Iterable
 from common.protocol import ProtocolError, ServiceStatus
 
 if TYPE_CHECKING:
-    from services.common.resend import ResendRing
-
-MAX_ANNOUNCED = 64  # incarnations remembered from liveliness tokens (bounded: tokens may be forged)
-
-
-class IncarnationWatch:
-    """The incarnations of one service that have held their liveliness token
-    `hitl/<run>/alive/<service>/<incarnation>` (declared by `ServiceRuntime.ready()` before the service
-    publishes anything). With history, a watcher started late still learns the current one, and a token is
-    delivered before anything the same process publishes after declaring it. `take()`: new ones since the
-    last call."""
-
-    def __init__(self, session: Any, run: str, service: str):
-        from services.common.runtime import alive_key
-
-        self._lock = threading.Lock()
-        self.seen: collections.OrderedDict[str, None] = collections.OrderedDict()
-        self._new: list[str] = []
-        self._sub = session.liveliness().declare_subscriber(
-            f"{alive_key(run, service)}/*", self._on_sample, history=True
-        )
-
-    def _on_sample(self, sample: Any) -> None:
-        import zenoh
-
-        if sample.kind != zenoh.SampleKind.PUT:
-            return
-        inc = str(sample.key_expr).rsplit("/", 1)[-1]
-        with self._lock:
-            if inc not in self.seen:
-                self._new.append(inc)
-            self.seen[inc] = None
-            while len(self.seen) > MAX_ANNOUNCED:
-                self.seen.popitem(last=False)
-
-    def known(self, incarnation: str) -> bool:
-        with self._lock:
-            return incarnation in self.seen
-
-    def take(self) -> list[str]:
-        with self._lock:
-            out, self._new = self._new, []
-        return out
-
-    def close(self) -> None:
-        try:
-            self._sub.undeclare()
-        except Exception:
-            pass
+    from common.wire.delivery import ResendRing
 
 
 class AliveWatch:

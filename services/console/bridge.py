@@ -40,20 +40,20 @@ from common.protocol import (
     ProtocolError,
     ServiceStatus,
     Step,
+    Time,
     camera_key,
     control_key,
     decode,
     episode_key,
     perception_key,
+    status_key,
     step_key,
     weights_key,
 )
-from common.wire.inbox import Received
+from common.wire.delivery import Received
 from services.console.config import ConsoleConfig
-from services.console.ledger import Ledger
-from services.console.page_inputs import PageInputs
-from services.console.people import Person, RateLimit
-from services.common.weights import WeightsFollower
+from services.console.people import Ledger, PageInputs, Person, RateLimit
+from services.common.gate import WeightsFollower
 
 TEACHER = TEACHER_PREFIX
 
@@ -99,7 +99,7 @@ class Hub(PageInputs):
         """Every key the pages need, through the project's one subscription helper (signatures checked there:
         a forgery never reaches a page or a person's status), each sample handed to the loop."""
         from common.wire.transport import subscriptions
-        from services.common.watches import IncarnationWatch
+        from services.common.gate import IncarnationWatch
 
         run = self.config.run
         keys = [
@@ -281,6 +281,35 @@ class Hub(PageInputs):
             self.learner_stopped = True
 
     # -- pages -> run ------------------------------------------------------------------------------------------
+    def person_status(self, person: Person, state: str) -> None:
+        service = f"{TEACHER_PREFIX}{person.teacher_id}"
+        self._publisher(status_key(self.config.run, service)).put(
+            ServiceStatus(
+                run=self.config.run,
+                service=service,
+                pid=os.getpid(),
+                state=state,
+                t=time.time(),
+                counters={**self.ledger.counters(person.teacher_id), "frames_published": person.frames_sent},
+                incarnation=person.incarnation,
+            )
+        )
+
+    def frame(self, person: Person, t_capture: float, jpeg: bytes) -> None:
+        if self.camera_pub is None:
+            self.rt.counters["page_rejected_no_camera"] += 1
+            return
+        if self.actor_stopped:  # the run is over: the perception service may finish
+            self.rt.counters["frames_after_end"] += 1
+            return
+        self.camera_pub.put(
+            CompressedImage(
+                timestamp=Time.from_seconds(t_capture), frame_id=person.teacher_id, data=jpeg, format="jpeg"
+            )
+        )
+        person.frames_sent += 1
+        self.rt.counters["frames_published"] += 1
+
     def join(self, name: str | None, page_id: str | None, send) -> Person:
         """A page opens: its teacher id is `<prefix>-<name>`, the id this page had before (a reload, or a
         reconnect after a console restart), or `<prefix>-<n>`; a name already at the console gets a suffix."""

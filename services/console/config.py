@@ -116,7 +116,7 @@ class ConsoleConfig(TaskConfig, ConsoleSettings, Groups):
     )
     state_file: str | None = option(
         None,
-        "the press ledger (services/console/ledger.py), rewritten before each "
+        "the press ledger (services/console/people.py), rewritten before each "
         "feedback: a restarted console continues every person's seq and "
         "recognises presses their pages re-send",
     )

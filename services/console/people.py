@@ -1,32 +1,48 @@
-"""The people at the console: one `Person` per open page (its teacher identity, clock offset, screen timeline,
-rate limits), and `PageGate`, which checks everything a page sends before it reaches the run.
+"""The people at the console and what their pages send into the run: one `Person` per open page (its teacher
+identity, clock offset, screen timeline, rate limits); `PageGate`, which checks everything a page sends before it
+reaches the run; the `Ledger`, which numbers each press; and `PageInputs`, the part of the console's `Hub`
+(services/console/bridge.py, which owns the state it reads) that publishes the paint time of each step (`Shown`)
+and each press (`Feedback`, with the steps the screen showed).
 
 A page message is JSON text: `ping` (clock exchange), `shown` (a step was painted), `feedback` (a key press or
 button; with the page's own id and press number, so a press re-sent after a reconnect is recognised), `control`
 (pause, resume, pace, end; rate-limited per person). Webcam frames are binary: 8 bytes of little-endian float64 page
-time, then a JPEG. Anything else, or anything out of bounds (sizes, timestamps, rates), is rejected with a
-reason; the console counts it (`page_rejected_<reason>`) and drops it.
+time, then a JPEG. Anything else, or out of bounds (sizes, timestamps, rates), is rejected with a reason; the
+console counts it (`page_rejected_<reason>`) and drops it. (A page's `?name=` and id are checked at its opening.)
+
+The press ledger gives each press its feedback seq, never the same twice and the same again for a press re-sent
+after a reconnect, across a console restart too (docs/console.md, "No press is lost"): per teacher id the next seq
+and the person's counts, per page (one per browser tab) its teacher id and its recent presses' seqs, written whole
+(`atomic_write_json`) to the `state_file` before each feedback is published.
 """
 
 from __future__ import annotations
 
+import collections
 import json
 import math
-import re
 import struct
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
-from common.protocol import CONTROL_COMMANDS, MAX_RATE, TOKEN_PATTERN
 from common.core.screen import ScreenTimeline
+from common.protocol import (
+    CONTROL_COMMANDS,
+    MAX_RATE,
+    TOKEN_PATTERN,
+    Feedback,
+    Shown,
+    feedback_key,
+    shown_key,
+)
+from services.common.statefiles import atomic_write_json, read_json
+from services.console.config import ConsoleConfig
 
 MAX_TEXT = 4096  # bytes of one JSON page message
 KINDS = ("ping", "shown", "feedback", "control")
 FEEDBACK_SOURCES = ("key", "button", "script")
 _TOKEN_CHARS = set(chr(c) for c in range(0x21, 0x7F))
-PAGE_ID = re.compile(r"^[A-Za-z0-9_-]{8,64}$")  # a page's own id (console.js: one per browser tab)
-PERSON_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$")  # ?name=: becomes the teacher id <prefix>-<name>
 MAX_PRESS_NO = 2**31
 
 
@@ -71,25 +87,6 @@ class Person:
     page_id: str | None = None  # the page's own id (kept across its reconnects and reloads)
     last_heard: float = field(default_factory=time.monotonic)  # the page's latest message (monotonic s)
     close: Any = None  # closes this page's socket (a full console makes room by closing silent pages)
-
-
-def check_name(name: str | None) -> str | None:
-    """`?name=` as given, if it is a safe ASCII name; raises PageError (with the rule) otherwise."""
-    if name is None or name == "":
-        return None
-    if not PERSON_NAME.match(name):
-        raise PageError(
-            "bad_name", "a name is 1-32 ASCII letters, digits, '_', '.' or '-', starting with a letter or digit"
-        )
-    return name
-
-
-def check_page_id(page_id: str | None) -> str | None:
-    if page_id is None or page_id == "":
-        return None
-    if not PAGE_ID.match(page_id):
-        raise PageError("bad_value", "page id")
-    return page_id
 
 
 def _number(msg: dict, name: str, lo: float = -1e12, hi: float = 1e12) -> float:
@@ -224,3 +221,167 @@ class PageGate:
         if not person.frames.take():
             raise PageError("frame_flood", "too many frames")
         return t_sys, bytes(data[8:])
+
+
+# -- the press ledger --
+MAX_PAGES = 16  # pages remembered (oldest forgotten first); the file is rewritten at each press
+MAX_PRESSES = 128  # presses remembered per page (a page re-sends only the ones not yet acknowledged)
+
+
+class Ledger:
+    def __init__(self, state_file: str | None):
+        self.path = state_file
+        state = read_json(state_file) if state_file else None
+        state = state or {}
+        self.joined = int(state.get("joined", 0))
+        self.teachers: dict[str, dict[str, Any]] = state.get("teachers", {})
+        self.pages: collections.OrderedDict[str, dict[str, Any]] = collections.OrderedDict(state.get("pages", {}))
+        self.restarted = bool(state)
+        self.saved_at = 0.0
+
+    def save(self) -> None:
+        if self.path:
+            atomic_write_json(self.path, {"joined": self.joined, "teachers": self.teachers, "pages": self.pages})
+            self.saved_at = time.monotonic()
+
+    def teacher(self, tid: str) -> dict[str, Any]:
+        return self.teachers.setdefault(tid, {"next_seq": 0, "received": 0, "published": 0, "resent": 0, "dropped": {}})
+
+    def page_teacher(self, page_id: str | None) -> str | None:
+        """The teacher id this page had before (a reload or a reconnect after a console restart)."""
+        page = self.pages.get(page_id) if page_id else None
+        return None if page is None else page["teacher"]
+
+    def bind(self, page_id: str | None, tid: str) -> None:
+        if page_id is None:
+            return
+        page = self.pages.get(page_id)
+        if page is None or page["teacher"] != tid:
+            page = {"teacher": tid, "presses": {}}
+        self.pages[page_id] = page
+        self.pages.move_to_end(page_id)
+        while len(self.pages) > MAX_PAGES:
+            self.pages.popitem(last=False)
+
+    def dropped(self, tid: str, reason: str) -> None:
+        """A press refused before it got a seq: received, and dropped for `reason`."""
+        self.teacher(tid)["received"] += 1
+        dropped = self.teacher(tid)["dropped"]
+        dropped[reason] = dropped.get(reason, 0) + 1
+        if time.monotonic() - self.saved_at > 1.0:  # (a flood of refusals does not rewrite the file each time)
+            self.save()
+
+    def seq_for(self, tid: str, page_id: str | None, press: int | None) -> tuple[int, bool]:
+        """(the seq this press is published with, whether it is a re-send of one published before). Saved."""
+        t = self.teacher(tid)
+        page = self.pages.get(page_id) if page_id else None
+        key = None if press is None or page is None or page["teacher"] != tid else str(press)
+        if key is not None and page is not None and key in page["presses"]:
+            t["resent"] += 1
+            self.save()
+            return int(page["presses"][key]), True
+        seq = int(t["next_seq"])
+        t["next_seq"] = seq + 1
+        t["published"] += 1
+        t["received"] += 1  # (a re-send of a press this console never got is its first receipt)
+        if key is not None and page is not None:
+            page["presses"][key] = seq
+            while len(page["presses"]) > MAX_PRESSES:
+                del page["presses"][next(iter(page["presses"]))]
+        self.save()  # before the publish: a console killed right after never reuses this seq
+        return seq, False
+
+    def counters(self, tid: str) -> dict[str, int]:
+        """The person's counts for their ServiceStatus (and so the run's summary.json)."""
+        t = self.teacher(tid)
+        out = {
+            "feedback_published": int(t["next_seq"]),
+            "presses_received": int(t["received"]),
+            "presses_resent": int(t["resent"]),
+        }
+        out.update({f"presses_dropped_{k}": int(v) for k, v in sorted(t["dropped"].items())})
+        return out
+
+
+# -- what a page sends, published --
+class PageInputs:
+    """Hub's methods for a page's input (the attributes below are Hub's)."""
+
+    config: ConsoleConfig
+    rt: Any
+    ledger: Ledger
+    recent: collections.OrderedDict[tuple[str, int], float]
+    span: float
+    camera_pub: Any
+    actor_stopped: bool
+    pubs: dict[str, Any]
+    pub: Any
+
+    def _publisher(self, key: str) -> Any:
+        if key not in self.pubs:
+            self.pubs[key] = self.pub(key)
+        return self.pubs[key]
+
+    def shown(self, person: Person, m: dict) -> None:
+        t_action = self.recent.get((m["actor"], m["seq"]))
+        if m.get("resend"):  # painted before this console started: rebuilds the timeline only (logged then)
+            t_action = t_action if t_action is not None else m.get("t_action")
+            t_shown = m["t_sys"] if t_action is None else max(m["t_sys"], t_action)
+            added = person.timeline.add(m["actor"], m["seq"], t_shown)
+            self.rt.counters["shown_resent" if added else "shown_resent_known"] += 1
+            return
+        if t_action is None:
+            self.rt.counters["page_rejected_unknown_step"] += 1
+            return
+        if m["t_sys"] < t_action:  # painted before the action on the estimated clock: the estimate is off
+            self.rt.counters["shown_before_action"] += 1
+        t_shown = max(m["t_sys"], t_action)
+        if not person.timeline.add(m["actor"], m["seq"], t_shown):
+            self.rt.counters["page_rejected_out_of_order"] += 1
+            return
+        self._publisher(shown_key(self.config.run, person.teacher_id)).put(
+            Shown(
+                run=self.config.run,
+                screen=person.teacher_id,
+                actor=m["actor"],
+                seq=m["seq"],
+                t_action=t_action,
+                t_shown=t_shown,
+                t_page=max(0.0, m["t_page"]),
+                offset=person.offset,
+                rtt=min(60.0, person.rtt),
+            )
+        )
+        self.rt.samples["action_to_shown_s"].append(t_shown - t_action)
+
+    def feedback(self, person: Person, m: dict) -> dict:
+        """Publish a press (a re-sent one with the seq it had: the learner drops it if it was consumed, and its
+        duplicate Credit acknowledges it to the page)."""
+        seq, again = self.ledger.seq_for(person.teacher_id, person.page_id, m["press"])
+        actor, shown = person.timeline.window(m["t_sys"], self.span)
+        fb = Feedback(
+            run=self.config.run,
+            teacher_id=person.teacher_id,
+            seq=seq,
+            t_reaction=m["t_sys"],
+            value=m["value"],
+            source=m["source"],
+            t_page=max(0.0, m["t_page"]),
+            actor=actor,
+            shown=shown if actor is not None else None,
+        )
+        self._publisher(feedback_key(self.config.run, person.teacher_id)).put(fb)
+        self.rt.counters["feedback_resent" if again else "feedback_published_all"] += 1
+        return {
+            "type": "sent",
+            "seq": fb.seq,
+            "press": m["press"],
+            "value": fb.value,
+            "t_reaction": fb.t_reaction,
+            "steps_listed": len(shown),
+            "resent": again,
+        }
+
+    def press_dropped(self, person: Person, reason: str) -> None:
+        """A press the page gate refused (flood, absurd time, ...): counted for the person's summary."""
+        self.ledger.dropped(person.teacher_id, reason)

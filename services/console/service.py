@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import importlib
 import json
+import re
 import sys
 import threading
 import time
@@ -33,12 +34,14 @@ from services.common.runtime import ServiceRuntime, service_main
 from services.console.bridge import Hub
 from services.console.config import ConsoleConfig
 from services.console.door import Door, Keys, read_or_make_token, spent_file_for
-from services.console.people import PageError, PageGate, Person, check_name, check_page_id
+from services.console.people import PageError, PageGate, Person
 from services.console.sockets import SocketGuard
 
 STATIC = Path(__file__).resolve().parent / "static"
 SEND_QUEUE = 256  # messages waiting for a slow page before the oldest are dropped
 
+PAGE_ID = re.compile(r"^[A-Za-z0-9_-]{8,64}$")  # a page's own id (console.js: one per browser tab)
+PERSON_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$")  # ?name=: becomes the teacher id <prefix>-<name>
 LOOP_PASS = 0.25  # s between two passes of the console's own loop (status, announce, starting the actor)
 
 
@@ -59,6 +62,25 @@ class Page:
         while True:
             payload = await self.queue.get()
             await self.ws.send_str(json.dumps(payload))
+
+
+def check_name(name: str | None) -> str | None:
+    """`?name=` as given, if it is a safe ASCII name; raises PageError (with the rule) otherwise."""
+    if name is None or name == "":
+        return None
+    if not PERSON_NAME.match(name):
+        raise PageError(
+            "bad_name", "a name is 1-32 ASCII letters, digits, '_', '.' or '-', starting with a letter or digit"
+        )
+    return name
+
+
+def check_page_id(page_id: str | None) -> str | None:
+    if page_id is None or page_id == "":
+        return None
+    if not PAGE_ID.match(page_id):
+        raise PageError("bad_value", "page id")
+    return page_id
 
 
 def check_login(config: ConsoleConfig, request: web.Request) -> str | None:

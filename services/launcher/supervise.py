@@ -110,7 +110,7 @@ class Supervisor:
         from common.protocol import log_key
         from common.wire.transport import MessagePublisher
         from common.protocol import alive_key
-        from services.common.resend import ResendRing
+        from common.wire.delivery import ResendRing
         from services.common.watches import AliveWatch
 
         self.cfg, self.run = cfg, run
@@ -147,7 +147,7 @@ class Supervisor:
 
     def say(self, text: str, level: int = 3) -> None:
         from common.protocol import Log, Time
-        from services.common.resend import publish_kept
+        from common.wire.delivery import publish_kept
 
         print(f"\n[launcher] {text}", file=sys.stderr, flush=True)
         try:

@@ -43,9 +43,7 @@ from common.protocol import Feedback, IngestEntry, Step
 from common.core.delay_model import FixedDelay, LearnedDelay, delay_estimate, estimate_from_state
 from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
-from services.common.stepclock import StepClock
-from services.learner.credits import listed_steps
-from services.learner.screen import ScreenCredit, decode_feedback
+from services.learner.books import ScreenCredit, StepClock, decode_feedback, listed_steps
 from services.learner.teacher_delays import Profiles
 from services.learner.results import FeedbackResult, EpisodeRecord
 

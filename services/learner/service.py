@@ -44,18 +44,16 @@ from common.protocol import (
 )
 from services.common.config import LearnerConfig
 from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
-from services.common.resend import ResendRing, publish_kept
+from common.wire.delivery import ResendRing, publish_kept
 from services.common.watches import decoded_statuses
 from services.common.runtime import ServiceRuntime
 from services.learner import checkpoint
 from services.learner.checkpoint import CheckpointSchedule
 from services.learner.catchup import catch_up
-from services.learner.credits import credit_message, publish_credit
+from services.learner.books import Snapshots, credit_message, delay_message, publish_credit
 from services.learner.core import LearnerCore
 from services.learner.end_rule import EndRule
 from services.learner.results import PublishedWeights
-from services.learner.snapshots import Snapshots
-from services.learner.teacher_delays import delay_message
 
 REVISION_QUIET = 0.02  # s since the last step before weights changed without a new step go out on their own
 IDLE_AFTER = 0.05  # s without an input before the learner counts itself idle (idle updates, held weights go out)

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 from common.protocol import KEYS, episode_key, feedback_wildcard, ingest_key, step_key, weights_key
 from services.common.config import LearnerConfig
-from services.common.gate import InputGate
+from services.common.gate import IncarnationWatch, InputGate
 from services.common.runtime import ServiceRuntime, apply_torch_threads, service_main
-from services.common.watches import AliveWatch, IncarnationWatch
+from services.common.watches import AliveWatch
 from services.learner.core import LearnerCore
 from services.learner.service import Learner
 from services.learner import checkpoint

@@ -1,4 +1,5 @@
-"""Returning people's delay estimates (`--profiles DIR`), and the estimate a person's console is sent.
+"""Returning people's delay estimates (`--profiles DIR`); the estimate a person's console is sent is
+`services.learner.books.delay_message`.
 
 The agent keeps one delay model per teacher (`TeacherDelays`, read as `LearnerCore.delays`;
 `common.core.delay_model`). With `profiles DIR`, a named person (`web-alice`: the console's `?name=alice`)
@@ -22,10 +23,7 @@ import re
 import time
 from pathlib import Path
 
-import numpy as np
-
 from common.core.delay_model import LearnedDelay
-from common.protocol import DelayEstimate
 from services.common.statefiles import atomic_write_json
 
 NUMBERED = re.compile(r"^.+-\d+$")  # the console's anonymous people: web-1, web-2, ...
@@ -35,21 +33,6 @@ SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.:-]{0,63}")  # a protocol name (
 def profiled(teacher_id: str) -> bool:
     """True for a named person whose estimate is kept across sessions."""
     return not NUMBERED.match(teacher_id) and bool(SAFE_NAME.fullmatch(teacher_id))
-
-
-def delay_message(model, returning: bool = False) -> DelayEstimate:
-    """A model's current estimate as sent to the person's console (the density's bins and its quantiles)."""
-    edges, probs = model.density()
-    s = model.summary()
-    return DelayEstimate(
-        median_s=float(s["median_s"]),
-        p10_s=float(s["p10_s"]),
-        p90_s=float(s["p90_s"]),
-        feedbacks=int(s["feedbacks"]),
-        bin_s=float(edges[1] - edges[0]),
-        probs=[round(float(p), 5) for p in np.clip(probs, 0.0, 1.0)],
-        returning=returning,
-    )
 
 
 class Profiles:

@@ -26,7 +26,7 @@ from common.core.observer import FeedbackEvent, SimulatedObserver
 from common.protocol import Step
 from common.core.seeding import derive_seed
 from services.common.config import TeacherConfig
-from services.common.stepclock import StepClock
+from services.learner.books import StepClock
 from services.teacher.follow import StepFollower
 
 

@@ -24,9 +24,9 @@ from common.envs import make_env, n_actions, obs_shape
 from common.envs.rules import RuleError
 from common.protocol import Feedback, ProtocolError, Step, feedback_key, status_key, step_key
 from services.common.config import TeacherConfig
-from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
-from services.common.resend import ResendRing, publish_kept
-from services.common.watches import AliveWatch, IncarnationWatch, decoded_statuses
+from services.common.gate import DEDUP_REASON, IncarnationWatch, InputGate, first_time_logger
+from common.wire.delivery import ResendRing, publish_kept
+from services.common.watches import AliveWatch, decoded_statuses
 from services.common.progress import ProgressFile
 from services.common.runtime import ServiceRuntime, TerminalError, service_main
 from services.teacher.oracle import OracleTeacher

@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from services.console.ledger import Ledger
-from services.console.people import PageError, PageGate, Person, RateLimit, check_name, check_page_id
+from services.console.people import Ledger, PageError, PageGate, Person, RateLimit
+from services.console.service import check_name, check_page_id
 
 NOW = 1_800_000_000.0
 TOKEN = "t" * 32

@@ -209,7 +209,7 @@ def test_security_login_and_tls_and_loopback_only_without_it(tmp_path):
 def test_an_actor_started_paused_waits_for_a_resume_and_counts_the_wait():
     from collections import Counter
 
-    from common.wire.inbox import Inbox, Received
+    from common.wire.delivery import Inbox, Received
     from common.protocol import Control, control_key
     from services.actor.control import RunControl
 

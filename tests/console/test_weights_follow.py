@@ -13,11 +13,11 @@ from common.agents import make_agent
 from common.envs import make_env, n_actions, obs_shape
 from common.protocol import ServiceStatus, Weights, status_key, teacher_service_name, weights_key
 from common.wire.auth import make_run_credentials
-from common.wire.inbox import Inbox, Received
+from common.wire.delivery import Inbox, Received
 from common.wire.transport import open_session, peer_config
 from services.common.config import ActorConfig
 from services.common.runtime import ServiceRuntime
-from services.common.weights import WeightsFollower
+from services.common.gate import WeightsFollower
 from services.console.bridge import Hub
 from services.console.config import ConsoleConfig
 

@@ -31,7 +31,7 @@ from common.protocol import (
     Weights,
     WeightsSnapshot,
 )
-from common.protocol._containers import AnyJSON, Embedded, List, Map, Nullable, Obj
+from common.protocol._base import AnyJSON, Embedded, List, Map, Nullable, Obj
 from common.protocol._spec import Bool, Bytes64, Float, Int, Spec, Str
 
 TEXT = st.text(st.characters(exclude_categories=("Cs",)), max_size=20)

@@ -16,7 +16,7 @@ from common.protocol import Feedback, Step
 from common.core.seeding import derive_seed
 from common.core.task import Task
 from services.common.config import LearnerConfig, TeacherConfig
-from services.common.stepclock import StepClock
+from services.learner.books import StepClock
 from services.common.config import learner_config_from_record
 from services.learner.core import LearnerCore
 from services.teacher.oracle import OracleTeacher
@@ -131,7 +131,7 @@ def test_a_feedback_between_two_steps_moves_the_weights_revision():
     """The H update of a feedback credited between two steps moves the revision (the version stays: no new step),
     and the result says which revision first holds it; a feedback the agent ignores (DQN) moves nothing."""
     from common.protocol import ShownStep
-    from services.learner.credits import credit_message
+    from services.learner.books import credit_message
 
     core = LearnerCore(config())
     steps = make_steps(4, [100.0 + k for k in range(4)])
@@ -337,7 +337,7 @@ def test_actor_never_goes_back_to_an_older_version():
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
     from common.wire.transport import Inbox, Received
-    from services.common.weights import WeightsFollower
+    from services.common.gate import WeightsFollower
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
 

@@ -8,7 +8,7 @@ import collections
 from common.logs.scene import derived_records
 from common.protocol import Credit, CreditedStep, Feedback, Ingest
 from services.learner.core import FeedbackResult
-from services.learner.credits import MAX_LISTED_STEPS, credit_message
+from services.learner.books import MAX_LISTED_STEPS, credit_message
 
 RUN = "t"
 
@@ -74,7 +74,7 @@ def test_the_listed_steps_are_heaviest_of_the_known_ones_chosen_in_numpy():
     ties of equal weights (a uniform delay's) resolved to the newer, steps the learner no longer knows left out."""
     import numpy as np
 
-    from services.learner.credits import heaviest, listed_steps
+    from services.learner.books import heaviest, listed_steps
 
     rng = np.random.default_rng(3)
     for n in (0, 5, 128, 129, 1500):

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from common.protocol import Feedback, ServiceStatus, Step
 from services.common.config import LearnerConfig
 from services.common.gate import GATE_REASONS, InputGate
-from services.common.resend import ResendRing
+from common.wire.delivery import ResendRing
 from services.common.statefiles import atomic_write, atomic_write_json, read_json
 from services.common.progress import ProgressFile
 from services.learner import checkpoint
@@ -409,7 +409,7 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     from common.agents import TrialBatchAgent, agent_config
     from common.protocol import Weights, weights_key
     from common.wire.transport import Inbox, Received
-    from services.common.weights import WeightsFollower
+    from services.common.gate import WeightsFollower
     from services.common.config import ActorConfig
     from services.common.runtime import ServiceRuntime
 

@@ -14,7 +14,8 @@ import scipy.stats
 from common.core.delay_model import LearnedDelay, delay_estimate
 from common.protocol import Credit, DelayEstimate
 from services.common.config import LearnerConfig
-from services.learner.teacher_delays import Profiles, delay_message, profiled
+from services.learner.books import delay_message
+from services.learner.teacher_delays import Profiles, profiled
 
 
 def teach(model, lag: float = 1.4, n: int = 120, seed: int = 0) -> None:

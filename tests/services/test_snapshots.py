@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from common.protocol import Request, Weights, WeightsSnapshot
-from services.learner.snapshots import Snapshots
+from services.learner.books import Snapshots
 
 
 class Item:
@@ -43,7 +43,7 @@ def test_bounded_rate_and_what_each_snapshot_holds():
 
 
 def test_tensor_numbers_are_numpys_own_bit_for_bit():
-    from services.learner.snapshots import tensor_summaries
+    from services.learner.books import tensor_summaries
 
     rng = np.random.default_rng(7)
     for scale in (1e-3, 1.0, 1e3):

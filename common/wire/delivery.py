@@ -1,15 +1,29 @@
-"""The bounded queue between a zenoh callback subscriber and a service's own thread, and the process's
-authentication default (common/wire/auth.py) that every publisher and inbox uses."""
+"""What a service's code touches for each message it sends or receives: the `MessagePublisher` (encodes, which
+validates, signs, sends), the `ResendRing` that keeps what was sent for a restarted receiver (`publish_kept`), the
+bounded `Inbox` between a zenoh callback subscriber and the service's own thread (checks each sample's
+authentication, queues it, decodes it), and the process's authentication default (common/wire/auth.py) that every
+publisher and inbox uses. Sessions, routers and subscriber declarations: common/wire/transport.py.
+
+At-least-once delivery across a restarted receiver (docs/faults.md): Step, Feedback, Ingest and EpisodeSummary are
+published once, in order, on BLOCK keys; when a receiver that matters (learner, recorder) restarts, the publishers
+re-send what they published in the last `window` seconds, and every receiver drops what it already has
+(`duplicate`), so nobody double-counts.
+"""
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import threading
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
-from common.protocol import KEYS, ProtocolError, decode
+from common.protocol import KEYS, ProtocolError, decode, parse_key
+
+if TYPE_CHECKING:
+    import zenoh
 
 QUEUE_POLICIES = ("block", "drop_oldest")
 
@@ -203,3 +217,122 @@ def default_policy(key_expr: str) -> str:
     if len(parts) >= 3 and parts[2] in KEYS:
         return KEYS[parts[2]].queue_policy
     return "block"
+
+
+class Forward(Inbox):
+    """An Inbox that queues nothing: each authentic sample goes to ``deliver`` at once, on zenoh's thread (for a
+    consumer with its own event loop: ``deliver`` must not block, e.g. ``loop.call_soon_threadsafe``). The checks
+    and counters are the Inbox's (``received``, ``dropped_<auth reason>``, ``dropped_closed``)."""
+
+    def __init__(self, deliver: Callable[[Received], None], *, auth: Any = None):
+        super().__init__(1, "drop_oldest", auth=auth)
+        self.deliver = deliver
+
+    def put(self, item: Received) -> bool:
+        with self._cond:
+            self.counters["received"] += 1
+            if self._closed:
+                self.counters["dropped_closed"] += 1
+                return False
+        self.deliver(item)
+        return True
+
+
+# -- sending ----------------------------------------------------------------------------------------------------------
+
+
+class MessagePublisher:
+    """Publishes protocol messages on one key: encodes (which validates), signs (with ``auth``, default the
+    process's: :func:`set_default_auth`), counts, and closes cleanly.
+
+    ``put`` accepts a message object or already-encoded bytes."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        key: str,
+        *,
+        congestion: str | None = None,
+        express: bool = False,
+        auth: Any = None,
+    ):
+        self.key = key
+        self.message_type = parse_key(key).spec.message
+        from common.wire.transport import declare_publisher
+
+        self.publisher = declare_publisher(session, key, congestion=congestion, express=express)
+        self.auth = auth if auth is not None else default_auth()
+        self._lock = threading.Lock()  # counters go out in the order they were drawn
+        self.sent = 0
+
+    def put(self, message: Any) -> None:
+        if isinstance(message, (bytes, bytearray, memoryview)):
+            data = bytes(message)
+        else:
+            if not isinstance(message, self.message_type):
+                raise TypeError(f"{self.key} carries {self.message_type.__name__}, not {type(message).__name__}")
+            data = message.encode()
+        if self.auth is None:
+            self.publisher.put(data)
+        else:
+            with self._lock:
+                self.publisher.put(data, attachment=self.auth.sign(self.key, data))
+        self.sent += 1
+
+    def wait_for_subscribers(self, timeout: float = 5.0) -> bool:
+        from common.wire.transport import wait_for_matching
+
+        return wait_for_matching(self.publisher, timeout)
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.publisher.undeclare()
+
+    def __enter__(self) -> MessagePublisher:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+class ResendRing:
+    """What a publisher sent in the last `window` seconds (at most `max_items` messages), to publish again
+    when a receiver comes (back) alive. Bounded in both time and count."""
+
+    def __init__(self, window: float = 30.0, max_items: int = 20000):
+        self.window, self.max_items = float(window), int(max_items)
+        self._items: collections.deque[tuple[float, Any, bytes]] = collections.deque()
+        self.resent = 0
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def add(self, publisher: Any, data: bytes) -> None:
+        now = time.monotonic()
+        self._items.append((now, publisher, data))
+        self._trim(now)
+
+    def _trim(self, now: float) -> None:
+        while self._items and (len(self._items) > self.max_items or now - self._items[0][0] > self.window):
+            self._items.popleft()
+
+    def resend(self, last: int | None = None) -> int:
+        """Publish everything still in the window again (only the `last` newest if given), in the original order.
+        Returns how many."""
+        self._trim(time.monotonic())
+        items = list(self._items)
+        if last is not None:
+            items = items[len(items) - min(max(last, 0), len(items)) :]
+        for _, publisher, data in items:
+            publisher.put(data)
+        self.resent += len(items)
+        return len(items)
+
+
+def publish_kept(publisher: Any, message: Any, ring: ResendRing | None) -> bytes:
+    """Encode (validates), publish, and keep for re-sending."""
+    data = message.encode()
+    publisher.put(data)
+    if ring is not None:
+        ring.add(publisher, data)
+    return data
