@@ -35,6 +35,9 @@ class Attacker:
         self.session = zenoh.open(client_config(endpoint, connect_timeout=20))
         self.statuses: dict[str, object] = {}
         self.weights: list[tuple[bytes, bytes | None]] = []  # real payloads and their attachments
+        # what this session sent itself: zenoh also hands a session's own puts to its subscriber, and a forgery taken
+        # for the newest real Weights made the "replay" a second bad tag (seen under load)
+        self.own_payloads: set[bytes] = set()
         self.steps = 0
         self.last_step = None
         self.feedback = None
@@ -47,6 +50,8 @@ class Attacker:
 
         key, data = str(sample.key_expr), sample.payload.to_bytes()
         if key.endswith("/weights"):
+            if data in self.own_payloads:
+                return
             att = sample.attachment
             self.weights.append((data, None if att is None else att.to_bytes()))
             del self.weights[:-4]
@@ -72,6 +77,7 @@ class Attacker:
         """Sends `data` ROUNDS times, with `attachment`, or signed afresh just before each send by `sign`."""
         import zenoh
 
+        self.own_payloads.add(data)
         pub = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
         for _ in range(ROUNDS):
             pub.put(data, attachment=attachment if sign is None else sign(key, data))
