@@ -15,7 +15,7 @@ weights, shaping), so a batch may mix them. The order in which a driver calls th
 How it stays fast and batch-independent:
   * every per-trial quantity has a leading trial axis and every method works on a set of trial rows at
     once (the single-trial methods `record_step`, `give_feedback` wrap the row versions);
-  * random draws are counter-based (`streams`): exploration at step t of trial i and the u-th replay
+  * random draws are counter-based (`explorer.UniformBlocks`): exploration at step t of trial i and the u-th replay
     minibatch of trial i are pure functions of (trial key, t or u), never of other trials;
   * gradient steps run only on the trial rows that are due; with the numpy MLP (`networks.StackedMLP`) in
     float32 with a hand-written backward (no autograd graph, low per-call overhead), Q's and H's steps
@@ -38,11 +38,10 @@ from common.agents.feedback import (
     FeedbackDoor,  # noqa: F401
     FeedbackOutcome,  # noqa: F401
 )
-from common.agents.history import BatchCredit
+from common.agents.explorer import RowConstants, to_integers
+from common.agents.memory import BatchCredit
 from common.agents.mlp import row_max, with_ones
 from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, FitJob, fit_together
-from common.agents.streams import to_integers
-from common.core.util import RowConstants, nz
 
 # At most this many due rows run the Q and H minibatch steps as one stacked computation (above it,
 # copying the weights together costs more than the saved calls).
@@ -87,7 +86,7 @@ class TrialBatchAgent(FeedbackDoor):
         self.replay, self.feedback_memory, self.history = p.replay, p.feedback_memory, p.history
         self.explorer, self.mixture = p.explorer, p.mixture
         self.delays = p.delays
-        self.hot = p.hot  # observations kept and fed to Q and H as codes (`sparse.HotCodes`), or None: dense
+        self.hot = p.hot  # observations kept and fed to Q and H as codes (`mlp.HotCodes`), or None: dense
         # At most one held step per point mass of the assumed delay can be credited by one feedback.
         self.local_width = min(self.delays.width, base.history_steps)
         self.train_q = np.array([c.train_q for c in configs])
@@ -152,7 +151,7 @@ class TrialBatchAgent(FeedbackDoor):
 
     def act(self, obs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
         """Epsilon-greedy actions for the active trials (-1 for the others). obs: [B, obs_dim]."""
-        rows = np.arange(self.B) if active is None else nz(active)
+        rows = np.arange(self.B) if active is None else active.nonzero()[0]
         n = len(rows)
         if n == 0:
             return np.full(self.B, -1, dtype=np.int64)
@@ -253,8 +252,8 @@ class TrialBatchAgent(FeedbackDoor):
         due = started if c.update_interval == 1 else started & (self.steps % c.update_interval == 0)
         if active is not None:
             due = due & active
-        q_rows = nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
-        h_rows = nz(due & self.train_h & (self.feedback_memory.size > 0))
+        q_rows = (due & self.train_q & (self.replay.size >= max(c.replay_start, 1))).nonzero()[0]
+        h_rows = (due & self.train_h & (self.feedback_memory.size > 0)).nonzero()[0]
         jobs = ([self._q_job(q_rows)] if len(q_rows) else []) + ([self._h_job(h_rows)] if len(h_rows) else [])
         if len(q_rows) + len(h_rows) <= MERGE_ROWS:
             fit_together(jobs)
@@ -266,7 +265,7 @@ class TrialBatchAgent(FeedbackDoor):
         if len(h_rows):
             self.h_updates[h_rows] += 1
         sync = self.train_q & (self.steps % c.target_update_interval == 0) & started
-        sync = nz(sync if active is None else sync & active)
+        sync = (sync if active is None else sync & active).nonzero()[0]
         if len(sync):
             self.q_target.sync_from(self.q, sync)
 
@@ -274,8 +273,8 @@ class TrialBatchAgent(FeedbackDoor):
         """One more Q and D_global minibatch step between two steps (a paced run's idle time; the learner records
         it in its Ingest order so `replay retrain` repeats it). No target sync: that stays on the step count."""
         c = self.base
-        q_rows = nz(self.train_q & (self.steps > 0) & (self.replay.size >= max(c.replay_start, 1)))
-        h_rows = nz(self.train_h & (self.feedback_memory.size > 0))
+        q_rows = (self.train_q & (self.steps > 0) & (self.replay.size >= max(c.replay_start, 1))).nonzero()[0]
+        h_rows = (self.train_h & (self.feedback_memory.size > 0)).nonzero()[0]
         jobs = ([self._q_job(q_rows)] if len(q_rows) else []) + ([self._h_job(h_rows)] if len(h_rows) else [])
         if jobs:
             fit_together(jobs)

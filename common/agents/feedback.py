@@ -21,12 +21,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from common.agents.history import BatchCredit, BatchStepHistory
+from common.agents.memory import BatchCredit, BatchStepHistory, FeedbackMemory, TransitionReplay
 from common.agents.networks import SQUARED_SUM, FitJob, ValueNetworks
-from common.agents.replay import FeedbackMemory, TransitionReplay
 from common.core.delay_learning import DEFAULT_TEACHER, TeacherDelays
 from common.core.delay_model import polarity_likelihood
-from common.core.util import nz
 
 # Status codes of `feedback_rounds` (the strings of FeedbackOutcome.status, in this order).
 IGNORED, CREDITED, STALE = 0, 1, 2
@@ -136,10 +134,10 @@ class FeedbackDoor:
         timed = self.delays.timed(rows, teachers, screens)
         shaping = self.shaping[rows] & ~timed
         if np.count_nonzero(shaping):
-            self._shape(rows, t_feedback, values, counts, nz(shaping), status, steps, lost)
+            self._shape(rows, t_feedback, values, counts, shaping.nonzero()[0], status, steps, lost)
         if np.count_nonzero(timed):
             stamps = t_feedback if seconds is None else seconds
-            for k in nz(timed):
+            for k in timed.nonzero()[0]:
                 teacher = DEFAULT_TEACHER if teachers is None else teachers[k]
                 screen = None if screens is None else screens[k]
                 status[k], steps[k], lost[k] = self._credit_timed(
@@ -147,7 +145,7 @@ class FeedbackDoor:
                 )
         learn = self.train_h[rows] & ~self.shaping[rows] & ~timed
         if np.count_nonzero(learn):
-            self._credit_h(rows, t_feedback, values, counts, nz(learn), status, steps, lost)
+            self._credit_h(rows, t_feedback, values, counts, learn.nonzero()[0], status, steps, lost)
         return status, steps, lost
 
     def credited(self, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -262,7 +260,7 @@ class FeedbackDoor:
         obs = self.history.obs[r[:, None], pos]
         act = self.history.action[r[:, None], pos]
         for rnd in range(values.shape[1]):
-            g = nz(counts[k] > rnd)
+            g = (counts[k] > rnd).nonzero()[0]
             if not len(g):
                 break
             fb = np.repeat(values[k[g], rnd].astype(np.float32)[:, None], pos.shape[1], axis=1)
