@@ -3,7 +3,7 @@
 Virtual time: trial i's k-th action is taken at t = k (one unit per step), which is k * `step_seconds` seconds
 (0.5 s: 2 steps/s), the clock of a delay learned in seconds. The observer's reactions land between steps (see
 `common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in
-`common.core.steploop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
+`common.agents.agent.StepLoop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
 action, act, step the env, record the step and run the every-b-steps updates; the observer watches the step and
 its reaction is delivered on the tick after it lands.
 
@@ -26,12 +26,11 @@ import torch
 from threadpoolctl import threadpool_limits
 
 from common.agents import AgentConfig, TrialBatchAgent, make_agent
-from common.agents.agent import CREDITED, STALE
+from common.agents.agent import CREDITED, STALE, StepLoop
 from common.envs import make_env, obs_shape
 from common.core.delay_model import FixedDelay
 from common.core.observer import MAX_REACTION_S, REACTION_OFFSET, ObserverBatch
 from common.core.seeding import derive_seed
-from common.core.steploop import StepLoop
 from experiments.envbatch import LoopEnvs, TableEnvs
 from experiments.trial_types import TrialSpec, TrialResult
 

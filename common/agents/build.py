@@ -14,10 +14,10 @@ import numpy as np
 
 from common.agents.config import AgentConfig
 from common.agents.explorer import EpsilonGreedy, Mixture, UniformBlocks
+from common.agents.feedback import TeacherDelays
 from common.agents.memory import BatchStepHistory, FeedbackMemory, TransitionReplay
 from common.agents.mlp import HotCodes, takes_rows
 from common.agents.networks import FlatRMSProp, StackedMLP, ValueNetworks
-from common.core.delay_learning import TeacherDelays
 from common.core.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.

@@ -18,6 +18,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from common.agents.mlp import HotCodes, with_ones
+from common.agents.networks import ValueNetworks
+
 _GAMMA = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -227,3 +230,91 @@ class EpsilonGreedy:
             setattr(self, name, getattr(self, name)[rows])
         self._u.select(rows)
         self._constants.clear()
+
+
+class Acting:
+    """The acting methods of `TrialBatchAgent` (it inherits them, as it does `FeedbackDoor`): epsilon-greedy on
+    alpha_q Q + alpha_h H, with the parts the agent holds."""
+
+    # What the agent gives them (`TrialBatchAgent.__init__`).
+    q: ValueNetworks
+    h: ValueNetworks
+    explorer: EpsilonGreedy
+    mixture: Mixture
+    hot: HotCodes | None
+    obs_dim: int
+    steps: np.ndarray
+    greedy_count: np.ndarray
+    h_decided_count: np.ndarray
+    _learns_both: RowConstants
+
+    @property
+    def B(self) -> int:
+        return len(self.steps)
+
+    def _all(self, rows: np.ndarray | None) -> np.ndarray:
+        return np.arange(self.B) if rows is None else rows
+
+    def _kept(self, obs: np.ndarray) -> np.ndarray:
+        """Observations [..., obs_dim] as the agent keeps them and feeds them to Q and H (codes where `hot`)."""
+        return obs if self.hot is None else self.hot.encode(obs)
+
+    def epsilons(self, rows: np.ndarray | None = None) -> np.ndarray:
+        rows = self._all(rows)
+        return self.explorer.epsilons(rows, self.steps[rows])
+
+    def alpha_h(self, rows: np.ndarray | None = None) -> np.ndarray:
+        rows = self._all(rows)
+        return self.mixture.alpha_h(rows, self.steps[rows])
+
+    def _scores(self, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
+        """alpha_q Q + alpha_h H for trials `rows`, one observation each (obs: [len(rows), obs_dim])."""
+        x = self._kept(np.asarray(obs, np.float32).reshape(len(rows), 1, self.obs_dim))
+        aq, ah = self.mixture.weights(rows, self.steps[rows])
+        return (aq * self.q.values(rows, x) + ah * self.h.values(rows, x))[:, 0, :]
+
+    def greedy_action(self, i: int, obs: np.ndarray) -> int:
+        """Trial i's greedy action for one observation, touching no random stream (for evaluation)."""
+        return int(self._scores(np.array([i]), np.asarray(obs, np.float32).reshape(1, -1))[0].argmax())
+
+    def preferences(self, i: int, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Trial i's Q and H per action for one observation, with alpha_q and alpha_h now (what the console
+        shows a person)."""
+        x = self._kept(np.asarray(obs, np.float32).reshape(1, 1, self.obs_dim))
+        r = np.array([i])
+        q, h = self.q.values(r, x)[0, 0], self.h.values(r, x)[0, 0]
+        return q.copy(), h.copy(), float(self.mixture.alpha_q[i]), float(self.alpha_h(r)[0])
+
+    def act(self, obs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
+        """Epsilon-greedy actions for the active trials (-1 for the others). obs: [B, obs_dim]."""
+        rows = np.arange(self.B) if active is None else active.nonzero()[0]
+        n = len(rows)
+        if n == 0:
+            return np.full(self.B, -1, dtype=np.int64)
+        sel = slice(None) if n == self.B else rows  # every row (the usual case): views, not gathers
+        obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
+        x = obs[sel].reshape(n, 1, self.obs_dim)
+        steps = self.steps[sel]
+        aq, ah = self.mixture.weights(rows, steps)
+        both, compare = self._learns_both(rows)
+        # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
+        # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
+        x1 = with_ones(x) if self.hot is None else None  # (made once for both networks)
+        if self.hot is not None:
+            x = self.hot.encode(x)
+        q = self.q.values(rows, x, x1) if compare or np.count_nonzero(aq) or not np.count_nonzero(ah) else None
+        h = self.h.values(rows, x, x1) if compare or np.count_nonzero(ah) else None
+        scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
+        greedy = scores[:, 0, :].argmax(axis=1)
+        if compare and q is not None and h is not None:  # (both are computed when their choices are compared)
+            q_best = q[:, 0, :].argmax(axis=1)
+            self.greedy_count[sel] += both
+            self.h_decided_count[sel] += both & (greedy != q_best)
+            if self.mixture.adapting:  # (H's own argmax is needed only then)
+                self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1), steps)
+        chosen = self.explorer.choose(rows, steps, greedy)
+        if n == self.B:
+            return chosen
+        actions = np.full(self.B, -1, dtype=np.int64)
+        actions[rows] = chosen
+        return actions
