@@ -1,5 +1,6 @@
-"""How the agent chooses: the mixture argmax(alpha_q Q + alpha_h H), epsilon-greedy exploration, and the
-counter-based random numbers behind its draws (exploration's here, and the replay minibatches' in `agent`).
+"""How the agent chooses: the mixture argmax(alpha_q Q + alpha_h H), epsilon-greedy exploration, the agent's acting
+methods (`Acting`, which `TrialBatchAgent` inherits), and the counter-based random numbers behind its draws
+(exploration's here, and the replay minibatches' in `agent`).
 
 Mixture and exploration are functions of each trial's step count (not running products), so the actor and the
 learner, and a restarted process, agree on their value at any step without sharing state. Step t of trial i
