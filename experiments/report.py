@@ -141,7 +141,7 @@ def lag_lines(result: dict) -> list[str]:
         "",
         "The learner's candidate lags are 0..6 steps; `uniform` assumes them equally likely, `true` uses the "
         "observer's distribution (a drifting observer: its average), `learned` starts uniform and follows "
-        "online EM (`common/core/delay_learning.py`). Honest layouts only, high frequency.",
+        "online EM (`common/core/delay_model.py`). Honest layouts only, high frequency.",
         "",
         "| condition | true mean lag (start -> end) | learned mean lag at the end |",
         "|---|---|---|",

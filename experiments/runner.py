@@ -3,7 +3,7 @@
 Virtual time: trial i's k-th action is taken at t = k (one unit per step), which is k * `step_seconds` seconds
 (0.5 s: 2 steps/s), the clock of a delay learned in seconds. The observer's reactions land between steps (see
 `common.core.observer.REACTION_OFFSET`), or after a delay in seconds (`ObserverConfig.delay_s`). Per tick, in
-`common.core.steploop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
+`common.agents.agent.StepLoop`'s order (Algorithm 2 of the paper): credit the feedback that arrived since the previous
 action, act, step the env, record the step and run the every-b-steps updates; the observer watches the step and
 its reaction is delivered on the tick after it lands.
 
@@ -26,13 +26,11 @@ import torch
 from threadpoolctl import threadpool_limits
 
 from common.agents import AgentConfig, TrialBatchAgent, make_agent
-from common.agents.agent import CREDITED, STALE
+from common.agents.agent import CREDITED, STALE, StepLoop
 from common.envs import make_env, obs_shape
 from common.core.delay_model import FixedDelay
 from common.core.observer import MAX_REACTION_S, REACTION_OFFSET, ObserverBatch
 from common.core.seeding import derive_seed
-from common.core.steploop import StepLoop
-from common.core.util import nz
 from experiments.envbatch import LoopEnvs, TableEnvs
 from experiments.trial_types import TrialSpec, TrialResult
 
@@ -171,7 +169,7 @@ class _Batch:
         st["inbox"][rows, slot] = 0
         has = due != 0
         counts = has.sum(axis=1)
-        k = nz(counts > 0)
+        k = (counts > 0).nonzero()[0]
         if self.observers.in_seconds:
             self.deliver_stamped(rows[k], due[k], st["inbox_t"][rows[k], slot[k]], counts[k])
             return
@@ -196,7 +194,7 @@ class _Batch:
         stamps = np.take_along_axis(stamps, order, axis=1)
         values = np.take_along_axis(due, order, axis=1)
         for rnd in range(int(counts.max())):
-            g = nz(counts > rnd)
+            g = (counts > rnd).nonzero()[0]
             if self.on_input is not None:
                 for row, t, v in zip(rk[g], stamps[g, rnd], values[g, rnd]):
                     self.on_input(int(st["orig"][row]), "feedback", {"t": float(t), "value": int(v)})
@@ -213,7 +211,7 @@ class _Batch:
     def tick(self) -> np.ndarray:
         """One step of every running trial; returns the rows whose episode ended."""
         st, agent = self.st, self.agent
-        rows = nz(st["active"])
+        rows = st["active"].nonzero()[0]
         sel = slice(None) if len(rows) == len(st["active"]) else rows  # every row (the usual case): views
         step = agent.steps[sel].copy()  # this action's virtual time, in steps
         self.deliver(rows, step)
@@ -231,7 +229,7 @@ class _Batch:
         if self.observers.in_seconds:
             self.post_timed(rows, sel, t, give, value, lag)
         else:
-            g = nz(give)
+            g = give.nonzero()[0]
             st["inbox"][rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g]] = value[g]
         if self.record_actions:
             for i, act in zip(st["orig"][rows], a):
@@ -249,7 +247,7 @@ class _Batch:
         timed = np.isfinite(delay)
         stamp = np.where(timed, t + np.where(timed, delay, 0.0), stamp)
         lag = np.where(timed, np.floor(stamp - t).astype(np.int64), lag)
-        g, step = nz(give), t.astype(np.int64)
+        g, step = give.nonzero()[0], t.astype(np.int64)
         at = (rows[g], (step[g] + lag[g]) % self.R, self.R - 1 - lag[g])
         st["inbox"][at], st["inbox_t"][at] = value[g], stamp[g]
 
@@ -313,7 +311,7 @@ class _Batch:
                 st["obs"][row] = self.world.reset(int(row))
         # Drop finished trials once they are an eighth of the batch (or the batch is small).
         if self.finished_rows and self.finished_rows >= max(1, len(st["orig"]) // 8) and st["active"].any():
-            keep = nz(st["active"])
+            keep = st["active"].nonzero()[0]
             for part in (self.agent, self.world, self.observers):
                 part.select(keep)
             self.st = {k: v[keep] for k, v in st.items()}

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 import common.pathtrace as pathtrace
-from common.core.util import RowConstants, nz
+from common.agents.explorer import RowConstants, to_integers
 from common.pathtrace import ENV, files_of, read_traces, traced
 
 
 def uses_the_core(mask):
+    """mask's true entries' indices, through the project's own functions."""
+    rows = mask.nonzero()[0]
     if not mask.any():  # another branch: other functions run
-        RowConstants(lambda rows: (rows,))(mask.nonzero()[0])
-    return nz(mask)
+        RowConstants(lambda rows: (rows,))(rows)
+    return rows + to_integers(np.zeros(len(rows)), rows + 1)  # (draws of 0: adds zeros)
 
 
 def test_off_the_mark_is_the_function_itself(monkeypatch):
@@ -20,8 +24,6 @@ def test_off_the_mark_is_the_function_itself(monkeypatch):
 
 
 def test_on_each_call_lists_the_project_files_it_ran(tmp_path, monkeypatch):
-    import numpy as np
-
     monkeypatch.setenv(ENV, str(tmp_path))
     monkeypatch.setattr(pathtrace, "_log", None)
     monkeypatch.setattr(pathtrace, "MAX_CALLS", 2)
@@ -32,8 +34,8 @@ def test_on_each_call_lists_the_project_files_it_ran(tmp_path, monkeypatch):
     outer(np.array([True]))
     calls = read_traces(tmp_path)
     assert [(c["label"], c["call"]) for c in calls] == [("unit", 0), ("unit", 2), ("outer", 0)]  # (a repeat: unwritten)
-    assert files_of(calls[2]["functions"]) == {"common/core/util.py"}
+    assert files_of(calls[2]["functions"]) == {"common/agents/explorer.py"}
     # numpy's own files and this test file ran too, and are not the project's; the marks' wrapper is not listed
-    assert files_of(calls[0]["functions"]) == {"common/core/util.py"}
-    assert calls[0]["functions"] == ["common/core/util.py:nz"]
-    assert "common/core/util.py:RowConstants.__call__" in calls[1]["functions"]
+    assert files_of(calls[0]["functions"]) == {"common/agents/explorer.py"}
+    assert calls[0]["functions"] == ["common/agents/explorer.py:to_integers"]
+    assert "common/agents/explorer.py:RowConstants.__call__" in calls[1]["functions"]

@@ -7,15 +7,27 @@ The parts (`AgentParts`, built by `build_parts` from the configs, or passed in),
   feedback_memory  `FeedbackMemory`: D_global, every credited (step, feedback, weight);
   history          `BatchStepHistory`: the recent steps that credit (`common.core.credit`) weighs;
   feedback         `FeedbackDoor` (`feedback.py`, inherited): the one way feedback comes in;
-  explorer, mixture  epsilon-greedy on alpha_q Q + alpha_h H (`explorer`).
+  explorer, mixture  epsilon-greedy on alpha_q Q + alpha_h H (`explorer.py`; its acting methods, `Acting`,
+                   inherited).
 The four algorithms are ways of assembling them (`AgentConfig` presets: which parts learn, the mixture
-weights, shaping), so a batch may mix them. The order in which a driver calls the agent is
-`common.core.steploop`'s.
+weights, shaping), so a batch may mix them.
+
+One step of Algorithm 2 of the paper (`StepLoop`), written once for every driver: the in-process runner
+(batched, on the virtual clock), the live learner (one trial, from Zenoh inputs) and `replay retrain` (from a
+log). For each step of each trial, in this order: 1. `credit`: the feedback that arrived before this step's
+action, through the agent's one door (`feedback_rounds`: by timestamp over the intervals the held steps were
+shown, whatever their episode, with its teacher's delay from the agent's registry); 2. `step`: the step's
+transition is recorded (replay, the step history that credit reads); 3. the every-b-steps updates (a Q minibatch
+from replay, an H minibatch from D_global), then the target network's sync when due. The live learner cannot
+know of a feedback before the next step's action has arrived (its stamp must be placed between two actions), so
+this is the order in which every driver can see its inputs; given the same ordered inputs they end with the same
+weights (tests/experiments/test_one_loop.py). Acting is not part of it: it changes no learning state (exploration
+draws are counter-based).
 
 How it stays fast and batch-independent:
   * every per-trial quantity has a leading trial axis and every method works on a set of trial rows at
     once (the single-trial methods `record_step`, `give_feedback` wrap the row versions);
-  * random draws are counter-based (`streams`): exploration at step t of trial i and the u-th replay
+  * random draws are counter-based (`explorer.UniformBlocks`): exploration at step t of trial i and the u-th replay
     minibatch of trial i are pure functions of (trial key, t or u), never of other trials;
   * gradient steps run only on the trial rows that are due; with the numpy MLP (`networks.StackedMLP`) in
     float32 with a hand-written backward (no autograd graph, low per-call overhead), Q's and H's steps
@@ -26,11 +38,14 @@ A trial run alone (B = 1) and the same trial run among others give the same acti
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from common.agents.build import SHARED_FIELDS, AgentParts, build_parts
 from common.agents.config import AgentConfig
 from common.agents.feedback import (
+    Screen,
     CREDITED,  # noqa: F401
     IGNORED,  # noqa: F401
     STALE,  # noqa: F401
@@ -38,18 +53,17 @@ from common.agents.feedback import (
     FeedbackDoor,  # noqa: F401
     FeedbackOutcome,  # noqa: F401
 )
-from common.agents.history import BatchCredit
-from common.agents.mlp import row_max, with_ones
+from common.agents.explorer import Acting, RowConstants, to_integers
+from common.agents.memory import BatchCredit
+from common.agents.mlp import row_max
 from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, FitJob, fit_together
-from common.agents.streams import to_integers
-from common.core.util import RowConstants, nz
 
 # At most this many due rows run the Q and H minibatch steps as one stacked computation (above it,
 # copying the weights together costs more than the saved calls).
 MERGE_ROWS = 16
 
 
-class TrialBatchAgent(FeedbackDoor):
+class TrialBatchAgent(Acting, FeedbackDoor):
     # Per-trial arrays that `select` slices (the parts slice their own).
     _ROW_ARRAYS = (
         "train_q",
@@ -87,7 +101,7 @@ class TrialBatchAgent(FeedbackDoor):
         self.replay, self.feedback_memory, self.history = p.replay, p.feedback_memory, p.history
         self.explorer, self.mixture = p.explorer, p.mixture
         self.delays = p.delays
-        self.hot = p.hot  # observations kept and fed to Q and H as codes (`sparse.HotCodes`), or None: dense
+        self.hot = p.hot  # observations kept and fed to Q and H as codes (`mlp.HotCodes`), or None: dense
         # At most one held step per point mass of the assumed delay can be credited by one feedback.
         self.local_width = min(self.delays.width, base.history_steps)
         self.train_q = np.array([c.train_q for c in configs])
@@ -111,78 +125,6 @@ class TrialBatchAgent(FeedbackDoor):
                 bool((self.train_q[rows] & self.train_h[rows]).any()),
             )
         )
-
-    @property
-    def B(self) -> int:
-        return len(self.steps)
-
-    def _all(self, rows: np.ndarray | None) -> np.ndarray:
-        return np.arange(self.B) if rows is None else rows
-
-    def _kept(self, obs: np.ndarray) -> np.ndarray:
-        """Observations [..., obs_dim] as the agent keeps them and feeds them to Q and H (codes where `hot`)."""
-        return obs if self.hot is None else self.hot.encode(obs)
-
-    # ----------------------------------------------------------------------------------- acting
-    def epsilons(self, rows: np.ndarray | None = None) -> np.ndarray:
-        rows = self._all(rows)
-        return self.explorer.epsilons(rows, self.steps[rows])
-
-    def alpha_h(self, rows: np.ndarray | None = None) -> np.ndarray:
-        rows = self._all(rows)
-        return self.mixture.alpha_h(rows, self.steps[rows])
-
-    def _scores(self, rows: np.ndarray, obs: np.ndarray) -> np.ndarray:
-        """alpha_q Q + alpha_h H for trials `rows`, one observation each (obs: [len(rows), obs_dim])."""
-        x = self._kept(np.asarray(obs, np.float32).reshape(len(rows), 1, self.obs_dim))
-        aq, ah = self.mixture.weights(rows, self.steps[rows])
-        return (aq * self.q.values(rows, x) + ah * self.h.values(rows, x))[:, 0, :]
-
-    def greedy_action(self, i: int, obs: np.ndarray) -> int:
-        """Trial i's greedy action for one observation, touching no random stream (for evaluation)."""
-        return int(self._scores(np.array([i]), np.asarray(obs, np.float32).reshape(1, -1))[0].argmax())
-
-    def preferences(self, i: int, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """Trial i's Q and H per action for one observation, with alpha_q and alpha_h now (what the console
-        shows a person)."""
-        x = self._kept(np.asarray(obs, np.float32).reshape(1, 1, self.obs_dim))
-        r = np.array([i])
-        q, h = self.q.values(r, x)[0, 0], self.h.values(r, x)[0, 0]
-        return q.copy(), h.copy(), float(self.mixture.alpha_q[i]), float(self.alpha_h(r)[0])
-
-    def act(self, obs: np.ndarray, active: np.ndarray | None = None) -> np.ndarray:
-        """Epsilon-greedy actions for the active trials (-1 for the others). obs: [B, obs_dim]."""
-        rows = np.arange(self.B) if active is None else nz(active)
-        n = len(rows)
-        if n == 0:
-            return np.full(self.B, -1, dtype=np.int64)
-        sel = slice(None) if n == self.B else rows  # every row (the usual case): views, not gathers
-        obs = np.asarray(obs, np.float32).reshape(self.B, self.obs_dim)
-        x = obs[sel].reshape(n, 1, self.obs_dim)
-        steps = self.steps[sel]
-        aq, ah = self.mixture.weights(rows, steps)
-        both, compare = self._learns_both(rows)
-        # A network weighed 0 in every row would add exactly +-0 to every score (the same argmax): its forward
-        # pass is skipped (DQN, DQN+RS, Deep TAMER alone) unless Q's and H's choices are compared below.
-        x1 = with_ones(x) if self.hot is None else None  # (made once for both networks)
-        if self.hot is not None:
-            x = self.hot.encode(x)
-        q = self.q.values(rows, x, x1) if compare or np.count_nonzero(aq) or not np.count_nonzero(ah) else None
-        h = self.h.values(rows, x, x1) if compare or np.count_nonzero(ah) else None
-        scores = aq * q if h is None else ah * h if q is None else aq * q + ah * h
-        greedy = scores[:, 0, :].argmax(axis=1)
-        if compare and q is not None and h is not None:  # (both are computed when their choices are compared)
-            q_best = q[:, 0, :].argmax(axis=1)
-            self.greedy_count[sel] += both
-            self.h_decided_count[sel] += both & (greedy != q_best)
-            if self.mixture.adapting:  # (H's own argmax is needed only then)
-                self.mixture.observe(rows, q_best == h[:, 0, :].argmax(axis=1), steps)
-        chosen = self.explorer.choose(rows, steps, greedy)
-        if n == self.B:
-            return chosen
-        actions = np.full(self.B, -1, dtype=np.int64)
-        actions[rows] = chosen
-        return actions
 
     # ---------------------------------------------------------------------------------- observing
     def record_steps(
@@ -253,8 +195,8 @@ class TrialBatchAgent(FeedbackDoor):
         due = started if c.update_interval == 1 else started & (self.steps % c.update_interval == 0)
         if active is not None:
             due = due & active
-        q_rows = nz(due & self.train_q & (self.replay.size >= max(c.replay_start, 1)))
-        h_rows = nz(due & self.train_h & (self.feedback_memory.size > 0))
+        q_rows = (due & self.train_q & (self.replay.size >= max(c.replay_start, 1))).nonzero()[0]
+        h_rows = (due & self.train_h & (self.feedback_memory.size > 0)).nonzero()[0]
         jobs = ([self._q_job(q_rows)] if len(q_rows) else []) + ([self._h_job(h_rows)] if len(h_rows) else [])
         if len(q_rows) + len(h_rows) <= MERGE_ROWS:
             fit_together(jobs)
@@ -266,7 +208,7 @@ class TrialBatchAgent(FeedbackDoor):
         if len(h_rows):
             self.h_updates[h_rows] += 1
         sync = self.train_q & (self.steps % c.target_update_interval == 0) & started
-        sync = nz(sync if active is None else sync & active)
+        sync = (sync if active is None else sync & active).nonzero()[0]
         if len(sync):
             self.q_target.sync_from(self.q, sync)
 
@@ -274,8 +216,8 @@ class TrialBatchAgent(FeedbackDoor):
         """One more Q and D_global minibatch step between two steps (a paced run's idle time; the learner records
         it in its Ingest order so `replay retrain` repeats it). No target sync: that stays on the step count."""
         c = self.base
-        q_rows = nz(self.train_q & (self.steps > 0) & (self.replay.size >= max(c.replay_start, 1)))
-        h_rows = nz(self.train_h & (self.feedback_memory.size > 0))
+        q_rows = (self.train_q & (self.steps > 0) & (self.replay.size >= max(c.replay_start, 1))).nonzero()[0]
+        h_rows = (self.train_h & (self.feedback_memory.size > 0)).nonzero()[0]
         jobs = ([self._q_job(q_rows)] if len(q_rows) else []) + ([self._h_job(h_rows)] if len(h_rows) else [])
         if jobs:
             fit_together(jobs)
@@ -356,3 +298,75 @@ class TrialBatchAgent(FeedbackDoor):
     def load_policy_weights(self, weights: dict, i: int = 0) -> None:
         self.q.load_policy_state(i, {k[2:]: v for k, v in weights.items() if k.startswith("q.")})
         self.h.load_policy_state(i, {k[2:]: v for k, v in weights.items() if k.startswith("h.")})
+
+
+@dataclass
+class FeedbackRound:
+    """Per trial asked about: status code (`agent.STATUS_NAMES`), steps credited, mass lost."""
+
+    status: np.ndarray
+    steps: np.ndarray
+    lost: np.ndarray
+
+
+class StepLoop:
+    """One step of Algorithm 2, as every driver calls it (the module's doc): `credit` what arrived before the step's
+    action, then `step` (record it, then the every-b-steps updates)."""
+
+    def __init__(self, agent: TrialBatchAgent):
+        self.agent = agent
+
+    def credit(
+        self,
+        rows: np.ndarray,
+        t_feedback: np.ndarray,
+        values: np.ndarray,
+        counts: np.ndarray | None = None,
+        seconds: np.ndarray | None = None,
+        teachers: list[str] | None = None,
+        screens: list[Screen | None] | None = None,
+    ) -> FeedbackRound:
+        """Feedback that arrived before the next action: values[k, r] (+-1) for trial rows[k], stamped
+        t_feedback[k] on the step clock (`seconds[k]` on the teacher's clock, for a delay in seconds), for
+        r < counts[k] (rounds in arrival order; values may be 1-d for one round each), from `teachers[k]` (default:
+        the trial's one teacher), seen on `screens[k]` (a person's; None: none)."""
+        values = np.asarray(values, np.int64)
+        if values.ndim == 1:
+            values = values[:, None]
+        if counts is None:
+            counts = np.ones(len(rows), np.int64)
+        return FeedbackRound(
+            *self.agent.feedback_rounds(
+                np.asarray(rows, np.int64),
+                np.asarray(t_feedback, np.float64),
+                values,
+                counts,
+                None if seconds is None else np.asarray(seconds, np.float64),
+                teachers,
+                screens,
+            )
+        )
+
+    def step(
+        self,
+        rows: np.ndarray,
+        obs,
+        actions,
+        rewards,
+        next_obs,
+        terminated,
+        t_action,
+        episodes,
+        seconds=None,
+        polarity=None,
+    ) -> None:
+        """Trials `rows` (distinct) took a step at t_action (`seconds` on the teacher's clock; the task rule says
+        `polarity` of it): record it, then the every-b-steps updates."""
+        agent = self.agent
+        agent.record_steps(rows, obs, actions, rewards, next_obs, terminated, t_action, episodes, seconds, polarity)
+        if len(rows) == agent.B:
+            agent.update()
+        else:
+            active = np.zeros(agent.B, bool)
+            active[rows] = True
+            agent.update(active)

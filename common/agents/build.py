@@ -13,14 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from common.agents.config import AgentConfig
-from common.agents.explorer import EpsilonGreedy, Mixture
-from common.agents.history import BatchStepHistory
-from common.agents.networks import StackedMLP, ValueNetworks
-from common.agents.optim import FlatRMSProp
-from common.agents.replay import FeedbackMemory, TransitionReplay
-from common.agents.sparse import HotCodes, takes_rows
-from common.agents.streams import UniformBlocks
-from common.core.delay_learning import TeacherDelays
+from common.agents.explorer import EpsilonGreedy, Mixture, UniformBlocks
+from common.agents.feedback import TeacherDelays
+from common.agents.memory import BatchStepHistory, FeedbackMemory, TransitionReplay
+from common.agents.mlp import HotCodes, takes_rows
+from common.agents.networks import FlatRMSProp, StackedMLP, ValueNetworks
 from common.core.seeding import derive_seed
 
 # Structural settings must agree across a batch; the rest may differ per trial.
@@ -98,7 +95,7 @@ def mlp(
 
 def hot_codes(obs_dim: int, hot_inputs: int | None, hidden: int) -> HotCodes | None:
     """Codes for observations of `obs_dim` inputs with exactly `hot_inputs` ones (None: not known), where the
-    numpy MLP takes its first layer as rows (`sparse.takes_rows`): else None (dense)."""
+    numpy MLP takes its first layer as rows (`mlp.takes_rows`): else None (dense)."""
     if not hot_inputs or not takes_rows(np.empty((0, obs_dim + 1, hidden))):
         return None
     return HotCodes(obs_dim, hot_inputs)

@@ -1,9 +1,9 @@
 """Delay distributions: the observer's true lag and the learner's assumption about it.
 
 A `DelayModel` is a discrete distribution over lags of i * unit (i = 0, 1, ...): the paper's step-counted
-model (unit one step on the step clock). `delay_from_spec` also builds continuous ones from scipy.stats
-(seconds on a person's screen: Deep TAMER's uniform 0.2-4 s is `uniform:0.2,4`). The credit function
-(`common.core.credit`) needs only a distribution's CDF, so either kind serves.
+model (unit one step on the step clock); `RowDelays` is one per trial of a batch. `delay_from_spec` also builds
+continuous ones from scipy.stats (seconds on a person's screen: Deep TAMER's uniform 0.2-4 s is `uniform:0.2,4`).
+The credit function (`common.core.credit`) needs only a distribution's CDF, so either kind serves.
 """
 
 from __future__ import annotations
@@ -66,6 +66,28 @@ class DelayModel:
 
     def cdf(self, x):
         """P(lag <= x), elementwise."""
+        return self.mass_between(np.full(np.shape(x), -np.inf), x)
+
+
+class RowDelays:
+    """A point-mass lag distribution per trial, for the credit function (`common.core.credit`): rows of `probs`
+    [n, L] over lags 0, unit, 2 unit, ...; `mass_between(low, high)` takes [n, ...] arrays whose leading
+    axis is the row. Same arithmetic as `DelayModel.mass_between`, one distribution per row."""
+
+    def __init__(self, probs: np.ndarray, unit: float = 1.0):
+        self.probs = np.asarray(probs, np.float64)
+        self.lags = np.arange(self.probs.shape[1], dtype=np.float64) * unit
+
+    def mass_between(self, low, high):
+        low, high = np.asarray(low, np.float64)[..., None], np.asarray(high, np.float64)[..., None]
+        inside = (low < self.lags) & (self.lags <= high)
+        p = self.probs.reshape(self.probs.shape[:1] + (1,) * (low.ndim - 2) + self.probs.shape[1:])
+        return np.where(inside, p, 0.0).sum(axis=-1)
+
+    def point_masses(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.lags, self.probs
+
+    def cdf(self, x):
         return self.mass_between(np.full(np.shape(x), -np.inf), x)
 
 

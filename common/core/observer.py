@@ -19,7 +19,7 @@ import numpy as np
 
 from common.config import option
 from common.core.delay import DelayModel, delay_from_spec, parse_probs
-from common.core.util import RowConstants
+from common.agents.explorer import RowConstants
 
 # A reaction lands half a step after its lag: between two actions, never on one.
 REACTION_OFFSET = 0.5

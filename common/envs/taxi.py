@@ -42,7 +42,7 @@ class TaxiEnv(gym.Env):
         self.state_onehot = state_onehot
         self.obs_dim = OBS_DIM + (N_STATES if state_onehot else 0)
         # Every observation is this many ones among zeros (row, column, passenger, destination; the state): an agent
-        # may keep it as the columns set (common/agents/sparse.py `HotCodes`).
+        # may keep it as the columns set (common/agents/mlp.py `HotCodes`).
         self.hot_inputs = 4 + (1 if state_onehot else 0)
         self.observation_space = gym.spaces.Box(0.0, 1.0, shape=(self.obs_dim,), dtype=np.float32)
         self.action_space = gym.spaces.Discrete(6)

@@ -35,13 +35,12 @@ import gymnasium as gym
 import numpy as np
 
 from common.agents import make_agent
-from common.agents.agent import STATUS_NAMES
+from common.agents.agent import STATUS_NAMES, StepLoop
 from common.agents.config import AgentConfig
 from common.config import config_record
 from common.envs import make_env, obs_shape
 from common.protocol import Feedback, IngestEntry, Step
 from common.core.delay_model import FixedDelay, LearnedDelay, delay_estimate, estimate_from_state
-from common.core.steploop import StepLoop
 from services.common.config import LearnerConfig
 from services.learner.books import ScreenCredit, StepClock, decode_feedback, listed_steps
 from services.learner.teacher_delays import Profiles

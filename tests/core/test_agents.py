@@ -3,7 +3,7 @@ import pytest
 import torch
 
 from common.agents import AgentConfig, DeepTamerConfig, DQNConfig, DQNTamerConfig, TrialBatchAgent, agent_config
-from common.agents.optim import FlatRMSProp
+from common.agents.networks import FlatRMSProp
 from common.core.observer import ObserverConfig
 from experiments.runner import TrialSpec, run_trials
 

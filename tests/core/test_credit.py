@@ -152,7 +152,7 @@ class _CdfOnly:
     ],
 )
 def test_point_mass_fast_path_equals_the_general_path_bit_for_bit(probs, unit):
-    from common.core.delay_learning import RowDelays
+    from common.core.delay import RowDelays
 
     rng = np.random.default_rng(len(probs))
     delay = DelayModel(probs, unit)

@@ -1,4 +1,4 @@
-"""The delay learned online in seconds (common/core/delay_model.py) and its use per trial (delay_learning.py)."""
+"""The delay learned online in seconds (common/core/delay_model.py) and its use per trial (feedback.py)."""
 
 import json
 from dataclasses import replace

@@ -1,4 +1,4 @@
-"""Taxi's one-hot observations kept as codes (common/agents/sparse.py `HotCodes`): the numpy MLP computes from the
+"""Taxi's one-hot observations kept as codes (common/agents/mlp.py `HotCodes`): the numpy MLP computes from the
 codes exactly what it computes from the dense input, so an agent that keeps codes runs the same trials bit for bit."""
 
 from dataclasses import replace
@@ -7,10 +7,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from common.agents.mlp import with_ones
-from common.agents.networks import HUBER_MEAN, FitJob, StackedMLP, fit_together
-from common.agents.optim import FlatRMSProp
-from common.agents.sparse import HotCodes
+from common.agents.mlp import HotCodes, with_ones
+from common.agents.networks import HUBER_MEAN, FitJob, FlatRMSProp, StackedMLP, fit_together
 from experiments import runner
 from experiments.conditions import BY_NAME, FULL, trial_spec
 

@@ -8,12 +8,10 @@ import pytest
 import torch
 
 from common.agents import AgentParts, TrialBatchAgent, agent_config, build_parts
-from common.agents.explorer import EpsilonGreedy, Mixture
+from common.agents.explorer import EpsilonGreedy, Mixture, UniformBlocks, to_integers, uniforms
+from common.agents.memory import TransitionReplay
 from common.agents.mlp import init_mlp, mlp_backward, mlp_forward, with_ones
-from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, StackedMLP, fit_together
-from common.agents.optim import FlatRMSProp
-from common.agents.replay import TransitionReplay
-from common.agents.streams import UniformBlocks, to_integers, uniforms
+from common.agents.networks import HUBER_MEAN, SQUARED_MEAN, SQUARED_SUM, FitJob, FlatRMSProp, StackedMLP, fit_together
 
 
 @pytest.mark.parametrize("seed", [0, 5, 2**31 - 1, 2**32 + 7, 12345678901234, 2**63 - 1])
@@ -48,7 +46,7 @@ def one_hot_rows(rng, n, N, width, hot):
 
 @pytest.mark.parametrize("dims", [(3, 5, 4), (519, 100, 6)])
 def test_mlp_gradient_is_autograds(dims):
-    """Dense inputs (the maze) and wide one-hot ones taken as row lookups and scatter-adds (`sparse`)."""
+    """Dense inputs (the maze) and wide one-hot ones taken as row lookups and scatter-adds (`mlp.rows_forward`)."""
     in_dim, hidden_dim, out_dim = dims
     net = StackedMLP(in_dim, hidden_dim, out_dim, [1, 2])
     rng = np.random.default_rng(0)

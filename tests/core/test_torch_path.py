@@ -15,7 +15,7 @@ from common.agents.torch_net import TorchValueNetworks
 from common.agents.torch_agent import check_agent
 from common.envs import make_env
 from common.core.observer import ObserverConfig
-from common.core.steploop import StepLoop
+from common.agents.agent import StepLoop
 from experiments.runner import TrialSpec, run_trials
 
 torch.set_num_threads(1)  # as the runner and the services run it (threads only contend at these sizes)

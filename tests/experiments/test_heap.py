@@ -2,7 +2,7 @@
 
 Before the held heap, glibc handed the top of the heap back after each step and Taxi's dense [32, 519] temporaries
 faulted it back in: 847 thousand page faults for two batched trials of 4000 steps, against 2.4 thousand held. Since
-Taxi's first layer is computed by row lookups (`common/agents/sparse.py`) those temporaries are gone and the default
+Taxi's first layer is computed by row lookups (`common/agents/mlp.py`) those temporaries are gone and the default
 heap often faults as little (2,330 against 2,498 in one run) but not always (349,937 against 2,304 in a full suite run
 on a loaded machine, 28 November): glibc's adaptive trim threshold depends on the process's history. So the check is on
 the held run's faults per step, and on the two runs giving the same trial."""

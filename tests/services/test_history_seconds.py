@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from common.agents.history import BatchStepHistory
+from common.agents.memory import BatchStepHistory
 from common.protocol import Feedback, ShownStep
 from services.learner import checkpoint
 from services.learner.core import LearnerCore
