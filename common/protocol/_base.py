@@ -12,7 +12,7 @@ import dataclasses
 import json
 from typing import Any, ClassVar, cast
 
-from ._spec import QUICK_MISS, ProtocolError, QuickMiss, Spec, _check_text, _type_name
+from ._spec import ProtocolError, QuickMiss, Spec, _check_text, _type_name
 from ._whole import AnyJSON, Embedded
 
 __all__ = [
@@ -174,12 +174,12 @@ class Message:
         result as the full check at a third of its cost (a Step is decoded by three services)."""
         attrs, specs, required = cls._decode_tables()
         if type(obj) is not dict or not required <= obj.keys() <= specs.keys():
-            raise QUICK_MISS
+            raise QuickMiss
         msg = cls(**{attrs[w]: specs[w].quick(v) for w, v in obj.items()})
         try:
             msg._cross_check()
         except ProtocolError:
-            raise QUICK_MISS from None
+            raise QuickMiss from None
         return msg
 
     def _cross_check(self) -> None:
@@ -242,7 +242,7 @@ class List(Spec):
 
     def quick(self, value: Any) -> list:
         if type(value) is not list or not self.min_items <= len(value) <= self.max_items:
-            raise QUICK_MISS
+            raise QuickMiss
         quick = self.item.quick
         return [quick(v) for v in value]
 
@@ -285,11 +285,11 @@ class Map(Spec):
 
     def quick(self, value: Any) -> dict:
         if type(value) is not dict or len(value) > self.max_items:
-            raise QUICK_MISS
+            raise QuickMiss
         quick, longest = self.value.quick, self.key_max_len
         for k in value:
             if not (k.isascii() and 1 <= len(k) <= longest):
-                raise QUICK_MISS
+                raise QuickMiss
         return {k: quick(v) for k, v in value.items()}
 
     def to_json(self, value: Any) -> Any:
@@ -354,7 +354,7 @@ class Obj(Spec):
 
     def quick(self, value: Any) -> Any:
         if type(value) is not dict or value.keys() != self.required:
-            raise QUICK_MISS
+            raise QuickMiss
         out = {k: spec.quick(value[k]) for k, spec in self.fields.items()}
         return self.cls(**out) if self.cls is not None else out
 

@@ -83,10 +83,9 @@ def _check_text(value: str, path: str) -> None:
 
 
 class QuickMiss(Exception):
-    """A quick check (``Spec.quick``) could not accept a value at once: the full check decides (and names the error)."""
-
-
-QUICK_MISS = QuickMiss()
+    """A quick check (``Spec.quick``) could not accept a value at once: the full check decides (and names the error).
+    Raised as a new instance each time: one shared instance would gather the frames of every raise in its
+    traceback, for the life of the process."""
 
 
 class Spec:
@@ -109,7 +108,7 @@ class Spec:
         try:
             return self.check(value, "")
         except ProtocolError:
-            raise QUICK_MISS from None
+            raise QuickMiss from None
 
     def to_json(self, value: Any) -> Any:
         return value
@@ -163,14 +162,14 @@ class Str(Spec):
     def quick(self, value: Any) -> str:
         # (ASCII text holds no lone surrogate: the UTF-8 check is left to the full check for the rest)
         if type(value) is not str or not value.isascii():
-            raise QUICK_MISS
+            raise QuickMiss
         if self.enum is not None:
             if value in self.enum:
                 return value
-            raise QUICK_MISS
+            raise QuickMiss
         if self.min_len <= len(value) <= self.max_len and (self._re is None or self._re.search(value)):
             return value
-        raise QUICK_MISS
+        raise QuickMiss
 
     def describe(self) -> str:
         if self.enum is not None:
@@ -222,7 +221,7 @@ class Int(Spec):
             self.minimum <= value <= self.maximum if self.enum is None else value in self.enum
         ):  # (an integer written 1.0 goes to the full check, which reads it as 1)
             return value
-        raise QUICK_MISS
+        raise QuickMiss
 
     def to_json(self, value: Any) -> Any:
         if type(value) is int:
@@ -276,7 +275,7 @@ class Float(Spec):
         # (NaN fails every comparison; -inf/+inf fail the finite bounds, or the isfinite test without bounds)
         if type(value) is float and self._low <= value <= self._high and (self._bounded or math.isfinite(value)):
             return value
-        raise QUICK_MISS  # (an integer goes to the full check, which makes it a float)
+        raise QuickMiss  # (an integer goes to the full check, which makes it a float)
 
     def to_json(self, value: Any) -> Any:
         if type(value) is float:
@@ -310,7 +309,7 @@ class Bool(Spec):
     def quick(self, value: Any) -> bool:
         if type(value) is bool:
             return value
-        raise QUICK_MISS
+        raise QuickMiss
 
     def to_json(self, value: Any) -> Any:
         if isinstance(value, np.bool_):

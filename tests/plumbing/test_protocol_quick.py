@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 from common.protocol import ProtocolError, Step
 from common.protocol._base import parse_json
-from common.protocol._spec import QUICK_MISS, Float, Int, QuickMiss, Str
+from common.protocol._spec import Float, Int, QuickMiss, Str
 
 from .strategies import ANY_JSON, JSON_TYPES, example, messages
 
@@ -24,7 +24,7 @@ def full(cls, obj):
     """The full check alone (the quick path always misses)."""
 
     def miss(obj):
-        raise QUICK_MISS
+        raise QuickMiss
 
     with mock.patch.object(cls, "quick_from_json_obj", miss):
         return cls.from_json_obj(obj)
@@ -89,3 +89,14 @@ def test_quick_misses_what_the_full_check_rejects(spec, value):
 def test_wire_bytes_unchanged():
     msg = example(Step)
     assert json.loads(msg.encode()) == msg.to_json_obj()
+
+
+def test_each_miss_is_a_new_exception():
+    """A shared instance would keep the frames of every raise in its traceback, for the life of the process."""
+    caught = []
+    for _ in range(2):
+        try:
+            Int(0).quick(-1)
+        except QuickMiss as e:
+            caught.append(e)
+    assert caught[0] is not caught[1]
