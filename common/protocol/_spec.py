@@ -82,8 +82,18 @@ def _check_text(value: str, path: str) -> None:
         raise ProtocolError("bad_value", f"{path}: string is not valid Unicode") from None
 
 
+class QuickMiss(Exception):
+    """A quick check (``Spec.quick``) could not accept a value at once: the full check decides (and names the error).
+    Raised as a new instance each time: one shared instance would gather the frames of every raise in its
+    traceback, for the life of the process."""
+
+
 class Spec:
-    """Base class of field specifications."""
+    """Base class of field specifications.
+
+    ``check`` is the full validation (it names the field and the reason of a rejection); ``quick`` accepts the
+    ordinary case of valid input faster and gives the same value as ``check``, else raises ``QuickMiss`` (never
+    ``ProtocolError``), after which the caller runs ``check`` on the whole message."""
 
     description: str = ""
 
@@ -93,6 +103,12 @@ class Spec:
     def check(self, value: Any, path: str) -> Any:
         """Validate a JSON value; return the Python value."""
         raise NotImplementedError
+
+    def quick(self, value: Any) -> Any:
+        try:
+            return self.check(value, "")
+        except ProtocolError:
+            raise QuickMiss from None
 
     def to_json(self, value: Any) -> Any:
         return value
@@ -143,6 +159,18 @@ class Str(Spec):
             raise ProtocolError("bad_value", f"{path}: {value[:40]!r} does not match {self.pattern}")
         return value
 
+    def quick(self, value: Any) -> str:
+        # (ASCII text holds no lone surrogate: the UTF-8 check is left to the full check for the rest)
+        if type(value) is not str or not value.isascii():
+            raise QuickMiss
+        if self.enum is not None:
+            if value in self.enum:
+                return value
+            raise QuickMiss
+        if self.min_len <= len(value) <= self.max_len and (self._re is None or self._re.search(value)):
+            return value
+        raise QuickMiss
+
     def describe(self) -> str:
         if self.enum is not None:
             return "string, one of " + ", ".join(f"`{e}`" for e in self.enum)
@@ -188,6 +216,13 @@ class Int(Spec):
             raise ProtocolError("bad_value", f"{path}: {value} not in [{self.minimum}, {self.maximum}]")
         return value
 
+    def quick(self, value: Any) -> int:
+        if type(value) is int and (
+            self.minimum <= value <= self.maximum if self.enum is None else value in self.enum
+        ):  # (an integer written 1.0 goes to the full check, which reads it as 1)
+            return value
+        raise QuickMiss
+
     def to_json(self, value: Any) -> Any:
         if type(value) is int:
             return value
@@ -209,6 +244,9 @@ class Float(Spec):
     def __init__(self, minimum: float | None = None, maximum: float | None = None, *, description: str = ""):
         self.minimum, self.maximum = minimum, maximum
         self.description = description
+        self._low = -math.inf if minimum is None else minimum
+        self._high = math.inf if maximum is None else maximum
+        self._bounded = math.isfinite(self._low) and math.isfinite(self._high)
 
     def schema(self) -> dict:
         s: dict[str, Any] = {"type": "number"}
@@ -232,6 +270,12 @@ class Float(Spec):
         if (self.minimum is not None and value < self.minimum) or (self.maximum is not None and value > self.maximum):
             raise ProtocolError("bad_value", f"{path}: {value!r} not in [{self.minimum}, {self.maximum}]")
         return value
+
+    def quick(self, value: Any) -> float:
+        # (NaN fails every comparison; -inf/+inf fail the finite bounds, or the isfinite test without bounds)
+        if type(value) is float and self._low <= value <= self._high and (self._bounded or math.isfinite(value)):
+            return value
+        raise QuickMiss  # (an integer goes to the full check, which makes it a float)
 
     def to_json(self, value: Any) -> Any:
         if type(value) is float:
@@ -261,6 +305,11 @@ class Bool(Spec):
         if not isinstance(value, bool):
             raise ProtocolError("wrong_type", f"{path}: expected boolean, got {_type_name(value)}")
         return value
+
+    def quick(self, value: Any) -> bool:
+        if type(value) is bool:
+            return value
+        raise QuickMiss
 
     def to_json(self, value: Any) -> Any:
         if isinstance(value, np.bool_):
