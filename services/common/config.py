@@ -348,7 +348,7 @@ class RecorderConfig(ServiceConfig):
     stop_when: tuple[str, ...] = option(
         (), "finish once all these services have reported state 'stopped' (empty: only on SIGTERM / Ctrl-C)"
     )
-    flush_interval: float = option(1.0, "seconds between MCAP chunk flushes while data is pending (each one a chunk)")
+    flush_interval: float = option(0.5, "seconds between MCAP chunk flushes while data is pending")
     linger: float = option(0.3, "seconds to keep recording after the last awaited service stopped")
     max_sender_mb_s: float = option(
         32.0,

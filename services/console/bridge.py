@@ -110,11 +110,10 @@ class Hub(PageInputs):
             weights_key(run),
             KEYS["credit"].wildcard(run),
             KEYS["status"].wildcard(run),
-            KEYS["feedback"].wildcard(run),
             KEYS["control"].wildcard(run),
         ]
-        if self.config.camera:
-            keys.append(perception_key(run, self.config.camera))
+        if self.config.camera:  # (feedback: only a face's is shown; without a camera it was the pages' own, back)
+            keys += [perception_key(run, self.config.camera), KEYS["feedback"].wildcard(run)]
         if self.scene_static is None:  # the actor's picture of an env we cannot draw (services/actor/render.py)
             keys.append(camera_key(run, "env"))
         self.weights.watch = self.subs.enter_context(contextlib.closing(IncarnationWatch(self.session, run, "learner")))
