@@ -53,6 +53,7 @@ from common.protocol import (
 from common.wire.delivery import Received
 from services.console.config import ConsoleConfig
 from services.console.people import Ledger, PageInputs, Person, RateLimit
+from services.console.prefs import PrefsFeed
 from services.common.gate import WeightsFollower
 
 TEACHER = TEACHER_PREFIX
@@ -87,6 +88,7 @@ class Hub(PageInputs):
         self.actor_stopped = self.learner_stopped = False
         # the actor's follower and checks: a press's H update (a new revision) shows before the next step
         self.weights = WeightsFollower(self.agent, self.spec, rt)
+        self.prefs = PrefsFeed(self.agent, self.weights, loop, self.broadcast)
         self.control_seq = 0
         self.pub = lambda key: MessagePublisher(session, key)  # noqa: E731
         self.control_pub = MessagePublisher(session, control_key(config.run))
@@ -108,11 +110,10 @@ class Hub(PageInputs):
             weights_key(run),
             KEYS["credit"].wildcard(run),
             KEYS["status"].wildcard(run),
-            KEYS["feedback"].wildcard(run),
             KEYS["control"].wildcard(run),
         ]
-        if self.config.camera:
-            keys.append(perception_key(run, self.config.camera))
+        if self.config.camera:  # (feedback: only a face's is shown; without a camera it was the pages' own, back)
+            keys += [perception_key(run, self.config.camera), KEYS["feedback"].wildcard(run)]
         if self.scene_static is None:  # the actor's picture of an env we cannot draw (services/actor/render.py)
             keys.append(camera_key(run, "env"))
         self.weights.watch = self.subs.enter_context(contextlib.closing(IncarnationWatch(self.session, run, "learner")))
@@ -124,7 +125,7 @@ class Hub(PageInputs):
     def on_message(self, key: str, data: bytes, t_recv: float) -> None:
         if key == weights_key(self.config.run):
             if self.weights.offer(data, t_recv):
-                self.broadcast(self.preferences())
+                self.prefs.weights_adopted(len(self.people))
             return
         try:
             msg = decode(key, data)
@@ -162,7 +163,7 @@ class Hub(PageInputs):
     def _step(self, step: Step, t_recv: float) -> None:
         self.awaiting_start = False
         scene = self.tracker.after(step.t_in_episode, step.action, step.next_obs)
-        self.obs = np.asarray(step.next_obs, np.float32)
+        self.obs = self.prefs.obs = np.asarray(step.next_obs, np.float32)
         self.recent[(step.incarnation, step.seq)] = step.t_action
         while len(self.recent) > 256:
             self.recent.popitem(last=False)
@@ -185,20 +186,11 @@ class Hub(PageInputs):
             "info": dict(step.info),
         }
         self.broadcast(self.last_step)
-        self.broadcast(self.preferences())
+        self.prefs.send_now(len(self.people))
 
     def preferences(self) -> dict:
-        if self.obs is None:
-            return {"type": "prefs", "q": None, "h": None}
-        q, h, aq, ah = self.agent.preferences(0, self.obs)
-        return {
-            "type": "prefs",
-            "q": [round(float(x), 4) for x in q],
-            "h": [round(float(x), 4) for x in h],
-            "alpha_q": aq,
-            "alpha_h": round(ah, 5),
-            "weights_version": self.weights.version,
-        }
+        self.prefs.obs = self.obs
+        return self.prefs.current()
 
     def _episode(self, ep: EpisodeSummary, t_recv: float) -> None:
         point = {

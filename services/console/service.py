@@ -42,7 +42,10 @@ SEND_QUEUE = 256  # messages waiting for a slow page before the oldest are dropp
 
 PAGE_ID = re.compile(r"^[A-Za-z0-9_-]{8,64}$")  # a page's own id (console.js: one per browser tab)
 PERSON_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,31}$")  # ?name=: becomes the teacher id <prefix>-<name>
-LOOP_PASS = 0.25  # s between two passes of the console's own loop (status, announce, starting the actor)
+LOOP_PASS = 0.5  # s between two passes of the console's own loop (status, announce, starting the actor)
+# Each person's status again every ANNOUNCE_PERIOD s (not the slower status period): a learner that restarts
+# drops a press from a teacher it has not yet heard of, so it must hear of them soon.
+ANNOUNCE_PERIOD = 2.0
 
 
 class Page:
@@ -137,7 +140,9 @@ class Pages:
 
     async def socket(self, request: web.Request) -> web.WebSocketResponse:
         config, rt, hub = self.config, self.rt, self.hub
-        ws = web.WebSocketResponse(max_msg_size=config.max_frame_bytes + 64, heartbeat=10.0)
+        # compress=False: aiohttp deflates every frame a page accepts compressed, a sixth of the console's work in a
+        # paced run (py-spy) for messages of a few hundred bytes
+        ws = web.WebSocketResponse(max_msg_size=config.max_frame_bytes + 64, heartbeat=10.0, compress=False)
         await ws.prepare(request)
         try:
             name, page_id = check_name(request.query.get("name")), check_page_id(request.query.get("page"))
@@ -290,7 +295,7 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
             await asyncio.sleep(LOOP_PASS)
             rt.tick()
             hub.start_when_watched()
-            if time.monotonic() - last_announce >= config.status_period:
+            if time.monotonic() - last_announce >= ANNOUNCE_PERIOD:
                 hub.announce()
                 last_announce = time.monotonic()
             if hub.learner_stopped and stop_at is None:

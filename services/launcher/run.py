@@ -21,7 +21,7 @@ from services.common.runtime import set_from_handler
 from services.launcher.unfinished import finish_unfinished_runs
 
 DISK_CHECK_PERIOD = 1.0  # s between free-space checks
-STATUS_PERIOD = 2.0  # s between the launcher's own statuses (as the services' default status-period)
+STATUS_PERIOD = 5.0  # s between the launcher's own statuses (as the services' default status-period)
 DISK_FULL_TEXT = "No space left on device"
 
 

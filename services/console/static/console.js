@@ -41,8 +41,7 @@ function onPong(m) {
     c.ready = true; c.slewedAt = t3;
     ping();  // tells the console (a run waiting for its first page starts now)
   }
-  document.getElementById("clock").textContent =
-    `clock offset ${(c.offset * 1000).toFixed(1)} ms (round trip ${(c.rtt * 1000).toFixed(1)} ms)`;
+  setText("clock", `clock offset ${(c.offset * 1000).toFixed(1)} ms (round trip ${(c.rtt * 1000).toFixed(1)} ms)`);
 }
 function offsetAt(tPage) {  // the offset in force at page time tPage (see CLOCK_SLEW)
   const c = hitl.clock;
@@ -59,8 +58,8 @@ function stamp(tPage) { return { t_page: tPage, offset: offsetAt(tPage), rtt: Ma
 function drawScene() {
   const cv = document.getElementById("scene"), g = cv.getContext("2d");
   const s = hitl.hello && hitl.hello.scene, st = hitl.step;
-  g.fillStyle = COLORS.free; g.fillRect(0, 0, cv.width, cv.height);
   if (!s) {  // no drawing of ours: the env's own picture from the actor, else the observation's numbers
+    g.fillStyle = COLORS.free; g.fillRect(0, 0, cv.width, cv.height);
     if (hitl.frame) {
       const f = hitl.frame, k = Math.min(cv.width / f.width, cv.height / f.height);
       g.drawImage(f, (cv.width - f.width * k) / 2, (cv.height - f.height * k) / 2, f.width * k, f.height * k);
@@ -139,6 +138,10 @@ function flushPrefs() {
   if (hitl.prefsDirty) { hitl.prefsDirty = false; hitl.prefsShownAt = performance.now(); showPrefs(); }
 }
 
+// A press's sent, Credit and acknowledgement each redrew the trail (and the tint): now once, in the next frame.
+const later = new Set();
+function redrawLater(fn) { if (!later.size) requestAnimationFrame(() => { const f = [...later]; later.clear(); f.forEach((g) => g()); }); later.add(fn); }
+
 function showTrail() {
   const ol = document.getElementById("trail");
   const mine = [...hitl.mine.values()].slice(-30).reverse();
@@ -199,7 +202,7 @@ function keepHeld() { store.setItem("hitl-held", JSON.stringify(hitl.held)); }
 function nextPress() { const n = Number(store.getItem("hitl-press-no") || "0"); store.setItem("hitl-press-no", String(n + 1)); return n; }
 function acknowledge(m) {
   const i = hitl.held.findIndex((h) => h.seq === m.seq && h.teacher === m.teacher_id);
-  if (i >= 0) { hitl.held.splice(i, 1); keepHeld(); showTrail(); }
+  if (i >= 0) { hitl.held.splice(i, 1); keepHeld(); redrawLater(showTrail); }
 }
 const RESHOW_S = 10;  // s of paints before the oldest held press re-sent with it (longer than any assumed delay)
 function reshow() {  // after a reconnect: the paints the held presses may be about, so that a restarted console
@@ -314,7 +317,7 @@ function onMessage(m) {
       const h = hitl.held.find((x) => x.press === m.press);
       if (h) { h.seq = m.seq; h.teacher = hitl.me; keepHeld(); }
       if (!hitl.mine.has(m.seq)) hitl.mine.set(m.seq, { seq: m.seq, value: m.value, t_reaction: m.t_reaction, credit: null });
-      showTrail(); break;
+      redrawLater(showTrail); break;
     }
     case "credit":
       if (m.teacher_id === hitl.me) acknowledge(m);
@@ -323,9 +326,9 @@ function onMessage(m) {
         break;
       }
       hitl.trail.push(m); if (hitl.trail.length > 200) hitl.trail.shift();
-      if (m.teacher_id === hitl.me && hitl.mine.has(m.seq)) { hitl.mine.get(m.seq).credit = m; showTrail(); }
+      if (m.teacher_id === hitl.me && hitl.mine.has(m.seq)) { hitl.mine.get(m.seq).credit = m; redrawLater(showTrail); }
       if (m.teacher_id === hitl.me && m.delay) showDelay(m.delay);
-      drawScene(); break;
+      redrawLater(drawScene); break;
     case "control": hitl.paused = m.paused; hitl.rate = m.rate; hitl.ended = m.ended; showStatus();
       if (m.ended) stopCamera(); break;
     case "face": hitl.face = m; document.getElementById("face").textContent =
@@ -378,8 +381,7 @@ async function connect() {
     hitl.pinger = setInterval(ping, 2000);
   };
   ws.onmessage = (ev) => {
-    const m = JSON.parse(ev.data);
-    onMessage(m);
+    const m = JSON.parse(ev.data); onMessage(m);
     if (m.type === "hello") {
       (hitl.helloAt = hitl.helloAt || []).push(pageNow());  // (when the page got in, each time)
       if (hitl.connections) reshow();
@@ -391,10 +393,8 @@ async function connect() {
     if (!hitl.ended && !hitl.refused) reconnectLater(); };
 }
 document.getElementById("invite").addEventListener("click", async () => {
-  const box = document.getElementById("invited");
-  box.value = await consoleKey.invite(); box.hidden = false; box.select();
+  const box = document.getElementById("invited"); box.value = await consoleKey.invite(); box.hidden = false; box.select();
 });
-// a restarted console: the page comes back by itself (every 0.25 s: a refused connection costs nothing, and the
-// console is back within seconds)
+// a restarted console: the page comes back by itself (every 0.25 s: a refused try costs nothing; it is back in seconds)
 function reconnectLater() { setTimeout(connect, 250); }
 connect();

@@ -13,8 +13,10 @@ function disc(g, [r, q], c, color, scale = 0.32) {
 // The environment on a square canvas: `layout` is the static scene (maze walls, or taxi stands), `where` the
 // positions after a step (agent; or taxi, passenger, destination), none before the first. `tint(g, c)` colours
 // cells (the credited steps) over the layout and under the grid; c is the cell size in pixels.
-function drawWorld(cv, layout, where, tint) {
-  const g = cv.getContext("2d"), s = layout, c = cv.width / s.size;
+// The layout never changes in a run: it is drawn once into a canvas of its own and copied in with one drawImage
+// (a maze's cells were a hundred draw calls a step, each work for the renderer and the GPU process).
+const layers = new WeakMap();  // layout -> its picture, at the size of the canvas it was drawn for
+function drawLayout(g, s, c) {
   if (s.kind === "maze") {
     for (let r = 0; r < s.size; r++) for (let q = 0; q < s.size; q++) {
       g.fillStyle = s.walls[r][q] ? COLORS.wall : (r === s.start[0] && q === s.start[1] ? COLORS.start : COLORS.free);
@@ -25,10 +27,23 @@ function drawWorld(cv, layout, where, tint) {
     s.stands.forEach(([r, q], i) => { g.fillStyle = "#ecf0f1"; g.fillRect(q * c + 2, r * c + 2, c - 4, c - 4);
       g.fillStyle = "#555"; g.font = `${c / 3}px sans-serif`; g.fillText(s.stand_names[i], q * c + 6, r * c + c / 3 + 4); });
   }
+}
+function layoutLayer(cv, s, c) {
+  let layer = layers.get(s);
+  if (!layer || layer.width !== cv.width || layer.height !== cv.height) {
+    layer = document.createElement("canvas"); layer.width = cv.width; layer.height = cv.height;
+    const lg = layer.getContext("2d"); lg.fillStyle = COLORS.free; lg.fillRect(0, 0, cv.width, cv.height);
+    drawLayout(lg, s, c); layers.set(s, layer);
+  }
+  return layer;
+}
+function drawWorld(cv, layout, where, tint) {
+  const g = cv.getContext("2d"), s = layout, c = cv.width / s.size;
+  g.drawImage(layoutLayer(cv, s, c), 0, 0);
   tint(g, c);
-  g.strokeStyle = COLORS.grid; g.lineWidth = 1;
-  for (let i = 0; i <= s.size; i++) { g.beginPath(); g.moveTo(i * c, 0); g.lineTo(i * c, s.size * c); g.stroke();
-    g.beginPath(); g.moveTo(0, i * c); g.lineTo(s.size * c, i * c); g.stroke(); }
+  g.strokeStyle = COLORS.grid; g.lineWidth = 1; g.beginPath();  // the grid: one path, one stroke
+  for (let i = 0; i <= s.size; i++) { g.moveTo(i * c, 0); g.lineTo(i * c, s.size * c); g.moveTo(0, i * c); g.lineTo(s.size * c, i * c); }
+  g.stroke();
   if (s.kind === "taxi") {
     g.strokeStyle = "#222"; g.lineWidth = 5;
     s.walls_east.forEach(([r, q]) => { g.beginPath(); g.moveTo((q + 1) * c, r * c); g.lineTo((q + 1) * c, (r + 1) * c); g.stroke(); });
