@@ -114,7 +114,7 @@ def test_the_doc_lists_the_files_a_step_and_a_press_pass_through(tmp_path, monke
     paths = traced_paths(calls)
     # What the trace must see for the comparison to mean anything: each path's ends, in its own process.
     assert {"actor"} <= paths["step"]["common/envs/maze.py"] and "learner" in paths["step"]["common/agents/networks.py"]
-    assert paths["press"]["services/console/bridge.py"] == {"console"}
+    assert paths["press"]["services/console/people.py"] == {"console"}  # (the page's press handler)
     assert "learner" in paths["press"]["common/agents/feedback.py"]
     assert not any(f.startswith("tests/") for p in paths.values() for f in p)
     block = render(paths)
