@@ -228,6 +228,9 @@ class LearnerSettings:
         16, "publish weights whenever the learner has caught up, and at least every N learned steps while it is behind"
     )
     end_grace: float = option(3.0, "after the actor's last step, seconds to wait for teachers still sending")
+    reorder_wait: float = option(
+        2.0, "seconds a live step ahead of the next expected one waits for those before it (re-sent after a restart)"
+    )
     checkpoint_period: float = option(2.0, "seconds between checkpoints at most (when something was learned)")
     checkpoint_steps: int = option(100, "new steps learned before the next checkpoint (a paced run's rarer ones)")
     inbox_size: int = option(
@@ -253,26 +256,21 @@ class LearnerSettings:
             raise ValueError(f"screen-credit must be one of {', '.join(SCREEN_CREDIT)}, got {self.screen_credit!r}")
         if self.screen_credit == "onset" and self.screen_delay.strip().startswith("steps"):
             raise ValueError("screen-credit onset needs a delay in seconds with a density, not steps:...")
-        if self.weights_every < 1:
-            raise ValueError(f"weights-every must be >= 1, got {self.weights_every}")
-        if self.idle_updates < 0:
-            raise ValueError(f"idle-updates must be >= 0, got {self.idle_updates}")
-        if not (math.isfinite(self.end_grace) and self.end_grace >= 0):
-            raise ValueError(f"end-grace must be >= 0, got {self.end_grace}")
+        for name in ("weights_every", "checkpoint_steps", "inbox_size"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+        for name in ("end_grace", "reorder_wait", "debug_update_sleep"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
         if not (math.isfinite(self.checkpoint_period) and self.checkpoint_period > 0):
             raise ValueError(f"checkpoint-period must be positive, got {self.checkpoint_period}")
-        if self.checkpoint_steps < 1:
-            raise ValueError(f"checkpoint-steps must be >= 1, got {self.checkpoint_steps}")
-        if self.inbox_size < 1:
-            raise ValueError(f"inbox-size must be >= 1, got {self.inbox_size}")
-        if not (math.isfinite(self.debug_update_sleep) and self.debug_update_sleep >= 0):
-            raise ValueError(f"debug-update-sleep must be >= 0, got {self.debug_update_sleep}")
         if not (math.isfinite(self.history_s) and self.history_s >= 0) or self.history_max_steps < 1:
             raise ValueError(
                 f"history-s must be >= 0 and history-max-steps >= 1, got {self.history_s}, {self.history_max_steps}"
             )
-        if self.debug_drop_steps < 0:
-            raise ValueError(f"debug-drop-steps must be >= 0, got {self.debug_drop_steps}")
+        for name in ("idle_updates", "debug_drop_steps"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
 
     def resolved_oracle_delay(self, rate: float) -> str:
         """`oracle_delay` with auto resolved by the actor's pace (`rate` steps/s; 0 = as fast as possible)."""

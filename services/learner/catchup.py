@@ -1,13 +1,17 @@
-"""Catching up after a restart: the recorder's log holds the steps and feedback a restored learner missed."""
+"""Catching up after a restart: the recorder's log holds the steps and feedback a restored learner missed, and the
+steps the actor re-sends may come after live ones (`StepReorder`)."""
 
 from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from common.protocol import ProtocolError, ServiceStatus, decode, kind_of
+from common.protocol import ProtocolError, ServiceStatus, Step, decode, kind_of
 from services.common.config import LearnerConfig
+from services.common.gate import InputGate
 from services.common.runtime import ServiceRuntime
 from services.learner.core import LearnerCore
 
@@ -57,3 +61,50 @@ def catch_up(
         rt.event(
             f"started without a checkpoint; caught up {steps} steps and {fbs} feedback from the log in {took:.2f} s", 3
         )
+
+
+@dataclass
+class StepReorder:
+    """Live steps of the current actor that arrive ahead of the next expected seq, waiting for the ones before them.
+
+    A restored learner subscribes, catches up from the log (which lags the actor by its flush period) and then
+    hears the actor re-send its recent steps; a live step may overtake those re-sent ones. Consumed at once it would
+    be a gap, and the re-sent steps behind it would be dropped as old. So it waits, up to `wait_s` (wall clock;
+    the order finally consumed is what the Ingest record holds, so retrain repeats it) or until `max_held` wait, and
+    then what waits is consumed in seq order, the first with its gap as before."""
+
+    wait_s: float
+    max_held: int
+    held: dict[int, tuple[Step, float]] = field(default_factory=dict)  # seq -> (step, when it arrived)
+    since: float | None = None  # (monotonic) when the oldest one began to wait
+
+    def waits(self, step: Step, t_recv: float, gate: InputGate) -> bool:
+        """Hold a step of the gate's actor that is ahead of its next seq and otherwise admissible; True if held."""
+        if step.incarnation != gate.actor or step.seq <= (gate.next_step or 0) or gate.check_step(step, t_recv):
+            return False
+        self.held.setdefault(step.seq, (step, t_recv))  # (one re-sent again is the same step)
+        if self.since is None:
+            self.since = time.monotonic()
+        return True
+
+    def following(self, gate: InputGate) -> Iterator[tuple[Step, float]]:
+        """The waiting steps that now follow in order, one at a time (the caller admits each before the next)."""
+        while self.held and gate.next_step is not None and (got := self.held.pop(gate.next_step, None)) is not None:
+            if not self.held:
+                self.since = None
+            yield got
+
+    def due_in(self) -> float:
+        """Seconds until what waits must be consumed anyway (inf with nothing waiting, 0 when overdue)."""
+        if self.since is None:
+            return float("inf")
+        if len(self.held) >= self.max_held:
+            return 0.0
+        return max(0.0, self.since + self.wait_s - time.monotonic())
+
+    def take_all(self) -> list[tuple[Step, float]]:
+        """Everything waiting, in seq order (the wait is over)."""
+        out = [self.held[k] for k in sorted(self.held)]
+        self.held.clear()
+        self.since = None
+        return out

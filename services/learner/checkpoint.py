@@ -87,6 +87,23 @@ def save(path: str | Path, tensors: dict[str, Any], meta: dict[str, Any]) -> int
     return len(data)
 
 
+def save_learner(path: str | Path | None, core: Any, gate: Any, rt: Any) -> None:
+    """The learner's whole state (its core, its input gate, its service counters) saved atomically at `path`."""
+    if path is None:  # (called only with a checkpoint path)
+        raise ValueError("no checkpoint path configured")
+    t0 = time.perf_counter()
+    tensors, meta = core.snapshot()
+    meta = {
+        "core": meta,
+        "gate": gate.state(),
+        "service": {"counters": dict(rt.counters), "incarnation": rt.incarnation, "t_saved": time.time()},
+        "config": core.config_record(),
+    }
+    save(path, tensors, meta)
+    rt.counters["checkpoints"] += 1
+    rt.samples["checkpoint_cost_s"].append(time.perf_counter() - t0)
+
+
 def load(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]] | None:
     """(tensors, meta) from a checkpoint file, or None if there is none. A damaged file raises."""
     import safetensors

@@ -49,7 +49,7 @@ from services.common.watches import decoded_statuses
 from services.common.runtime import ServiceRuntime
 from services.learner import checkpoint
 from services.learner.checkpoint import CheckpointSchedule
-from services.learner.catchup import catch_up
+from services.learner.catchup import StepReorder, catch_up
 from services.learner.books import Snapshots, credit_message, delay_message, publish_credit
 from services.learner.core import LearnerCore
 from services.learner.end_rule import EndRule
@@ -90,6 +90,7 @@ class Learner:
         self.last_ingest = time.monotonic()  # when Ingest was last flushed
         self.sent_at: dict[int, tuple] = {}  # ingest position of a held feedback -> (when sent, when it arrived)
         self.ring = ResendRing(config.resend_window)
+        self.reorder = StepReorder(config.reorder_wait, gate.max_seq_jump)
         spub = publishers["snapshot"]
         self.snaps = Snapshots(
             config.run, rt.incarnation, config.snapshot_every, lambda m: publish_kept(spub, m, self.ring)
@@ -150,21 +151,8 @@ class Learner:
         self.rt.samples["weights_publish_cost_s"].append(time.perf_counter() - t0)
 
     def save_checkpoint(self) -> None:
-        if self.config.checkpoint is None:  # (called only with a checkpoint path)
-            raise ValueError("no checkpoint path configured")
-        path = self.config.checkpoint
         self.flush_ingest()  # position = entries handed out
-        t0 = time.perf_counter()
-        tensors, meta = self.core.snapshot()
-        meta = {
-            "core": meta,
-            "gate": self.gate.state(),
-            "service": {"counters": dict(self.rt.counters), "incarnation": self.rt.incarnation, "t_saved": time.time()},
-            "config": self.core.config_record(),
-        }
-        checkpoint.save(path, tensors, meta)
-        self.rt.counters["checkpoints"] += 1
-        self.rt.samples["checkpoint_cost_s"].append(time.perf_counter() - t0)
+        checkpoint.save_learner(self.config.checkpoint, self.core, self.gate, self.rt)
         self.ckpt.written(self.core.steps_learned)
 
     def note_latency(self, results, t_sent: float | None = None) -> None:
@@ -212,6 +200,20 @@ class Learner:
     def consume_step(self, msg: Step, now: float, t_recv: float, live: bool) -> bool:
         for inc in self.actors.take():
             self.gate.announce(inc)
+        if live and self.reorder.waits(msg, t_recv, self.gate):  # ahead of re-sent steps it may have overtaken
+            self.rt.counters["steps_waited"] += 1
+            return True
+        learned = self.learn_step(msg, now, t_recv, live)
+        for step, t_step in self.reorder.following(self.gate):
+            self.learn_step(step, now, t_step, True)
+        return learned
+
+    def release_waiting(self) -> None:
+        """The steps that waited too long for those before them: consumed in seq order, gaps and all."""
+        for step, t_recv in self.reorder.take_all():
+            self.learn_step(step, time.time(), t_recv, True)
+
+    def learn_step(self, msg: Step, now: float, t_recv: float, live: bool) -> bool:
         # (TEST ONLY: --debug-drop-steps drops the first steps as if their actor's announcement came late)
         dropping = live and self.rt.counters["rejected_unknown_incarnation"] < self.config.debug_drop_steps
         reason = "unknown_incarnation" if dropping else self.gate.admit_step(msg, t_recv)
@@ -288,7 +290,9 @@ class Learner:
     @traced("learner.input")
     def take_input(self) -> None:
         """One input from the inbox (if any) into the core; publish weights and flush Ingest when due."""
-        got = self.inbox.get(timeout=self.wait_s())
+        if self.reorder.due_in() == 0:
+            self.release_waiting()
+        got = self.inbox.get(timeout=min(self.wait_s(), self.reorder.due_in()))
         if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
             if self.idle_left > 0 and self.core.idle(time.time()):
                 self.idle_left -= 1
@@ -376,6 +380,7 @@ class Learner:
             if self.finished():
                 break
             self.rt.tick()
+        self.release_waiting()
         self.note_latency(core.end(time.time()))
         self.rt.counters["profiles_written"] += core.profiles.save(core.delays, force=True)
         self.rt.counters["profiles_damaged"] += core.profiles.damaged
