@@ -67,6 +67,14 @@ def _as_endpoint(port_or_endpoint: int | str) -> str:
     return tcp_endpoint(port_or_endpoint) if isinstance(port_or_endpoint, int) else port_or_endpoint
 
 
+# Zenoh's threads in a process with one link (a service: a client of the launcher's router), given to Zenoh in
+# the ZENOH_RUNTIME environment variable before its first session (the launcher sets it for its children). By
+# default a process runs two rx threads and apart accept and net threads: each received message woke both rx
+# threads in turn (measured: docs/notes/2026-11-28-idle-cost.md, third round). One link needs one rx thread;
+# accept and net (a client listens on nothing) run on the app thread. The launcher's own process, the router
+# with a link per service, keeps Zenoh's defaults.
+SERVICE_ZENOH_RUNTIME = "(rx: (worker_threads: 1), acc: (handover: app), net: (handover: app))"
+
 BLOCK_WAIT_US = 20_000_000
 """How long (µs) a BLOCK message may wait for room before Zenoh closes the link (see `make_config`)."""
 

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from common.config import config_record
+from common.wire.transport import SERVICE_ZENOH_RUNTIME
 from services.teacher.registry import ProcessSpec
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -52,6 +53,7 @@ def child_env() -> dict[str, str]:
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     env.setdefault("PYTHONUNBUFFERED", "1")
+    env.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # (a service has one link: common/wire/transport.py)
     return env
 
 
