@@ -297,8 +297,8 @@ class LearnerConfig(TaskConfig, LearnerSettings):
     )
     ingest_batch: int = option(64, "at most this many entries per Ingest message")
     ingest_period: float = option(
-        0.05,
-        "seconds an entry may wait for its Ingest message (one message per period, "
+        0.5,
+        "seconds an entry may wait for its Ingest message (one message per period or ingest-batch entries, "
         "not one per step: each message costs every process on its way)",
     )
     wait_teachers: tuple[str, ...] = option((), "teacher ids to wait for at the end (besides those seen)")

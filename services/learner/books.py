@@ -44,6 +44,7 @@ from common.protocol import (
     Credit,
     CreditedStep,
     DelayEstimate,
+    EpisodeSummary,
     Feedback,
     ProtocolError,
     Request,
@@ -195,6 +196,21 @@ class ScreenCredit:
 
 
 # -- what the learner publishes about each feedback: its Credit, and the person's delay estimate --
+
+
+def episode_message(run: str, ep) -> EpisodeSummary:
+    """The `EpisodeSummary` of an episode the learner has ended (`services.learner.core.EpisodeRecord`)."""
+    return EpisodeSummary(
+        run=run,
+        incarnation=ep.incarnation,
+        episode=ep.episode,
+        return_=ep.return_,
+        steps=ep.steps,
+        feedback_received=ep.feedback_received,
+        feedback_credited=ep.feedback_credited,
+        weights_version=ep.weights_version,
+        t_end=ep.t_end,
+    )
 
 
 def credit_message(run: str, result, actor: str | None, t_done: float, delay=None) -> Credit:

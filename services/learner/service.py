@@ -34,7 +34,6 @@ from common.protocol import (
     MAX_INGEST_CREDITS,
     kind_of,
     Credit,
-    EpisodeSummary,
     Feedback,
     Ingest,
     ProtocolError,
@@ -50,7 +49,7 @@ from services.common.runtime import ServiceRuntime
 from services.learner import checkpoint
 from services.learner.checkpoint import CheckpointSchedule
 from services.learner.catchup import StepReorder, catch_up
-from services.learner.books import Snapshots, credit_message, delay_message, publish_credit
+from services.learner.books import Snapshots, credit_message, delay_message, episode_message, publish_credit
 from services.learner.core import LearnerCore
 from services.learner.end_rule import EndRule
 from services.learner.results import PublishedWeights
@@ -58,6 +57,7 @@ from services.learner.results import PublishedWeights
 REVISION_QUIET = 0.02  # s since the last step before weights changed without a new step go out on their own
 IDLE_AFTER = 0.05  # s without an input before the learner counts itself idle (idle updates, held weights go out)
 QUIET_WAIT = 0.25  # s the learner waits for an input at most when nothing is pending
+SLOW_STEPS = 0.2  # s between steps from which the weights of a step wait for the idle burst after it
 
 
 class Learner:
@@ -100,6 +100,7 @@ class Learner:
         self.ckpt = CheckpointSchedule(config, core.steps_learned if resumed else 0)
         self.end = EndRule(config.wait_teachers, config.end_grace, rt)
         self.last_step_at = 0.0  # (monotonic) when the last step arrived
+        self.step_gap = 0.0  # s between the last two steps' arrivals
 
     # -- outputs ---------------------------------------------------------------------------------------------
     def flush_ingest(self) -> None:
@@ -226,21 +227,7 @@ class Learner:
         results, ep = self.core.on_step(msg, now)
         self.note_latency(results)
         if ep is not None:
-            publish_kept(
-                self.epub,
-                EpisodeSummary(
-                    run=self.config.run,
-                    incarnation=ep.incarnation,
-                    episode=ep.episode,
-                    return_=ep.return_,
-                    steps=ep.steps,
-                    feedback_received=ep.feedback_received,
-                    feedback_credited=ep.feedback_credited,
-                    weights_version=ep.weights_version,
-                    t_end=ep.t_end,
-                ),
-                self.ring,
-            )
+            publish_kept(self.epub, episode_message(self.config.run, ep), self.ring)
             self.snaps.on_episode(self.core.steps_learned, self.core.policy_weights())
         if self.config.debug_update_sleep:
             time.sleep(self.config.debug_update_sleep)
@@ -301,10 +288,12 @@ class Learner:
             else:
                 self.idle_left = 0  # (no update applies: before the first step, after the end)
             self.publish_weights_if_due(idle=True)  # (the burst's end, or a press held back as steps streamed)
-            self.flush_ingest()  # (what waited for the period goes now: nothing else is coming)
+            if self.ingest_due_in() == 0:
+                self.flush_ingest()
             return
         if got.key.endswith("/step"):  # a new step: a new budget of idle-time updates before the next one
             self.idle_left = self.config.idle_updates
+            self.step_gap = time.monotonic() - self.last_step_at
             self.last_step_at = time.monotonic()
         now = time.time()
         t_sent = got.t_zenoh if got.t_zenoh is not None else got.t_recv
@@ -314,24 +303,30 @@ class Learner:
             self.reject(e.reason, kind_of(got.key))
         else:
             self.consume(msg, now, got.t_recv, t_sent)
-        self.publish_weights_if_due(idle=len(self.inbox) == 0)
+        # At a person's pace the weights wait for the idle burst due 50 ms on (one Weights a step, not two); the
+        # actor's next step, in lockstep, needs them only SLOW_STEPS from now.
+        burst_soon = self.idle_left == self.config.idle_updates > 0 and self.step_gap >= SLOW_STEPS
+        self.publish_weights_if_due(idle=len(self.inbox) == 0 and not burst_soon)
         if (
             len(self.core.entries) >= self.config.ingest_batch
             or len(self.ingest_credits) >= MAX_INGEST_CREDITS
-            or time.monotonic() - self.last_ingest >= self.config.ingest_period
+            or self.ingest_due_in() == 0
         ):
             self.flush_ingest()
 
+    def ingest_due_in(self) -> float:
+        return max(0.0, self.last_ingest + self.config.ingest_period - time.monotonic())
+
     def wait_s(self) -> float:
         """How long to wait for an input: between two updates of an idle burst, only a look; 50 ms with something
-        pending (a burst to start, weights or Ingest to send); else until a status or checkpoint is due."""
+        pending (a burst to start, weights to send); else until Ingest, a status or a checkpoint is due."""
         if 0 < self.idle_left < self.config.idle_updates:
             return 0.0
         last = self.last_weights
-        pending = self.core.steps_learned != last.version or self.core.revision != last.revision
-        if self.idle_left or pending or self.core.entries or self.ingest_credits:
+        if self.idle_left or self.core.steps_learned != last.version or self.core.revision != last.revision:
             return IDLE_AFTER
-        return max(0.0, min(QUIET_WAIT, self.rt.status_due_in(), self.ckpt.due_in(self.core.steps_learned)))
+        ingest = self.ingest_due_in() if self.core.entries or self.ingest_credits else QUIET_WAIT
+        return max(0.0, min(QUIET_WAIT, ingest, self.rt.status_due_in(), self.ckpt.due_in(self.core.steps_learned)))
 
     def publish_weights_if_due(self, idle: bool) -> None:
         """New weights go out when they changed and nothing else is waiting, or after `weights_every` steps while
