@@ -201,11 +201,12 @@ class Learner:
     def consume_step(self, msg: Step, now: float, t_recv: float, live: bool) -> bool:
         for inc in self.actors.take():
             self.gate.announce(inc)
-        if live and self.reorder.waits(msg, t_recv, self.gate):  # ahead of re-sent steps it may have overtaken
+        ahead = live and msg.incarnation == self.gate.actor and msg.seq > (self.gate.next_step or 0)
+        if ahead and self.reorder.waits(msg, t_recv, self.gate):  # it may have overtaken re-sent steps
             self.rt.counters["steps_waited"] += 1
             return True
         learned = self.learn_step(msg, now, t_recv, live)
-        for step, t_step in self.reorder.following(self.gate):
+        for step, t_step in self.reorder.following(self.gate) if self.reorder.held else ():
             self.learn_step(step, now, t_step, True)
         return learned
 
@@ -277,9 +278,9 @@ class Learner:
     @traced("learner.input")
     def take_input(self) -> None:
         """One input from the inbox (if any) into the core; publish weights and flush Ingest when due."""
-        if self.reorder.due_in() == 0:
+        if self.reorder.held and self.reorder.due_in() == 0:
             self.release_waiting()
-        got = self.inbox.get(timeout=min(self.wait_s(), self.reorder.due_in()))
+        got = self.inbox.get(timeout=min(self.wait_s(), self.reorder.due_in() if self.reorder.held else QUIET_WAIT))
         if got is None:  # nothing for 50 ms: a paced run's idle time, for up to idle-updates extra steps
             if self.idle_left > 0 and self.core.idle(time.time()):
                 self.idle_left -= 1
@@ -325,8 +326,9 @@ class Learner:
         last = self.last_weights
         if self.idle_left or self.core.steps_learned != last.version or self.core.revision != last.revision:
             return IDLE_AFTER
-        ingest = self.ingest_due_in() if self.core.entries or self.ingest_credits else QUIET_WAIT
-        return max(0.0, min(QUIET_WAIT, ingest, self.rt.status_due_in(), self.ckpt.due_in(self.core.steps_learned)))
+        if self.core.entries or self.ingest_credits:  # (a status or checkpoint waits for it: at most QUIET_WAIT)
+            return min(QUIET_WAIT, self.ingest_due_in())
+        return max(0.0, min(QUIET_WAIT, self.rt.status_due_in(), self.ckpt.due_in(self.core.steps_learned)))
 
     def publish_weights_if_due(self, idle: bool) -> None:
         """New weights go out when they changed and nothing else is waiting, or after `weights_every` steps while
