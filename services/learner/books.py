@@ -183,7 +183,7 @@ class ScreenCredit:
 
     def state(self) -> dict:
         return {
-            "index": [[k, v] for k, v in self.index.items()],
+            "index": list(self.index.items()),  # (pairs: JSON writes them as [seq, index], as before)
             "past_actors": list(self.past_actors),
             "held": [[fb.encode().decode(), pos] for fb, pos in self.held],
         }

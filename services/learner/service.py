@@ -46,7 +46,6 @@ from services.common.gate import DEDUP_REASON, InputGate, first_time_logger
 from common.wire.delivery import ResendRing, publish_kept
 from services.common.watches import decoded_statuses
 from services.common.runtime import ServiceRuntime
-from services.learner import checkpoint
 from services.learner.checkpoint import CheckpointSchedule
 from services.learner.catchup import StepReorder, catch_up
 from services.learner.books import Snapshots, credit_message, delay_message, episode_message, publish_credit
@@ -97,7 +96,7 @@ class Learner:
         )
         self.note_rejected = first_time_logger(rt.event, "input")
         self.last_weights = PublishedWeights(0 if resumed is None else -1, core.revision)
-        self.ckpt = CheckpointSchedule(config, core.steps_learned if resumed else 0)
+        self.ckpt = CheckpointSchedule(config, core.steps_learned if resumed else 0, rt)
         self.end = EndRule(config.wait_teachers, config.end_grace, rt)
         self.last_step_at = 0.0  # (monotonic) when the last step arrived
         self.step_gap = 0.0  # s between the last two steps' arrivals
@@ -153,8 +152,7 @@ class Learner:
 
     def save_checkpoint(self) -> None:
         self.flush_ingest()  # position = entries handed out
-        checkpoint.save_learner(self.config.checkpoint, self.core, self.gate, self.rt)
-        self.ckpt.written(self.core.steps_learned)
+        self.ckpt.save(self.core, self.gate)
 
     def note_latency(self, results, t_sent: float | None = None) -> None:
         """Latency samples: send -> H updated, and how much of it was the wait for a newer step."""
@@ -377,6 +375,7 @@ class Learner:
             if self.finished():
                 break
             self.rt.tick()
+        self.ckpt.close()
         self.release_waiting()
         self.note_latency(core.end(time.time()))
         self.rt.counters["profiles_written"] += core.profiles.save(core.delays, force=True)
