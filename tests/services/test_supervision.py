@@ -185,6 +185,9 @@ def test_a_step_dropped_before_the_learner_knew_its_actor_is_sent_again(tmp_path
     learner = json.loads((launch.rundir / "stats" / "learner.json").read_text())["counters"]
     actor = json.loads((launch.rundir / "stats" / "actor.json").read_text())["counters"]
     assert learner["rejected_unknown_incarnation"] == 1 and actor["resent"] >= 1, (learner, actor)
+    for name in ("learner", "actor", "recorder"):  # start-up's objects frozen once ready: full collections skip them
+        frozen = json.loads((launch.rundir / "stats" / f"{name}.json").read_text())["gc"]["frozen"]
+        assert frozen > 10_000, (name, frozen)
     # Re-sent by the stall timer, or (a loaded run, once) earlier: by the whole window the actor re-sends when it
     # first sees the learner's liveliness, if that came after the step.
     log = (launch.rundir / "logs" / "actor.log").read_text()
