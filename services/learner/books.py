@@ -41,6 +41,7 @@ import numpy as np
 
 from common.agents.feedback import Screen
 from common.protocol import (
+    MAX_INGEST_CREDITS,
     Credit,
     CreditedStep,
     DelayEstimate,
@@ -260,6 +261,22 @@ def listed_steps(seq_of: dict[int, int], times, weights) -> list[tuple[int, floa
             if len(kept) == MAX_LISTED_STEPS:
                 break
     return sorted(kept)
+
+
+INGEST_LISTED_STEPS = 256  # an Ingest goes out once its waiting Credits list this many steps
+
+
+def take_credits(pending: list[Credit]) -> tuple[list[Credit], int]:
+    """The oldest waiting Credits for one Ingest (removed from `pending`) and the steps they list: at least one,
+    then while they list fewer than INGEST_LISTED_STEPS. Encoding costs about 3 us a listed step; at 250 steps/s
+    one Ingest of 13 Credits listed 1,700 steps, 10-18 ms of the learner's loop that the steps behind it waited for."""
+    n, listed = 0, 0
+    while n < min(len(pending), MAX_INGEST_CREDITS) and (n == 0 or listed < INGEST_LISTED_STEPS):
+        listed += len(pending[n].steps)
+        n += 1
+    taken = pending[:n]
+    del pending[:n]
+    return taken, listed
 
 
 def publish_credit(session, pubs: dict, credit: Credit) -> None:

@@ -48,6 +48,7 @@ from services.common.watches import decoded_statuses
 from services.common.runtime import ServiceRuntime
 from services.learner.checkpoint import CheckpointSchedule
 from services.learner.catchup import StepReorder, catch_up
+from services.learner import books
 from services.learner.books import Snapshots, credit_message, delay_message, episode_message, publish_credit
 from services.learner.core import LearnerCore
 from services.learner.end_rule import EndRule
@@ -82,6 +83,7 @@ class Learner:
         self.session = session
         self.credit_pubs: dict = {}  # per person (console teacher): where their Credit messages go
         self.ingest_credits: list = []  # Credits for the next Ingest message (config.credits_in_ingest)
+        self.ingest_listed = 0  # the steps they list
         self.inbox, self.status, self.watch, self.actors, self.requests = inbox, status, watch, actors, requests
         self.idle_left = 0  # extra minibatch steps still allowed before the next step arrives
         self.wpub, self.epub, self.ipub = publishers["weights"], publishers["episode"], publishers["ingest"]
@@ -108,8 +110,8 @@ class Learner:
         while core.entries or self.ingest_credits:
             index = core.position - len(core.entries)
             entries = core.take_entries(self.config.ingest_batch)
-            credits = self.ingest_credits[:MAX_INGEST_CREDITS]
-            del self.ingest_credits[:MAX_INGEST_CREDITS]
+            credits, listed = books.take_credits(self.ingest_credits)
+            self.ingest_listed -= listed
             cfg = None
             if self.ingest_seq == 0:
                 cfg = core.config_record()
@@ -169,6 +171,7 @@ class Learner:
                 credit = credit_message(self.config.run, r, self.core.actor, done, delay)
                 if credit.teacher_id in self.config.credits_in_ingest:
                     self.ingest_credits.append(credit)
+                    self.ingest_listed += len(credit.steps)
                 else:
                     publish_credit(self.session, self.credit_pubs, credit)
             t0, t_held = t_sent, None
@@ -309,6 +312,7 @@ class Learner:
         if (
             len(self.core.entries) >= self.config.ingest_batch
             or len(self.ingest_credits) >= MAX_INGEST_CREDITS
+            or self.ingest_listed >= books.INGEST_LISTED_STEPS
             or self.ingest_due_in() == 0
         ):
             self.flush_ingest()
