@@ -7,8 +7,8 @@ and write its final counters to a JSON file.
 from __future__ import annotations
 
 import collections
-import gc
 import contextlib
+import gc
 import json
 import os
 import signal

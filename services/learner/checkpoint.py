@@ -122,8 +122,9 @@ class CheckpointWriter:
         self.rt = rt
         self.thread: threading.Thread | None = None
         self.failure: BaseException | None = None
-        rt.counters.setdefault("checkpoints", 0)  # (made here: the loop reads counters while the writer counts)
-        rt.samples["checkpoint_write_s"]
+        # Both keys made here, on the loop's thread: the loop reads counters and samples while the writer adds to them.
+        rt.counters.setdefault("checkpoints", 0)
+        rt.samples["checkpoint_write_s"]  # (a defaultdict: looking the key up makes it)
 
     def submit(self, path: str | Path, core: Any, gate: Any) -> None:
         """Capture the learner now, then write it behind the loop's back (after the previous write is done)."""
