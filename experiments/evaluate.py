@@ -11,7 +11,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats as sps
 
 from common.envs.maze import layout_kind
 from experiments import stats
@@ -169,6 +168,8 @@ def run_test(
 def interaction(data: Data, t: Test, metric: str, n_boot: int) -> list[dict]:
     """Layout class x method, per maze component: effect on honest minus on misleading layouts; two-sided
     Welch t-test over the two classes' layout means; bootstrap resampling layouts within each class."""
+    from scipy import stats as sps  # (here: scipy.stats takes a second to import)
+
     variant = METRIC_VARIANT[metric]
     out = []
     for e in t.effects:

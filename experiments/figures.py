@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from experiments import stats  # noqa: E402
-from experiments.claims import AGENT_NAMES  # noqa: E402
-from experiments.evaluate import SUBSETS, ArmData, subset_mask  # noqa: E402
+from common.logs.plots import pyplot
+from experiments import stats
+from experiments.claims import AGENT_NAMES
+from experiments.evaluate import SUBSETS, ArmData, subset_mask
 
 COLORS = {
     "dqn": "#1f77b4",
@@ -31,6 +28,7 @@ def _style(arm: str) -> dict:
 
 def plot_condition(title: str, arms: dict[str, ArmData], stop: int | None, path: str) -> None:
     """Geometric-mean steps per episode (exp of the trials' mean ln steps), one panel per layout subset."""
+    plt = pyplot()
     subsets = [
         s
         for s in SUBSETS
@@ -62,6 +60,7 @@ def plot_condition(title: str, arms: dict[str, ArmData], stop: int | None, path:
 def plot_who_decides(curves: dict[str, dict], path: str) -> None:
     """Top: alpha_h per episode; bottom: share of greedy actions H decided against Q. One column per
     condition, honest (solid) and misleading (dashed) layouts, one colour per arm."""
+    plt = pyplot()
     names = list(curves)
     if not names:
         return
@@ -91,6 +90,7 @@ def plot_who_decides(curves: dict[str, dict], path: str) -> None:
 def plot_learned_lags(lags: dict[str, dict], path: str) -> None:
     """Mean lag of the learned distribution per episode (mean over trials) against the observer's true
     mean lag, per delay condition."""
+    plt = pyplot()
     if not lags:
         return
     fig, axes = plt.subplots(1, len(lags), figsize=(3.6 * len(lags), 3.4), dpi=90, squeeze=False)

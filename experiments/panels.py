@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats as sps
 
 from experiments import stats
 from experiments.claims import MARGIN
@@ -62,6 +61,8 @@ def horizon(arms: dict[str, ArmData], stop: int | None) -> dict:
     """Is the best arm's curve flat at the end? Change of its mean ln steps over the last FLAT_WINDOW
     episodes (linear fit, scipy.stats.linregress), flat when below MARGIN. For DQN: episodes until its
     mean ln-steps curve (5-episode moving average) first comes within MARGIN of its final level."""
+    from scipy import stats as sps  # (here: scipy.stats takes a second to import, and most commands never fit)
+
     curves = {arm: stats.log_steps(a.steps).mean(axis=0) for arm, a in arms.items()}
     E = len(next(iter(curves.values())))
     best = min(curves, key=lambda k: curves[k][-10:].mean())

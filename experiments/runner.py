@@ -22,7 +22,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-import torch
 from threadpoolctl import threadpool_limits
 
 from common.agents import AgentConfig, TrialBatchAgent, make_agent
@@ -355,6 +354,8 @@ def run_trials(
     """
     if not specs:
         return []
+    import torch  # (here, not at the top: `python -m experiments --help` and its argument errors stay quick)
+
     torch.set_num_threads(1)  # one thread: the same arithmetic whatever the batch, and room for workers
     # numpy's OpenBLAS too: above about 10^5 multiply-adds it starts threads, which on a loaded 2-core
     # machine made Taxi's 520-input forward pass 370x slower (13.6 ms against 37 us, measured).

@@ -17,7 +17,6 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from scipy import stats as sps
 
 BOOT_SEED = 20190128
 
@@ -59,6 +58,8 @@ def cluster_bootstrap(
 
 def one_sided_p(cluster_values: np.ndarray, test: str = "t") -> float:
     """p-value of H0: mean <= 0 against H1: mean > 0 over cluster-level values (t or wilcoxon)."""
+    from scipy import stats as sps  # (here: scipy.stats takes a second to import; the CLI's parsing needs none)
+
     x = np.asarray(cluster_values, np.float64)
     if len(x) < 2 or np.allclose(x, x[0]):
         return 0.0 if len(x) and x[0] > 0 else 1.0
@@ -84,6 +85,8 @@ def holm(pvalues: dict[str, float]) -> dict[str, float]:
 
 def mde(se: float, alpha: float, power: float = 0.8) -> float:
     """Smallest true effect a one-sided level-alpha test with this standard error detects with `power`."""
+    from scipy import stats as sps
+
     return float((sps.norm.ppf(1 - alpha) + sps.norm.ppf(power)) * se)
 
 

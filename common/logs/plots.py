@@ -5,11 +5,18 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+
+def pyplot():
+    """pyplot on the file backend, imported when a figure is drawn, not with this module: it takes about a
+    second, and every `python -m experiments` command imports a module that plots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def plot_curves(
@@ -21,7 +28,7 @@ def plot_curves(
     bands: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
 ):
     """One line per name (x = episode); optional shaded bands; a dashed line where feedback stops."""
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=110)
+    fig, ax = pyplot().subplots(figsize=(6, 4), dpi=110)
     for name, y in curves.items():
         x = np.arange(len(y))
         (line,) = ax.plot(x, y, label=name, lw=1.6)
@@ -51,4 +58,4 @@ def save_whole(fig, path) -> None:
         tmp.unlink(missing_ok=True)
         raise
     finally:
-        plt.close(fig)
+        pyplot().close(fig)

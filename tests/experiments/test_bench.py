@@ -30,6 +30,12 @@ def test_cli_wiring(tmp_path):
         [sys.executable, "-m", "experiments", "bench", "--trials", "0"], capture_output=True, text=True, timeout=60
     )
     assert proc.returncode == 2 and "must be positive" in proc.stderr
+    # Parsing a command line loads no heavy library (they took 4.5 s of every command's start, errors included)
+    heavy = ("torch", "scipy.stats", "matplotlib.pyplot")
+    probe = "import sys; from experiments.__main__ import commands; commands(); "
+    probe += f"print([m for m in {heavy} if m in sys.modules])"
+    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
+    assert loaded.stdout.strip() == "[]", loaded.stdout
 
 
 def test_bench_compare_alternates_two_checkouts_and_prints_ratios(tmp_path):

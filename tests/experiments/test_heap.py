@@ -13,6 +13,7 @@ import sys
 
 TRIAL = """
 import hashlib, json, resource, sys
+import torch  # (run_trials imports it on its first call: loading it is not the trial's faults)
 from dataclasses import replace
 from experiments import runner
 from experiments.conditions import BY_NAME, FULL, trial_spec
