@@ -12,7 +12,9 @@ import numpy as np
 def plot_summary(s: dict[str, Any], path: str | os.PathLike, title: str | None = None) -> bool:
     """Draw the learning curve into `path`; without matplotlib, say so in one line on stderr and return False."""
     try:
-        from common.logs.plots import plot_curves
+        from common.logs.plots import plot_curves, pyplot
+
+        pyplot()  # (matplotlib is imported when a figure is first drawn: whether it is installed shows here)
     except ImportError as exc:
         print(
             f"no {os.path.basename(path)}: {exc.name} is not installed (pip install 'hitl-tamer[experiments]')",
