@@ -68,7 +68,9 @@ class StepReorder:
     """Live steps of the current actor that arrive ahead of the next expected seq, waiting for the ones before them.
 
     A restored learner subscribes, catches up from the log (which lags the actor by its flush period) and then
-    hears the actor re-send its recent steps; a live step may overtake those re-sent ones. Consumed at once it would
+    hears the actor re-send its recent steps; a live step may overtake those re-sent ones. The log itself can hold
+    that order: a restarted recorder writes the live steps that reach it before the actor's re-sent ones, and a
+    learner catching up from it reads them so (a chaos run lost 25 steps that way). Consumed at once it would
     be a gap, and the re-sent steps behind it would be dropped as old. So it waits, up to `wait_s` (wall clock;
     the order finally consumed is what the Ingest record holds, so retrain repeats it) or until `max_held` wait, and
     then what waits is consumed in seq order, the first with its gap as before."""

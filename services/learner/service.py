@@ -202,13 +202,14 @@ class Learner:
     def consume_step(self, msg: Step, now: float, t_recv: float, live: bool) -> bool:
         for inc in self.actors.take():
             self.gate.announce(inc)
-        ahead = live and msg.incarnation == self.gate.actor and msg.seq > (self.gate.next_step or 0)
-        if ahead and self.reorder.waits(msg, t_recv, self.gate):  # it may have overtaken re-sent steps
+        # Ahead of the next seq, it may have overtaken re-sent steps: live, or in the log's order while catching up
+        ahead = msg.incarnation == self.gate.actor and msg.seq > (self.gate.next_step or 0)
+        if ahead and self.reorder.waits(msg, t_recv, self.gate):
             self.rt.counters["steps_waited"] += 1
             return True
         learned = self.learn_step(msg, now, t_recv, live)
         for step, t_step in self.reorder.following(self.gate) if self.reorder.held else ():
-            self.learn_step(step, now, t_step, True)
+            self.learn_step(step, now, t_step, live)
         return learned
 
     def release_waiting(self) -> None:
