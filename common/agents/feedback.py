@@ -151,14 +151,22 @@ class TeacherDelays:
         self.models = [self.models[r] for r in rows]
 
     def state_dict(self) -> dict:
-        """The teachers' delays as one JSON text (a checkpoint holds arrays, dicts and scalars, not lists)."""
-        return {"teachers": json.dumps([{t: d.state() for t, d in sorted(m.items())} for m in self.models])}
+        """The teachers' delays as one JSON text (a checkpoint holds arrays, dicts and scalars, not lists), less each
+        learned delay's window of rows: those go as arrays, under "<trial>_<k-th teacher by name>"."""
+        states = [{t: d.state(arrays=True) for t, d in sorted(m.items())} for m in self.models]
+        rows = {
+            f"{i}_{k}": st.pop("rows") for i, m in enumerate(states) for k, st in enumerate(m.values()) if "rows" in st
+        }
+        return {"teachers": json.dumps(states), "rows": rows}
 
     def load_state_dict(self, state: dict) -> None:
         if "learned" in state:  # (written before the registry: one learned delay per trial, or none)
             teachers = [{} if s is None else {DEFAULT_TEACHER: s} for s in state["learned"]]
         else:
             teachers = json.loads(state["teachers"])
+            for key, rows in state.get("rows", {}).items():  # (a checkpoint written before 29 November has none)
+                trial, k = (int(n) for n in key.split("_"))
+                list(teachers[trial].values())[k]["rows"] = rows
         self.models = [{str(t): estimate_from_state(s) for t, s in m.items()} for m in teachers]
 
 

@@ -72,6 +72,8 @@ def test_checkpoint_restores_the_learner_bit_for_bit(tmp_path, algo, oracle_dela
     assert a.held >= 1 or algo == "dqn-rs"
     head = a.take_entries()
     tensors, meta = a.snapshot()
+    rows = [k for k in checkpoint.flatten(tensors)[0] if k.endswith(".like")]  # a learned window: raw, not JSON
+    assert len(rows) == (oracle_delay == "learned"), rows
     size = checkpoint.save(tmp_path / "learner.ckpt", tensors, meta)
     assert size > 0 and not list(tmp_path.glob(".*tmp"))
     tensors2, meta2 = checkpoint.load(tmp_path / "learner.ckpt")
