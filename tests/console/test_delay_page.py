@@ -101,10 +101,13 @@ def alice_teaches(tmp_path) -> dict:
     columns = np.flatnonzero(red.sum(axis=0) >= pixels.shape[0] // 2)
     assert columns.size, "no median line drawn"
     assert abs(columns.mean() - shown["median_s"] / 6.0 * width) <= 3
-    # ... and the density: blue pixels (the curve) in most of the columns between p10 and p90.
+    # ... and the density: blue pixels (the curve) in most of the columns between p10 and p90, less those the median
+    # line covers (a narrow estimate spans 30 columns, 3 of them under the line: a run failed at exactly 0.9).
     blue = np.abs(pixels.astype(int) - np.array([0xB9, 0x80, 0x29])).max(axis=2) <= 40
     lo, hi = int(shown["p10_s"] / 6 * width) + 2, int(shown["p90_s"] / 6 * width) - 2
-    assert blue[:, lo:hi].any(axis=0).mean() > 0.9
+    under_line = set(np.flatnonzero(red.any(axis=0)).tolist())
+    span = [c for c in range(lo, hi) if c not in under_line]
+    assert span and blue[:, span].any(axis=0).mean() > 0.9
 
     # The log holds the same estimates: each Credit of the person's presses, with its delay.
     logged = [
