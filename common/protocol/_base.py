@@ -187,6 +187,11 @@ class Message:
 
     # -- bytes -------------------------------------------------------------------------------------------
     def encode(self) -> bytes:
+        from ._fast import fast_decoder  # (msgspec writes the usual message and checks it by decoding it back)
+
+        data = fast_decoder(type(self)).encode(self)
+        if data is not None:
+            return data
         obj = self.to_json_obj()
         # Validate exactly what goes on the wire, with the decoder's own checks, so encode never emits
         # something that decode would reject.
@@ -199,16 +204,26 @@ class Message:
         return self._dump(self.to_json_obj())
 
     def _dump(self, obj: dict) -> bytes:
-        try:
-            data = _COMPACT_JSON.encode(obj).encode("utf-8")
-        except ValueError as e:  # NaN or infinity left in a field the checks did not see
-            raise ProtocolError("non_finite", str(e)[:80]) from None
+        from ._fast import encode_json  # (msgspec's spelling of numbers: the form the fast decoders take)
+
+        data = encode_json(obj)
+        if b"null" in data:  # msgspec writes NaN and infinity as null: a null may be one the checks did not see
+            try:
+                _COMPACT_JSON.encode(obj)
+            except ValueError as e:
+                raise ProtocolError("non_finite", str(e)[:80]) from None
         if len(data) > self.MAX_BYTES:
             raise ProtocolError("oversized", f"{len(data)} bytes > limit {self.MAX_BYTES}")
         return data
 
     @classmethod
     def decode(cls, data: bytes) -> Message:
+        if type(data) is bytes and len(data) <= cls.MAX_BYTES:
+            from ._fast import fast_decoder  # (msgspec's decoder for the usual form; the full check for the rest)
+
+            msg = fast_decoder(cls).decode(data)
+            if msg is not None:
+                return msg
         return cls.from_json_obj(parse_json(data, cls.MAX_BYTES))
 
     def validate(self) -> None:
