@@ -71,6 +71,11 @@ def _conventions(w) -> None:
         "validates and raises `ProtocolError(reason, detail)`, never anything else."
     )
     w(
+        "- Numbers are written as msgspec writes them (`0.00005`, `1e22`). A message in exactly the form `encode()` "
+        "writes is decoded by msgspec decoders generated from these specs; any other bytes go through the full "
+        "check. Both accept the same messages and give the same reasons."
+    )
+    w(
         "- Every field is required unless marked optional; fields not listed are rejected (`extra_field`); a "
         "JSON object with a repeated key is `malformed`."
     )
