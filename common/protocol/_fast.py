@@ -113,6 +113,8 @@ class FastDecoder:
                 checked.append((wf.attr, wf.wire, Any))
                 built.append((wf.attr, wf.wire, Any))
                 self.own_checks.append((wf.attr, wf.spec))
+        # msgspec writes a dataclass's attribute names: a type with a renamed field (``return_``) encodes the full way
+        self.writes_itself = all(wf.wire == wf.attr for wf in fields)
         name = cls.TYPE_NAME.replace(".", "_")
         self.checker = msgspec.json.Decoder(_struct(name, checked, optional=optional))
         # (without a nested object the checked values are the built ones: one pass)
@@ -136,6 +138,8 @@ class FastDecoder:
     def encode(self, msg: Message) -> bytes | None:
         """``msg``'s bytes when msgspec writes it as the protocol does and they decode back to ``msg``, else None
         (a renamed field, numpy values, tuples, NaN written as null: ``Message.encode``'s full path decides)."""
+        if not self.writes_itself:
+            return None
         try:
             data = _ENCODER.encode(msg)
         except (TypeError, msgspec.MsgspecError):
