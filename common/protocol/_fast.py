@@ -22,7 +22,7 @@ from collections.abc import Callable
 import msgspec
 from msgspec import Meta
 
-from ._base import List, Map, Message, Nullable, Obj
+from ._base import Embedded, List, Map, Message, Nullable, Obj
 from ._spec import Bool, Float, Int, ProtocolError, Spec, Str
 
 __all__ = ["FastDecoder", "fast_decoder", "encode_json"]
@@ -30,6 +30,9 @@ __all__ = ["FastDecoder", "fast_decoder", "encode_json"]
 _ENCODER = msgspec.json.Encoder()
 #: Every JSON value written by ``Message.encode`` (a dict of plain Python values, already checked: finite numbers).
 encode_json: Callable[[Any], bytes] = _ENCODER.encode
+
+
+Convert = Callable[[Any], Any]
 
 
 class Unstated(Exception):
@@ -62,6 +65,8 @@ def _checked(spec: Any) -> Any:
         return Annotated[dict[key, _checked(spec.value)], Meta(max_length=spec.max_items)]  # type: ignore[misc]
     if isinstance(spec, Obj):
         return _struct("Obj", [(k, k, _checked(v)) for k, v in spec.fields.items()], optional=set())
+    if isinstance(spec, Embedded):
+        return fast_decoder(spec.cls).checked_type
     raise Unstated(type(spec).__name__)
 
 
@@ -80,7 +85,26 @@ def _built(spec: Any) -> Any:
         return dict[str, _built(spec.value)]  # type: ignore[misc]
     if isinstance(spec, Obj):
         return spec.cls if spec.cls is not None else dict[str, Any]
+    if isinstance(spec, Embedded):
+        return fast_decoder(spec.cls).built_type
     raise Unstated(type(spec).__name__)
+
+
+def _finisher(spec: Any) -> Convert | None:
+    """How to turn a field's built value into the message's (an embedded message's Struct into the message), or None
+    when it already is. An embedded message inside an object or a map is left to the full check."""
+    if isinstance(spec, Embedded):
+        return fast_decoder(spec.cls).finish
+    if isinstance(spec, (Nullable, List)):
+        inner = _finisher(spec.inner if isinstance(spec, Nullable) else spec.item)
+        if inner is None:
+            return None
+        if isinstance(spec, List):
+            return lambda v: [inner(x) for x in v]
+        return lambda v: None if v is None else inner(v)
+    if isinstance(spec, (Obj, Map)) and _holds(spec, Embedded):
+        raise Unstated("an embedded message in an object or a map")
+    return None
 
 
 def _struct(name: str, fields: list[tuple[str, str, Any]], *, optional: set[str]) -> Any:
@@ -104,11 +128,15 @@ class FastDecoder:
         fields = cls.wire_fields()
         optional = {wf.attr for wf in fields if wf.optional}
         self.own_checks: list[tuple[str, Any]] = []
+        self.finishers: list[tuple[str, Convert]] = []
         checked, built = [], []
         for wf in fields:
             try:
+                finish = _finisher(wf.spec)
                 checked.append((wf.attr, wf.wire, _checked(wf.spec)))
                 built.append((wf.attr, wf.wire, _built(wf.spec)))
+                if finish is not None:
+                    self.finishers.append((wf.attr, finish))
             except Unstated:
                 checked.append((wf.attr, wf.wire, Any))
                 built.append((wf.attr, wf.wire, Any))
@@ -116,23 +144,31 @@ class FastDecoder:
         # msgspec writes a dataclass's attribute names: a type with a renamed field (``return_``) encodes the full way
         self.writes_itself = all(wf.wire == wf.attr for wf in fields)
         name = cls.TYPE_NAME.replace(".", "_")
-        self.checker = msgspec.json.Decoder(_struct(name, checked, optional=optional))
+        self.checked_type = _struct(name, checked, optional=optional)
+        self.checker = msgspec.json.Decoder(self.checked_type)
         # (without a nested object the checked values are the built ones: one pass)
-        nested = any(_holds_obj(wf.spec) for wf in fields)
-        self.builder = msgspec.json.Decoder(_struct(name, built, optional=optional)) if nested else None
+        nested = any(_holds(wf.spec, (Obj, Embedded)) for wf in fields)
+        self.built_type = _struct(name, built, optional=optional) if nested else self.checked_type
+        self.builder = msgspec.json.Decoder(self.built_type) if nested else None
 
     def decode(self, data: bytes) -> Message | None:
         try:
             checked = self.checker.decode(data)
             if _ENCODER.encode(checked) != data:
                 return None  # not the canonical form (spacing, a key twice, 1 for 1.0, 5e-05): the full check decides
-            kwargs = msgspec.structs.asdict(checked if self.builder is None else self.builder.decode(data))
-            for attr, spec in self.own_checks:
-                kwargs[attr] = spec.check(kwargs[attr], attr)
-            msg = self.cls(**kwargs)
-            msg._cross_check()
+            return self.finish(checked if self.builder is None else self.builder.decode(data))
         except (msgspec.MsgspecError, ProtocolError, UnicodeError):
             return None
+
+    def finish(self, built: Any) -> Message:
+        """The message from its built Struct: the fields msgspec could not state checked, the cross-field rules."""
+        kwargs = msgspec.structs.asdict(built)
+        for attr, finish in self.finishers:
+            kwargs[attr] = finish(kwargs[attr])
+        for attr, spec in self.own_checks:
+            kwargs[attr] = spec.check(kwargs[attr], attr)
+        msg = self.cls(**kwargs)
+        msg._cross_check()
         return msg
 
     def encode(self, msg: Message) -> bytes | None:
@@ -147,11 +183,14 @@ class FastDecoder:
         return data if len(data) <= self.cls.MAX_BYTES and self.decode(data) == msg else None
 
 
-def _holds_obj(spec: Any) -> bool:
-    if isinstance(spec, Obj):
+def _holds(spec: Any, kinds: type | tuple[type, ...]) -> bool:
+    """Whether the spec is, or holds, a spec of these kinds."""
+    if isinstance(spec, kinds):
         return True
+    if isinstance(spec, Obj):
+        return any(_holds(inner, kinds) for inner in spec.fields.values())
     inner = getattr(spec, "inner", None) or getattr(spec, "item", None) or getattr(spec, "value", None)
-    return isinstance(inner, Spec) and _holds_obj(inner)
+    return isinstance(inner, Spec) and _holds(inner, kinds)
 
 
 _DECODERS: dict[type, FastDecoder] = {}

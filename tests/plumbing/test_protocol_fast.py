@@ -69,6 +69,15 @@ def test_a_message_in_its_usual_form_takes_the_fast_path(cls):
     assert fast_decoder(cls).decode(data) == msg == cls.decode(data)
 
 
+def test_an_ingest_carrying_credits_takes_the_fast_path_and_checks_each_credit():
+    ingest = example(Ingest, credits=[example(Credit), example(Credit, seq=9)])
+    data = ingest.encode()
+    assert fast_decoder(Ingest).decode(data) == ingest == Ingest.decode(data)
+    bad = data.replace(b'"lost_mass":', b'"lost_mass":2.5,"x":', 1)  # an unknown field in a carried Credit
+    assert fast_decoder(Ingest).decode(bad) is None
+    assert full(Ingest, bad) == ("rejected", "extra_field") == outcome(lambda: Ingest.decode(bad))
+
+
 def test_what_msgspec_alone_would_accept_goes_to_the_full_check():
     raw = example(Step).encode()
     twice = raw.replace(b'"seq":3,', b'"seq":3,"seq":4,')  # a repeated key: msgspec keeps the last
