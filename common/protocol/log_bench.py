@@ -1,6 +1,6 @@
 """A measurement: the protocol's CPU on a real run's traffic, the engine against the full check alone.
 
-Run `python -m common.protocol.log_bench RUN/session.mcap` (a log of `python -m services bench --phases paper`, say):
+Run `python -m common.protocol.msgspec_bench RUN/session.mcap` (the log of a `services bench` paper phase, say):
 every JSON message of the log is decoded and encoded with `decode`/`encode` as they are (msgspec generated from the
 specs, `_fast.py`, the full check for the rest) and with the hand-written full check alone; CPU time, best of 3, per
 step of the log and per message of each type, and how many messages the msgspec decoders took. Each message counts
@@ -9,7 +9,7 @@ once: live, a Step is decoded by three services.
 
 from __future__ import annotations
 
-import argparse
+import json
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -18,7 +18,6 @@ from mcap.reader import make_reader
 
 from ._base import Message, parse_json
 from ._fast import fast_decoder
-from .msgspec_bench import full_encode
 
 
 def _types(base: type[Message] = Message) -> Iterator[type[Message]]:
@@ -37,6 +36,12 @@ def read(path: str) -> list[tuple[type[Message], bytes]]:
             if cls is not None:
                 out.append((cls, message.data))
     return out
+
+
+def full_encode(msg: Message) -> bytes:  # (``encode`` before the engine: the object, its full check, the stdlib)
+    obj = msg.to_json_obj()
+    type(msg).from_json_obj(obj)
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False, ensure_ascii=False).encode()
 
 
 def cpu_s(fn: Callable[[], Any]) -> float:
@@ -59,10 +64,8 @@ def times(records: list[tuple[type[Message], bytes]]) -> tuple[float, float, flo
     )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("log", help="an MCAP log of a run (session.mcap)")
-    records = read(parser.parse_args().log)
+def report(log: str) -> None:
+    records = read(log)
     steps = sum(1 for cls, _ in records if cls.TYPE_NAME == "hitl.Step") or 1
     dec_full, dec_engine, enc_full, enc_engine = times(records)
     print(f"{len(records)} JSON messages, {steps} steps; microseconds of CPU per step of the log:")
@@ -75,7 +78,3 @@ def main() -> None:
         took = sum(1 for cls, data in part if fast_decoder(cls).decode(data) is not None)
         us = [t * 1e6 / len(part) for t in times(part)]
         print(f"| {name} | {len(part)} | {took} | {us[0]:.1f} / {us[1]:.1f} | {us[2]:.1f} / {us[3]:.1f} |")
-
-
-if __name__ == "__main__":
-    main()

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import json
+import sys
 import timeit
 import tokenize
 from pathlib import Path
@@ -20,6 +21,7 @@ import msgspec
 from msgspec import Meta
 
 from ._base import Message, parse_json
+from .log_bench import full_encode, report
 from ._console import CREDIT_STATUSES, MAX_DELAY_BINS, Credit, CreditedStep, DelayEstimate
 from ._fields import NAME_PATTERN, TOKEN_PATTERN
 from ._messages import MAX_INFO_ITEMS, MAX_INFO_KEY, MAX_OBS, MAX_SHOWN, Feedback, ShownStep, Step
@@ -261,12 +263,6 @@ def per_call_us(fn: Any, repeat: int = 7) -> float:
     return min(timer.repeat(repeat=repeat, number=number)) / number * 1e6
 
 
-def full_encode(msg: Message) -> bytes:  # (``encode`` before the engine: the object, its full check, the stdlib)
-    obj = msg.to_json_obj()
-    type(msg).from_json_obj(obj)
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False, ensure_ascii=False).encode()
-
-
 def row(msg: Message, struct: Wire) -> list[float]:
     cls, data, obj, decoder = type(msg), msg.encode(), msg.to_json_obj(), DECODERS[type(msg)]
     fns = [
@@ -387,6 +383,8 @@ def line_counts() -> None:
 
 
 def main() -> None:
+    if len(sys.argv) > 1:  # a run's log: the engine against the full check on its traffic (log_bench.py)
+        return report(sys.argv[1])
     print(f"msgspec {msgspec.__version__}")
     pairs = samples()
     round_trips(pairs)
