@@ -108,3 +108,38 @@ def test_taxi_layout_marks_the_destination_and_the_taxi_moves():
 def test_no_scene_for_an_unknown_environment():
     assert SceneBuilder.from_run_config({"env": "CartPole-v1"}) is None
     assert SceneBuilder.from_run_config({"nothing": 1}) is None
+
+
+def test_a_wide_credit_draws_its_heaviest_steps_and_says_how_many_more():
+    """At 250 steps/s a delay window credits about 127 steps: the picture keeps the heaviest MAX_TILES, in order,
+    says how many it left out, and the metadata still lists every step."""
+    from common.logs.scene import MAX_TILES
+
+    maze = MazeEnv(make_layout(0))
+    builder = SceneBuilder("maze", layout=0)
+    steps = steps_of(maze, [k % 4 for k in range(60)])
+    for s in steps:
+        builder.on_step(s)
+    weights = [0.01] * 60
+    for k in (3, 20, 41):
+        weights[k] = 0.2
+    credit = Credit(
+        run="r",
+        teacher_id="oracle",
+        seq=7,
+        value=1,
+        status="credited",
+        t_reaction=1700000061.0,
+        t_credited=1700000061.1,
+        actor="a1",
+        steps=[CreditedStep(k, w) for k, w in enumerate(weights)],
+        lost_mass=0.0,
+    )
+    [(_, data)] = builder.feed("r", credit)
+    e = SceneUpdate.decode(data).entities[0]
+    drawn = [int(t.text.split("step ")[1].rstrip(")")) for t in e.texts if "(step " in t.text]
+    assert len(e.cubes) == len(drawn) == MAX_TILES and drawn == sorted(drawn)
+    latest_light = sorted(set(range(60)) - {3, 20, 41})[-(MAX_TILES - 3) :]
+    assert set(drawn) == {3, 20, 41, *latest_light}
+    assert f"and {60 - MAX_TILES} more credited steps" in e.texts[-1].text
+    assert len(dict((m.key, m.value) for m in e.metadata)["steps"].split()) == 60
