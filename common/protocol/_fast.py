@@ -8,10 +8,12 @@ reason. So what a decoder accepts, and why it rejects, does not depend on this m
 
 Why a canonical form is needed: msgspec keeps the last of repeated keys (the protocol rejects them), reads 1 as a
 float and writes NaN as null. Bytes that equal msgspec's encoding of what it decoded have none of those: each key
-once, every number in the form it has. A spec msgspec cannot state (``AnyJSON``, ``Embedded``, ``Bytes64``, ...)
-becomes ``Any`` there and is checked by its own ``check`` in Python.
+once, every number in the form it has. An embedded message (an Ingest's Credits) is decoded by its own type's
+Structs and finished as that type; a spec msgspec cannot state (``AnyJSON``, ``Bytes64``) becomes ``Any`` there
+and is checked by its own ``check`` in Python.
 
-Measured (issue 32, docs/notes/2026-11-28-msgspec.md and the note of 29 November): a Step decodes about 5x faster.
+Measured (issue 32, docs/notes/2026-11-28-msgspec.md, "Adopted as an engine"): a Step decodes 2-3x faster, a
+Credit about 4x (`python -m common.protocol.msgspec_bench`).
 """
 
 from __future__ import annotations
@@ -120,8 +122,8 @@ class FastDecoder:
     """One message type's msgspec decoder. ``decode`` gives the message for canonical valid bytes, else None.
 
     Two passes in C: the first checks every stated constraint and that the bytes are canonical, the second builds
-    the values (nested dataclasses included). A top-level field whose spec msgspec cannot state (the run config,
-    an embedded message) is any JSON in both and goes through its spec's own check."""
+    the values (nested dataclasses and embedded messages included). A top-level field whose spec msgspec cannot
+    state (the run config, an image's base64) is any JSON in both and goes through its spec's own check."""
 
     def __init__(self, cls: type[Message]):
         self.cls = cls

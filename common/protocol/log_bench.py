@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 from mcap.reader import make_reader
@@ -65,6 +66,8 @@ def times(records: list[tuple[type[Message], bytes]]) -> tuple[float, float, flo
 
 
 def report(log: str) -> None:
+    if not Path(log).is_file():
+        raise SystemExit(f"{log}: no such log (give a run's session.mcap, e.g. from `python -m services bench`)")
     records = read(log)
     steps = sum(1 for cls, _ in records if cls.TYPE_NAME == "hitl.Step") or 1
     dec_full, dec_engine, enc_full, enc_engine = times(records)

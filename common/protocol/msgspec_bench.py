@@ -383,6 +383,8 @@ def line_counts() -> None:
 
 
 def main() -> None:
+    if sys.argv[1:2] in (["-h"], ["--help"]):
+        return print(__doc__, "\nWith a log, `... msgspec_bench RUN/session.mcap`: the same on a run's traffic.")
     if len(sys.argv) > 1:  # a run's log: the engine against the full check on its traffic (log_bench.py)
         return report(sys.argv[1])
     print(f"msgspec {msgspec.__version__}")
