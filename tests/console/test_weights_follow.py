@@ -4,7 +4,6 @@ offered to the actor's follower and to the console's hub, are adopted or dropped
 from __future__ import annotations
 
 import asyncio
-import tempfile
 import time
 
 import numpy as np
@@ -50,8 +49,8 @@ def offers(spec: dict) -> list[tuple[str, bytes]]:
     ]
 
 
-def test_the_console_adopts_and_drops_weights_as_the_actor_does():
-    creds = make_run_credentials(tempfile.mkdtemp(prefix="creds-"), RUN, teachers=["web"])
+def test_the_console_adopts_and_drops_weights_as_the_actor_does(tmp_path):
+    creds = make_run_credentials(tmp_path, RUN, teachers=["web"])
     console_cfg = ConsoleConfig(run=RUN, credentials=str(creds["teacher.web"]))
     env, _ = make_env(console_cfg.env, console_cfg.layout)
     agent = make_agent([console_cfg.agent], obs_shape(env), n_actions(env), [0])

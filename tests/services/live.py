@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,3 +106,20 @@ def wait_for(predicate, timeout: float, period: float = 0.1) -> bool:
             return True
         time.sleep(period)
     return False
+
+
+_CREDENTIALS: dict[str, str] = {}
+_CREDENTIALS_DIR: tempfile.TemporaryDirectory | None = None
+
+
+def actor_credentials(run: str) -> str:
+    """The actor's credential file of a throwaway run, made once per test process in a directory removed when the
+    process exits (for tests that cannot take `tmp_path`: Hypothesis runs one function many times)."""
+    global _CREDENTIALS_DIR
+    from common.wire.auth import make_run_credentials
+
+    if run not in _CREDENTIALS:
+        if _CREDENTIALS_DIR is None:
+            _CREDENTIALS_DIR = tempfile.TemporaryDirectory(prefix="creds-")
+        _CREDENTIALS[run] = str(make_run_credentials(os.path.join(_CREDENTIALS_DIR.name, run), run)["actor"])
+    return _CREDENTIALS[run]

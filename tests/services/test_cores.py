@@ -21,6 +21,8 @@ from services.common.config import learner_config_from_record
 from services.learner.core import LearnerCore
 from services.teacher.oracle import OracleTeacher
 
+from .live import actor_credentials
+
 RUN = "t"
 
 
@@ -376,17 +378,3 @@ def test_actor_never_goes_back_to_an_older_version():
     assert slot.adopt(inbox) and (slot.version, slot.revision) == (1, 5)
     assert all(np.all(v == 0.25) for v in agent.policy_weights(0).values())
     assert rt.counters["weights_not_newer"] == 2
-
-
-_CREDENTIALS: dict[str, str] = {}
-
-
-def actor_credentials(run: str) -> str:
-    """The actor's credential file of a throwaway run (made once per test process)."""
-    import tempfile
-
-    from common.wire.auth import make_run_credentials
-
-    if run not in _CREDENTIALS:
-        _CREDENTIALS[run] = str(make_run_credentials(tempfile.mkdtemp(prefix="creds-"), run)["actor"])
-    return _CREDENTIALS[run]

@@ -22,6 +22,7 @@ from services.common.progress import ProgressFile
 from services.learner import checkpoint
 from services.learner.core import LearnerCore
 
+from .live import actor_credentials
 from .test_cores import RUN, fb, make_steps
 
 NOW = 1.7e9
@@ -444,17 +445,3 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     assert sum(v for k, v in rt.counters.items() if k.startswith("weights_dropped_")) >= 1 or (
         announced and abs(dt) <= 10 and dict(tensors) == spec
     )
-
-
-_CREDENTIALS: dict[str, str] = {}
-
-
-def actor_credentials(run: str) -> str:
-    """The actor's credential file of a throwaway run (made once per test process)."""
-    import tempfile
-
-    from common.wire.auth import make_run_credentials
-
-    if run not in _CREDENTIALS:
-        _CREDENTIALS[run] = str(make_run_credentials(tempfile.mkdtemp(prefix="creds-"), run)["actor"])
-    return _CREDENTIALS[run]
