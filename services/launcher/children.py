@@ -54,6 +54,7 @@ def child_env() -> dict[str, str]:
     env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     env.setdefault("PYTHONUNBUFFERED", "1")
     env.setdefault("ZENOH_RUNTIME", SERVICE_ZENOH_RUNTIME)  # (a service has one link: common/wire/transport.py)
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")  # (see services/__main__.py)
     return env
 
 

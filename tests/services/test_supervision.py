@@ -244,3 +244,13 @@ def test_hang_watch_spares_a_loaded_live_service_whose_token_lapsed(monkeypatch)
     clock[0] = 1061.0
     watch.progress("busy", 2.0)
     assert "never got it back" in watch.why("busy")  # its session never came back: hung after all
+
+
+def test_services_start_on_one_blas_thread_unless_the_user_chose(monkeypatch):
+    """The services compute on one BLAS thread; told so before numpy loads, OpenBLAS starts no pool."""
+    from services.launcher.children import child_env
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    assert child_env()["OPENBLAS_NUM_THREADS"] == "1"
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "2")
+    assert child_env()["OPENBLAS_NUM_THREADS"] == "2"
