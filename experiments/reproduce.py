@@ -197,7 +197,7 @@ def reproduce(
     with open(timing_path, "w") as fh:
         json.dump(timing, fh, indent=1)
     old = read_json_or_none(os.path.join(out, "claims.json")) or {}
-    previous = _previous_verdicts(old, computed=slots_todo > 0)
+    previous = _previous_verdicts(old, resumed=timing["trials_cached"] > 0)
     report_from_table(table_path, out, timing, argv or ["reproduce"], n_boot, previous, against)
     # The analysis after total_s (REPORT.md states total_s; the whole command took total_s + analysis_s).
     timing["analysis_s"] = time.perf_counter() - t_start - timing["total_s"]
@@ -280,10 +280,12 @@ def _scratch_summary(timing: dict) -> dict:
     return {k: timing.get(k) for k in keys}
 
 
-def _previous_verdicts(old: dict, computed: bool) -> dict:
-    """Verdicts of the report this run replaces (a re-plot keeps the ones it had)."""
-    if not computed and "previous" in old:
-        return old["previous"]
+def _previous_verdicts(old: dict, resumed: bool) -> dict:
+    """Verdicts of the run before this one. A run that read trials from this directory's cache (a re-plot, a run
+    resumed after an interruption, the rest of an `--only` part) continues the run whose report is there: it keeps
+    the previous verdicts that report had, not that report's own (partial) verdicts."""
+    if resumed:
+        return old.get("previous", {})
     return {cid: c.get("verdict") for cid, c in old.get("claims", {}).items()}
 
 

@@ -41,8 +41,11 @@ def returns_of(out, conds):
 def test_interrupted_sweep_resumes_with_only_the_missing_trials(tmp_path, monkeypatch):
     conds = tiny()
     full = tmp_path / "full"
+    full.mkdir()
+    (full / "claims.json").write_text(json.dumps({"claims": {"C1": {"verdict": "inconclusive"}}}))  # an older run's
     rep.reproduce(conds, TINY, str(full), workers=1, progress=False, n_boot=50)
     reference = returns_of(str(full), conds)
+    assert json.loads((full / "claims.json").read_text())["previous"] == {"C1": "inconclusive"}
 
     out = tmp_path / "resumed"
 
@@ -64,7 +67,10 @@ def test_interrupted_sweep_resumes_with_only_the_missing_trials(tmp_path, monkey
 
     monkeypatch.setattr(execute, "run_trials", spy)
     missing = {t.key for t in todo}
+    # the report of this run's first part (an `--only` part leaves one): its verdicts are not a previous run's
+    (out / "claims.json").write_text(json.dumps({"claims": {"C1": {"verdict": "not evaluated"}}, "previous": {}}))
     stats = rep.reproduce(conds, TINY, str(out), workers=1, progress=False, n_boot=50)
+    assert json.loads((out / "claims.json").read_text())["previous"] == {}
     assert {trialcache.trial_key(s) for s in ran} == missing and len(ran) == len(missing)
     assert stats.trials_run == sum(len(t.slots) for t in todo)
     assert returns_of(str(out), conds) == reference
@@ -78,6 +84,7 @@ def test_interrupted_sweep_resumes_with_only_the_missing_trials(tmp_path, monkey
     assert scratch["from_scratch"] and scratch["last_from_scratch"]["total_s"] == scratch["total_s"]
     again = rep.reproduce(conds, TINY, str(full), workers=1, progress=False, n_boot=50)
     assert ran == [] and again.trials_run == 0  # a second run only re-plots
+    assert json.loads((full / "claims.json").read_text())["previous"] == {"C1": "inconclusive"}  # kept by a re-plot
     timing_after = json.loads((full / "timing.json").read_text())
     assert timing_after["trials_cached"] == timing_after["trials"] and not timing_after["from_scratch"]
     assert timing_after["last_from_scratch"] == scratch["last_from_scratch"]  # the scratch figure is kept
