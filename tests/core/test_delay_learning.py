@@ -110,7 +110,7 @@ def test_per_trial_delays_plug_into_the_runner_and_leave_other_trials_unchanged(
     from experiments.runner import TrialSpec, run_trials
 
     obs = ObserverConfig(0.5, (0.0, 0.1, 0.2, 0.7))
-    plain = TrialSpec("maze", agent_for("dqn-tamer"), obs, seed=3, layout=0, episodes=6)
+    plain = TrialSpec("maze", agent_for("dqn-tamer"), obs, seed=3, layout=0, episodes=3)
     learned = replace(
         plain, agent=replace(agent_for("dqn-tamer"), learn_delay=True), observer=replace(obs, delay_s="gamma:4,0,0.25")
     )
