@@ -12,7 +12,8 @@ import sys
 
 # The services compute on one BLAS thread (`apply_torch_threads`). Said before numpy is imported, OpenBLAS never
 # starts its thread pool: 0.1 s less CPU at each process's start (numpy's import alone, 20 runs: 0.28 -> 0.18 s),
-# and 7 % less for a tiny run's whole tree (`services up --episodes 2 --max-steps 30`, 8 runs each: 3.17 -> 2.94 s).
+# and 7 % less for a tiny run's whole tree (`services up --episodes 2 --max-steps 30
+# --curve false`, 8 runs each, alternating: 3.17 -> 2.94 s).
 # The launcher passes it on to the services it starts (`child_env`).
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 

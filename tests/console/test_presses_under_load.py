@@ -51,7 +51,7 @@ def test_an_honest_pages_presses_are_all_credited_beside_two_busy_processes(tmp_
             ctx = browser(pw, tmp_path / "profile")
             page = open_console(ctx, run.url())
             page.wait_for_function("hitl.shownLog.length >= 6", timeout=120_000)
-            busy = busy_processes(2)  # (from here: in the suite, the other workers load the start-up enough)
+            busy = busy_processes(2)  # (the presses are what runs under load; start-up and shut-down need none)
             for k in range(PRESSES):
                 page.keyboard.press("+" if k % 2 == 0 else "-")
                 time.sleep(0.4)
