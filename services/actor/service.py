@@ -307,7 +307,9 @@ def pace(
     """Apply the person's controls; while paused, wait here (adopting weights). True if anything changed."""
     changed = control.take(control_in)
     while control.paused and not control.end and not rt.stop.is_set():
-        slot.adopt(weights_in, timeout=0.05, status=learner_status)
+        # A look at the controls every CONTROL_LOOK s, as between two ticks (every 50 ms, a paused actor took
+        # 0.39 % of a core doing nothing: 20 wake-ups a second); weights still land the moment they arrive.
+        slot.adopt(weights_in, timeout=CONTROL_LOOK, status=learner_status)
         control.take(control_in)
         rt.tick()
     return changed
