@@ -19,7 +19,7 @@ class ConsoleSettings:
     """What a user sets of the console: declared once, the console's own (`ConsoleConfig` is these plus its
     wiring) and nested by the launcher (`UpConfig.console`: `--console.port`, `--console.max-people`, ...)."""
 
-    port: int = option(8765, "web server port (services up: 0, a free one)")
+    port: int = option(8765, "web server port (0: a free one, chosen when the console binds; services up: 0)")
     server_names: tuple[str, ...] = option(
         (),
         "more names the page may reach the console by (its Host header), "
@@ -125,6 +125,12 @@ class ConsoleConfig(TaskConfig, ConsoleSettings, Groups):
         "file holding the console's secret (made, mode 0600, if missing; the "
         "launcher puts it in the run directory): every key of the printed "
         "addresses and pages derives from it. None: a new secret per start",
+    )
+    port_file: str | None = option(
+        None,
+        "file the console writes the port it listens on to (the launcher reads "
+        "it for the address it prints); with port 0 a restarted console listens "
+        "on the port written there, so that open pages reconnect",
     )
     replay: str | None = option(
         None,

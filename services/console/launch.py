@@ -3,6 +3,7 @@ service that reads the people's webcams), for the launcher's teacher registry.""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 WEBCAM = "webcam"  # camera id of the people's webcam frames
@@ -25,18 +26,19 @@ def console_defaults(up: Any) -> dict:
 
 
 def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]:
-    from common.wire.transport import free_port
     from services.common.config import ActorSettings, LearnerSettings
     from services.console.config import ConsoleConfig
     from services.launcher.config import settings
 
-    port = up.console.port or free_port(up.host if up.security else "127.0.0.1")
+    port = up.console.port  # (0: the console binds a free one and writes it to port_file)
     host = up.host if up.security else "127.0.0.1"
     prefix = "web" if teacher_id == "oracle" else teacher_id  # the launcher's default id is the oracle's
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
     from services.console.door import Keys, console_address, read_or_make_token
 
     token_file = up.state_path(f"teacher.{prefix}", ".token")  # kept by a restarted console: open pages go on
+    port_file = up.state_path(f"teacher.{prefix}", ".port")  # (so is its port; a new launcher's console binds anew)
+    Path(port_file).unlink(missing_ok=True)
     console = ConsoleConfig(
         **common,
         stats_out=up.stats_path(f"teacher.{prefix}"),
@@ -50,13 +52,15 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
         learner=LearnerSettings(screen_delay=up.screen_delay),
         camera=WEBCAM if up.webcam else None,
         token_file=token_file,
+        port_file=port_file,
     )
     scheme = "https" if up.security else "http"  # with --security the console serves HTTPS (router certificate)
     waits = " (the run starts when the first page opens)" if up.start_paused else ""
     # a one-use entry key of the run's secret (services/console/door.py): printed to the person's terminal only
-    address = console_address(scheme, host, port, Keys(read_or_make_token(token_file)).entry())
-    # printed once the console listens (the launcher watches the port): the address opens at the first click
-    up.listening_banners = getattr(up, "listening_banners", []) + [(host, port, f"console: {address}{waits}")]
+    entry = Keys(read_or_make_token(token_file)).entry()
+    # printed once the console listens (the launcher reads its port, then watches it): opens at the first click
+    line = lambda bound: f"console: {console_address(scheme, host, bound, entry)}{waits}"  # noqa: E731
+    up.listening_banners = getattr(up, "listening_banners", []) + [(host, port_file, line)]
     procs: list[tuple[str, str, object]] = [(f"teacher.{prefix}", "services.console", console)]
     if up.webcam:
         from services.perception.config import PerceptionLiveConfig

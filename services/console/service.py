@@ -35,7 +35,7 @@ from services.console.bridge import Hub
 from services.console.config import ConsoleConfig
 from services.console.door import Door, Keys, read_or_make_token, spent_file_for
 from services.console.people import PageError, PageGate, Person
-from services.console.sockets import SocketGuard
+from services.console.sockets import SocketGuard, listening_socket
 
 STATIC = Path(__file__).resolve().parent / "static"
 SEND_QUEUE = 256  # messages waiting for a slow page before the oldest are dropped
@@ -274,15 +274,14 @@ async def serve(config: ConsoleConfig, rt: ServiceRuntime, session) -> None:
         config.max_connections,
     )
     keys = Keys(read_or_make_token(config.token_file), spent_file_for(config.token_file))
-    door = Door(keys, config.host, config.port, scheme, rt.counters, config.server_names, guard)
+    sock, port = listening_socket(config.host, config.port, config.port_file)  # (the door checks Host: the real port)
+    door = Door(keys, config.host, port, scheme, rt.counters, config.server_names, guard)
     pages = Pages(config, rt, hub)
     app = make_app(config, pages, door)
     runner = web.AppRunner(app, access_log=None, shutdown_timeout=2.0)
     await runner.setup()
     assert runner.server is not None
-    server = await loop.create_server(
-        guard.factory(runner.server), config.host, config.port, ssl=tls, reuse_address=True, backlog=1024
-    )
+    server = await loop.create_server(guard.factory(runner.server), sock=sock, ssl=tls, backlog=1024)
     sweeper = asyncio.create_task(guard.sweeper())
     rt.set_counters_source(lambda: {"people_now": len(hub.people), **guard.gauges()})
     rt.ready()

@@ -18,13 +18,45 @@ apply to them, services/console/service.py).
 from __future__ import annotations
 
 import asyncio
+import socket
 import time
 from collections import Counter
 from collections.abc import Callable, MutableMapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 SWEEP_PERIOD = 1.0  # s between sweeps of overdue connections
+
+
+def listening_socket(host: str, port: int, port_file: str | None) -> tuple[socket.socket, int]:
+    """The console's server socket, bound, and its port. Port 0: the port an earlier console of this run wrote to
+    `port_file` (a restart: open pages reconnect there), else one the system picks at this bind. Bound here rather
+    than probed by the launcher and bound later: in between, another process could take a probed port (a test
+    suite's routers did, and the page met a Zenoh router)."""
+    from services.common.statefiles import atomic_write
+
+    if port == 0 and port_file is not None:
+        try:
+            port = int(Path(port_file).read_text())
+        except (FileNotFoundError, ValueError):
+            port = 0
+    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[
+        0
+    ]
+    sock = socket.socket(family, kind, proto)
+    try:
+        sock.setsockopt(
+            socket.SOL_SOCKET, socket.SO_REUSEADDR, 1
+        )  # (a restart binds while the old port is in TIME_WAIT)
+        sock.bind(address)
+    except OSError:
+        sock.close()
+        raise
+    bound = sock.getsockname()[1]
+    if port_file is not None:
+        atomic_write(port_file, str(bound).encode())
+    return sock, bound
 
 
 @dataclass

@@ -6,6 +6,7 @@ import dataclasses
 import math
 import os
 from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -171,7 +172,8 @@ class Launch:
         )
         self.parent_pid: int | None = os.getpid()
         self.banners: list[str] = []  # printed once the run is up (the Foxglove bridge's address)
-        self.listening_banners: list[tuple[str, int, str]] = []  # (host, port, line): printed once that port listens
+        # (host, port file, line of the port): printed once the port written to that file listens
+        self.listening_banners: list[tuple[str, str, Callable[[int], str]]] = []
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.cfg, name)

@@ -7,6 +7,8 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from common.config import config_record
@@ -307,18 +309,20 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
         signal.signal(signal.SIGTERM, old_term)
 
 
-def print_when_listening(waiting: list[tuple[str, int, str]]) -> list[tuple[str, int, str]]:
-    """Print each (host, port, line) whose server accepts connections now; the rest wait for the next call."""
+def print_when_listening(waiting: list[tuple[str, str, Callable[[int], str]]]) -> list:
+    """Print each (host, port file, line) whose server wrote its port and accepts connections there now; the rest
+    wait for the next call."""
     import socket
 
     left = []
-    for host, port, line in waiting:
+    for host, port_file, line in waiting:
         try:
+            port = int(Path(port_file).read_text())
             socket.create_connection((host, port), timeout=0.2).close()
-        except OSError:
-            left.append((host, port, line))
+        except (OSError, ValueError):  # (not written yet, or not listening yet)
+            left.append((host, port_file, line))
             continue
-        print(line, file=sys.stderr, flush=True)
+        print(line(port), file=sys.stderr, flush=True)
     return left
 
 

@@ -13,7 +13,7 @@ from aiohttp import web
 from aiohttp.test_utils import make_mocked_request
 
 from services.console.door import Door, Keys, console_address, read_or_make_token, spent_file_for
-from services.console.sockets import SocketGuard
+from services.console.sockets import SocketGuard, listening_socket
 
 SECRET = "t" * 32
 
@@ -160,3 +160,29 @@ async def guard_checks() -> None:
         sweeper.cancel()
         server.close()
         await runner.cleanup()
+
+
+def test_the_console_binds_its_own_free_port_and_a_restart_binds_the_same(tmp_path):
+    """Port 0: the console's bind picks the port (no probe a second process could take first) and writes it for
+    the launcher; a restarted console reads it back, so that open pages reconnect; a damaged file is a fresh pick."""
+    port_file = tmp_path / "state" / "teacher.web.port"
+    sock, port = listening_socket("127.0.0.1", 0, str(port_file))
+    assert port > 0 and sock.getsockname()[1] == port and port_file.read_text() == str(port)
+    sock.listen()
+    with socket.create_connection(("127.0.0.1", port), timeout=5):
+        pass
+    sock.close()
+    again, port_again = listening_socket("127.0.0.1", 0, str(port_file))  # (the old one's port may be in TIME_WAIT)
+    assert port_again == port
+    taken = again  # while this one holds the port, a console without the file gets another
+    other, other_port = listening_socket("127.0.0.1", 0, None)
+    assert other_port not in (0, port)
+    other.close()
+    taken.close()
+    port_file.write_text("not a port")
+    fresh, fresh_port = listening_socket("127.0.0.1", 0, str(port_file))
+    assert fresh_port > 0 and port_file.read_text() == str(fresh_port)
+    fresh.close()
+    given, given_port = listening_socket("127.0.0.1", fresh_port, None)  # a port the user chose is bound as is
+    assert given_port == fresh_port
+    given.close()
