@@ -50,9 +50,12 @@ run: setup
 
 # The checks a maintainer runs, then the tests on three workers (tests/conftest.py keeps those that share an expensive
 # fixture on one worker). Three on two cores, because the live tests wait on real time: measured on 2 cores, the
-# suite took 551 s on two workers and 460 s on three (docs/notes/2026-11-26-test-suite-time.md).
-# `make test PYTEST_ARGS="tests/core -x"` runs a part.
+# suite took 551 s on two workers and 460 s on three (26 November's machine; 537-585 s on 29 November's slower one,
+# docs/notes/2026-11-26-test-suite-time.md). The project's bytecode first (0.3 s when current): where
+# PYTHONDONTWRITEBYTECODE is set, a module edited since `make setup` is compiled again by each of the suite's ~480
+# processes that import it. `make test PYTEST_ARGS="tests/core -x"` runs a part.
 test: setup lint
+	$(PY) -m compileall -q -j 0 common services experiments
 	$(PY) -m pytest -q -n 3 --dist loadgroup $(PYTEST_ARGS)
 
 lint: setup lock-check
