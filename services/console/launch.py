@@ -30,7 +30,6 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
     from services.console.config import ConsoleConfig
     from services.launcher.config import settings
 
-    port = up.console.port  # (0: the console binds a free one and writes it to port_file)
     host = up.host if up.security else "127.0.0.1"
     prefix = "web" if teacher_id == "oracle" else teacher_id  # the launcher's default id is the oracle's
     common = dict(run=up.run, connect=up.connect_endpoints, parent_pid=up.parent_pid)
@@ -45,7 +44,7 @@ def console_processes(up: Any, teacher_id: str) -> list[tuple[str, str, object]]
         task=up.task,
         algo=up.algo,
         agent=up.agent,
-        **{**settings(up.console), "port": port},
+        **settings(up.console),  # (port 0: the console binds a free one and writes it to port_file)
         host=host,
         teacher_prefix=prefix,
         actor=ActorSettings(rate=up.rate, episodes=up.episodes, start_paused=up.start_paused),

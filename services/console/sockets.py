@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from services.common.statefiles import atomic_write
+
 SWEEP_PERIOD = 1.0  # s between sweeps of overdue connections
 
 
@@ -34,21 +36,16 @@ def listening_socket(host: str, port: int, port_file: str | None) -> tuple[socke
     `port_file` (a restart: open pages reconnect there), else one the system picks at this bind. Bound here rather
     than probed by the launcher and bound later: in between, another process could take a probed port (a test
     suite's routers did, and the page met a Zenoh router)."""
-    from services.common.statefiles import atomic_write
-
     if port == 0 and port_file is not None:
         try:
             port = int(Path(port_file).read_text())
         except (FileNotFoundError, ValueError):
             port = 0
-    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[
-        0
-    ]
+    found = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    family, kind, proto, _, address = found[0]
     sock = socket.socket(family, kind, proto)
     try:
-        sock.setsockopt(
-            socket.SOL_SOCKET, socket.SO_REUSEADDR, 1
-        )  # (a restart binds while the old port is in TIME_WAIT)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # (a restart: the old port may be in TIME_WAIT)
         sock.bind(address)
     except OSError:
         sock.close()

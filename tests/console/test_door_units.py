@@ -174,11 +174,10 @@ def test_the_console_binds_its_own_free_port_and_a_restart_binds_the_same(tmp_pa
     sock.close()
     again, port_again = listening_socket("127.0.0.1", 0, str(port_file))  # (the old one's port may be in TIME_WAIT)
     assert port_again == port
-    taken = again  # while this one holds the port, a console without the file gets another
-    other, other_port = listening_socket("127.0.0.1", 0, None)
+    other, other_port = listening_socket("127.0.0.1", 0, None)  # while `again` holds it, a fresh pick is another
     assert other_port not in (0, port)
     other.close()
-    taken.close()
+    again.close()
     port_file.write_text("not a port")
     fresh, fresh_port = listening_socket("127.0.0.1", 0, str(port_file))
     assert fresh_port > 0 and port_file.read_text() == str(fresh_port)
