@@ -14,6 +14,7 @@ from typing import Any
 from common.config import config_record
 from services.common.config import ServiceConfig
 from services.common.runtime import TERMINAL_EXIT
+from services.common.statefiles import atomic_write
 from services.launcher.children import Child, spawn, stop_children, tail
 from services.launcher.config import Launch, UpConfig, build_processes
 from services.launcher.report import Progress, finish
@@ -231,7 +232,8 @@ def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
             "launcher": {**config_record(cfg), "run": run, "endpoint": endpoint},
             "services": {p.name: config_record(p.config) for p in procs},
         }
-        (rundir.path / "config" / "run.json").write_text(json.dumps(run_record, indent=2))
+        # Whole or not at all: tools and tests read it as soon as it exists (a reader once met it empty).
+        atomic_write(rundir.path / "config" / "run.json", json.dumps(run_record, indent=2).encode())
     except OSError as exc:
         raise RunDirError(f"cannot write the run directory {rundir.path}: {describe(exc)}") from None
     return run, rundir, launch, procs, router_cfg
