@@ -1,19 +1,28 @@
-"""Messages as JSON objects: the ``Message`` base class (JSON encode/decode driven by the field specs).
+"""Messages as JSON objects: the ``Message`` base class, and the engine that encodes and decodes them.
 
-Here too the specs that hold other specs (``List``, ``Map``, ``Nullable``, ``Obj``) and ``check_object``, which
-validates the fields of a message or of a nested ``Obj``; each has the full ``check`` and a ``quick`` that accepts
-ordinary valid input at once (``_spec.Spec``). The scalar specs, the base ``Spec`` and ``ProtocolError`` are in
-``_spec.py``; ``Embedded`` and ``AnyJSON`` in ``_whole.py`` (they are off a step's path).
+A message type is a frozen dataclass whose fields carry their specs (``fld``); the specs are the one definition
+(schemas, docs/protocol.md, the Hypothesis strategies and the full check read them). Each type also gets a msgspec
+decoder derived from its specs (``FastDecoder``; the derivation is in ``_fast.py``, made once per type), which
+``Message.decode`` asks first and trusts only for a message in its canonical form (``encode``'s own bytes: compact,
+every field present, each key once): any other input, valid or not, goes to the full check, which gives the result
+and the reason. So what a decoder accepts, and why it rejects, does not depend on the engine; only how fast it
+answers (a Step decodes 2-3x faster, a Credit about 4x: docs/notes/2026-11-28-msgspec.md).
+
+The scalar specs, the base ``Spec`` and ``ProtocolError`` are in ``_spec.py``; the specs that hold others
+(``List``, ``Map``, ``Nullable``, ``Obj``, ``Embedded``, ``AnyJSON``) and ``check_object`` in ``_containers.py``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Callable
 from typing import Any, ClassVar, cast
 
-from ._spec import ProtocolError, QuickMiss, Spec, _check_text, _type_name
-from ._whole import AnyJSON, Embedded
+import msgspec
+
+from ._containers import AnyJSON, Embedded, List, Map, Nullable, Obj, check_object
+from ._spec import ProtocolError, QuickMiss, Spec
 
 __all__ = [
     "PROTOCOL_VERSION",
@@ -24,8 +33,11 @@ __all__ = [
     "Message",
     "Nullable",
     "Obj",
+    "FastDecoder",
     "WireField",
     "check_object",
+    "encode_json",
+    "fast_decoder",
     "fld",
     "parse_json",
 ]
@@ -186,9 +198,7 @@ class Message:
 
     # -- bytes -------------------------------------------------------------------------------------------
     def encode(self) -> bytes:
-        from ._fast import fast_decoder  # (msgspec writes the usual message and checks it by decoding it back)
-
-        data = fast_decoder(type(self)).encode(self)
+        data = fast_decoder(type(self)).encode(self)  # (msgspec writes the usual message, checked by decoding it back)
         if data is not None:
             return data
         obj = self.to_json_obj()
@@ -203,9 +213,8 @@ class Message:
         return self._dump(self.to_json_obj())
 
     def _dump(self, obj: dict) -> bytes:
-        from ._fast import encode_json  # (msgspec's spelling of numbers: the form the fast decoders take)
-
-        data = encode_json(obj)  # (finite: checked by encode, or decoded; msgspec would write NaN as null)
+        # msgspec's spelling of numbers (the form the fast decoders take); finite: checked by encode, or decoded
+        data = encode_json(obj)
         if len(data) > self.MAX_BYTES:
             raise ProtocolError("oversized", f"{len(data)} bytes > limit {self.MAX_BYTES}")
         return data
@@ -213,8 +222,6 @@ class Message:
     @classmethod
     def decode(cls, data: bytes) -> Message:
         if type(data) is bytes and len(data) <= cls.MAX_BYTES:
-            from ._fast import fast_decoder  # (msgspec's decoder for the usual form; the full check for the rest)
-
             msg = fast_decoder(cls).decode(data)
             if msg is not None:
                 return msg
@@ -224,168 +231,69 @@ class Message:
         self.encode()
 
 
-# -- the specs that hold other specs ---------------------------------------------------------------------------
+# -- the engine: msgspec's decoder and encoder for each message type's usual form ------------------------------------
+
+_ENCODER = msgspec.json.Encoder()
+#: Every JSON value written by ``Message.encode`` (a dict of plain Python values, already checked: finite numbers).
+encode_json: Callable[[Any], bytes] = _ENCODER.encode
+Convert = Callable[[Any], Any]
 
 
-class List(Spec):
-    def __init__(self, item: Spec, *, max_items: int, min_items: int = 0, description: str = ""):
-        self.item, self.max_items, self.min_items = item, max_items, min_items
-        self.description = description
+class FastDecoder:
+    """One message type's msgspec decoder. ``decode`` gives the message for canonical valid bytes, else None.
 
-    def schema(self) -> dict:
-        s: dict[str, Any] = {"type": "array", "items": self.item.schema(), "maxItems": self.max_items}
-        if self.min_items:
-            s["minItems"] = self.min_items
-        return s
+    Two passes in C: the first checks every stated constraint and that the bytes are canonical, the second builds
+    the values (nested dataclasses and embedded messages included). A top-level field whose spec msgspec cannot
+    state (the run config, an image's base64) is any JSON in both and goes through its spec's own check."""
 
-    def check(self, value: Any, path: str) -> list:
-        if not isinstance(value, list):
-            raise ProtocolError("wrong_type", f"{path}: expected array, got {_type_name(value)}")
-        if not self.min_items <= len(value) <= self.max_items:
-            raise ProtocolError("bad_value", f"{path}: {len(value)} items, not in [{self.min_items}, {self.max_items}]")
-        check = self.item.check
-        try:  # (the item's path is only spelled out for the error: checks are pure, so the second pass fails alike)
-            return [check(v, path) for v in value]
-        except ProtocolError:
-            return [check(v, f"{path}[{i}]") for i, v in enumerate(value)]
+    def __init__(self, cls: type[Message]):
+        from ._fast import msgspec_types  # (derived once per type, off a step's path)
 
-    def quick(self, value: Any) -> list:
-        if type(value) is not list or not self.min_items <= len(value) <= self.max_items:
-            raise QuickMiss
-        quick = self.item.quick
-        return [quick(v) for v in value]
-
-    def to_json(self, value: Any) -> Any:
-        if isinstance(value, (str, bytes, dict)) or not hasattr(value, "__iter__"):
-            return value  # let check() report the wrong type
-        return [self.item.to_json(v) for v in value]
-
-    def describe(self) -> str:
-        return f"array of ({self.item.describe()}), {self.min_items}..{self.max_items} items"
-
-
-class Map(Spec):
-    """A JSON object used as a dictionary: string keys (bounded) to values of one spec."""
-
-    def __init__(self, value: Spec, *, max_items: int, key_max_len: int = 64, description: str = ""):
-        self.value, self.max_items, self.key_max_len = value, max_items, key_max_len
-        self.description = description
-
-    def schema(self) -> dict:
-        return {
-            "type": "object",
-            "additionalProperties": self.value.schema(),
-            "propertyNames": {"minLength": 1, "maxLength": self.key_max_len},
-            "maxProperties": self.max_items,
-        }
-
-    def check(self, value: Any, path: str) -> dict:
-        if not isinstance(value, dict):
-            raise ProtocolError("wrong_type", f"{path}: expected object, got {_type_name(value)}")
-        if len(value) > self.max_items:
-            raise ProtocolError("bad_value", f"{path}: {len(value)} entries, more than {self.max_items}")
-        out = {}
-        for k, v in value.items():
-            _check_text(k, path)
-            if not 1 <= len(k) <= self.key_max_len:
-                raise ProtocolError("bad_value", f"{path}: key length {len(k)} not in [1, {self.key_max_len}]")
-            out[k] = self.value.check(v, f"{path}.{k}")
-        return out
-
-    def quick(self, value: Any) -> dict:
-        if type(value) is not dict or len(value) > self.max_items:
-            raise QuickMiss
-        quick, longest = self.value.quick, self.key_max_len
-        for k in value:
-            if not (k.isascii() and 1 <= len(k) <= longest):
-                raise QuickMiss
-        return {k: quick(v) for k, v in value.items()}
-
-    def to_json(self, value: Any) -> Any:
-        if not isinstance(value, dict):
-            return value
-        return {k: self.value.to_json(v) for k, v in value.items()}
-
-    def describe(self) -> str:
-        return (
-            f"object of string (1..{self.key_max_len} chars) to ({self.value.describe()}), "
-            f"at most {self.max_items} entries"
-        )
-
-
-class Nullable(Spec):
-    def __init__(self, inner: Spec, *, description: str = ""):
-        self.inner = inner
-        self.description = description or inner.description
-
-    def schema(self) -> dict:
-        return {"anyOf": [self.inner.schema(), {"type": "null"}]}
-
-    def check(self, value: Any, path: str) -> Any:
-        return None if value is None else self.inner.check(value, path)
-
-    def quick(self, value: Any) -> Any:
-        return None if value is None else self.inner.quick(value)
-
-    def to_json(self, value: Any) -> Any:
-        return None if value is None else self.inner.to_json(value)
-
-    def describe(self) -> str:
-        return f"null or {self.inner.describe()}"
-
-
-class Obj(Spec):
-    """A nested JSON object with fixed fields (all required, no extras).
-
-    With ``cls`` (a dataclass whose fields have the same names) the Python value is an instance of it,
-    otherwise a dict.
-    """
-
-    def __init__(self, fields: dict[str, Spec], *, cls: type | None = None, description: str = ""):
-        self.fields = fields
-        self.required = set(fields)
         self.cls = cls
-        self.description = description
+        types = msgspec_types(cls)
+        self.own_checks, self.finishers, self.writes_itself = types.own_checks, types.finishers, types.writes_itself
+        self.checked_type, self.built_type = types.checked, types.built
+        self.checker = msgspec.json.Decoder(types.checked)
+        self.builder = None if types.built is types.checked else msgspec.json.Decoder(types.built)
 
-    def schema(self) -> dict:
-        return {
-            "type": "object",
-            "properties": {k: v.schema() for k, v in self.fields.items()},
-            "required": list(self.fields),
-            "additionalProperties": False,
-        }
+    def decode(self, data: bytes) -> Message | None:
+        try:
+            checked = self.checker.decode(data)
+            if _ENCODER.encode(checked) != data:
+                return None  # not the canonical form (spacing, a key twice, 1 for 1.0, 5e-05): the full check decides
+            return self.finish(checked if self.builder is None else self.builder.decode(data))
+        except (msgspec.MsgspecError, ProtocolError, UnicodeError):
+            return None
 
-    def check(self, value: Any, path: str) -> dict:
-        if not isinstance(value, dict):
-            raise ProtocolError("wrong_type", f"{path}: expected object, got {_type_name(value)}")
-        out = check_object(value, self.fields, required=self.required, path=path)
-        return self.cls(**out) if self.cls is not None else out
+    def finish(self, built: Any) -> Message:
+        """The message from its built Struct: the fields msgspec could not state checked, the cross-field rules."""
+        kwargs = msgspec.structs.asdict(built)
+        for attr, finish in self.finishers:
+            kwargs[attr] = finish(kwargs[attr])
+        for attr, spec in self.own_checks:
+            kwargs[attr] = spec.check(kwargs[attr], attr)
+        msg = self.cls(**kwargs)
+        msg._cross_check()
+        return msg
 
-    def quick(self, value: Any) -> Any:
-        if type(value) is not dict or value.keys() != self.required:
-            raise QuickMiss
-        out = {k: spec.quick(value[k]) for k, spec in self.fields.items()}
-        return self.cls(**out) if self.cls is not None else out
-
-    def to_json(self, value: Any) -> Any:
-        if self.cls is not None and isinstance(value, self.cls):
-            return {k: spec.to_json(getattr(value, k)) for k, spec in self.fields.items()}
-        if isinstance(value, dict):
-            return {k: (self.fields[k].to_json(v) if k in self.fields else v) for k, v in value.items()}
-        return value
-
-    def describe(self) -> str:
-        return "object {" + ", ".join(f"{k}: {v.describe()}" for k, v in self.fields.items()) + "}"
+    def encode(self, msg: Message) -> bytes | None:
+        """``msg``'s bytes when msgspec writes it as the protocol does and they decode back to ``msg``, else None
+        (a renamed field, numpy values, tuples, NaN written as null: ``Message.encode``'s full path decides)."""
+        if not self.writes_itself:
+            return None
+        try:
+            data = _ENCODER.encode(msg)
+        except (TypeError, msgspec.MsgspecError):
+            return None
+        return data if len(data) <= self.cls.MAX_BYTES and self.decode(data) == msg else None
 
 
-def check_object(value: dict, fields: dict[str, Spec], *, required: set[str], path: str) -> dict:
-    """Validate a JSON object against named field specs; return {name: python value}."""
-    if not fields.keys() >= value.keys():  # (set operations first: the loops below only name the culprit)
-        extra = [k for k in value if k not in fields]
-        raise ProtocolError("extra_field", f"{path}: unexpected field {str(extra[0])[:40]!r}")
-    if not required <= value.keys():
-        for name in fields:
-            if name in required and name not in value:
-                raise ProtocolError("missing_field", f"{path}.{name}" if path else name)
-    prefix = f"{path}." if path else ""
-    return {name: spec.check(value[name], prefix + name) for name, spec in fields.items() if name in value}
+_DECODERS: dict[type, FastDecoder] = {}
+
+
+def fast_decoder(cls: type[Message]) -> FastDecoder:
+    """The type's fast decoder, made on first use."""
+    found = _DECODERS.get(cls)
+    if found is None:
+        found = _DECODERS[cls] = FastDecoder(cls)
+    return found

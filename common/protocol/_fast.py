@@ -1,40 +1,26 @@
-"""The fast engine: msgspec decoders generated from the same field specs, for messages in their usual form.
+"""How the msgspec engine (``FastDecoder`` in ``_base.py``) gets its types: from the same field specs, once per message
+type. Each type gets two frozen Structs: one that states every constraint the specs state (checked in C), and, when
+a field nests an object or a message, one that builds the nested dataclasses themselves. A spec msgspec cannot state
+(``AnyJSON``, ``Bytes64``) becomes ``Any`` there and is checked by its own ``check`` in Python.
 
-The specs stay the one definition (schemas, docs/protocol.md, the Hypothesis strategies and the full check read
-them); this module only derives a typed msgspec decoder per message type from them. ``Message.decode`` asks it
-first and takes its answer only for a message in the canonical form (``encode``'s own bytes: compact, every field
-present, each key once): any other input, valid or not, goes to the full check, which gives today's result and
-reason. So what a decoder accepts, and why it rejects, does not depend on this module; only how fast it answers.
-
-Why a canonical form is needed: msgspec keeps the last of repeated keys (the protocol rejects them), reads 1 as a
-float and writes NaN as null. Bytes that equal msgspec's encoding of what it decoded have none of those: each key
-once, every number in the form it has. An embedded message (an Ingest's Credits) is decoded by its own type's
-Structs and finished as that type; a spec msgspec cannot state (``AnyJSON``, ``Bytes64``) becomes ``Any`` there
-and is checked by its own ``check`` in Python.
-
-Measured (issue 32, docs/notes/2026-11-28-msgspec.md, "Adopted as an engine"): a Step decodes 2-3x faster, a
-Credit about 4x (`python -m common.protocol.msgspec_bench`).
+Why the engine trusts only the canonical form: msgspec keeps the last of repeated keys (the protocol rejects them),
+reads 1 as a float and writes NaN as null. Bytes that equal msgspec's encoding of what it decoded have none of
+those: each key once, every number in the form it has.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Annotated, Any, Literal
-from collections.abc import Callable
 
 import msgspec
 from msgspec import Meta
 
-from ._base import Embedded, List, Map, Message, Nullable, Obj
-from ._spec import Bool, Float, Int, ProtocolError, Spec, Str
+from ._base import Convert, Message, fast_decoder
+from ._containers import Embedded, List, Map, Nullable, Obj
+from ._spec import Bool, Float, Int, Spec, Str
 
-__all__ = ["FastDecoder", "fast_decoder", "encode_json"]
-
-_ENCODER = msgspec.json.Encoder()
-#: Every JSON value written by ``Message.encode`` (a dict of plain Python values, already checked: finite numbers).
-encode_json: Callable[[Any], bytes] = _ENCODER.encode
-
-
-Convert = Callable[[Any], Any]
+__all__ = ["MsgspecTypes", "msgspec_types"]
 
 
 class Unstated(Exception):
@@ -118,73 +104,6 @@ def _struct(name: str, fields: list[tuple[str, str, Any]], *, optional: set[str]
     return msgspec.defstruct(name.replace(".", "_"), defs, kw_only=True, frozen=True, forbid_unknown_fields=True)
 
 
-class FastDecoder:
-    """One message type's msgspec decoder. ``decode`` gives the message for canonical valid bytes, else None.
-
-    Two passes in C: the first checks every stated constraint and that the bytes are canonical, the second builds
-    the values (nested dataclasses and embedded messages included). A top-level field whose spec msgspec cannot
-    state (the run config, an image's base64) is any JSON in both and goes through its spec's own check."""
-
-    def __init__(self, cls: type[Message]):
-        self.cls = cls
-        fields = cls.wire_fields()
-        optional = {wf.attr for wf in fields if wf.optional}
-        self.own_checks: list[tuple[str, Any]] = []
-        self.finishers: list[tuple[str, Convert]] = []
-        checked, built = [], []
-        for wf in fields:
-            try:
-                finish = _finisher(wf.spec)
-                checked.append((wf.attr, wf.wire, _checked(wf.spec)))
-                built.append((wf.attr, wf.wire, _built(wf.spec)))
-                if finish is not None:
-                    self.finishers.append((wf.attr, finish))
-            except Unstated:
-                checked.append((wf.attr, wf.wire, Any))
-                built.append((wf.attr, wf.wire, Any))
-                self.own_checks.append((wf.attr, wf.spec))
-        # msgspec writes a dataclass's attribute names: a type with a renamed field (``return_``) encodes the full way
-        self.writes_itself = all(wf.wire == wf.attr for wf in fields)
-        name = cls.TYPE_NAME.replace(".", "_")
-        self.checked_type = _struct(name, checked, optional=optional)
-        self.checker = msgspec.json.Decoder(self.checked_type)
-        # (without a nested object the checked values are the built ones: one pass)
-        nested = any(_holds(wf.spec, (Obj, Embedded)) for wf in fields)
-        self.built_type = _struct(name, built, optional=optional) if nested else self.checked_type
-        self.builder = msgspec.json.Decoder(self.built_type) if nested else None
-
-    def decode(self, data: bytes) -> Message | None:
-        try:
-            checked = self.checker.decode(data)
-            if _ENCODER.encode(checked) != data:
-                return None  # not the canonical form (spacing, a key twice, 1 for 1.0, 5e-05): the full check decides
-            return self.finish(checked if self.builder is None else self.builder.decode(data))
-        except (msgspec.MsgspecError, ProtocolError, UnicodeError):
-            return None
-
-    def finish(self, built: Any) -> Message:
-        """The message from its built Struct: the fields msgspec could not state checked, the cross-field rules."""
-        kwargs = msgspec.structs.asdict(built)
-        for attr, finish in self.finishers:
-            kwargs[attr] = finish(kwargs[attr])
-        for attr, spec in self.own_checks:
-            kwargs[attr] = spec.check(kwargs[attr], attr)
-        msg = self.cls(**kwargs)
-        msg._cross_check()
-        return msg
-
-    def encode(self, msg: Message) -> bytes | None:
-        """``msg``'s bytes when msgspec writes it as the protocol does and they decode back to ``msg``, else None
-        (a renamed field, numpy values, tuples, NaN written as null: ``Message.encode``'s full path decides)."""
-        if not self.writes_itself:
-            return None
-        try:
-            data = _ENCODER.encode(msg)
-        except (TypeError, msgspec.MsgspecError):
-            return None
-        return data if len(data) <= self.cls.MAX_BYTES and self.decode(data) == msg else None
-
-
 def _holds(spec: Any, kinds: type | tuple[type, ...]) -> bool:
     """Whether the spec is, or holds, a spec of these kinds."""
     if isinstance(spec, kinds):
@@ -195,12 +114,39 @@ def _holds(spec: Any, kinds: type | tuple[type, ...]) -> bool:
     return isinstance(inner, Spec) and _holds(inner, kinds)
 
 
-_DECODERS: dict[type, FastDecoder] = {}
+@dataclasses.dataclass(frozen=True)
+class MsgspecTypes:
+    """A message type's Structs and what its engine does in Python after them."""
+
+    checked: Any  # states every constraint; decodes the usual form in C
+    built: Any  # builds the values (nested dataclasses, embedded messages); ``checked`` itself without nesting
+    own_checks: list[tuple[str, Any]]  # (attribute, spec) of top-level fields msgspec cannot state
+    finishers: list[tuple[str, Convert]]  # (attribute, how to turn its built value into the message's)
+    writes_itself: bool  # msgspec writes attribute names: with a renamed field (``return_``), the full way
 
 
-def fast_decoder(cls: type[Message]) -> FastDecoder:
-    """The type's fast decoder, made on first use."""
-    found = _DECODERS.get(cls)
-    if found is None:
-        found = _DECODERS[cls] = FastDecoder(cls)
-    return found
+def msgspec_types(cls: type[Message]) -> MsgspecTypes:
+    """The Structs of a message type, derived from its field specs."""
+    fields = cls.wire_fields()
+    optional = {wf.attr for wf in fields if wf.optional}
+    own_checks: list[tuple[str, Any]] = []
+    finishers: list[tuple[str, Convert]] = []
+    checked, built = [], []
+    for wf in fields:
+        try:
+            finish = _finisher(wf.spec)
+            checked.append((wf.attr, wf.wire, _checked(wf.spec)))
+            built.append((wf.attr, wf.wire, _built(wf.spec)))
+            if finish is not None:
+                finishers.append((wf.attr, finish))
+        except Unstated:
+            checked.append((wf.attr, wf.wire, Any))
+            built.append((wf.attr, wf.wire, Any))
+            own_checks.append((wf.attr, wf.spec))
+    name = cls.TYPE_NAME.replace(".", "_")
+    checked_type = _struct(name, checked, optional=optional)
+    # (without a nested object the checked values are the built ones: one pass)
+    nested = any(_holds(wf.spec, (Obj, Embedded)) for wf in fields)
+    built_type = _struct(name, built, optional=optional) if nested else checked_type
+    writes_itself = all(wf.wire == wf.attr for wf in fields)
+    return MsgspecTypes(checked_type, built_type, own_checks, finishers, writes_itself)

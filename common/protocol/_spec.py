@@ -7,7 +7,7 @@ machine-readable reason), ``schema()`` a JSON Schema (draft 2020-12) fragment,
 ``describe()`` a short human description for docs/protocol.md.
 
 This module holds the errors, the base ``Spec`` and the scalar specs; the specs that nest others (``List``,
-``Map``, ``Nullable``, ``Obj``, ``Embedded``, ``AnyJSON``) and ``check_object`` are in ``_base.py``, with ``Message``.
+``Map``, ``Nullable``, ``Obj``, ``Embedded``, ``AnyJSON``) and ``check_object`` are in ``_containers.py``.
 
 Nothing here imports zenoh or mcap: the protocol is usable by the pure core and by tests.
 """

@@ -2,9 +2,9 @@
 
 Run `python -m common.protocol.msgspec_bench RUN/session.mcap` (the log of a `services bench` paper phase, say):
 every JSON message of the log is decoded and encoded with `decode`/`encode` as they are (msgspec generated from the
-specs, `_fast.py`, the full check for the rest) and with the hand-written full check alone; CPU time, best of 3, per
-step of the log and per message of each type, and how many messages the msgspec decoders took. Each message counts
-once: live, a Step is decoded by three services.
+specs, `FastDecoder` in `_base.py`, the full check for the rest) and with the hand-written full check alone; CPU
+time, best of 3, per step of the log and per message of each type, and how many messages the msgspec decoders took.
+Each message counts once: live, a Step is decoded by three services.
 """
 
 from __future__ import annotations
@@ -17,8 +17,7 @@ from typing import Any
 
 from mcap.reader import make_reader
 
-from ._base import Message, parse_json
-from ._fast import fast_decoder
+from ._base import Message, fast_decoder, parse_json
 
 
 def _types(base: type[Message] = Message) -> Iterator[type[Message]]:

@@ -352,7 +352,7 @@ def hostile() -> None:
 
 # --- line counts ------------------------------------------------------------------------------------------------
 HERE = Path(__file__).resolve().parent
-VALIDATION = ("_base.py", "_spec.py", "_fields.py")  # (_containers.py is in _base.py since 28 November)
+VALIDATION = ("_base.py", "_containers.py", "_spec.py", "_fields.py")  # (_base.py also holds the engine, ~70 lines)
 
 
 def code_lines(text: str) -> int:

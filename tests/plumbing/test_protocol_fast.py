@@ -1,6 +1,7 @@
-"""The fast engine (msgspec decoders generated from the specs, ``common/protocol/_fast.py``) against the full check:
-whatever it accepts, the full check accepts too, with an equal message; whatever else comes in, ``decode`` answers
-as the full check does, with the same reason. And a message in its usual form does take the fast path."""
+"""The fast engine (msgspec decoders generated from the specs: ``FastDecoder`` in ``common/protocol/_base.py``, its
+types derived in ``_fast.py``) against the full check: whatever it accepts, the full check accepts too, with an equal
+message; whatever else comes in, ``decode`` answers as the full check does, with the same reason. And a message in its
+usual form does take the fast path."""
 
 from __future__ import annotations
 
@@ -13,8 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from common.protocol import Credit, EpisodeSummary, Feedback, Ingest, ProtocolError, RunConfig, Step
-from common.protocol._base import parse_json
-from common.protocol._fast import encode_json, fast_decoder
+from common.protocol._base import encode_json, fast_decoder, parse_json
 
 from .strategies import ANY_JSON, JSON_TYPES, example, messages
 
