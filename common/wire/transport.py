@@ -59,6 +59,26 @@ def free_port(host: str = LOOPBACK) -> int:
         return s.getsockname()[1]
 
 
+class PortInUse(ValueError):
+    """A port asked for by number is taken; the message names it and what to do."""
+
+
+def open_listening(config_for: Callable[[int], zenoh.Config], port: int, host: str = LOOPBACK) -> tuple[Any, int]:
+    """A session listening on `port` (its config from `config_for(port)`), and the port. Port 0: a free port, probed
+    (zenoh does not say which port a `:0` listener took) and tried again with another if a process took it between
+    the probe and the bind. A port given by number that is taken: `PortInUse`, naming it."""
+    for _ in range(1 if port else 5):
+        tried = port or free_port(host)
+        try:
+            return zenoh.open(config_for(tried)), tried
+        except zenoh.ZError as exc:
+            if "Address already in use" not in str(exc):
+                raise
+    if port:
+        raise PortInUse(f"port {port} on {host} is in use: choose another --port, or 0 for a free one") from None
+    raise PortInUse(f"no free port on {host} after 5 tries")
+
+
 def tcp_endpoint(port: int, host: str = LOOPBACK) -> str:
     return f"tcp/{host}:{int(port)}"
 

@@ -215,15 +215,26 @@ class Run:
 
 
 def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
-    """Name, directory (locked), credentials, processes and the run record. Raises RunDirError."""
-    from common.wire.transport import free_port
+    """Name, the router's session (listening: its port is the children's), directory (locked), credentials,
+    processes and the run record. Raises RunDirError."""
+    from common.wire.transport import PortInUse, open_listening
 
     run = cfg.run or default_run_name()
     ServiceConfig(run=run)  # validates the name
+    try:
+        session, port = open_listening(lambda p: router_settings(cfg, p)[1], cfg.port, cfg.host)
+    except PortInUse as exc:
+        raise RunDirError(str(exc)) from None
+    try:
+        return (run, *record_run(cfg, run, router_settings(cfg, port)[0]), session)
+    except BaseException:
+        session.close()  # an unclosed session keeps the launcher from exiting
+        raise
+
+
+def record_run(cfg: UpConfig, run: str, endpoint: str) -> tuple[RunDir, Launch, list]:
     rundir = RunDir(cfg.out, run)
     rundir.open()
-    port = cfg.port or free_port(cfg.host)
-    endpoint, router_cfg = router_settings(cfg, port)
     launch = Launch(cfg, run, rundir.path, endpoint)
     procs, _ = build_processes(launch)
     try:
@@ -236,7 +247,7 @@ def prepare(cfg: UpConfig) -> tuple[str, RunDir, Launch, list, Any]:
         atomic_write(rundir.path / "config" / "run.json", json.dumps(run_record, indent=2).encode())
     except OSError as exc:
         raise RunDirError(f"cannot write the run directory {rundir.path}: {describe(exc)}") from None
-    return run, rundir, launch, procs, router_cfg
+    return rundir, launch, procs
 
 
 def check_task_and_agent(cfg: UpConfig) -> None:
@@ -260,38 +271,29 @@ def up(cfg: UpConfig) -> int:
         return 2
     finish_unfinished_runs(cfg.out)  # runs in this --out whose launcher was killed get their summary.json
     try:
-        run, rundir, launch, procs, router_cfg = prepare(cfg)
+        run, rundir, launch, procs, session = prepare(cfg)
     except RunDirError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
-        return watch(cfg, run, rundir, launch, procs, router_cfg)
+        return watch(cfg, run, rundir, launch, procs, session)
     finally:
         rundir.close()
 
 
-def open_launcher_session(r: Run, router_cfg: Any) -> Any:
-    """The router session, signing as `launcher` (its credential), with the launcher's status publisher."""
-    import zenoh
-
+def attach_launcher(r: Run, session: Any) -> None:
+    """The launcher on the router's session: signing as `launcher` (its credential), its status publisher, and
+    the services' statuses."""
     from common.wire.auth import Auth, load_credential
     from common.protocol import KEYS, status_key
     from common.wire.transport import MessagePublisher, set_default_auth, subscribe
 
     set_default_auth(Auth(load_credential(r.rundir.path / "credentials" / "launcher.json", r.run, "launcher")))
-    session = zenoh.open(router_cfg)
-    try:
-        r.status_pub = MessagePublisher(session, status_key(r.run, "launcher"), congestion="block")
-        r.status_sub, r.statuses = subscribe(
-            session, KEYS["status"].wildcard(r.run), maxsize=4096, policy="drop_oldest"
-        )
-    except BaseException:
-        session.close()  # an unclosed session keeps the launcher from exiting
-        raise
-    return session
+    r.status_pub = MessagePublisher(session, status_key(r.run, "launcher"), congestion="block")
+    r.status_sub, r.statuses = subscribe(session, KEYS["status"].wildcard(r.run), maxsize=4096, policy="drop_oldest")
 
 
-def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, router_cfg: Any) -> int:
+def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, session: Any) -> int:
     r = Run(cfg, run, rundir, launch.endpoint)
 
     def on_signal(signum, frame):
@@ -302,8 +304,8 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
     old_int = signal.signal(signal.SIGINT, on_signal)
     old_term = signal.signal(signal.SIGTERM, on_signal)
     t_start = time.time()
-    session = open_launcher_session(r, router_cfg)
     try:
+        attach_launcher(r, session)
         return _supervise(cfg, run, rundir, launch, procs, r, session, t_start)
     finally:
         session.close()

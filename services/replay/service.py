@@ -150,7 +150,11 @@ def cmd_summary(args) -> int:
 def cmd_play(args) -> int:
     import signal
 
-    from common.wire.transport import client_config, free_port, open_session, router_config, tcp_endpoint
+    import contextlib
+
+    import zenoh
+
+    from common.wire.transport import PortInUse, client_config, open_listening, router_config, tcp_endpoint
     from services.replay.play import play
 
     from services.common.runtime import set_from_handler
@@ -168,12 +172,15 @@ def cmd_play(args) -> int:
     signal.signal(signal.SIGINT, lambda *_: set_from_handler(stop))
     signal.signal(signal.SIGTERM, lambda *_: set_from_handler(stop))
     if args.connect:
-        config = client_config(*args.connect.split(","))
-        where = args.connect
+        session, where = zenoh.open(client_config(*args.connect.split(","))), args.connect
     else:
-        where = tcp_endpoint(args.port or free_port())
-        config = router_config(where)
-    with open_session(config) as session:
+        try:
+            session, port = open_listening(lambda p: router_config(tcp_endpoint(p)), args.port or 0)
+        except PortInUse as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        where = tcp_endpoint(port)
+    with contextlib.closing(session):
         print(f"zenoh endpoint: {where}", file=sys.stderr, flush=True)
         if args.start_delay > 0:
             stop.wait(args.start_delay)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -16,13 +17,16 @@ import pytest
 
 from common.protocol import ServiceStatus, Step, status_key, step_key
 from common.wire.transport import (
+    LOOPBACK,
     Inbox,
     MessagePublisher,
+    PortInUse,
     Received,
     client_config,
     declare_publisher,
     default_policy,
     free_port,
+    open_listening,
     open_session,
     peer_config,
     router_config,
@@ -242,3 +246,29 @@ def test_a_block_link_outwaits_every_inbox_before_zenoh_closes_it():
     for config in (router_config(7447), client_config(7447), peer_config(listen=[7448])):
         block = json.loads(config.get_json("transport/link/tx/queue/congestion_control/block"))
         assert block["wait_before_close"] / 1e6 >= 2 * inbox_wait
+
+
+def test_a_listener_tries_another_port_when_the_probed_one_was_taken(monkeypatch):
+    """Port 0: the probed port is taken between the probe and the bind (here: taken before) -> another one, and a
+    client reaches it there. A port asked for by number that is taken: PortInUse, naming it."""
+    import common.wire.transport as transport
+
+    def router_on(port: int):
+        return router_config(tcp_endpoint(port))
+
+    with socket.socket() as taken:
+        taken.bind((LOOPBACK, 0))
+        taken.listen()
+        busy = taken.getsockname()[1]
+        probes = iter([busy, free_port()])
+        monkeypatch.setattr(transport, "free_port", lambda host=LOOPBACK: next(probes))
+        session, port = open_listening(router_on, 0)
+        try:
+            assert port != busy
+            with open_session(client_config(tcp_endpoint(port))) as client:
+                assert wait_for_router(client)
+        finally:
+            session.close()
+        assert next(probes, None) is None  # (both probes used: the first port was refused)
+        with pytest.raises(PortInUse, match=f"port {busy} on {LOOPBACK} is in use"):
+            open_listening(router_on, busy)

@@ -9,6 +9,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -202,6 +203,28 @@ def test_a_step_dropped_before_the_learner_knew_its_actor_is_sent_again(tmp_path
     else:
         assert "learner or recorder (re)started: re-sending the last" in log, log
     assert_nothing_left(launch.rundir)
+
+
+def test_a_taken_port_is_one_line_and_no_run_directory(tmp_path):
+    """`services up --port N` where something already listens: one line naming the port, exit 2, no run directory
+    (it was zenoh's traceback, after a run directory with credentials and a run record had been written)."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        done = subprocess.run(
+            [sys.executable, "-m", "services", "up", "--out", str(tmp_path), "--port", str(port), "--progress", "no"],
+            cwd=ROOT,
+            env=env(),
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.splitlines() == [
+        f"error: port {port} on 127.0.0.1 is in use: choose another --port, or 0 for a free one"
+    ], done.stderr
+    assert not [p for p in tmp_path.iterdir() if p.is_dir()], sorted(tmp_path.iterdir())
 
 
 def test_a_run_directory_in_use_is_refused(tmp_path):
