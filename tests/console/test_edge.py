@@ -91,11 +91,10 @@ class QuietHandler(http.server.SimpleHTTPRequestHandler):
 
 
 def serve_dir(directory) -> tuple[http.server.ThreadingHTTPServer, int]:
-    port = free_port()
     handler = partial(QuietHandler, directory=str(directory))
-    server = http.server.ThreadingHTTPServer(("127.0.0.1", port), handler)
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)  # (0: the system's free port, at the bind)
     threading.Thread(target=server.serve_forever, daemon=True).start()
-    return server, port
+    return server, server.server_address[1]
 
 
 def test_only_its_own_pages_reach_the_console_and_no_page_breaks_it(tmp_path):

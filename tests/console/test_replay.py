@@ -13,7 +13,6 @@ import pytest
 
 from common.logs.mcap_log import read_log
 from common.protocol import Credit, Step
-from common.wire.transport import free_port
 from tests.services.live import ROOT, assert_nothing_left, env, kill_tree, start_up
 
 from .harness import _listening, browser
@@ -35,9 +34,8 @@ def session_log(tmp_path_factory):
 
 @pytest.fixture()
 def replay_url(session_log):
-    port = free_port()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "services.console", "--replay", str(session_log), "--port", str(port)],
+    proc = subprocess.Popen(  # (port 0: the console binds one the system picks, and prints it)
+        [sys.executable, "-m", "services.console", "--replay", str(session_log), "--port", "0"],
         cwd=ROOT,
         env=env(),
         stdout=subprocess.PIPE,
@@ -53,6 +51,7 @@ def replay_url(session_log):
             if line.startswith("replay: "):
                 break
         url = line.split()[1]
+        port = int(url.split(":")[2].split("/")[0])
         assert url.startswith(f"http://127.0.0.1:{port}/#token=") and _listening(port), seen
         yield url
     finally:

@@ -187,12 +187,10 @@ class Attacker:
 
 
 def run_attacked(tmp_path, run: str) -> tuple:
-    from common.wire.transport import free_port
-
-    port = free_port()
-    launch = start_up(tmp_path, run, *ARGS, "--port", str(port))
-    assert wait_for((launch.rundir / "config" / "run.json").exists, 60)
-    attacker = Attacker(f"tcp/127.0.0.1:{port}", run, launch.rundir)
+    launch = start_up(tmp_path, run, *ARGS)  # (its router's port: the launcher's choice, read from the run record)
+    run_json = launch.rundir / "config" / "run.json"
+    assert wait_for(run_json.exists, 60)
+    attacker = Attacker(json.loads(run_json.read_text())["launcher"]["endpoint"], run, launch.rundir)
     done = threading.Event()
     errors: list[BaseException] = []
 
