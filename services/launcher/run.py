@@ -294,6 +294,7 @@ def attach_launcher(r: Run, session: Any) -> None:
 
 
 def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, session: Any) -> int:
+    """Supervise the run on the router's `session` (closed here, whatever happens) until it ends."""
     r = Run(cfg, run, rundir, launch.endpoint)
 
     def on_signal(signum, frame):
@@ -301,10 +302,11 @@ def watch(cfg: UpConfig, run: str, rundir: RunDir, launch: Launch, procs: list, 
         if getattr(r, "sup", None) is not None:
             set_from_handler(r.sup.wake)  # the loop's pass now, not after its rest
 
-    old_int = signal.signal(signal.SIGINT, on_signal)
-    old_term = signal.signal(signal.SIGTERM, on_signal)
+    old_int, old_term = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     t_start = time.time()
     try:
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
         attach_launcher(r, session)
         return _supervise(cfg, run, rundir, launch, procs, r, session, t_start)
     finally:
