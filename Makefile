@@ -48,15 +48,17 @@ $(STAMP): pyproject.toml $(LOCK) Makefile
 run: setup
 	@$(PY) -m services up --env maze --algo dqn-tamer --teacher oracle --episodes 50 --out runs/
 
-# The checks a maintainer runs, then the tests on three workers (tests/conftest.py keeps those that share an expensive
-# fixture on one worker). Three on two cores, because the live tests wait on real time: measured on 2 cores, the
-# suite took 551 s on two workers and 460 s on three (26 November's machine; 537-585 s on 29 November's slower one,
-# docs/notes/2026-11-26-test-suite-time.md). The project's bytecode first (0.3 s when current): where
+# The checks a maintainer runs, then the tests on four workers (tests/conftest.py keeps those that share an expensive
+# fixture on one worker). Four on two cores, because the live and browser tests wait on real time (a face video at
+# its frame rate, pages at a person's pace) and three of them at once left a core idle: on 29 November's machine,
+# alternating, 523.6 and 565.4 s on three workers, 477.7 and 587.6 s on four, the last in an hour when the same
+# in-process tests took 25% more CPU; per unit of that work, four took about 0.88 of three's time
+# (docs/notes/2026-11-26-test-suite-time.md). The project's bytecode first (0.3 s when current): where
 # PYTHONDONTWRITEBYTECODE is set, a module edited since `make setup` is compiled again by each of the suite's ~480
 # processes that import it. `make test PYTEST_ARGS="tests/core -x"` runs a part.
 test: setup lint
 	$(PY) -m compileall -q -j 0 common services experiments
-	$(PY) -m pytest -q -n 3 --dist loadgroup $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n 4 --dist loadgroup $(PYTEST_ARGS)
 
 lint: setup lock-check
 	$(VENV)/bin/ruff check .

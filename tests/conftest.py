@@ -1,4 +1,4 @@
-"""Test-session wiring for `make test` (`pytest -n 2 --dist loadgroup`).
+"""Test-session wiring for `make test` (`pytest -n 4 --dist loadgroup`).
 
 Tests that share an expensive module- or session-scoped fixture (a converted face model and decoded clips, a
 live run that several tests read) stay on one xdist worker, so the fixture is built once rather than on each
