@@ -50,10 +50,10 @@ run: setup
 
 # The checks a maintainer runs, then the tests on four workers (tests/conftest.py keeps those that share an expensive
 # fixture on one worker). Four on two cores, because the live and browser tests wait on real time (a face video at
-# its frame rate, pages at a person's pace) and three of them at once left a core idle: on 29 November's machine,
-# alternating, 523.6 and 565.4 s on three workers, 477.7 and 587.6 s on four, the last in an hour when the same
-# in-process tests took 25% more CPU; per unit of that work, four took about 0.88 of three's time
-# (docs/notes/2026-11-26-test-suite-time.md). The project's bytecode first (0.3 s when current): where
+# its frame rate, pages at a person's pace) and three of them at once left a core idle. On 29 November's machine, six
+# runs in turn while it slowed by a third: three workers 523.5, 565.4, 629.3 s, four 477.7, 587.6, 588.2 s; per CPU
+# second of the same in-process tests, four took 0.94 of three's time, within the runs' spread: no slower, likely a
+# little faster (docs/notes/2026-11-26-test-suite-time.md). The project's bytecode first (0.3 s when current): where
 # PYTHONDONTWRITEBYTECODE is set, a module edited since `make setup` is compiled again by each of the suite's ~480
 # processes that import it. `make test PYTEST_ARGS="tests/core -x"` runs a part.
 test: setup lint
