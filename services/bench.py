@@ -87,10 +87,11 @@ def pct(values, scale: float = 1e3) -> dict[str, float] | None:
 
 
 class Pinger:
-    """Raw Zenoh round trips through the run's router: this process pings, an echo process answers."""
+    """Raw Zenoh round trips through the run's router: this process pings, an echo process answers. The router's
+    endpoint is read from the run record once the launcher has written it (the launcher picks the port at its bind)."""
 
-    def __init__(self, endpoint: str, run: str, period: float):
-        self.endpoint, self.run, self.period = endpoint, run, period
+    def __init__(self, run_record: Path, run: str, period: float):
+        self.run_record, self.run, self.period = run_record, run, period
         self.samples: list[tuple[float, float]] = []  # (wall time sent, rtt s)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._loop, name="pinger", daemon=True)
@@ -108,11 +109,14 @@ class Pinger:
         from common.wire.transport import client_config, open_session, wait_for_matching
 
         try:
-            with open_session(client_config(self.endpoint, connect_timeout=60)) as session:
+            endpoint = self._endpoint()
+            if endpoint is None:
+                return
+            with open_session(client_config(endpoint, connect_timeout=60)) as session:
                 from services.launcher import ROOT, child_env
 
                 self.echo = subprocess.Popen(
-                    [sys.executable, "-c", ECHO, self.endpoint, self.run],
+                    [sys.executable, "-c", ECHO, endpoint, self.run],
                     cwd=str(ROOT),
                     env=child_env(),
                     stdout=subprocess.DEVNULL,
@@ -146,6 +150,15 @@ class Pinger:
                     self.echo.wait(5)
                 except subprocess.TimeoutExpired:
                     self.echo.kill()
+
+    def _endpoint(self) -> str | None:
+        """The router's endpoint from the run record (written whole), or None if the bench stops first."""
+        while not self.stop.is_set():
+            try:
+                return json.loads(self.run_record.read_text())["launcher"]["endpoint"]
+            except FileNotFoundError:
+                self.stop.wait(0.05)
+        return None
 
     def finish(self) -> None:
         self.stop.set()
@@ -247,7 +260,6 @@ def analyse(rundir: Path) -> dict[str, Any]:
 
 
 def bench(cfg: BenchConfig) -> int:
-    from common.wire.transport import free_port, tcp_endpoint
     from services.launcher import UpConfig, up
 
     out = Path(cfg.out)
@@ -267,11 +279,10 @@ def bench(cfg: BenchConfig) -> int:
             results["paced"] = run_paced(cfg, out, stamp)
             continue
         run = f"bench-{stamp}-{name}"
-        port = free_port()
-        pinger = Pinger(tcp_endpoint(port), run, cfg.ping_period)
+        pinger = Pinger(out / run / "config" / "run.json", run, cfg.ping_period)
         pinger.start()
         print(f"\n== phase {name} ({cfg.steps} steps) ==", file=sys.stderr, flush=True)
-        up_cfg = UpConfig.flat(out=str(out), run=run, port=port, **phase_settings(name, cfg))
+        up_cfg = UpConfig.flat(out=str(out), run=run, **phase_settings(name, cfg))
         rc = up(up_cfg)
         pinger.finish()
         res = analyse(out / run)
