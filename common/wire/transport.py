@@ -63,7 +63,9 @@ class PortInUse(ValueError):
     """A port asked for by number is taken; the message names it and what to do."""
 
 
-def open_listening(config_for: Callable[[int], zenoh.Config], port: int, host: str = LOOPBACK) -> tuple[Any, int]:
+def open_listening(
+    config_for: Callable[[int], zenoh.Config], port: int, host: str = LOOPBACK
+) -> tuple[zenoh.Session, int]:
     """A session listening on `port` (its config from `config_for(port)`), and the port. Port 0: a free port, probed
     (zenoh does not say which port a `:0` listener took) and tried again with another if a process took it between
     the probe and the bind. A port given by number that is taken: `PortInUse`, naming it."""

@@ -148,9 +148,8 @@ def cmd_summary(args) -> int:
 
 
 def cmd_play(args) -> int:
-    import signal
-
     import contextlib
+    import signal
 
     import zenoh
 
