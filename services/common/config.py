@@ -372,7 +372,8 @@ class RecorderConfig(ServiceConfig):
 class FoxgloveConfig(ServiceConfig):
     """The Foxglove bridge: the run's channels, as the log has them, over Foxglove's WebSocket protocol."""
 
-    port: int = option(8765, "WebSocket port Foxglove connects to (ws://HOST:PORT)")
+    port: int = option(8765, "WebSocket port Foxglove connects to (ws://HOST:PORT; 0: a free one, chosen at the bind)")
+    port_file: str | None = option(None, "where to write the port it serves on (the launcher prints it from there)")
     host: str = option("127.0.0.1", "address to serve on (127.0.0.1: this machine only)")
     run_config: str | None = option(None, "the run's run.json (the environment to draw); none: no scene")
     stop_when: tuple[str, ...] = option(
@@ -382,8 +383,8 @@ class FoxgloveConfig(ServiceConfig):
 
     def __post_init__(self):
         super().__post_init__()
-        if not 0 < self.port < 65536:
-            raise ValueError(f"port must be in 1..65535, got {self.port}")
+        if not 0 <= self.port < 65536:
+            raise ValueError(f"port must be in 0..65535, got {self.port}")
         for name in self.stop_when:
             _check_name(name, "stop-when")
         if not (math.isfinite(self.linger) and self.linger >= 0):

@@ -20,6 +20,7 @@ from common.protocol import ProtocolError, ServiceStatus, decode, log_topic, par
 from common.logs.scene import SceneBuilder, derived_records
 from services.common.config import FoxgloveConfig
 from services.common.runtime import ServiceRuntime, service_main
+from services.common.statefiles import atomic_write
 
 
 class Channels:
@@ -61,6 +62,8 @@ def main(config: FoxgloveConfig) -> int:
     scene = load_scene(config)
     server = foxglove.start_server(name=f"hitl-tamer {config.run}", host=config.host, port=config.port)
     rt.log(f"serving ws://{config.host}:{server.port} (Foxglove: open connection, Foxglove WebSocket)")
+    if config.port_file is not None:  # (port 0: the port the server took)
+        atomic_write(config.port_file, str(server.port).encode())
     channels = Channels()
     stopped: set[str] = set()
     linger_until: float | None = None

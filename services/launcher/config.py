@@ -80,7 +80,7 @@ class UpConfig(Groups):
     foxglove: int | None = option(
         None,
         "also serve the run's channels (as in the log) over Foxglove's WebSocket "
-        "protocol on this port (services/foxglove; docs/logs.md)",
+        "protocol on this port (0: a free one, printed once it listens; services/foxglove; docs/logs.md)",
     )
     foxglove_host: str = option("127.0.0.1", "address the Foxglove bridge serves on")
     hang_timeout: float = option(
@@ -106,6 +106,8 @@ class UpConfig(Groups):
         why = TEACHERS[self.teacher].available()
         if why:
             raise ValueError(f"teacher {self.teacher!r}: {why}")
+        if self.foxglove is not None and not 0 <= self.foxglove < 65536:
+            raise ValueError(f"foxglove: port must be in 0..65535 (0: a free one), got {self.foxglove}")
         if self.foxglove is not None and (why := missing_extra("foxglove", "foxglove")):
             raise ValueError(f"foxglove: {why}")
         self._apply(TEACHERS[self.teacher].defaults(self))  # e.g. face-video's pace
@@ -171,7 +173,6 @@ class Launch:
             endpoint if cfg.host not in ("0.0.0.0", "::") else endpoint.replace(cfg.host, "127.0.0.1"),
         )
         self.parent_pid: int | None = os.getpid()
-        self.banners: list[str] = []  # printed once the run is up (the Foxglove bridge's address)
         # (host, port file, line of the port): printed once the port written to that file listens
         self.listening_banners: list[tuple[str, str, Callable[[int], str]]] = []
 
@@ -246,7 +247,9 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
         *teachers,
         ProcessSpec("actor", "services.actor", actor),
     ]
-    if c.foxglove:
+    if c.foxglove is not None:
+        port_file = launch.state_path("foxglove", ".port")  # (port 0: the bridge's bind chooses it)
+        Path(port_file).unlink(missing_ok=True)
         procs.insert(
             1,
             ProcessSpec(
@@ -255,16 +258,15 @@ def build_processes(launch: Launch) -> tuple[list[ProcessSpec], list[str]]:
                 FoxgloveConfig(
                     **launch.common("foxglove"),
                     port=c.foxglove,
+                    port_file=port_file,
                     host=c.foxglove_host,
                     run_config=recorder.run_config,
                     stop_when=recorder.stop_when,
                 ),
             ),
         )
-        launch.banners = [
-            *launch.banners,
-            f"foxglove: ws://{c.foxglove_host}:{c.foxglove} (Foxglove: open connection, Foxglove WebSocket)",
-        ]
+        line = lambda port: f"foxglove: ws://{c.foxglove_host}:{port} (Foxglove: open connection, Foxglove WebSocket)"  # noqa: E731
+        launch.listening_banners.append((c.foxglove_host, port_file, line))  # (printed once it listens)
     # Whatever a teacher kind built: the run's security file, each service's credential file, and a progress
     # file where the service keeps one.
     fields = lambda cfg: {f.name for f in dataclasses.fields(cfg)}  # noqa: E731

@@ -342,8 +342,6 @@ def _supervise(
         flush=True,
     )
     print(f"run directory: {rundir.path}", file=sys.stderr, flush=True)
-    for line in launch.banners:  # e.g. the console's address (--teacher web)
-        print(line, file=sys.stderr, flush=True)
     progress = Progress(cfg.episodes, cfg.progress, f"{cfg.algo} on {cfg.env}")
     r.sup = Supervisor(cfg, run, session)
     try:

@@ -1,5 +1,6 @@
 """`services up --foxglove PORT`: a WebSocket client speaking Foxglove's protocol (advertise, subscribe, binary
-message data) connects to the bridge and receives the scene and the steps of a live run."""
+message data) connects to the bridge and receives the scene and the steps of a live run. Port 0: the bridge binds a
+free one, writes it to the run's state/foxglove.port, and the launcher prints the address once it listens."""
 
 from __future__ import annotations
 
@@ -10,9 +11,7 @@ import time
 
 import pytest
 
-from common.wire.transport import free_port
-
-from .live import assert_nothing_left, start_up
+from .live import assert_nothing_left, start_up, wait_for
 
 pytestmark = pytest.mark.live
 SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
@@ -96,9 +95,11 @@ async def watch(port: int, deadline: float) -> tuple[dict, dict]:
 def test_a_foxglove_client_receives_the_scene_and_the_steps(tmp_path):
     from common.protocol import SceneUpdate, Step
 
-    port = free_port()
-    launch = start_up(tmp_path, "fox", "--env", "maze", "--episodes", "4", "--rate", "25", "--foxglove", str(port))
+    launch = start_up(tmp_path, "fox", "--env", "maze", "--episodes", "4", "--rate", "25", "--foxglove", "0")
+    port_file = launch.rundir / "state" / "foxglove.port"
     try:
+        assert wait_for(port_file.exists, 60), "the bridge wrote no port"
+        port = int(port_file.read_text())
         meta, got = asyncio.run(watch(port, time.monotonic() + 120))
     finally:
         rc = launch.wait(timeout=300)
@@ -125,3 +126,11 @@ def test_the_bridge_serves_on_loopback_by_default():
     from services.launcher import UpConfig
 
     assert FoxgloveConfig().host == "127.0.0.1" and UpConfig().foxglove_host == "127.0.0.1"
+
+
+def test_a_foxglove_port_out_of_range_is_one_line():
+    """It was the bridge's config failing inside the launcher, a traceback."""
+    from services.launcher import UpConfig
+
+    with pytest.raises(ValueError, match=r"foxglove: port must be in 0\.\.65535 \(0: a free one\), got 70000"):
+        UpConfig(foxglove=70000)
