@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import sys
 import time
+from pathlib import Path
 
 from common.protocol import ProtocolError, ServiceStatus, decode, log_topic, parse_key, run_prefix
 from common.logs.scene import SceneBuilder, derived_records
@@ -53,6 +54,17 @@ def load_scene(config: FoxgloveConfig) -> SceneBuilder | None:
         return SceneBuilder.from_run_config(json.load(fh))
 
 
+def serving_port(config: FoxgloveConfig) -> int:
+    """The configured port; for port 0, the one a bridge of this run wrote before (a restarted bridge keeps the
+    address the launcher printed), else 0 (the system's choice)."""
+    if config.port == 0 and config.port_file is not None:
+        try:
+            return int(Path(config.port_file).read_text())
+        except (OSError, ValueError):
+            pass
+    return config.port
+
+
 def main(config: FoxgloveConfig) -> int:
     import foxglove
 
@@ -60,7 +72,7 @@ def main(config: FoxgloveConfig) -> int:
 
     rt = ServiceRuntime("foxglove", config)
     scene = load_scene(config)
-    server = foxglove.start_server(name=f"hitl-tamer {config.run}", host=config.host, port=config.port)
+    server = foxglove.start_server(name=f"hitl-tamer {config.run}", host=config.host, port=serving_port(config))
     rt.log(f"serving ws://{config.host}:{server.port} (Foxglove: open connection, Foxglove WebSocket)")
     if config.port_file is not None:  # (port 0: the port the server took)
         atomic_write(config.port_file, str(server.port).encode())
