@@ -35,3 +35,14 @@ def read_json(path: str | os.PathLike) -> Any | None:
         return json.loads(Path(path).read_text())
     except FileNotFoundError:
         return None
+
+
+def port_to_bind(port: int, port_file: str | None) -> int:
+    """`port`; for 0, the port an earlier start of this server wrote to `port_file` (a restart keeps the address
+    the launcher printed), else 0 (the system's choice at the bind)."""
+    if port == 0 and port_file is not None:
+        try:
+            return int(Path(port_file).read_text())
+        except (OSError, ValueError):
+            return 0
+    return port

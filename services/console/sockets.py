@@ -23,10 +23,9 @@ import time
 from collections import Counter
 from collections.abc import Callable, MutableMapping
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
-from services.common.statefiles import atomic_write
+from services.common.statefiles import atomic_write, port_to_bind
 
 SWEEP_PERIOD = 1.0  # s between sweeps of overdue connections
 
@@ -36,11 +35,7 @@ def listening_socket(host: str, port: int, port_file: str | None) -> tuple[socke
     `port_file` (a restart: open pages reconnect there), else one the system picks at this bind. Bound here rather
     than probed by the launcher and bound later: in between, another process could take a probed port (a test
     suite's routers did, and the page met a Zenoh router)."""
-    if port == 0 and port_file is not None:
-        try:
-            port = int(Path(port_file).read_text())
-        except (FileNotFoundError, ValueError):
-            port = 0
+    port = port_to_bind(port, port_file)
     found = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     family, kind, proto, _, address = found[0]
     sock = socket.socket(family, kind, proto)

@@ -15,13 +15,12 @@ from __future__ import annotations
 import json
 import sys
 import time
-from pathlib import Path
 
 from common.protocol import ProtocolError, ServiceStatus, decode, log_topic, parse_key, run_prefix
 from common.logs.scene import SceneBuilder, derived_records
 from services.common.config import FoxgloveConfig
 from services.common.runtime import ServiceRuntime, service_main
-from services.common.statefiles import atomic_write
+from services.common.statefiles import atomic_write, port_to_bind
 
 
 class Channels:
@@ -54,17 +53,6 @@ def load_scene(config: FoxgloveConfig) -> SceneBuilder | None:
         return SceneBuilder.from_run_config(json.load(fh))
 
 
-def serving_port(config: FoxgloveConfig) -> int:
-    """The configured port; for port 0, the one a bridge of this run wrote before (a restarted bridge keeps the
-    address the launcher printed), else 0 (the system's choice)."""
-    if config.port == 0 and config.port_file is not None:
-        try:
-            return int(Path(config.port_file).read_text())
-        except (OSError, ValueError):
-            pass
-    return config.port
-
-
 def main(config: FoxgloveConfig) -> int:
     import foxglove
 
@@ -72,7 +60,8 @@ def main(config: FoxgloveConfig) -> int:
 
     rt = ServiceRuntime("foxglove", config)
     scene = load_scene(config)
-    server = foxglove.start_server(name=f"hitl-tamer {config.run}", host=config.host, port=serving_port(config))
+    port = port_to_bind(config.port, config.port_file)  # (port 0: a restarted bridge keeps its printed address)
+    server = foxglove.start_server(name=f"hitl-tamer {config.run}", host=config.host, port=port)
     rt.log(f"serving ws://{config.host}:{server.port} (Foxglove: open connection, Foxglove WebSocket)")
     if config.port_file is not None:  # (port 0: the port the server took)
         atomic_write(config.port_file, str(server.port).encode())

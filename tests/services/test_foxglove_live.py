@@ -139,13 +139,12 @@ def test_a_foxglove_port_out_of_range_is_one_line():
 def test_a_restarted_bridge_serves_on_the_port_it_wrote(tmp_path):
     """Port 0: the first bridge of a run takes the system's port; a restarted one (the launcher restarts a dead
     service) serves where the printed address points, from the port file."""
-    from services.common.config import FoxgloveConfig
-    from services.foxglove.service import serving_port
+    from services.common.statefiles import port_to_bind
 
     port_file = tmp_path / "foxglove.port"
-    assert serving_port(FoxgloveConfig(port=0, port_file=str(port_file))) == 0
+    assert port_to_bind(0, str(port_file)) == 0
     port_file.write_text("43210")
-    assert serving_port(FoxgloveConfig(port=0, port_file=str(port_file))) == 43210
-    assert serving_port(FoxgloveConfig(port=8765, port_file=str(port_file))) == 8765  # (a port given: that one)
+    assert port_to_bind(0, str(port_file)) == 43210
+    assert port_to_bind(8765, str(port_file)) == 8765  # (a port given: that one)
     port_file.write_text("")  # (damaged: the system's choice again)
-    assert serving_port(FoxgloveConfig(port=0, port_file=str(port_file))) == 0
+    assert port_to_bind(0, str(port_file)) == 0
