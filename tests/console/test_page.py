@@ -85,6 +85,18 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
                 s["t_sys"] = max(s["t_sys"], s["t_action"])
             for fb in mine:
                 assert fb["credit"]["status"] == "credited", fb["credit"]
+            # The trail lists them newest first, each with the steps it was credited to (drawn with a step's paint).
+            page.wait_for_function(
+                f"[...document.querySelectorAll('#trail li')].filter(li => li.textContent.includes('steps')).length"
+                f" === {len(keys)}",
+                timeout=10_000,
+            )
+            trail = page.evaluate("[...document.querySelectorAll('#trail li')].map(li => li.textContent)")
+            assert len(trail) == len(keys)
+            for line, fb in zip(trail, reversed(mine)):
+                head, listed = line.split(" -> steps ")
+                assert head == f"{'+1' if fb['value'] > 0 else '-1'} #{fb['seq']}"
+                assert [int(x.split(" ")[0]) for x in listed.split(", ")] == [q["seq"] for q in fb["credit"]["steps"]]
 
             # 3. A second person is a teacher of their own; what no page should send is counted and dropped.
             other = open_console(ctx, run.another_address())
@@ -149,6 +161,17 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             time.sleep(0.6)  # a step already in flight may still land
             seq_paused = page.evaluate("hitl.step.seq")
             t_paused = time.time()
+            # A press while paused: its answers are drawn although no step is painted.
+            page.keyboard.press("+")
+            page.wait_for_function(
+                """n => {
+                    const f = hitl.mine.get(n), li = document.querySelector('#trail li');
+                    return !!(f && f.credit && li) && li.textContent === `+1 #${n} -> steps ` +
+                        f.credit.steps.map(s => `${s.seq} (${s.weight.toFixed(2)})`).join(', ');
+                }""",
+                arg=len(keys),
+                timeout=10_000,
+            )
             time.sleep(2.5)
             assert page.evaluate("hitl.step.seq") == seq_paused
             t_resumed = time.time()
@@ -178,7 +201,7 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
             steps.append(m)
     # The actor waited for the first page: its very first step was painted on that page.
     assert min(s.seq for s in shown_log if s.screen == "web-1") == 0
-    assert sorted(feedback) == list(range(len(presses)))
+    assert sorted(feedback) == list(range(len(presses) + 1))  # and the press while paused
     episode_of = {m.seq: m.episode for m in steps}
     page_time = {s["seq"]: s["t_sys"] for s in shown}
     credit_of = {fb["seq"]: fb["credit"] for fb in mine}
@@ -215,4 +238,4 @@ def test_page_draws_the_maze_credits_presses_pauses_and_logs(tmp_path):
     assert stats["page_rejected_malformed"] >= 1 and stats["page_rejected_flood"] == floods
     assert stats["people_joined"] == 2
     delay = json.loads((run.rundir / "summary.json").read_text())["delay"]
-    assert delay["web-1"]["feedbacks"] == len(presses) and delay["web-1"]["median_s"] == pytest.approx(2.1)
+    assert delay["web-1"]["feedbacks"] == len(presses) + 1 and delay["web-1"]["median_s"] == pytest.approx(2.1)

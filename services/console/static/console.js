@@ -100,61 +100,6 @@ function drawCurve() {
   g.fillStyle = "#555"; g.font = "11px sans-serif"; g.fillText(`return (${lo.toFixed(1)}..${hi.toFixed(1)}) per episode`, 6, 12);
 }
 
-function showPrefs() {
-  const p = hitl.prefs, tb = document.querySelector("#prefs tbody");
-  if (!p || !p.q) return;
-  const names = (hitl.hello.scene && hitl.hello.scene.actions) || p.q.map((_, i) => `a${i}`);
-  const score = p.q.map((q, i) => p.alpha_q * q + p.alpha_h * p.h[i]);
-  const best = score.indexOf(Math.max(...score));
-  const rows = p.q.map((q, i) => `<tr class="${i === best ? "best" : ""}"><td>${names[i]}</td><td>${q.toFixed(3)}</td>` +
-    `<td>${p.h[i].toFixed(3)}</td><td>${score[i].toFixed(3)}</td></tr>`).join("");
-  if (rows !== hitl.prefsRows) tb.innerHTML = hitl.prefsRows = rows;
-  setText("alpha", `alpha_q ${p.alpha_q}  alpha_h ${p.alpha_h.toFixed(4)}  (weights v${p.weights_version})`);
-}
-
-// A DOM write that changes nothing still costs a style pass, a layout and a frame: write only changes.
-function setText(id, text) { const el = document.getElementById(id); if (el.textContent !== text) el.textContent = text; }
-function showStatus() {
-  const st = hitl.step;
-  if (st) {
-    setText("episode", `episode ${st.episode}`);
-    setText("step", `step ${st.t_in_episode}`);
-    setText("return", `return ${(hitl.episodeReturn || 0).toFixed(2)}`);
-  }
-  setText("runstate", hitl.ended ? "run over" : hitl.paused ? "paused" : `${hitl.rate} steps/s`);
-  setText("pause", hitl.paused ? "resume" : "pause");
-}
-
-// Preferences follow the weights, which at a person's pace change many times a step (idle-time updates: 14 prefs/s
-// at 2 steps/s, measured), each re-render a layout and a frame: the newest is shown with the next step's paint,
-// or PREFS_EVERY s after the last one shown.
-const PREFS_EVERY = 0.5;
-function onPrefs(m) {
-  hitl.prefs = m; hitl.prefsDirty = true;
-  if (!hitl.prefsTimer) hitl.prefsTimer = setTimeout(flushPrefs, Math.max(0, (hitl.prefsShownAt || 0) + PREFS_EVERY * 1000 - performance.now()));
-}
-function flushPrefs() {
-  clearTimeout(hitl.prefsTimer); hitl.prefsTimer = null;
-  if (hitl.prefsDirty) { hitl.prefsDirty = false; hitl.prefsShownAt = performance.now(); showPrefs(); }
-}
-
-// A press's sent, Credit and acknowledgement each redrew the trail (and the tint): now once, in the next frame.
-const later = new Set();
-function redrawLater(fn) { if (!later.size) requestAnimationFrame(() => { const f = [...later]; later.clear(); f.forEach((g) => g()); }); later.add(fn); }
-
-function showTrail() {
-  const ol = document.getElementById("trail");
-  const mine = [...hitl.mine.values()].slice(-30).reverse();
-  ol.innerHTML = mine.map((f) => {
-    const where = f.credit ? (f.credit.status === "credited"
-      ? "steps " + f.credit.steps.map((s) => `${s.seq} (${s.weight.toFixed(2)})`).join(", ") : f.credit.status) : "...";
-    return `<li class="${f.value > 0 ? "pos" : "neg"}">${f.value > 0 ? "+1" : "-1"} #${f.seq} -> ${where}</li>`;
-  }).join("");
-  const waiting = hitl.held.length, dropped = hitl.dropped.length;  // kept until the learner acknowledges them
-  if (waiting || dropped) ol.insertAdjacentHTML("afterbegin", `<li>${waiting} press(es) waiting for the learner` +
-    (dropped ? `, ${dropped} dropped (${[...new Set(hitl.dropped.map((d) => d.reason))].join(", ")})` : "") + "</li>");
-}
-
 // ---------------------------------------------------------------- painting a step, and saying when
 function onStep(m) {
   if (m.t_in_episode === 0) hitl.episodeReturn = 0;
@@ -170,7 +115,8 @@ function paint(ts) {
   if (!m) return;
   hitl.pending = null;
   hitl.step = m;
-  drawScene(); showStatus(); flushPrefs();
+  later.delete(drawScene);  // drawn here anyway
+  drawScene(); showStatus(); flushPrefs(); flushLater();
   const drawn = performance.now();
   // What was drawn appears with the frame this callback produces; the next frame's callback time is when
   // that frame was presented (never earlier than the drawing itself).
@@ -327,7 +273,7 @@ function onMessage(m) {
       }
       hitl.trail.push(m); if (hitl.trail.length > 200) hitl.trail.shift();
       if (m.teacher_id === hitl.me && hitl.mine.has(m.seq)) { hitl.mine.get(m.seq).credit = m; redrawLater(showTrail); }
-      if (m.teacher_id === hitl.me && m.delay) showDelay(m.delay);
+      if (m.teacher_id === hitl.me && m.delay) { hitl.delayNext = m.delay; redrawLater(showDelayLater); }
       redrawLater(drawScene); break;
     case "control": hitl.paused = m.paused; hitl.rate = m.rate; hitl.ended = m.ended; showStatus();
       if (m.ended) stopCamera(); break;
