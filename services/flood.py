@@ -1,5 +1,7 @@
 """`python -m services flood --connect ENDPOINT --run RUN`: publish garbage on a run's step, feedback and weights
-keys (a test tool: what every subscriber must drop, count and survive; docs/faults.md).
+keys (a test tool: what every subscriber must drop, count and survive; docs/faults.md). With `--run-dir DIR` in
+place of `--connect` it waits for the run's record and connects to the router that record names, so it can be
+started before the run and flood from its first moment, with no port chosen in advance.
 
 Each message is one of `KINDS`, in turn: bytes that are not JSON, oversized payloads, wrong types, missing and
 extra fields, NaN, a wrong run, feedback values other than -1/+1, timestamps far in the future or the past,
@@ -16,6 +18,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -157,6 +160,10 @@ class FloodConfig:
     survive (a test tool, docs/faults.md)."""
 
     connect: str = option("", "router endpoint, e.g. tcp/127.0.0.1:7447")
+    run_dir: str = option(
+        "", "instead of --connect: a run's directory; wait for its record (config/run.json) and use its router"
+    )
+    wait: float = option(300.0, "with --run-dir: seconds to wait for the run's record")
     run: str = option("", "the run's name")
     env: str = option("maze", "environment (the shapes of the observations and weights sent)")
     rate: float = option(300.0, "garbage messages per second")
@@ -165,10 +172,25 @@ class FloodConfig:
     report: str | None = option(None, "write the counts sent per kind to this JSON file at the end")
 
     def __post_init__(self):
-        if not self.connect or not self.run:
-            raise ValueError("--connect and --run are required")
+        if bool(self.connect) == bool(self.run_dir) or not self.run:
+            raise ValueError("--run and one of --connect or --run-dir are required")
         if self.rate <= 0:
             raise ValueError("--rate must be positive")
+
+
+def router_of(run_dir: Path, wait: float, stopped: Callable[[], bool]) -> str | None:
+    """The router endpoint in a run's record, once the launcher has written it (after its router listens); None
+    if stopped (SIGINT, SIGTERM) first."""
+    record = run_dir / "config" / "run.json"
+    print(f"waiting for {record}", flush=True)
+    deadline = time.monotonic() + wait
+    while not record.exists():
+        if stopped():
+            return None
+        if time.monotonic() > deadline:
+            raise SystemExit(f"flood: no run record at {record} after {wait:g} s")
+        time.sleep(0.05)
+    return str(json.loads(record.read_text())["launcher"]["endpoint"])
 
 
 def main(args: FloodConfig) -> int:
@@ -189,7 +211,11 @@ def main(args: FloodConfig) -> int:
     sent: dict[str, int] = {k: 0 for k in KINDS}
     import zenoh
 
-    with open_session(client_config(args.connect, connect_timeout=30)) as session:
+    endpoint = args.connect or router_of(Path(args.run_dir), args.wait, lambda: stop["now"])
+    if endpoint is None:
+        print("stopped before the run's record was written: nothing sent", flush=True)
+        return 1
+    with open_session(client_config(endpoint, connect_timeout=30)) as session:
         pubs: dict[str, Any] = {}
         print(f"flooding hitl/{args.run}/{{step,feedback/*,weights}} at {args.rate:.0f} msg/s", flush=True)
         t0 = time.monotonic()

@@ -15,7 +15,6 @@ import pytest
 
 from common.logs.mcap_log import load_log
 from common.protocol import Ingest, Step
-from common.wire.transport import free_port
 
 from .chaos_rule import STEPS
 from .live import ROOT, assert_nothing_left, env, kill_tree, start_up
@@ -88,10 +87,9 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
     undisturbed (action for action), and no garbage feedback reaches the learner's core."""
     args = ("--algo", "dqn", "--episodes", "12", "--seed", "2", "--max-ahead", "0")
     # The two runs at the same time: in lockstep DQN acts and learns the same whatever the timing.
-    # The flood starts first and waits for the noisy run's router (on a port picked here), so it is flooding
-    # before the run's services are up, however loaded the machine (started after the run, a loaded run ended
-    # before the flood had loaded its imports).
-    port = free_port()
+    # The flood starts first and waits for the noisy run's record (written once its router listens, before any
+    # service starts), so it is flooding before the run's services are up, however loaded the machine (started
+    # after the run, a loaded run ended before the flood had loaded its imports).
     report = tmp_path / "flood.json"
     flood = subprocess.Popen(
         [
@@ -99,8 +97,8 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
             "-m",
             "services",
             "flood",
-            "--connect",
-            f"tcp/127.0.0.1:{port}",
+            "--run-dir",
+            str(tmp_path / "noisy"),
             "--run",
             "noisy",
             "--rate",
@@ -115,7 +113,7 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
         text=True,
     )
     calm = start_up(tmp_path, "calm", *args)
-    noisy = start_up(tmp_path, "noisy", *args, "--port", str(port))
+    noisy = start_up(tmp_path, "noisy", *args)
     try:
         try:
             assert noisy.wait(timeout=240) == 0, noisy.out
