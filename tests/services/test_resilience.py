@@ -151,6 +151,28 @@ def test_flood_of_garbage_changes_nothing_the_learner_learns(tmp_path):
         assert_nothing_left(launch.rundir)
 
 
+def test_a_flood_waiting_for_a_run_that_never_comes_ends_on_ctrl_c_having_sent_nothing(tmp_path):
+    """`flood --run-dir`: it waits for the run's record, and SIGINT while it waits ends it at once, nothing sent."""
+    flood = subprocess.Popen(
+        [sys.executable, "-m", "services", "flood", "--run-dir", str(tmp_path / "none"), "--run", "none"],
+        cwd=ROOT,
+        env=env(),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        assert flood.stdout is not None
+        assert flood.stdout.readline().strip() == f"waiting for {tmp_path / 'none' / 'config' / 'run.json'}"
+        flood.send_signal(signal.SIGINT)
+        out, _ = flood.communicate(timeout=30)
+    finally:
+        if flood.poll() is None:
+            kill_tree(flood.pid)
+    assert flood.returncode == 1, out
+    assert out.strip() == "stopped before the run's record was written: nothing sent"
+
+
 def test_backpressure_slow_learner_keeps_every_process_bounded(tmp_path):
     """A deliberately slow learner (4 ms per step, test-only knob) behind an actor that never waits for weights
     (max-ahead none): the actor is held back by the credit bound (max-lag) and the bounded inboxes (Zenoh BLOCK
