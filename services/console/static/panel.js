@@ -16,7 +16,7 @@ function showPrefs() {
 }
 
 // Tables and lists are written in place, a cell or an item at a time: rebuilt whole (innerHTML), every row was
-// re-created, styled, laid out and painted again for each step or press, most of the page's layout work (a trace
+// re-created, styled, laid out and painted again for each step or press, much of the page's layout work (a trace
 // of a paced run). Text goes in as text, never as markup.
 function setRow(tr, cls, texts) {
   if (tr.className !== cls) tr.className = cls;
