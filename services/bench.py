@@ -90,8 +90,8 @@ class Pinger:
     """Raw Zenoh round trips through the run's router: this process pings, an echo process answers. The router's
     endpoint is read from the run record once the launcher has written it (the launcher picks the port at its bind)."""
 
-    def __init__(self, run_record: Path, run: str, period: float):
-        self.run_record, self.run, self.period = run_record, run, period
+    def __init__(self, rundir: Path, run: str, period: float):
+        self.rundir, self.run, self.period = rundir, run, period
         self.samples: list[tuple[float, float]] = []  # (wall time sent, rtt s)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._loop, name="pinger", daemon=True)
@@ -109,7 +109,9 @@ class Pinger:
         from common.wire.transport import client_config, open_session, wait_for_matching
 
         try:
-            endpoint = self._endpoint()
+            from services.launcher.rundir import recorded_router
+
+            endpoint = recorded_router(self.rundir, self.stop.is_set)
             if endpoint is None:
                 return
             with open_session(client_config(endpoint, connect_timeout=60)) as session:
@@ -150,15 +152,6 @@ class Pinger:
                     self.echo.wait(5)
                 except subprocess.TimeoutExpired:
                     self.echo.kill()
-
-    def _endpoint(self) -> str | None:
-        """The router's endpoint from the run record (written whole), or None if the bench stops first."""
-        while not self.stop.is_set():
-            try:
-                return json.loads(self.run_record.read_text())["launcher"]["endpoint"]
-            except FileNotFoundError:
-                self.stop.wait(0.05)
-        return None
 
     def finish(self) -> None:
         self.stop.set()
@@ -279,7 +272,7 @@ def bench(cfg: BenchConfig) -> int:
             results["paced"] = run_paced(cfg, out, stamp)
             continue
         run = f"bench-{stamp}-{name}"
-        pinger = Pinger(out / run / "config" / "run.json", run, cfg.ping_period)
+        pinger = Pinger(out / run, run, cfg.ping_period)
         pinger.start()
         print(f"\n== phase {name} ({cfg.steps} steps) ==", file=sys.stderr, flush=True)
         up_cfg = UpConfig.flat(out=str(out), run=run, **phase_settings(name, cfg))

@@ -178,25 +178,11 @@ class FloodConfig:
             raise ValueError("--rate must be positive")
 
 
-def router_of(run_dir: Path, wait: float, stopped: Callable[[], bool]) -> str | None:
-    """The router endpoint in a run's record, once the launcher has written it (after its router listens); None
-    if stopped (SIGINT, SIGTERM) first."""
-    record = run_dir / "config" / "run.json"
-    print(f"waiting for {record}", flush=True)
-    deadline = time.monotonic() + wait
-    while not record.exists():
-        if stopped():
-            return None
-        if time.monotonic() > deadline:
-            raise SystemExit(f"flood: no run record at {record} after {wait:g} s")
-        time.sleep(0.05)
-    return str(json.loads(record.read_text())["launcher"]["endpoint"])
-
-
 def main(args: FloodConfig) -> int:
     from common.agents import TrialBatchAgent, agent_config
     from common.envs import make_env
     from common.wire.transport import client_config, open_session
+    from services.launcher.rundir import recorded_router
 
     env, _ = make_env(args.env, 0)
     obs_dim, n_actions = int(env.observation_space.shape[0]), int(env.action_space.n)
@@ -211,7 +197,12 @@ def main(args: FloodConfig) -> int:
     sent: dict[str, int] = {k: 0 for k in KINDS}
     import zenoh
 
-    endpoint = args.connect or router_of(Path(args.run_dir), args.wait, lambda: stop["now"])
+    if not args.connect:
+        print(f"waiting for {Path(args.run_dir) / 'config' / 'run.json'}", flush=True)
+    try:
+        endpoint = args.connect or recorded_router(Path(args.run_dir), lambda: stop["now"], args.wait)
+    except TimeoutError as exc:
+        raise SystemExit(f"flood: {exc}") from None
     if endpoint is None:
         print("stopped before the run's record was written: nothing sent", flush=True)
         return 1

@@ -10,6 +10,7 @@ import os
 import secrets
 import shutil
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,22 @@ RUNNING = json.dumps({"outcome": "running"})  # summary.json until the launcher 
 
 class RunDirError(Exception):
     """The run cannot use its directory (in use, exists, unwritable, disk full): one line for the user."""
+
+
+def recorded_router(rundir: Path, stopped: Callable[[], bool], timeout: float | None = None) -> str | None:
+    """The router endpoint in the run's record (`config/run.json`), waiting until the launcher has written it:
+    after its router listens and before any service starts, whole (`os.replace`). None if `stopped()` first; a
+    TimeoutError after `timeout` s. For a tool started before the run (a flood, the bench's pinger)."""
+    record = rundir / "config" / "run.json"
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while not stopped():
+        try:
+            return str(json.loads(record.read_text())["launcher"]["endpoint"])
+        except FileNotFoundError:
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"no run record at {record} after {timeout:g} s") from None
+            time.sleep(0.05)
+    return None
 
 
 def default_run_name() -> str:

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import math
 import os
+import threading
 
 import numpy as np
 import pytest
@@ -445,3 +446,19 @@ def test_actor_adopts_only_weights_of_the_right_shape_from_an_announced_learner(
     assert sum(v for k, v in rt.counters.items() if k.startswith("weights_dropped_")) >= 1 or (
         announced and abs(dt) <= 10 and dict(tensors) == spec
     )
+
+
+def test_recorded_router_waits_for_the_run_record_and_gives_up_on_stop_or_timeout(tmp_path):
+    from services.launcher.rundir import recorded_router
+
+    (tmp_path / "config").mkdir()
+    assert recorded_router(tmp_path, lambda: True) is None  # stopped before any record
+    with pytest.raises(TimeoutError, match="no run record"):
+        recorded_router(tmp_path, lambda: False, timeout=0.2)
+    record = tmp_path / "config" / "run.json"
+    timer = threading.Timer(0.3, lambda: atomic_write_json(record, {"launcher": {"endpoint": "tcp/127.0.0.1:1"}}))
+    timer.start()
+    try:
+        assert recorded_router(tmp_path, lambda: False, timeout=30) == "tcp/127.0.0.1:1"
+    finally:
+        timer.cancel()
